@@ -1,0 +1,23 @@
+from setuptools import find_packages, setup
+
+package_name = "dlo_policy"
+
+setup(
+    name=package_name,
+    version="0.1.0",
+    packages=find_packages(exclude=["test"]),
+    data_files=[
+        ("share/ament_index/resource_index/packages", ["resource/" + package_name]),
+        ("share/" + package_name, ["package.xml"]),
+    ],
+    install_requires=["setuptools"],
+    zip_safe=True,
+    maintainer="dlo-vitac maintainers",
+    maintainer_email="maintainers@dlo-vitac.dev",
+    description='Gymnasium environment, Soft Actor-Critic training and evaluation, scripted baselines, and the ROS 2 policy node.',
+    license="Apache-2.0",
+    entry_points={
+        "console_scripts": [
+        ],
+    },
+)

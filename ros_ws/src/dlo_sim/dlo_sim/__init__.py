@@ -1,0 +1,1 @@
+"""Taichi particle-rope simulator of a cable with a two-finger tactile gripper, and its ROS 2 sim node."""
