@@ -1,0 +1,73 @@
+"""Top-view pinhole camera model shared by the renderer (dlo_sim) and the vision distillation.
+
+The camera hangs at ``position`` (world frame, metres) and looks straight down (-z). Its optical
+frame (REP-103 camera convention: x right, y down, z forward) has x along world +x and y along
+world -y, so the image reads like a map: image column u grows with world x, image row v grows
+with -world y. A real top camera publishes the same model as ``sensor_msgs/CameraInfo`` (K) plus
+its mounting pose; ``TopCamera.from_camera_info`` rebuilds it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+WORKSPACE_HALF_WIDTH = 0.3  # m, gripper workspace is x, y in [-0.3, 0.3]
+
+
+@dataclass(frozen=True)
+class TopCamera:
+    """Pinhole camera looking down -z. Units: metres and pixels."""
+
+    width: int = 128
+    height: int = 128
+    fx: float = 0.0
+    fy: float = 0.0
+    cx: float = 0.0
+    cy: float = 0.0
+    position: tuple = (0.0, 0.0, 1.0)  # camera centre in the world frame [m]
+
+    @classmethod
+    def covering_workspace(cls, resolution: int = 128, camera_height: float = 1.0,
+                           half_width: float = WORKSPACE_HALF_WIDTH) -> "TopCamera":
+        """A square camera centred over the workspace whose view spans ``2 * half_width`` m at the table."""
+        if resolution < 8:
+            raise ValueError(f"camera resolution must be >= 8 pixels, got {resolution}")
+        if camera_height <= 0.2:
+            raise ValueError(f"camera height must be above the cable (> 0.2 m), got {camera_height}")
+        f = 0.5 * resolution * camera_height / half_width
+        c = 0.5 * resolution
+        return cls(resolution, resolution, f, f, c, c, (0.0, 0.0, float(camera_height)))
+
+    @classmethod
+    def from_camera_info(cls, width: int, height: int, k, position) -> "TopCamera":
+        """From a CameraInfo K (row-major 3x3, 9 numbers) and the camera's world position."""
+        k = np.asarray(k, dtype=float).reshape(3, 3)
+        return cls(int(width), int(height), float(k[0, 0]), float(k[1, 1]), float(k[0, 2]),
+                   float(k[1, 2]), tuple(float(p) for p in position))
+
+    @property
+    def k_matrix(self) -> np.ndarray:
+        """The 3x3 intrinsic matrix K (as in sensor_msgs/CameraInfo.k)."""
+        return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
+
+    def world_to_pixel(self, points) -> np.ndarray:
+        """World points ``(..., 3)`` [m] -> continuous pixel coordinates ``(..., 2)`` as (u, v)."""
+        p = np.asarray(points, dtype=np.float64)
+        depth = self.position[2] - p[..., 2]
+        u = self.cx + self.fx * (p[..., 0] - self.position[0]) / depth
+        v = self.cy - self.fy * (p[..., 1] - self.position[1]) / depth
+        return np.stack([u, v], axis=-1)
+
+    def pixel_to_world(self, uv, plane_z: float) -> np.ndarray:
+        """Pixel coordinates ``(..., 2)`` -> world x, y ``(..., 2)`` [m] on the plane z = ``plane_z``."""
+        uv = np.asarray(uv, dtype=np.float64)
+        depth = self.position[2] - plane_z
+        x = self.position[0] + (uv[..., 0] - self.cx) * depth / self.fx
+        y = self.position[1] - (uv[..., 1] - self.cy) * depth / self.fy
+        return np.stack([x, y], axis=-1)
+
+    def metres_per_pixel(self, plane_z: float) -> float:
+        """Size of one pixel [m] on the plane z = ``plane_z``."""
+        return (self.position[2] - plane_z) / self.fx
