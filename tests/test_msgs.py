@@ -1,0 +1,112 @@
+"""dlo_msgs: the interfaces build, round-trip through CDR and travel between processes."""
+
+import subprocess
+import sys
+import textwrap
+import time
+
+import numpy as np
+import pytest
+
+rclpy = pytest.importorskip("rclpy")
+from rclpy.serialization import deserialize_message, serialize_message  # noqa: E402
+
+from dlo_msgs.msg import GripperCommand, GripperState, TactilePose, TaskState, VisualPose  # noqa: E402
+from dlo_msgs.srv import ResetEpisode  # noqa: E402
+
+
+def sample_messages():
+    """One message of every dlo_msgs type with distinctive, non-default field values."""
+    state = GripperState(x=-0.25, y=0.01, z=0.1, closure=0.7, episode=3, step=42)
+    state.header.frame_id = "world"
+    state.header.stamp.sec, state.header.stamp.nanosec = 12, 340_000_000
+    command = GripperCommand(vx=0.25, vy=-0.1, closure=0.95, episode=3, step=42)
+    tactile = TactilePose(angle=0.3, y=-0.004, contact=True, contact_count=5)
+    visual = VisualPose(visible=True, confidence=0.75, angle=-0.2, y=0.006)
+    task = TaskState(episode=3, seed=2**40 + 7, step=42, held_indices=[10, 11, 12], n_held=3,
+                     mean_held_index=11.0, num_particles=47, cable_length=0.1978, reward=0.0431,
+                     episode_return=1.5, done=True, outcome=TaskState.OUTCOME_HOLD_THE_END)
+    return [state, command, tactile, visual, task]
+
+
+def fields_equal(a, b):
+    return all(np.all(np.asarray(getattr(a, f)) == np.asarray(getattr(b, f)))
+               for f in a.get_fields_and_field_types() if f != "header") and a.header == b.header
+
+
+@pytest.mark.parametrize("msg", sample_messages(), ids=lambda m: type(m).__name__)
+def test_message_round_trips_through_cdr(msg):
+    data = serialize_message(msg)
+    back = deserialize_message(data, type(msg))
+    assert fields_equal(msg, back)
+    assert serialize_message(back) == data
+
+
+def test_outcome_constants_match_the_task_contract():
+    assert [TaskState.OUTCOME_NONE, TaskState.OUTCOME_HOLD_THE_END, TaskState.OUTCOME_STOP_BEFORE,
+            TaskState.OUTCOME_REACH_END_BUT_DROP, TaskState.OUTCOME_DROP_BEFORE] == [0, 1, 2, 3, 4]
+
+
+def test_every_message_has_a_header_and_documented_fields():
+    from ament_index_python.packages import get_package_share_directory
+    import pathlib
+
+    share = pathlib.Path(get_package_share_directory("dlo_msgs"))
+    msg_files = sorted((share / "msg").glob("*.msg"))
+    assert {p.stem for p in msg_files} == {"GripperState", "GripperCommand", "TactilePose", "VisualPose", "TaskState"}
+    for path in msg_files:
+        lines = [ln.strip() for ln in path.read_text().splitlines()]
+        assert "std_msgs/Header header" in lines, path.name
+        fields = [ln for ln in lines if ln and not ln.startswith("#") and "=" not in ln]
+        for field in fields:  # each field sits in a block of fields led by a comment
+            i = lines.index(field)
+            while i > 0 and lines[i - 1] in fields:
+                i -= 1
+            assert lines[i - 1].startswith("#"), f"{path.name}: '{field}' has no comment"
+
+
+def test_reset_service_types_exist():
+    request = ResetEpisode.Request(seed=5)
+    response = ResetEpisode.Response(success=True, message="ok", episode=1, seed=5)
+    assert request.seed == 5 and response.success
+
+
+PUBLISHER = textwrap.dedent("""
+    import sys, time, rclpy
+    sys.path.insert(0, {test_dir!r})
+    from test_msgs import sample_messages
+    rclpy.init()
+    node = rclpy.create_node("dlo_msgs_test_publisher")
+    msgs = sample_messages()
+    pubs = [node.create_publisher(type(m), "/dlo/test/" + type(m).__name__, 10) for m in msgs]
+    deadline = time.time() + 60
+    while time.time() < deadline:
+        for pub, msg in zip(pubs, msgs):
+            pub.publish(msg)
+        rclpy.spin_once(node, timeout_sec=0.05)
+""")
+
+
+def test_every_message_type_crosses_processes(tmp_path):
+    import pathlib
+
+    test_dir = str(pathlib.Path(__file__).parent)
+    publisher = subprocess.Popen([sys.executable, "-c", PUBLISHER.format(test_dir=test_dir)])
+    rclpy.init()
+    try:
+        node = rclpy.create_node("dlo_msgs_test_subscriber")
+        expected = {type(m).__name__: m for m in sample_messages()}
+        received = {}
+        for name, msg in expected.items():
+            node.create_subscription(type(msg), "/dlo/test/" + name,
+                                     lambda m, name=name: received.setdefault(name, m), 10)
+        deadline = time.time() + 45
+        while len(received) < len(expected) and time.time() < deadline and publisher.poll() is None:
+            rclpy.spin_once(node, timeout_sec=0.1)
+        assert set(received) == set(expected), f"missing: {set(expected) - set(received)}"
+        for name, msg in expected.items():
+            assert fields_equal(msg, received[name]), name
+    finally:
+        rclpy.shutdown()
+        publisher.kill()
+        publisher.wait()
