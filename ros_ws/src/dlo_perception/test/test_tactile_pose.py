@@ -1,0 +1,69 @@
+import numpy as np
+import pytest
+
+from dlo_perception.tactile import TACTILE_NOISE, noise_sigma, tactile_pose
+
+
+def line_particles(angle, offset, gripper=(0.05, -0.02), count=5, spacing=0.0043):
+    """Particles on a line through (x_G, y_G + offset) at angle [rad], centred on the gripper."""
+    s = (np.arange(count) - (count - 1) / 2) * spacing + 0.001
+    g = np.asarray(gripper)
+    return g + [0.0, offset] + s[:, None] * np.array([np.cos(angle), np.sin(angle)])
+
+
+@pytest.mark.parametrize("angle, offset", [(0.0, 0.0), (0.0, 0.004), (0.3, -0.003), (-0.7, 0.006), (1.4, 0.0)])
+def test_line_fit_recovers_angle_and_offset(angle, offset):
+    points = line_particles(angle, offset)
+    pose = tactile_pose(points, np.ones(len(points), bool), (0.05, -0.02), 1.0)
+    assert pose.contact and pose.count == len(points)
+    assert pose.angle == pytest.approx(angle, abs=1e-9)
+    assert pose.y == pytest.approx(offset, abs=1e-9)
+
+
+def test_only_held_particles_count_and_batch_matches_single():
+    gripper = np.array([[0.05, -0.02], [0.1, 0.03]])
+    held_line = line_particles(0.2, 0.002, gripper[0])
+    far = np.array([[0.2, 0.2], [0.21, 0.25], [0.0, 0.0]])
+    points = np.stack([np.vstack([held_line, far]), np.vstack([line_particles(-0.4, -0.005, gripper[1]), far])])
+    held = np.zeros((2, 8), bool)
+    held[:, :5] = True
+    batch = tactile_pose(points, held, gripper, np.array([1.0, 0.9]))
+    assert batch.angle == pytest.approx([0.2, -0.4])
+    assert batch.y == pytest.approx([0.002, -0.005])
+    assert batch.count.tolist() == [5, 5]
+    single = tactile_pose(points[1], held[1], gripper[1], 0.9)
+    assert single.angle == pytest.approx(batch.angle[1]) and single.y == pytest.approx(batch.y[1])
+
+
+def test_no_contact_gives_defined_values_never_nan():
+    points = np.zeros((3, 4, 3))
+    held = np.array([[False] * 4, [True, False, False, False], [True, True, False, False]])
+    pose = tactile_pose(points, held, np.zeros((3, 2)), np.zeros(3), sigma="full", rng=np.random.default_rng(0))
+    assert pose.contact.tolist() == [False, False, True]
+    assert pose.count.tolist() == [0, 1, 2]
+    assert pose.angle[:2].tolist() == [0.0, 0.0] and pose.y[:2].tolist() == [0.0, 0.0]
+    assert np.all(np.isfinite(pose.angle)) and np.all(np.isfinite(pose.y))
+
+
+@pytest.mark.parametrize("closure", [0.0, 0.5, 0.8, 1.0])
+def test_noise_scales_with_one_minus_closure(closure):
+    n = 20000
+    points = np.broadcast_to(line_particles(0.0, 0.0, (0.0, 0.0)), (n, 5, 2))
+    pose = tactile_pose(points, np.ones((n, 5), bool), np.zeros((n, 2)), np.full(n, closure),
+                        sigma="full", rng=np.random.default_rng(1))
+    sigma_theta, sigma_y = TACTILE_NOISE["full"]
+    assert np.std(pose.y) == pytest.approx((1 - closure) * sigma_y, rel=0.05, abs=1e-12)
+    # The angle is wrapped to (-pi/2, pi/2]; at sigma 0.5 the wrap hardly changes the spread.
+    assert np.std(pose.angle) == pytest.approx((1 - closure) * sigma_theta, rel=0.05, abs=1e-12)
+
+
+def test_noise_presets_and_values():
+    assert noise_sigma("none") == (0.0, 0.0)
+    assert noise_sigma("full") == (0.5, 0.002)
+    low, high = noise_sigma("partial")
+    assert 0 < low < 0.5 and 0 < high < 0.002
+    assert noise_sigma((0.1, 0.001)) == (0.1, 0.001)
+    with pytest.raises(ValueError):
+        noise_sigma("loud")
+    with pytest.raises(ValueError):
+        noise_sigma((-0.1, 0.0))
