@@ -1,0 +1,185 @@
+"""recorder_node: records every /dlo topic (raw CDR) into a rosbag2 MCAP bag.
+
+    ros2run dlo_tools recorder_node --ros-args -p output:=bags/run1 [-p split_episodes:=10]
+
+Topics are discovered periodically; each is subscribed with ``raw=True`` once it has a
+publisher, with the reliability/durability its publishers offer. SIGINT/SIGTERM/SIGHUP stop
+the node after draining what has already arrived, and the bag is closed (metadata.yaml) on
+every exit path. At shutdown it logs received/written/dropped counts (dropped must be 0).
+"""
+
+from __future__ import annotations
+
+import functools
+import sys
+import time
+
+import rclpy
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.signals import SignalHandlerOptions
+
+from .bag import BagError, qos_from_profile, subscription_qos
+from .node_util import ParameterError, ShutdownRequest, declare_parameters
+from .playback import import_message_class
+from .recording import TASK_TOPIC, Recorder, RecordSummary, default_output, topic_selected
+
+PARAMETERS = (
+    ("output", "", "Bag directory to create (must not exist). Empty: bags/rosbag2_<date-time> "
+                   "in the working directory."),
+    ("namespace", "/dlo", "Record every topic in this namespace ('/' = all topics)."),
+    ("record_clock", False, "Also record /clock."),
+    ("extra_topics", [], "Further topics to record (string list)."),
+    ("split_episodes", 0, "0: one bag per run. N > 0: 'output' becomes a directory of bags, a new "
+                          "one every N episodes (by the episode of task_topic)."),
+    ("task_topic", TASK_TOPIC, "dlo_msgs/TaskState topic that marks episodes for split_episodes."),
+    ("discovery_period", 0.25, "Seconds between topic discovery passes."),
+    ("queue_depth", 1000, "Subscription history depth (KEEP_LAST) per topic."),
+    ("drain_timeout", 2.0, "On shutdown, keep taking already-delivered messages for at most this "
+                           "many seconds (stops earlier once nothing arrives for 0.2 s)."),
+)
+
+
+class RecorderNode(Node):
+    """Thin node around :class:`dlo_tools.recording.Recorder`."""
+
+    def __init__(self) -> None:
+        super().__init__("recorder")
+        p = declare_parameters(self, PARAMETERS)
+        if p["discovery_period"] <= 0:
+            raise ParameterError(f"parameter 'discovery_period': must be > 0, got {p['discovery_period']}")
+        if p["queue_depth"] < 1:
+            raise ParameterError(f"parameter 'queue_depth': must be >= 1, got {p['queue_depth']}")
+        if p["split_episodes"] < 0:
+            raise ParameterError(f"parameter 'split_episodes': must be >= 0, got {p['split_episodes']}")
+        if p["drain_timeout"] < 0:
+            raise ParameterError(f"parameter 'drain_timeout': must be >= 0, got {p['drain_timeout']}")
+        self.namespace = p["namespace"] or "/"
+        self.record_clock = p["record_clock"]
+        self.extra_topics = [t for t in p["extra_topics"] if t]
+        self.queue_depth = p["queue_depth"]
+        self.drain_timeout = p["drain_timeout"]
+        output = p["output"] or str(default_output())
+        self.recorder = Recorder(output, split_episodes=p["split_episodes"],
+                                 task_topic=p["task_topic"])
+        self._subscriptions: dict[str, object] = {}
+        self._reliability: dict[str, object] = {}
+        self._skipped: set[str] = set()
+        self._warned: set[tuple[str, str]] = set()
+        self._error_logged = 0.0
+        self.get_logger().info(
+            f"recording '{self.namespace}'{' + /clock' if self.record_clock else ''}"
+            f"{' + ' + ', '.join(self.extra_topics) if self.extra_topics else ''} "
+            f"to {self.recorder.path}")
+        self.create_timer(p["discovery_period"], self.discover)
+
+    def _warn_once(self, topic: str, text: str) -> None:
+        if (topic, text) not in self._warned:
+            self._warned.add((topic, text))
+            self.get_logger().warning(f"{topic}: {text}")
+
+    def discover(self) -> None:
+        """Subscribe to new topics that have at least one publisher."""
+        for topic, types in self.get_topic_names_and_types():
+            if topic in self._skipped or not topic_selected(
+                    topic, self.namespace, clock=self.record_clock, extra=self.extra_topics):
+                continue
+            infos = self.get_publishers_info_by_topic(topic)
+            if not infos:  # only subscribers so far: wait for a publisher to learn its QoS
+                continue
+            offered = [qos_from_profile(i.qos_profile) for i in infos]
+            if topic in self._subscriptions:
+                rel, _ = subscription_qos(offered)
+                if rel.value != self._reliability[topic]:
+                    self._warn_once(topic, "a publisher now offers best-effort QoS; the reliable "
+                                           "subscription cannot receive from it")
+                continue
+            msgtype = types[0]
+            if len(types) > 1:
+                self._warn_once(topic, f"several types {types}; recording {msgtype} only")
+            try:
+                spec = self.recorder.add_topic(topic, msgtype, offered)
+                msg_class = import_message_class(msgtype)
+            except (BagError, ValueError) as err:
+                self._skipped.add(topic)
+                self.get_logger().error(f"{topic}: not recorded: {err}")
+                continue
+            for info in infos:
+                graph_hash = str(info.topic_type_hash)
+                if graph_hash.startswith("RIHS01_") and graph_hash != spec.rihs01:
+                    self._warn_once(topic, f"publisher type hash {graph_hash} differs from the "
+                                           f"installed definition's {spec.rihs01}")
+            rel, dur = subscription_qos(offered)
+            qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=self.queue_depth,
+                             reliability=ReliabilityPolicy(rel.value),
+                             durability=DurabilityPolicy(dur.value))
+            self._subscriptions[topic] = self.create_subscription(
+                msg_class, topic, functools.partial(self._on_message, topic), qos, raw=True)
+            self._reliability[topic] = rel.value
+            self.get_logger().info(f"recording {topic} [{msgtype}] "
+                                   f"({rel.name.lower()}, {dur.name.lower()})")
+
+    def _on_message(self, topic: str, data: bytes) -> None:
+        error = self.recorder.on_message(topic, data, self.get_clock().now().nanoseconds)
+        if error is not None and time.monotonic() - self._error_logged > 1.0:
+            self._error_logged = time.monotonic()
+            self.get_logger().error(f"write failed ({self.recorder.errors} so far): {error}")
+
+    @property
+    def received(self) -> int:
+        return sum(self.recorder.received.values())
+
+    def drain(self, executor: SingleThreadedExecutor) -> None:
+        """Take messages that were delivered before the stop request (bounded time)."""
+        end = time.monotonic() + self.drain_timeout
+        quiet_since = time.monotonic()
+        last = self.received
+        while time.monotonic() < end:
+            executor.spin_once(timeout_sec=0.05)
+            now = time.monotonic()
+            if self.received != last:
+                last, quiet_since = self.received, now
+            elif now - quiet_since >= 0.2:
+                break
+
+    def finish(self) -> RecordSummary:
+        """Close the bag and log the counts."""
+        summary = self.recorder.close()
+        log = self.get_logger()
+        for line in summary.lines():
+            log.info(line)
+        if summary.dropped:
+            log.error(f"{summary.dropped} received messages were not written")
+        return summary
+
+
+def main(args: list[str] | None = None) -> int:
+    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    stop = ShutdownRequest().install()
+    node = None
+    rc = 0
+    try:
+        node = RecorderNode()
+        executor = SingleThreadedExecutor()
+        executor.add_node(node)
+        node.discover()
+        while not stop.is_set() and rclpy.ok():
+            executor.spin_once(timeout_sec=0.1)
+        node.get_logger().info(f"stopping ({stop.name}): draining and closing the bag")
+        node.drain(executor)
+    except (ParameterError, BagError) as err:
+        print(f"recorder_node: error: {err}", file=sys.stderr)
+        rc = 2
+    finally:
+        if node is not None:
+            summary = node.finish()
+            rc = rc or (1 if summary.dropped else 0)
+            node.destroy_node()
+        stop.restore()
+        rclpy.try_shutdown()
+    return rc
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,148 @@
+"""Recorder logic without rclpy: which topics to record, counting, rolling bags per N episodes.
+
+The recorder node feeds it topics it discovers (:meth:`Recorder.add_topic`) and every raw
+message it receives (:meth:`Recorder.on_message`); :meth:`Recorder.close` finalises the bag and
+returns the received/written counts (dropped = received - written, must be 0).
+"""
+
+from __future__ import annotations
+
+import datetime
+import os
+from collections import Counter
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+from rosbags.interfaces import Qos
+from rosbags.typesys.store import Typestore
+
+from .bag import BagWriter, TopicSpec, make_typestore
+
+TASK_TOPIC = "/dlo/task/state"
+TASK_TYPE = "dlo_msgs/msg/TaskState"
+
+
+def default_output(root: str | os.PathLike = "bags") -> Path:
+    """``bags/rosbag2_YYYY_MM_DD-HH_MM_SS`` (relative to the working directory)."""
+    stamp = datetime.datetime.now().strftime("%Y_%m_%d-%H_%M_%S")
+    return Path(root) / f"rosbag2_{stamp}"
+
+
+def topic_selected(topic: str, namespace: str = "/dlo", *, clock: bool = False,
+                   extra: Iterable[str] = ()) -> bool:
+    """True for ``namespace`` and topics under it, ``/clock`` if asked, and ``extra`` topics."""
+    ns = "/" + namespace.strip("/") if namespace.strip("/") else "/"
+    if ns == "/" or topic == ns or topic.startswith(ns + "/"):
+        return True
+    if clock and topic == "/clock":
+        return True
+    return topic in set(extra)
+
+
+@dataclass
+class RecordSummary:
+    """What a recording received and wrote, per topic."""
+
+    path: Path
+    parts: list[Path]
+    received: dict[str, int]
+    written: dict[str, int]
+    errors: int = 0
+    last_error: str = ""
+
+    @property
+    def total_received(self) -> int:
+        return sum(self.received.values())
+
+    @property
+    def total_written(self) -> int:
+        return sum(self.written.values())
+
+    @property
+    def dropped(self) -> int:
+        return self.total_received - self.total_written
+
+    def lines(self) -> list[str]:
+        out = [f"bag {self.path} ({len(self.parts)} part{'s' if len(self.parts) != 1 else ''}): "
+               f"received {self.total_received}, written {self.total_written}, "
+               f"dropped {self.dropped}"]
+        for topic in sorted(set(self.received) | set(self.written)):
+            out.append(f"  {topic}: received {self.received.get(topic, 0)}, "
+                       f"written {self.written.get(topic, 0)}")
+        if self.errors:
+            out.append(f"  {self.errors} write errors; last: {self.last_error}")
+        return out
+
+
+class Recorder:
+    """Writes every message it is given to a bag; rolls to a new bag every N episodes.
+
+    ``split_episodes=0``: one bag per run at ``output``. ``split_episodes=N``: ``output`` is a
+    directory of complete bags, a new one started when a ``TaskState`` on ``task_topic`` begins
+    episode k*N (messages that arrive later but belong to the previous step land in the new part).
+    """
+
+    def __init__(self, output: str | os.PathLike, *, typestore: Typestore | None = None,
+                 split_episodes: int = 0, task_topic: str = TASK_TOPIC) -> None:
+        if split_episodes < 0:
+            raise ValueError(f"split_episodes must be >= 0, got {split_episodes}")
+        self.typestore = typestore if typestore is not None else make_typestore()
+        self.split_episodes = split_episodes
+        self.task_topic = task_topic
+        self.writer = BagWriter(output, self.typestore, split=split_episodes > 0)
+        self.writer.open()
+        self.received: Counter[str] = Counter()
+        self.errors = 0
+        self.last_error = ""
+        self._chunk: int | None = None
+        self._episodes: set[int] = set()
+        self._summary: RecordSummary | None = None
+
+    @property
+    def path(self) -> Path:
+        return self.writer.path
+
+    @property
+    def topics(self) -> dict[str, TopicSpec]:
+        return self.writer.topics
+
+    def add_topic(self, topic: str, msgtype: str, qos: Sequence[Qos] = ()) -> TopicSpec:
+        """Start recording ``topic`` (raises BagError for a type that cannot be found)."""
+        return self.writer.add_topic(topic, msgtype, qos)
+
+    def _episode_boundary(self, data: bytes) -> None:
+        msg = self.typestore.deserialize_cdr(data, TASK_TYPE)
+        episode = int(msg.episode)
+        chunk = episode // self.split_episodes
+        if self._chunk is not None and chunk != self._chunk:
+            self.writer.roll()
+            self._episodes = set()
+        self._chunk = chunk
+        self._episodes.add(episode)
+        self.writer.custom_data["dlo_tools.episodes"] = (
+            f"{min(self._episodes)}-{max(self._episodes)}")
+
+    def on_message(self, topic: str, data: bytes | memoryview, timestamp: int) -> str | None:
+        """Record one raw message; returns an error text when it could not be written."""
+        self.received[topic] += 1
+        try:
+            if self.split_episodes and topic == self.task_topic:
+                self._episode_boundary(bytes(data))
+            self.writer.write(topic, data, timestamp)
+        except Exception as err:  # noqa: BLE001 - counted as dropped and reported, never fatal
+            self.errors += 1
+            self.last_error = f"{topic}: {type(err).__name__}: {err}"
+            return self.last_error
+        return None
+
+    def close(self) -> RecordSummary:
+        """Finalise the bag (metadata.yaml) and return the counts; idempotent."""
+        if self._summary is None:
+            try:
+                self.writer.close()
+            finally:
+                self._summary = RecordSummary(
+                    self.writer.path, list(self.writer.parts), dict(self.received),
+                    dict(self.writer.counts), self.errors, self.last_error)
+        return self._summary
