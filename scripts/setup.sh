@@ -41,7 +41,7 @@ PIP=("$VENV/bin/python" -m pip install --quiet --disable-pip-version-check)
 req_hash=$(sha256sum "$REQ" | cut -c1-16)
 if [ "$(cat "$STAMPS/requirements" 2>/dev/null)" != "$req_hash" ]; then
   say "installing packages from scripts/requirements.txt (registries, by name)"
-  "${PIP[@]}" -r "$REQ"
+  "${PIP[@]}" -r "$REQ" 2> >(grep -v "is ignored: it is neither a file nor a directory" >&2)
   if ! command -v cmake >/dev/null 2>&1 && [ ! -x "$VENV/bin/cmake" ]; then
     say "no cmake on PATH: installing the 'cmake' package into the venv"
     "${PIP[@]}" cmake
