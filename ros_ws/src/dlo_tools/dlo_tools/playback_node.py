@@ -63,7 +63,7 @@ class PlaybackNode(Node):
             raise ParameterError(f"parameter 'topics': {missing} not in the bag; it has "
                                  f"{sorted(info.topics)}")
         self.topics = wanted or sorted(info.topics)
-        self.publishers_: dict[str, object] = {}
+        self._pubs: dict[str, object] = {}
         self.reliable: list[object] = []
         for topic in self.topics:
             t = info.topics[topic]
@@ -79,7 +79,7 @@ class PlaybackNode(Node):
             except ValueError as err:
                 raise BagError(f"{topic}: {err}") from None
             pub = self.create_publisher(msg_class, topic, qos)
-            self.publishers_[topic] = pub
+            self._pubs[topic] = pub
             if rel == QosReliability.RELIABLE:
                 self.reliable.append(pub)
         self.count = 0
@@ -93,7 +93,7 @@ class PlaybackNode(Node):
         end = time.monotonic() + self.wait_timeout
         while not stop.is_set() and time.monotonic() < end:
             if all(p.get_subscription_count() >= self.wait_count
-                   for p in self.publishers_.values()):
+                   for p in self._pubs.values()):
                 return
             executor.spin_once(timeout_sec=0.05)
         if not stop.is_set():
@@ -114,7 +114,7 @@ class PlaybackNode(Node):
                 executor.spin_once(timeout_sec=min(left, 0.05))
             if stop.is_set():
                 return
-            self.publishers_[m.topic].publish(bytes(m.msg))
+            self._pubs[m.topic].publish(bytes(m.msg))
             self.count += 1
 
     def finish(self) -> None:

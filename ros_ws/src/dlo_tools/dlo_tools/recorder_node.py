@@ -63,7 +63,7 @@ class RecorderNode(Node):
         output = p["output"] or str(default_output())
         self.recorder = Recorder(output, split_episodes=p["split_episodes"],
                                  task_topic=p["task_topic"])
-        self._subscriptions: dict[str, object] = {}
+        self._recorded: dict[str, object] = {}
         self._reliability: dict[str, object] = {}
         self._skipped: set[str] = set()
         self._warned: set[tuple[str, str]] = set()
@@ -89,7 +89,7 @@ class RecorderNode(Node):
             if not infos:  # only subscribers so far: wait for a publisher to learn its QoS
                 continue
             offered = [qos_from_profile(i.qos_profile) for i in infos]
-            if topic in self._subscriptions:
+            if topic in self._recorded:
                 rel, _ = subscription_qos(offered)
                 if rel.value != self._reliability[topic]:
                     self._warn_once(topic, "a publisher now offers best-effort QoS; the reliable "
@@ -114,7 +114,7 @@ class RecorderNode(Node):
             qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=self.queue_depth,
                              reliability=ReliabilityPolicy(rel.value),
                              durability=DurabilityPolicy(dur.value))
-            self._subscriptions[topic] = self.create_subscription(
+            self._recorded[topic] = self.create_subscription(
                 msg_class, topic, functools.partial(self._on_message, topic), qos, raw=True)
             self._reliability[topic] = rel.value
             self.get_logger().info(f"recording {topic} [{msgtype}] "
