@@ -9,6 +9,7 @@ setup(
     data_files=[
         ("share/ament_index/resource_index/packages", ["resource/" + package_name]),
         ("share/" + package_name, ["package.xml"]),
+        ("share/" + package_name + "/config", ["config/sac_default.yaml"]),
     ],
     install_requires=["setuptools"],
     zip_safe=True,
@@ -18,6 +19,10 @@ setup(
     license="Apache-2.0",
     entry_points={
         "console_scripts": [
+            "dlo-train = dlo_policy.train:main",
+            "dlo-evaluate = dlo_policy.evaluate:main",
+            "dlo-experiments = dlo_policy.experiments:main",
+            "dlo-report = dlo_policy.report:main",
         ],
     },
 )

@@ -1,0 +1,235 @@
+"""Run configuration: every SAC and training hyperparameter, loadable from YAML with overrides.
+
+A run is described by a `RunConfig`: the agent's `SACConfig`, the protocol's `TrainConfig`, and
+what to train on (modalities, env options, seed). `load_config(path, overrides)` reads a YAML
+file shaped like `config/sac_default.yaml` and applies `key=value` overrides such as
+`sac.batch_size=256` or `env_options.tactile_noise=partial`. Unknown keys and values of the
+wrong type raise `ConfigError` naming the key.
+"""
+from __future__ import annotations
+
+import dataclasses
+import typing
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Optional
+
+import yaml
+
+
+class ConfigError(ValueError):
+    """A configuration key is unknown or its value is invalid."""
+
+
+@dataclass
+class SACConfig:
+    """Soft Actor-Critic hyperparameters (defaults: the authors' agent, DESIGN.md section 9)."""
+
+    hidden_sizes: tuple[int, ...] = (1024, 1024)
+    actor_lr: float = 1e-3
+    critic_lr: float = 1e-3
+    alpha_lr: float = 1e-4
+    alpha_betas: tuple[float, float] = (0.5, 0.999)
+    initial_alpha: float = 0.1
+    autotune_alpha: bool = True
+    target_entropy: Optional[float] = None  # None: -|A|
+    gamma: float = 0.99
+    tau: float = 0.01
+    policy_update_every: int = 2  # actor and alpha updates, in gradient steps
+    target_update_every: int = 2  # polyak updates of the target critics, in gradient steps
+    log_std_min: float = -10.0
+    log_std_max: float = 2.0
+    buffer_size: int = 100_000
+    batch_size: int = 128
+    learning_starts: int = 1000  # uniformly random actions and no updates before this env step
+    reward_scale: float = 50.0
+    normalize_observations: bool = False
+
+    def __post_init__(self) -> None:
+        _require(len(self.hidden_sizes) >= 1 and all(h > 0 for h in self.hidden_sizes),
+                 "sac.hidden_sizes", "a non-empty list of positive ints")
+        for name in ("actor_lr", "critic_lr", "alpha_lr", "initial_alpha", "reward_scale"):
+            _require(getattr(self, name) > 0, f"sac.{name}", "> 0")
+        _require(all(0 <= b < 1 for b in self.alpha_betas), "sac.alpha_betas", "two values in [0, 1)")
+        _require(0 < self.gamma <= 1, "sac.gamma", "in (0, 1]")
+        _require(0 < self.tau <= 1, "sac.tau", "in (0, 1]")
+        for name in ("policy_update_every", "target_update_every", "buffer_size", "batch_size"):
+            _require(getattr(self, name) >= 1, f"sac.{name}", ">= 1")
+        _require(self.learning_starts >= 0, "sac.learning_starts", ">= 0")
+        _require(self.log_std_min < self.log_std_max, "sac.log_std_min", "< sac.log_std_max")
+
+
+@dataclass
+class TrainConfig:
+    """Training and evaluation protocol (defaults: the paper's)."""
+
+    total_steps: int = 50_000
+    eval_every: int = 200
+    eval_episodes: int = 10
+    eval_seed: int = 1_000_000  # evaluation episodes use seeds eval_seed .. eval_seed + eval_episodes - 1
+    eval_without: tuple[str, ...] = ()  # also evaluate with these modalities blanked (ablation), e.g. [T, V]
+    checkpoint_every: int = 5000
+    num_threads: int = 0  # torch threads; 0: all cores this process may use
+    progress: bool = True
+
+    def __post_init__(self) -> None:
+        for name in ("total_steps", "eval_every", "eval_episodes", "checkpoint_every"):
+            _require(getattr(self, name) >= 1, f"train.{name}", ">= 1")
+        _require(self.num_threads >= 0, "train.num_threads", ">= 0")
+        _require(all(m in MODALITY_SIZES for m in self.eval_without), "train.eval_without",
+                 f"a list of modalities from {list(MODALITY_SIZES)}")
+
+
+# Observation layout (docs/LIBRARY_API.md): K [x_G, y_G, c_G], T [theta_T, y_T], V [v_V, q_V, theta_V, y_V].
+MODALITY_SIZES = {"K": 3, "T": 2, "V": 4}
+
+
+def parse_modalities(modalities: str) -> list[str]:
+    """'All' or '+'-joined letters (e.g. 'T+K') -> the modalities in observation order K, T, V."""
+    if modalities == "All":
+        return list(MODALITY_SIZES)
+    letters = [m.strip() for m in modalities.split("+")]
+    unknown = [m for m in letters if m not in MODALITY_SIZES]
+    if unknown or not letters or len(set(letters)) != len(letters):
+        raise ConfigError(f"modalities: {modalities!r} is not 'All' or a '+'-joined subset of K, T, V")
+    return [m for m in MODALITY_SIZES if m in letters]
+
+
+@dataclass
+class RunConfig:
+    """One training run: what to train on, the agent, and the protocol."""
+
+    modalities: str = "All"
+    seed: int = 0
+    label: str = ""  # experiment name used by dlo-report to group seeds; empty: the modalities
+    env_module: str = "dlo_policy.env"  # a module providing make_env(...) and make_vec_env(num_envs, ...)
+    env_options: dict[str, Any] = field(default_factory=dict)
+    sac: SACConfig = field(default_factory=SACConfig)
+    train: TrainConfig = field(default_factory=TrainConfig)
+
+    def __post_init__(self) -> None:
+        parse_modalities(self.modalities)
+        for removed in self.train.eval_without:
+            _require(removed in parse_modalities(self.modalities), "train.eval_without",
+                     f"modalities that the run observes ({self.modalities})")
+
+    @property
+    def name(self) -> str:
+        return self.label or self.modalities
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain YAML-safe dict (tuples as lists)."""
+        return _plain(dataclasses.asdict(self))
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> "RunConfig":
+        return _build(cls, data, prefix="")
+
+
+def load_config(path: Optional[str | Path] = None, overrides: typing.Sequence[str] = (),
+                values: Optional[typing.Mapping[str, Any]] = None) -> RunConfig:
+    """Defaults, then the YAML file (if any), then `key=value` overrides (values parsed as YAML),
+    then `values` (dotted key -> Python value)."""
+    data: dict[str, Any] = {}
+    if path is not None:
+        loaded = yaml.safe_load(Path(path).read_text())
+        if loaded is not None and not isinstance(loaded, dict):
+            raise ConfigError(f"{path}: expected a mapping at the top level")
+        data = loaded or {}
+    for override in overrides:
+        key, sep, text = override.partition("=")
+        if not sep or not key:
+            raise ConfigError(f"override {override!r}: expected key=value, e.g. sac.batch_size=256")
+        _set_dotted(data, key.strip(), yaml.safe_load(text) if text.strip() else "")
+    for key, value in (values or {}).items():
+        _set_dotted(data, key, value)
+    return RunConfig.from_dict(data)
+
+
+def save_config(config: RunConfig, path: str | Path) -> None:
+    Path(path).write_text(yaml.safe_dump(config.to_dict(), sort_keys=False))
+
+
+def _require(condition: bool, key: str, expectation: str) -> None:
+    if not condition:
+        raise ConfigError(f"{key}: must be {expectation}")
+
+
+def _set_dotted(data: dict[str, Any], key: str, value: Any) -> None:
+    parts = key.split(".")
+    node = data
+    for part in parts[:-1]:
+        child = node.setdefault(part, {})
+        if not isinstance(child, dict):
+            raise ConfigError(f"override {key}: {part} is not a section")
+        node = child
+    node[parts[-1]] = value
+
+
+def _build(cls: type, data: Any, prefix: str) -> Any:
+    if not isinstance(data, dict):
+        raise ConfigError(f"{prefix.rstrip('.') or 'config'}: expected a mapping, got {data!r}")
+    hints = typing.get_type_hints(cls)
+    known = {f.name for f in dataclasses.fields(cls)}
+    unknown = sorted(set(data) - known)
+    if unknown:
+        raise ConfigError(f"unknown key(s) {', '.join(prefix + k for k in unknown)}; "
+                          f"known: {', '.join(prefix + k for k in sorted(known))}")
+    kwargs = {name: _coerce(value, hints[name], prefix + name) for name, value in data.items()}
+    try:
+        return cls(**kwargs)
+    except TypeError as error:  # a nested dataclass given a bad shape
+        raise ConfigError(f"{prefix or 'config'}: {error}") from error
+
+
+def _coerce(value: Any, annotation: Any, key: str) -> Any:
+    """Check `value` against a field's type annotation, converting lists to tuples and ints to floats."""
+    if dataclasses.is_dataclass(annotation):
+        return _build(annotation, value, key + ".")
+    origin, args = typing.get_origin(annotation), typing.get_args(annotation)
+    if origin is typing.Union:  # Optional[X]
+        if value is None:
+            return None
+        return _coerce(value, next(a for a in args if a is not type(None)), key)
+    if origin is tuple:
+        if not isinstance(value, (list, tuple)):
+            raise ConfigError(f"{key}: expected a list, got {value!r}")
+        if len(args) == 2 and args[1] is Ellipsis:
+            return tuple(_coerce(v, args[0], key) for v in value)
+        if len(value) != len(args):
+            raise ConfigError(f"{key}: expected {len(args)} values, got {value!r}")
+        return tuple(_coerce(v, a, key) for v, a in zip(value, args))
+    if origin is dict:
+        if not isinstance(value, dict):
+            raise ConfigError(f"{key}: expected a mapping, got {value!r}")
+        return dict(value)
+    if annotation is bool:
+        if not isinstance(value, bool):
+            raise ConfigError(f"{key}: expected true or false, got {value!r}")
+        return value
+    if annotation is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ConfigError(f"{key}: expected an integer, got {value!r}")
+        return value
+    if annotation is float:
+        if isinstance(value, str):  # YAML reads 1e-3 (no dot) as a string
+            try:
+                return float(value)
+            except ValueError:
+                pass
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ConfigError(f"{key}: expected a number, got {value!r}")
+        return float(value)
+    if annotation is str:
+        if not isinstance(value, str):
+            raise ConfigError(f"{key}: expected a string, got {value!r}")
+        return value
+    return value
+
+
+def _plain(value: Any) -> Any:
+    if isinstance(value, dict):
+        return {k: _plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_plain(v) for v in value]
+    return value

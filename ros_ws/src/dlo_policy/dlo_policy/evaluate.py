@@ -1,0 +1,178 @@
+"""Evaluation protocol: deterministic episodes on seeded environments -> outcome fractions + metrics.
+
+`dlo-evaluate --checkpoint PATH --episodes N --seed S [--json FILE] [--without T|V|K]` loads a
+checkpoint (or shipped policy) written by `dlo-train`, runs N episodes with seeds S .. S+N-1 in a
+vector env built from the run's saved config, prints the outcome table and optionally writes JSON.
+`--without X` blanks modality X's observation entries (zeros) before the policy sees them: the
+paper's ablation of an agent trained with all inputs.
+"""
+from __future__ import annotations
+
+import argparse
+import importlib
+import json
+import math
+import sys
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any, Optional, Sequence
+
+import numpy as np
+import torch
+
+from .config import MODALITY_SIZES, RunConfig, load_config, parse_modalities
+from .sac import SAC
+
+OUTCOMES = ("hold_the_end", "stop_before", "reach_end_but_drop", "drop_before")
+
+
+@dataclass
+class EvalResult:
+    """Means over `episodes` evaluation episodes (NaN where the env reports no such info)."""
+
+    episodes: int
+    hold_the_end: float
+    stop_before: float
+    reach_end_but_drop: float
+    drop_before: float
+    episode_reward: float  # undiscounted, unscaled sum of env rewards
+    time_at_end: float  # steps spent holding one of the last particles
+    how_far: float  # the env's how-far-it-goes metric
+
+    def to_dict(self) -> dict[str, float]:
+        return asdict(self)
+
+
+def blanked_columns(modalities: str, without: Sequence[str]) -> list[int]:
+    """Observation columns of the modalities in `without`, for an agent observing `modalities`."""
+    columns, start = [], 0
+    for modality in parse_modalities(modalities):
+        size = MODALITY_SIZES[modality]
+        if modality in without:
+            columns += range(start, start + size)
+        start += size
+    missing = [m for m in without if m not in parse_modalities(modalities)]
+    if missing:
+        raise ValueError(f"cannot blank {missing}: the agent observes only {modalities}")
+    return columns
+
+
+def evaluate_agent(agent: SAC, vec_env: Any, seeds: Sequence[int],
+                   blank: Sequence[int] = ()) -> EvalResult:
+    """Run one deterministic episode per seed, `vec_env.num_envs` at a time.
+
+    `blank`: observation columns set to zero before acting. Episode outcomes are read from the
+    `info` of each env's first episode end (`outcome`, `time_at_end`, `how_far`).
+    """
+    n_envs = vec_env.num_envs
+    rewards: list[float] = []
+    ends: list[dict[str, Any]] = []
+    for start in range(0, len(seeds), n_envs):
+        chunk = [int(s) for s in seeds[start:start + n_envs]]
+        padded = chunk + [chunk[-1] + 1 + i for i in range(n_envs - len(chunk))]  # extra envs, ignored
+        obs, _ = vec_env.reset(seed=padded)
+        returns = np.zeros(n_envs)
+        finished = np.zeros(n_envs, dtype=bool)
+        chunk_ends: list[dict[str, Any]] = [{} for _ in range(n_envs)]
+        while not finished[:len(chunk)].all():
+            obs = np.array(obs, dtype=np.float32)
+            obs[:, blank] = 0.0
+            obs, reward, terminated, truncated, infos = vec_env.step(agent.predict(obs, deterministic=True))
+            returns += np.where(finished, 0.0, reward)
+            for i in np.flatnonzero((terminated | truncated) & ~finished):
+                chunk_ends[i] = _episode_end_info(infos, i)
+            finished |= terminated | truncated
+        rewards += returns[:len(chunk)].tolist()
+        ends += chunk_ends[:len(chunk)]
+    outcomes = [end.get("outcome") for end in ends]
+    has_outcome = all(o is not None for o in outcomes)
+    fractions = {name: (float(np.mean([o == name for o in outcomes])) if has_outcome else math.nan)
+                 for name in OUTCOMES}
+    return EvalResult(episodes=len(seeds), **fractions, episode_reward=float(np.mean(rewards)),
+                      time_at_end=_mean_of(ends, "time_at_end"), how_far=_mean_of(ends, "how_far"))
+
+
+def _episode_end_info(infos: dict[str, Any], i: int) -> dict[str, Any]:
+    """Env i's entries of a gymnasium vector-env info dict (keys with a `_key` mask that is set)."""
+    end = {}
+    for key, values in infos.items():
+        mask = infos.get("_" + key)
+        if not key.startswith("_") and (mask is None or mask[i]):
+            end[key] = _python_value(values[i])
+    return end
+
+
+def _python_value(value: Any) -> Any:
+    return value.item() if isinstance(value, np.generic) else value
+
+
+def _mean_of(ends: list[dict[str, Any]], key: str) -> float:
+    values = [end[key] for end in ends if key in end]
+    return float(np.mean(values)) if len(values) == len(ends) and values else math.nan
+
+
+def make_vec_env_for(config: RunConfig, num_envs: int, seed: int) -> Any:
+    """The run's vector env (its env module, modalities and options)."""
+    module = importlib.import_module(config.env_module)
+    return module.make_vec_env(num_envs, modalities=config.modalities, seed=seed, **config.env_options)
+
+
+def load_run_config(checkpoint: Path) -> RunConfig:
+    """The config.yaml written next to a checkpoint by dlo-train."""
+    path = checkpoint.parent / "config.yaml"
+    if not path.exists():
+        raise FileNotFoundError(f"{path} not found: a checkpoint is read together with its run's config.yaml")
+    return load_config(path)
+
+
+def format_table(result: EvalResult) -> str:
+    lines = [f"{'outcome':<20} {'fraction':>8}", "-" * 29]
+    lines += [f"{name:<20} {getattr(result, name):>8.1%}" for name in OUTCOMES]
+    lines += ["-" * 29, f"{'episodes':<20} {result.episodes:>8d}",
+              f"{'episode reward':<20} {result.episode_reward:>8.3f}",
+              f"{'time at end':<20} {result.time_at_end:>8.2f}",
+              f"{'how far':<20} {result.how_far:>8.2f}"]
+    return "\n".join(lines)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="dlo-evaluate", description=__doc__.split("\n\n")[0])
+    parser.add_argument("--checkpoint", required=True, type=Path,
+                        help="checkpoint.pt or policy.pt of a dlo-train run directory")
+    parser.add_argument("--episodes", type=int, default=100, help="number of episodes (default 100)")
+    parser.add_argument("--seed", type=int, default=0, help="first episode seed (default 0)")
+    parser.add_argument("--json", type=Path, help="also write the results to this JSON file")
+    parser.add_argument("--without", choices=sorted(MODALITY_SIZES), action="append", default=[],
+                        help="blank this modality's observations (repeatable)")
+    parser.add_argument("--num-envs", type=int, default=10, help="environments stepped together (default 10)")
+    parser.add_argument("--threads", type=int, default=0, help="torch threads (default: all cores)")
+    return parser
+
+
+def main(argv: Optional[Sequence[str]] = None) -> int:
+    args = build_parser().parse_args(argv)
+    if args.episodes < 1:
+        raise SystemExit("dlo-evaluate: --episodes must be >= 1")
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    config = load_run_config(args.checkpoint)
+    agent = SAC.load(args.checkpoint)
+    blank = blanked_columns(config.modalities, args.without)
+    vec_env = make_vec_env_for(config, min(args.num_envs, args.episodes), seed=args.seed)
+    try:
+        result = evaluate_agent(agent, vec_env, range(args.seed, args.seed + args.episodes), blank)
+    finally:
+        vec_env.close()
+    title = f"{config.name}, seeds {args.seed}..{args.seed + args.episodes - 1}"
+    print(title + (f", without {'+'.join(args.without)}" if args.without else ""))
+    print(format_table(result))
+    if args.json:
+        payload = {**result.to_dict(), "checkpoint": str(args.checkpoint), "seed": args.seed,
+                   "without": args.without, "modalities": config.modalities,
+                   "env_steps": agent.num_env_steps}
+        args.json.write_text(json.dumps(payload, indent=2) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,359 @@
+"""Soft Actor-Critic (Haarnoja et al. 2018) for continuous actions, lean and readable, on CPU.
+
+Written in the style of CleanRL's sac_continuous_action.py, with an SB3-like surface:
+`SAC(obs_dim, action_low, action_high, config, seed)`, `learn(env, total_steps, callback)`,
+`predict(obs, deterministic)`, `save(path)`, `SAC.load(path)`.
+
+The update, per gradient step (DESIGN.md section 9 defaults):
+  critic:  y = s * r + gamma * (1 - done) * (min_j Q'_j(s', a') - alpha * log pi(a'|s')),  a' ~ pi(s')
+           minimise sum_j (Q_j(s, a) - y)^2                                     (s = reward scale)
+  every `policy_update_every` steps:
+    actor: minimise alpha * log pi(a~|s) - min_j Q_j(s, a~),  a~ ~ pi(s) (critic weights frozen)
+    alpha: minimise -alpha * (log pi(a~|s) + target_entropy)    (alpha = exp(log_alpha))
+  every `target_update_every` steps: Q'_j <- (1 - tau) Q'_j + tau Q_j
+Speed (DESIGN.md section 10): fp32, no critic weight gradients in the actor loss, fused Adam.
+"""
+from __future__ import annotations
+
+import contextlib
+import copy
+import math
+import os
+from pathlib import Path
+from typing import Any, Callable, Iterator, NamedTuple, Optional
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from .config import SACConfig
+from .replay import ReplayBuffer
+
+CHECKPOINT_FORMAT = "dlo_policy.sac/1"
+LOG_SQRT_2PI = 0.5 * math.log(2 * math.pi)
+
+
+def mlp(in_dim: int, hidden_sizes: tuple[int, ...], out_dim: int) -> nn.Sequential:
+    """Linear-ReLU stack with orthogonal weights and zero biases (the authors' init)."""
+    layers: list[nn.Module] = []
+    for width in hidden_sizes:
+        layers += [nn.Linear(in_dim, width), nn.ReLU()]
+        in_dim = width
+    layers.append(nn.Linear(in_dim, out_dim))
+    for layer in layers:
+        if isinstance(layer, nn.Linear):
+            nn.init.orthogonal_(layer.weight)
+            nn.init.zeros_(layer.bias)
+    return nn.Sequential(*layers)
+
+
+class Actor(nn.Module):
+    """Tanh-squashed Gaussian policy; actions in [-1, 1]^act_dim."""
+
+    def __init__(self, obs_dim: int, act_dim: int, config: SACConfig):
+        super().__init__()
+        self.net = mlp(obs_dim, config.hidden_sizes, 2 * act_dim)
+        self.log_std_min, self.log_std_max = config.log_std_min, config.log_std_max
+
+    def forward(self, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        mean, log_std = self.net(obs).chunk(2, dim=-1)
+        # squash log-std into [log_std_min, log_std_max] smoothly (as the authors' agent does)
+        log_std = self.log_std_min + 0.5 * (self.log_std_max - self.log_std_min) * (torch.tanh(log_std) + 1)
+        return mean, log_std
+
+    def sample(self, obs: torch.Tensor, generator: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:
+        """Reparameterised action a = tanh(mean + std * eps) and its log-probability, shape (B,)."""
+        mean, log_std = self(obs)
+        eps = torch.randn(mean.shape, generator=generator)
+        pre_tanh = mean + log_std.exp() * eps
+        gaussian_log_prob = (-0.5 * eps.pow(2) - log_std - LOG_SQRT_2PI).sum(-1)
+        # log|d tanh(x)/dx| = log(1 - tanh(x)^2) = 2 * (log 2 - x - softplus(-2x)), stable for large |x|
+        log_det_jacobian = (2 * (math.log(2) - pre_tanh - F.softplus(-2 * pre_tanh))).sum(-1)
+        return torch.tanh(pre_tanh), gaussian_log_prob - log_det_jacobian
+
+    def deterministic(self, obs: torch.Tensor) -> torch.Tensor:
+        return torch.tanh(self(obs)[0])
+
+
+class TwinQ(nn.Module):
+    """Two independent Q(s, a) networks (clipped double-Q against overestimation)."""
+
+    def __init__(self, obs_dim: int, act_dim: int, config: SACConfig):
+        super().__init__()
+        self.q1 = mlp(obs_dim + act_dim, config.hidden_sizes, 1)
+        self.q2 = mlp(obs_dim + act_dim, config.hidden_sizes, 1)
+
+    def forward(self, obs: torch.Tensor, actions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        x = torch.cat([obs, actions], dim=-1)
+        return self.q1(x).squeeze(-1), self.q2(x).squeeze(-1)
+
+
+class ObservationNormalizer:
+    """Running mean / variance (parallel Welford) of observations; maps obs to clipped z-scores."""
+
+    def __init__(self, obs_dim: int, clip: float = 10.0):
+        self.mean = torch.zeros(obs_dim, dtype=torch.float64)
+        self.var = torch.ones(obs_dim, dtype=torch.float64)
+        self.count = 0
+        self.clip = clip
+
+    def update(self, obs: np.ndarray) -> None:
+        batch = torch.as_tensor(np.atleast_2d(obs), dtype=torch.float64)
+        n = batch.shape[0]
+        delta = batch.mean(0) - self.mean
+        total = self.count + n
+        self.mean += delta * n / total
+        self.var = (self.var * self.count + batch.var(0, unbiased=False) * n
+                    + delta.pow(2) * self.count * n / total) / total
+        self.count = total
+
+    def __call__(self, obs: torch.Tensor) -> torch.Tensor:
+        std = self.var.sqrt().clamp_min(1e-8)
+        return ((obs - self.mean.float()) / std.float()).clamp(-self.clip, self.clip)
+
+    def state_dict(self) -> dict:
+        return {"mean": self.mean.clone(), "var": self.var.clone(), "count": self.count}
+
+    def load_state_dict(self, state: dict) -> None:
+        self.mean, self.var, self.count = state["mean"].clone(), state["var"].clone(), state["count"]
+
+
+@contextlib.contextmanager
+def frozen(module: nn.Module) -> Iterator[None]:
+    """Gradients still flow through `module` to its inputs, but none are computed for its weights."""
+    params = list(module.parameters())
+    for p in params:
+        p.requires_grad_(False)
+    try:
+        yield
+    finally:
+        for p in params:
+            p.requires_grad_(True)
+
+
+class StepResult(NamedTuple):
+    """What `learn` passes to its callback after every environment step."""
+
+    reward: float
+    terminated: bool
+    truncated: bool
+    info: dict
+
+
+class SAC:
+    """The agent: networks, optimisers, temperature, replay buffer, counters and RNG state."""
+
+    def __init__(self, obs_dim: int, action_low: np.ndarray, action_high: np.ndarray,
+                 config: Optional[SACConfig] = None, seed: int = 0):
+        self.config = config = config or SACConfig()
+        self.obs_dim, self.act_dim = int(obs_dim), len(action_low)
+        self.action_low = np.asarray(action_low, dtype=np.float32)
+        self.action_high = np.asarray(action_high, dtype=np.float32)
+        self.seed = seed
+        torch.manual_seed(seed)  # network initialisation
+        self.generator = torch.Generator().manual_seed(seed)  # every later random draw of the agent
+
+        self.actor = Actor(self.obs_dim, self.act_dim, config)
+        self.critic = TwinQ(self.obs_dim, self.act_dim, config)
+        self.critic_target = copy.deepcopy(self.critic).requires_grad_(False)
+        self.actor_optimizer = torch.optim.Adam(self.actor.parameters(), lr=config.actor_lr, fused=True)
+        self.critic_optimizer = torch.optim.Adam(self.critic.parameters(), lr=config.critic_lr, fused=True)
+
+        self.target_entropy = (-float(self.act_dim) if config.target_entropy is None
+                               else config.target_entropy)
+        self.log_alpha = torch.tensor(math.log(config.initial_alpha), requires_grad=config.autotune_alpha)
+        self.alpha_optimizer = torch.optim.Adam([self.log_alpha], lr=config.alpha_lr, betas=config.alpha_betas)
+
+        self.replay = ReplayBuffer(config.buffer_size, self.obs_dim, self.act_dim)
+        self.normalizer = ObservationNormalizer(self.obs_dim) if config.normalize_observations else None
+        self.num_env_steps = 0
+        self.num_updates = 0
+        self.num_episodes = 0
+
+    # ---------------------------------------------------------------- acting
+    @property
+    def alpha(self) -> float:
+        return self.log_alpha.detach().exp().item()
+
+    def _normalize(self, obs: torch.Tensor) -> torch.Tensor:
+        return self.normalizer(obs) if self.normalizer is not None else obs
+
+    def _to_env_action(self, action: np.ndarray) -> np.ndarray:
+        """[-1, 1] policy action -> the env's action box."""
+        return self.action_low + (action + 1.0) * 0.5 * (self.action_high - self.action_low)
+
+    @torch.inference_mode()
+    def policy_action(self, obs: np.ndarray, deterministic: bool) -> np.ndarray:
+        """The policy's action in [-1, 1] for one observation (obs_dim,) or a batch (N, obs_dim)."""
+        obs_t = self._normalize(torch.as_tensor(np.asarray(obs, dtype=np.float32)))
+        if deterministic:
+            return self.actor.deterministic(obs_t).numpy()
+        return self.actor.sample(obs_t, self.generator)[0].numpy()
+
+    def predict(self, obs: np.ndarray, deterministic: bool = True) -> np.ndarray:
+        """Action in the env's action box for one observation or a batch."""
+        return self._to_env_action(self.policy_action(obs, deterministic))
+
+    def explore(self, obs: np.ndarray) -> np.ndarray:
+        """Training-time action in [-1, 1]: uniform before `learning_starts`, then sampled from pi."""
+        if self.num_env_steps < self.config.learning_starts:
+            return (torch.rand(self.act_dim, generator=self.generator) * 2 - 1).numpy()
+        return self.policy_action(obs, deterministic=False)
+
+    def store(self, obs: np.ndarray, action: np.ndarray, reward: float, next_obs: np.ndarray,
+              terminated: bool) -> None:
+        if self.normalizer is not None:
+            self.normalizer.update(obs)
+        self.replay.add(obs, action, reward, next_obs, terminated)
+
+    # ---------------------------------------------------------------- learning
+    def update(self) -> dict[str, float]:
+        """One gradient step on a replay batch; returns the losses computed this step."""
+        cfg = self.config
+        batch = self.replay.sample(cfg.batch_size, self.generator)
+        obs, next_obs = self._normalize(batch.obs), self._normalize(batch.next_obs)
+        alpha = self.log_alpha.detach().exp()
+
+        with torch.no_grad():
+            next_actions, next_log_pi = self.actor.sample(next_obs, self.generator)
+            next_q = torch.min(*self.critic_target(next_obs, next_actions)) - alpha * next_log_pi
+            td_target = cfg.reward_scale * batch.rewards + cfg.gamma * (1 - batch.terminated) * next_q
+        q1, q2 = self.critic(obs, batch.actions)
+        critic_loss = F.mse_loss(q1, td_target) + F.mse_loss(q2, td_target)
+        self.critic_optimizer.zero_grad()
+        critic_loss.backward()
+        self.critic_optimizer.step()
+        self.num_updates += 1
+        losses = {"critic_loss": critic_loss.item()}
+
+        if self.num_updates % cfg.policy_update_every == 0:
+            actions, log_pi = self.actor.sample(obs, self.generator)
+            with frozen(self.critic):
+                q = torch.min(*self.critic(obs, actions))
+            actor_loss = (alpha * log_pi - q).mean()
+            self.actor_optimizer.zero_grad()
+            actor_loss.backward()
+            self.actor_optimizer.step()
+            losses["actor_loss"] = actor_loss.item()
+            if cfg.autotune_alpha:
+                alpha_loss = -(self.log_alpha.exp() * (log_pi.detach() + self.target_entropy)).mean()
+                self.alpha_optimizer.zero_grad()
+                alpha_loss.backward()
+                self.alpha_optimizer.step()
+                losses["alpha_loss"] = alpha_loss.item()
+
+        if self.num_updates % cfg.target_update_every == 0:
+            with torch.no_grad():
+                torch._foreach_lerp_(list(self.critic_target.parameters()),
+                                     list(self.critic.parameters()), cfg.tau)
+        return losses
+
+    def episode_seed(self, episode: int) -> int:
+        """Seed of the run's `episode`-th training episode (reproducible across resumes)."""
+        return int(np.random.SeedSequence([self.seed, episode]).generate_state(1)[0])
+
+    def learn(self, env: Any, total_steps: int,
+              callback: Optional[Callable[["SAC", StepResult], bool]] = None) -> "SAC":
+        """Interact with a gymnasium env until `num_env_steps == total_steps`, one update per step.
+
+        Continues from the current counters (after `load`, a fresh episode starts). Truncated
+        episodes bootstrap; terminated ones do not. `callback(agent, result)` runs after every
+        step; returning False stops learning.
+        """
+        obs, _ = env.reset(seed=self.episode_seed(self.num_episodes))
+        while self.num_env_steps < total_steps:
+            action = self.explore(obs)
+            next_obs, reward, terminated, truncated, info = env.step(self._to_env_action(action))
+            self.store(obs, action, reward, next_obs, terminated)
+            self.num_env_steps += 1
+            if self.num_env_steps > self.config.learning_starts:
+                self.update()
+            if terminated or truncated:
+                self.num_episodes += 1
+                obs, _ = env.reset(seed=self.episode_seed(self.num_episodes))
+            else:
+                obs = next_obs
+            if callback is not None and callback(self, StepResult(float(reward), bool(terminated),
+                                                                  bool(truncated), info)) is False:
+                break
+        return self
+
+    # ---------------------------------------------------------------- persistence
+    def state_dict(self, include_replay: bool = True) -> dict[str, Any]:
+        state = {
+            "format": CHECKPOINT_FORMAT,
+            "config": _plain_config(self.config),
+            "obs_dim": self.obs_dim,
+            "action_low": torch.from_numpy(self.action_low),
+            "action_high": torch.from_numpy(self.action_high),
+            "seed": self.seed,
+            "actor": self.actor.state_dict(),
+            "critic": self.critic.state_dict(),
+            "critic_target": self.critic_target.state_dict(),
+            "log_alpha": self.log_alpha.detach().clone(),
+            "actor_optimizer": self.actor_optimizer.state_dict(),
+            "critic_optimizer": self.critic_optimizer.state_dict(),
+            "alpha_optimizer": self.alpha_optimizer.state_dict(),
+            "normalizer": self.normalizer.state_dict() if self.normalizer is not None else None,
+            "counters": {"env_steps": self.num_env_steps, "updates": self.num_updates,
+                         "episodes": self.num_episodes},
+            "rng": {"agent": self.generator.get_state(), "torch": torch.get_rng_state()},
+        }
+        if include_replay:
+            state["replay"] = self.replay.state_dict()
+        return state
+
+    def save(self, path: str | Path, include_replay: bool = True) -> None:
+        """Write a checkpoint atomically (a reader never sees a half-written file)."""
+        path = Path(path)
+        tmp = path.with_name(path.name + ".tmp")
+        torch.save(self.state_dict(include_replay), tmp)
+        os.replace(tmp, path)
+
+    def save_policy(self, path: str | Path) -> None:
+        """Actor, normaliser and config only: what acting needs (small enough to ship)."""
+        state = self.state_dict(include_replay=False)
+        for training_only in ("critic", "critic_target", "actor_optimizer", "critic_optimizer",
+                              "alpha_optimizer"):
+            del state[training_only]
+        path = Path(path)
+        tmp = path.with_name(path.name + ".tmp")
+        torch.save(state, tmp)
+        os.replace(tmp, path)
+
+    @classmethod
+    def load(cls, path: str | Path) -> "SAC":
+        """Rebuild an agent from `save` (everything) or `save_policy` (acting only)."""
+        state = torch.load(path, map_location="cpu", weights_only=True)
+        if state.get("format") != CHECKPOINT_FORMAT:
+            raise ValueError(f"{path}: not a {CHECKPOINT_FORMAT} checkpoint")
+        config = SACConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in state["config"].items()})
+        agent = cls(state["obs_dim"], state["action_low"].numpy(), state["action_high"].numpy(),
+                    config, seed=state["seed"])
+        agent.load_state_dict(state)
+        return agent
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        self.actor.load_state_dict(state["actor"])
+        with torch.no_grad():
+            self.log_alpha.copy_(state["log_alpha"])
+        if "critic" in state:
+            self.critic.load_state_dict(state["critic"])
+            self.critic_target.load_state_dict(state["critic_target"])
+            self.actor_optimizer.load_state_dict(state["actor_optimizer"])
+            self.critic_optimizer.load_state_dict(state["critic_optimizer"])
+            self.alpha_optimizer.load_state_dict(state["alpha_optimizer"])
+        if self.normalizer is not None:
+            self.normalizer.load_state_dict(state["normalizer"])
+        counters = state["counters"]
+        self.num_env_steps, self.num_updates = counters["env_steps"], counters["updates"]
+        self.num_episodes = counters["episodes"]
+        self.generator.set_state(state["rng"]["agent"])
+        torch.set_rng_state(state["rng"]["torch"])
+        if "replay" in state:
+            self.replay.load_state_dict(state["replay"])
+
+
+def _plain_config(config: SACConfig) -> dict[str, Any]:
+    return {k: list(v) if isinstance(v, tuple) else v for k, v in vars(config).items()}

@@ -1,0 +1,214 @@
+"""Train one SAC agent with the paper's protocol: `dlo-train`.
+
+    dlo-train --modalities V+K --seed 3 --steps 50000 --out runs/V+K/seed3 [--config FILE] [key=value ...]
+    dlo-train --out runs/V+K/seed3 --resume          # continue from the last checkpoint
+
+Every `train.eval_every` env steps (and at step 0) the agent is evaluated with deterministic
+actions on `train.eval_episodes` environments seeded `train.eval_seed + i`; each evaluation
+appends a row to `eval.csv` per tested input set (all inputs, then each of `train.eval_without`):
+
+    step             env steps taken when evaluated
+    tested_without   '' (all inputs), or the modality blanked for this row (ablation)
+    episodes         evaluation episodes
+    hold_the_end, stop_before, reach_end_but_drop, drop_before   outcome fractions (sum to 1)
+    episode_reward   mean undiscounted episode reward
+    time_at_end      mean steps spent at the end of the cable
+    how_far          mean how-far-it-goes metric reported by the env
+    train_episodes   training episodes finished so far
+    wall_time_s      training seconds so far (across resumes)
+
+The run directory also holds config.yaml (resolved config), checkpoint.pt (everything, replay
+buffer included, every `train.checkpoint_every` steps), policy.pt (actor only, at the end) and
+done.json (completion marker with a summary; dlo-experiments skips runs that have it).
+"""
+from __future__ import annotations
+
+import argparse
+import csv
+import importlib
+import json
+import os
+import sys
+import time
+from pathlib import Path
+from typing import Any, Optional, Sequence
+
+import torch
+from tqdm import tqdm
+
+from .config import ConfigError, RunConfig, load_config, save_config
+from .evaluate import OUTCOMES, blanked_columns, evaluate_agent, make_vec_env_for
+from .sac import SAC, StepResult
+
+EVAL_COLUMNS = ("step", "tested_without", "episodes", *OUTCOMES, "episode_reward", "time_at_end",
+                "how_far", "train_episodes", "wall_time_s")
+CONFIG_FILE, EVAL_FILE, CHECKPOINT_FILE = "config.yaml", "eval.csv", "checkpoint.pt"
+POLICY_FILE, DONE_FILE = "policy.pt", "done.json"
+
+
+def available_cores() -> int:
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+
+
+def set_threads(num_threads: int) -> int:
+    """torch intra-op threads (0: every core this process may use); returns the number set."""
+    threads = num_threads or available_cores()
+    torch.set_num_threads(threads)
+    return threads
+
+
+class EvalLog:
+    """eval.csv: appends rows and keeps only rows up to the checkpoint step on resume."""
+
+    def __init__(self, path: Path, resume_step: Optional[int]):
+        self.path = path
+        kept: list[dict[str, str]] = []
+        if resume_step is not None and path.exists():
+            with path.open(newline="") as f:
+                kept = [row for row in csv.DictReader(f) if int(row["step"]) <= resume_step]
+        with path.open("w", newline="") as f:
+            writer = csv.DictWriter(f, fieldnames=EVAL_COLUMNS)
+            writer.writeheader()
+            writer.writerows(kept)
+        self.wall_time_offset = float(kept[-1]["wall_time_s"]) if kept else 0.0
+
+    def append(self, rows: list[dict[str, Any]]) -> None:
+        with self.path.open("a", newline="") as f:
+            csv.DictWriter(f, fieldnames=EVAL_COLUMNS).writerows(rows)
+
+
+class Trainer:
+    """Runs `SAC.learn` with periodic evaluation, CSV logging, checkpoints and a progress bar."""
+
+    def __init__(self, config: RunConfig, out_dir: Path, resume: bool = False):
+        self.config, self.out_dir = config, out_dir
+        checkpoint = out_dir / CHECKPOINT_FILE
+        if resume and not checkpoint.exists():
+            raise FileNotFoundError(f"--resume: no {checkpoint} to resume from")
+        if not resume and (checkpoint.exists() or (out_dir / EVAL_FILE).exists()):
+            raise FileExistsError(f"{out_dir} already holds a run: pass --resume or choose another --out")
+        out_dir.mkdir(parents=True, exist_ok=True)
+        save_config(config, out_dir / CONFIG_FILE)
+        self.threads = set_threads(config.train.num_threads)
+
+        env_module = importlib.import_module(config.env_module)
+        self.env = env_module.make_env(modalities=config.modalities, seed=config.seed, **config.env_options)
+        self.eval_env = make_vec_env_for(config, config.train.eval_episodes, seed=config.train.eval_seed)
+        if resume:
+            self.agent = SAC.load(checkpoint)
+        else:
+            space = self.env.action_space
+            self.agent = SAC(self.env.observation_space.shape[0], space.low, space.high, config.sac,
+                             seed=config.seed)
+        self.log = EvalLog(out_dir / EVAL_FILE, self.agent.num_env_steps if resume else None)
+        self.eval_seeds = range(config.train.eval_seed, config.train.eval_seed + config.train.eval_episodes)
+        self.tested = [("", [])] + [(m, blanked_columns(config.modalities, [m]))
+                                    for m in config.train.eval_without]
+        self.started = time.perf_counter()
+        self.last_eval: dict[str, float] = {}
+        self.episode_return = 0.0
+        self.recent_returns: list[float] = []
+
+    def wall_time(self) -> float:
+        return self.log.wall_time_offset + time.perf_counter() - self.started
+
+    def evaluate(self) -> None:
+        rows = []
+        for without, columns in self.tested:
+            result = evaluate_agent(self.agent, self.eval_env, self.eval_seeds, columns)
+            rows.append({"step": self.agent.num_env_steps, "tested_without": without, **result.to_dict(),
+                         "train_episodes": self.agent.num_episodes, "wall_time_s": round(self.wall_time(), 2)})
+        self.log.append(rows)
+        self.last_eval = rows[0]
+
+    def on_step(self, agent: SAC, result: StepResult) -> bool:
+        self.bar.update(1)
+        self.episode_return += result.reward
+        if result.terminated or result.truncated:
+            self.recent_returns = (self.recent_returns + [self.episode_return])[-10:]
+            self.episode_return = 0.0
+        step = agent.num_env_steps
+        if step % self.config.train.eval_every == 0:
+            self.evaluate()
+            self.bar.set_postfix(eval_reward=f"{self.last_eval['episode_reward']:.2f}",
+                                 hold_the_end=f"{self.last_eval['hold_the_end']:.0%}",
+                                 alpha=f"{agent.alpha:.3f}")
+        if step % self.config.train.checkpoint_every == 0:
+            agent.save(self.out_dir / CHECKPOINT_FILE)
+        return True
+
+    def run(self) -> dict[str, Any]:
+        total = self.config.train.total_steps
+        if self.agent.num_env_steps == 0:
+            self.evaluate()
+        self.bar = tqdm(total=total, initial=self.agent.num_env_steps, desc=self.config.name,
+                        unit="step", disable=not self.config.train.progress, dynamic_ncols=True)
+        try:
+            self.agent.learn(self.env, total, callback=self.on_step)
+        finally:
+            self.bar.close()
+            self.env.close()
+            self.eval_env.close()
+        if self.agent.num_env_steps % self.config.train.checkpoint_every != 0:
+            self.agent.save(self.out_dir / CHECKPOINT_FILE)
+        self.agent.save_policy(self.out_dir / POLICY_FILE)
+        summary = {"env_steps": self.agent.num_env_steps, "updates": self.agent.num_updates,
+                   "episodes": self.agent.num_episodes, "wall_time_s": round(self.wall_time(), 2),
+                   "threads": self.threads, "last_eval": self.last_eval}
+        (self.out_dir / DONE_FILE).write_text(json.dumps(summary, indent=2) + "\n")
+        return summary
+
+
+def train(config: RunConfig, out_dir: str | Path, resume: bool = False) -> dict[str, Any]:
+    """Train (or resume) a run in `out_dir`; returns the done.json summary."""
+    return Trainer(config, Path(out_dir), resume).run()
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="dlo-train", description="Train a SAC agent on the cable-following env (the paper's protocol).",
+        epilog="Overrides are key=value pairs on config keys, e.g. sac.batch_size=256 train.eval_every=500 "
+               "env_options.tactile_noise=partial. The eval.csv columns are documented in "
+               "dlo_policy/train.py.")
+    parser.add_argument("--modalities", help="All, or a '+'-joined subset of K, T, V (e.g. V+K); default All")
+    parser.add_argument("--seed", type=int, help="run seed (default 0)")
+    parser.add_argument("--steps", type=int, help="total env steps (default 50000)")
+    parser.add_argument("--out", type=Path, required=True, help="run directory")
+    parser.add_argument("--config", type=Path, help="YAML config (default: built-in defaults, "
+                                                    "see config/sac_default.yaml)")
+    parser.add_argument("--label", help="experiment name used to group seeds in dlo-report")
+    parser.add_argument("--resume", action="store_true",
+                        help="continue the run in --out from its last checkpoint (its saved config; "
+                             "only --steps may change)")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    parser.add_argument("overrides", nargs="*", metavar="key=value", help="config overrides")
+    return parser
+
+
+def resolve_config(args: argparse.Namespace) -> RunConfig:
+    """Defaults < --config file (or the run's saved config on --resume) < overrides < flags."""
+    if args.resume:
+        if args.config or args.overrides or args.modalities or args.seed is not None or args.label:
+            raise ConfigError("--resume uses the run's saved config; only --steps may be given")
+        source: Optional[Path] = args.out / CONFIG_FILE
+    else:
+        source = args.config
+    flags = {"modalities": args.modalities, "seed": args.seed, "train.total_steps": args.steps,
+             "label": args.label, "train.progress": False if args.no_progress else None}
+    return load_config(source, args.overrides, {k: v for k, v in flags.items() if v is not None})
+
+
+def main(argv: Optional[Sequence[str]] = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        config = resolve_config(args)
+        summary = train(config, args.out, resume=args.resume)
+    except (ConfigError, FileExistsError, FileNotFoundError) as error:
+        print(f"dlo-train: error: {error}", file=sys.stderr)
+        return 2
+    print(json.dumps(summary))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

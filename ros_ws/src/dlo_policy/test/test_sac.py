@@ -1,0 +1,138 @@
+"""SAC agent: learning, target tracking, entropy tuning, persistence, replay buffer."""
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from dlo_policy.config import SACConfig
+from dlo_policy.evaluate import evaluate_agent
+from dlo_policy.replay import ReplayBuffer
+from dlo_policy.sac import SAC, frozen
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # --import-mode=importlib: helper modules
+from sac_reach_env import ReachEnv, make_vec_env  # noqa: E402
+
+SMALL = dict(hidden_sizes=(64, 64), batch_size=64, learning_starts=200, buffer_size=5000)
+
+
+@pytest.fixture(autouse=True)
+def one_thread():
+    previous = torch.get_num_threads()
+    torch.set_num_threads(1)  # tiny networks: threading only adds overhead on a shared 2-core machine
+    yield
+    torch.set_num_threads(previous)
+
+
+def filled_agent(n: int = 300, **overrides) -> SAC:
+    agent = SAC(9, -np.ones(3), np.ones(3), SACConfig(**{**SMALL, **overrides}), seed=0)
+    rng = np.random.default_rng(0)
+    for _ in range(n):
+        agent.store(rng.normal(size=9), rng.uniform(-1, 1, 3), rng.normal(), rng.normal(size=9), rng.random() < 0.1)
+    agent.num_env_steps = n
+    return agent
+
+
+def test_sac_learns_reach_task():
+    env = ReachEnv("K")
+    agent = SAC(9 - 6, env.action_space.low, env.action_space.high, SACConfig(**SMALL), seed=1)
+    random_policy = evaluate_agent(agent, make_vec_env(10, "K"), range(100, 110))
+    agent.learn(env, total_steps=1000)
+    assert agent.num_env_steps == 1000 and agent.num_updates == 800
+    trained = evaluate_agent(agent, make_vec_env(10, "K"), range(100, 110))
+    assert trained.hold_the_end >= 0.8, trained
+    assert trained.episode_reward > -1.5 > random_policy.episode_reward
+
+
+def test_target_critics_track_by_polyak_averaging():
+    agent = filled_agent(target_update_every=2, tau=0.05)
+    before = [p.clone() for p in agent.critic_target.parameters()]
+    agent.update()  # update 1: not a target step
+    for old, new in zip(before, agent.critic_target.parameters()):
+        assert torch.equal(old, new)
+    agent.update()  # update 2: target <- (1 - tau) target + tau critic
+    for old, target, online in zip(before, agent.critic_target.parameters(), agent.critic.parameters()):
+        assert torch.allclose(target, 0.95 * old + 0.05 * online, atol=1e-6)
+        assert not torch.equal(target, old)
+
+
+@pytest.mark.parametrize("target_entropy, direction", [(10.0, +1), (-100.0, -1)])
+def test_entropy_tuning_moves_alpha_toward_target(target_entropy, direction):
+    agent = filled_agent(target_entropy=target_entropy, policy_update_every=1)
+    alpha0 = agent.alpha
+    for _ in range(20):
+        agent.update()
+    assert np.sign(agent.alpha - alpha0) == direction
+
+
+def test_fixed_alpha_stays_fixed():
+    agent = filled_agent(autotune_alpha=False, initial_alpha=0.2, policy_update_every=1)
+    for _ in range(5):
+        agent.update()
+    assert agent.alpha == pytest.approx(0.2)
+
+
+def test_actor_loss_computes_no_critic_weight_gradients():
+    agent = filled_agent()
+    obs = torch.randn(8, 9)
+    actions = torch.zeros(8, 3, requires_grad=True)
+    with frozen(agent.critic):
+        q = torch.min(*agent.critic(obs, actions)).sum()
+    q.backward()
+    assert actions.grad is not None and actions.grad.abs().sum() > 0
+    assert all(p.grad is None for p in agent.critic.parameters())
+    assert all(p.requires_grad for p in agent.critic.parameters())
+
+
+def test_save_load_gives_identical_actions_and_state(tmp_path):
+    agent = filled_agent()
+    for _ in range(3):
+        agent.update()
+    agent.save(tmp_path / "agent.pt")
+    loaded = SAC.load(tmp_path / "agent.pt")
+    obs = np.random.default_rng(5).normal(size=(16, 9)).astype(np.float32)
+    np.testing.assert_array_equal(agent.predict(obs), loaded.predict(obs))
+    # the RNG state travels too: the same stochastic actions and the same next update
+    np.testing.assert_array_equal(agent.predict(obs, deterministic=False), loaded.predict(obs, deterministic=False))
+    assert agent.update() == loaded.update()
+    assert (loaded.num_env_steps, loaded.num_updates, len(loaded.replay)) == (300, 4, 300)
+
+
+def test_policy_file_is_actor_only_and_acts_identically(tmp_path):
+    agent = filled_agent(normalize_observations=True)
+    agent.save(tmp_path / "full.pt")
+    agent.save_policy(tmp_path / "policy.pt")
+    policy = SAC.load(tmp_path / "policy.pt")
+    obs = np.random.default_rng(6).normal(size=(4, 9)).astype(np.float32)
+    np.testing.assert_array_equal(agent.predict(obs), policy.predict(obs))
+    assert len(policy.replay) == 0
+    assert (tmp_path / "policy.pt").stat().st_size < (tmp_path / "full.pt").stat().st_size / 2
+
+
+def test_predict_maps_to_the_env_action_box():
+    agent = SAC(2, np.array([-2.0]), np.array([4.0]), SACConfig(**SMALL), seed=0)
+    actions = agent.predict(np.random.default_rng(0).normal(size=(64, 2)) * 100, deterministic=False)
+    assert actions.shape == (64, 1) and actions.min() >= -2.0 and actions.max() <= 4.0
+
+
+def test_observation_normalizer_tracks_mean_and_variance():
+    agent = filled_agent(n=0, normalize_observations=True)
+    data = np.random.default_rng(1).normal(3.0, 2.0, size=(500, 9))
+    for row in data:
+        agent.normalizer.update(row)
+    np.testing.assert_allclose(agent.normalizer.mean.numpy(), data.mean(0), atol=1e-9)
+    np.testing.assert_allclose(agent.normalizer.var.numpy(), data.var(0), atol=1e-9)
+
+
+def test_replay_buffer_wraps_and_round_trips():
+    buffer = ReplayBuffer(4, obs_dim=1, act_dim=1)
+    for i in range(6):
+        buffer.add(np.array([i]), np.array([0.5]), float(i), np.array([i + 1]), i == 5)
+    assert len(buffer) == 4 and buffer.position == 2
+    assert sorted(buffer.rewards.tolist()) == [2.0, 3.0, 4.0, 5.0]
+    copy = ReplayBuffer(4, obs_dim=1, act_dim=1)
+    copy.load_state_dict(buffer.state_dict())
+    batch = copy.sample(32, torch.Generator().manual_seed(0))
+    assert torch.equal(batch.next_obs.squeeze(1), batch.obs.squeeze(1) + 1)
+    assert torch.equal(batch.terminated, (batch.rewards == 5).float())
