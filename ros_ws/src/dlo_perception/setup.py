@@ -18,6 +18,8 @@ setup(
     license="Apache-2.0",
     entry_points={
         "console_scripts": [
+            "tactile_node = dlo_perception.tactile_node:main",
+            "vision_node = dlo_perception.vision_node:main",
         ],
     },
 )

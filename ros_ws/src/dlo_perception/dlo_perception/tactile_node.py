@@ -1,0 +1,59 @@
+"""tactile_node: particles + gripper state of one step -> /dlo/tactile/pose with the same stamp."""
+
+from __future__ import annotations
+
+import numpy as np
+from rclpy.node import Node
+from sensor_msgs.msg import PointCloud2
+
+from dlo_msgs.msg import GripperState, TactilePose
+from dlo_perception.cloud import unpack_particles
+from dlo_perception.sync import StampSync, stamp_to_ns
+from dlo_perception.tactile import TACTILE_NOISE, noise_sigma, tactile_pose
+from dlo_tools.node_util import ParameterError, declare_parameters
+
+
+class TactileNode(Node):
+    """Fits the held cable line in the gripper frame (dlo_perception.tactile) for every step."""
+
+    def __init__(self):
+        super().__init__("tactile_node")
+        p = declare_parameters(self, [
+            ("noise", "none", f"tactile sensitivity preset {sorted(TACTILE_NOISE)} or 'custom'"),
+            ("sigma_theta", 0.0, "noise std of theta_T at an open gripper [rad] (noise = custom)"),
+            ("sigma_y", 0.0, "noise std of y_T at an open gripper [m] (noise = custom)"),
+            ("seed", 0, "seed of the noise generator"),
+        ])
+        try:
+            self.sigma = noise_sigma((p["sigma_theta"], p["sigma_y"]) if p["noise"] == "custom" else p["noise"])
+        except ValueError as error:
+            raise ParameterError(str(error)) from None
+        self.rng = np.random.default_rng(p["seed"])
+        self.sync = StampSync(("particles", "gripper"))
+        self.publisher = self.create_publisher(TactilePose, "/dlo/tactile/pose", 10)
+        self.create_subscription(PointCloud2, "/dlo/rope/particles",
+                                 lambda m: self.on_input("particles", m), 10)
+        self.create_subscription(GripperState, "/dlo/gripper/state", lambda m: self.on_input("gripper", m), 10)
+
+    def on_input(self, key, msg):
+        matched = self.sync.add(key, stamp_to_ns(msg.header.stamp), msg)
+        if matched is None:
+            return
+        cloud, gripper = matched
+        positions, held = unpack_particles(cloud)
+        pose = tactile_pose(positions[None], held[None], np.array([[gripper.x, gripper.y]]),
+                            np.array([gripper.closure]), self.sigma, self.rng)
+        out = TactilePose(angle=float(pose.angle[0]), y=float(pose.y[0]), contact=bool(pose.contact[0]),
+                          contact_count=int(pose.count[0]))
+        out.header = cloud.header
+        self.publisher.publish(out)
+
+
+def main(args=None):
+    from dlo_tools.node_main import run_node
+
+    return run_node(TactileNode, args)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

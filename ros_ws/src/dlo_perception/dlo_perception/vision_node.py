@@ -1,0 +1,75 @@
+"""vision_node: top-view image + gripper state of one step -> /dlo/vision/pose with the image's stamp.
+
+The intrinsics come from ``/dlo/camera/camera_info`` (K); the camera's mounting position, which
+CameraInfo does not carry, from parameters (defaults: the simulator's camera).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile
+from sensor_msgs.msg import CameraInfo, Image
+
+from dlo_msgs.msg import GripperState, VisualPose
+from dlo_perception.camera import TopCamera
+from dlo_perception.sync import StampSync, stamp_to_ns
+from dlo_perception.vision import visual_pose
+from dlo_tools.node_util import ParameterError, declare_parameters
+
+DEFAULT_CAMERA = TopCamera.covering_workspace()
+
+
+class VisionNode(Node):
+    """Distils O_V = [v_V, q_V, theta_V, y_V] from the camera image (dlo_perception.vision)."""
+
+    def __init__(self):
+        super().__init__("vision_node")
+        p = declare_parameters(self, [
+            ("camera_position", [str(c) for c in DEFAULT_CAMERA.position],
+             "camera centre in the world frame [m] as 'x,y,z' (looks down -z)"),
+        ])
+        try:
+            self.camera_position = tuple(float(c) for c in p["camera_position"])
+            assert len(self.camera_position) == 3
+        except (ValueError, AssertionError):
+            raise ParameterError(f"camera_position must be three numbers 'x,y,z', got {p['camera_position']}") from None
+        self.camera = None
+        self.sync = StampSync(("image", "gripper"))
+        self.publisher = self.create_publisher(VisualPose, "/dlo/vision/pose", 10)
+        latched = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        self.create_subscription(CameraInfo, "/dlo/camera/camera_info", self.on_camera_info, latched)
+        self.create_subscription(Image, "/dlo/camera/image", lambda m: self.on_input("image", m), 10)
+        self.create_subscription(GripperState, "/dlo/gripper/state", lambda m: self.on_input("gripper", m), 10)
+
+    def on_camera_info(self, info):
+        self.camera = TopCamera.from_camera_info(info.width, info.height, info.k, self.camera_position)
+
+    def on_input(self, key, msg):
+        matched = self.sync.add(key, stamp_to_ns(msg.header.stamp), msg)
+        if matched is None:
+            return
+        image, gripper = matched
+        if self.camera is None:
+            self.get_logger().warning("no camera_info yet: skipping an image", throttle_duration_sec=2.0)
+            return
+        if image.encoding != "mono8":
+            self.get_logger().error(f"expected a mono8 segmentation image, got {image.encoding}",
+                                    throttle_duration_sec=2.0)
+            return
+        pixels = np.frombuffer(bytes(image.data), np.uint8).reshape(image.height, image.step)[:, :image.width]
+        pose = visual_pose(pixels[None], self.camera, np.array([[gripper.x, gripper.y]]), gripper.z)
+        out = VisualPose(visible=bool(pose.visible[0]), confidence=float(pose.confidence[0]),
+                         angle=float(pose.angle[0]), y=float(pose.y[0]))
+        out.header = image.header
+        self.publisher.publish(out)
+
+
+def main(args=None):
+    from dlo_tools.node_main import run_node
+
+    return run_node(VisionNode, args)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
