@@ -13,7 +13,7 @@ travel), gripper y = world y (along the fingers).
 - ``count``: number of held particles.
 
 Sensor noise (paper, Tactile sensors): ``angle += (1 - c_G) N(0, sigma_theta)`` and
-``y += (1 - c_G) N(0, sigma_y)`` on contact. ``TACTILE_NOISE`` holds the sensitivity presets.
+``y += (1 - c_G) N(0, sigma_y)`` on contact (angle re-wrapped, y re-clipped). ``TACTILE_NOISE`` holds the sensitivity presets.
 """
 
 from __future__ import annotations
@@ -86,7 +86,7 @@ def tactile_pose(points_xy, held_mask, gripper_xy, closure, sigma=(0.0, 0.0), rn
         rng = np.random.default_rng() if rng is None else rng
         scale = 1.0 - np.clip(closure, 0.0, 1.0)
         angle = wrap_line_angle(angle + scale * rng.normal(0.0, sigma_theta, len(points)))
-        y = y + scale * rng.normal(0.0, sigma_y, len(points))
+        y = np.clip(y + scale * rng.normal(0.0, sigma_y, len(points)), -Y_LIMIT, Y_LIMIT)
     angle = np.where(contact, angle, 0.0)
     y = np.where(contact, y, 0.0)
     if single:

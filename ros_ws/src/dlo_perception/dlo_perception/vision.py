@@ -9,7 +9,7 @@ heading right, for at most ``TRACK_LENGTH``:
 - ``confidence`` q_V = min(1, dx / CONFIDENCE_LENGTH), dx [m] how far right of ``x_o`` it goes.
 - ``angle`` theta_V [rad]: angle to gripper x (counter-clockwise about +z) of a line y(x) fitted
   to the followed strand.
-- ``y`` y_V [m]: the strand's y where it enters, relative to y_G.
+- ``y`` y_V [m]: the strand's y where it enters, relative to y_G, within +-SEARCH_HALF_WIDTH.
 Not visible -> confidence = angle = y = 0.
 
 ``visual_pose`` measures it from the top-view image (what a real camera gives);
@@ -25,6 +25,8 @@ import numpy as np
 from dlo_perception.camera import TopCamera
 
 IMAGE_CABLE = 255  # pixel value of the cable in the rendered top view
+IMAGE_GRIPPER = 128  # pixel value of the gripper
+GRIPPER_MARGIN_PIXELS = 4  # columns searched for gripper pixels beyond the occlusion radius
 OCCLUSION_RADIUS = 0.0125 + 0.002  # m, finger radius + 2 mm: the gripper hides x <= x_G + this
 SEARCH_HALF_WIDTH = 0.03  # m, |y - y_G| window in which the strand must enter
 CONFIDENCE_LENGTH = 0.024  # m, dx giving q_V = 1
@@ -57,19 +59,30 @@ def visual_pose(images, camera: TopCamera, gripper_xy, plane_z: float) -> Visual
     metres_per_pixel = camera.metres_per_pixel(plane_z)
     uv = camera.world_to_pixel(np.concatenate([gripper, np.full((n, 1), plane_z)], axis=1))
     u_occluded = uv[:, 0] + OCCLUSION_RADIUS / metres_per_pixel  # right edge of the occlusion [px]
-    first_column = np.ceil(u_occluded - 0.5).astype(np.int64)  # first column centred beyond it
     num_columns = int(np.ceil(TRACK_LENGTH / metres_per_pixel))
     half_rows = int(np.ceil((SEARCH_HALF_WIDTH + TRACK_LENGTH) / metres_per_pixel))
     centre_row = np.floor(uv[:, 1]).astype(np.int64)
+    centre_column = np.floor(uv[:, 0]).astype(np.int64)
+    margin_columns = int(np.ceil(OCCLUSION_RADIUS / metres_per_pixel)) + GRIPPER_MARGIN_PIXELS
 
-    # Patch right of the gripper: (N, rows, columns), pixels outside the image count as background.
+    # Patch from the gripper centre rightwards: (N, rows, columns); outside the image = background.
     row_offsets = np.arange(-half_rows, half_rows + 1)
     rows = centre_row[:, None] + row_offsets
-    cols = first_column[:, None] + np.arange(num_columns)
+    cols = centre_column[:, None] + np.arange(margin_columns + num_columns)
     inside = ((rows >= 0) & (rows < height))[:, :, None] & ((cols >= 0) & (cols < width))[:, None, :]
     patch = images[np.arange(n)[:, None, None], np.clip(rows, 0, height - 1)[:, :, None],
                    np.clip(cols, 0, width - 1)[:, None, :]]
-    cable = (patch == IMAGE_CABLE) & inside
+    patch = np.where(inside, patch, 0)
+    # The strand starts in the first column centred beyond the occlusion edge and past every gripper
+    # pixel (the drawn finger sits higher and may look wider than the occlusion radius).
+    first_column = np.ceil(u_occluded - 0.5).astype(np.int64) - centre_column
+    is_gripper = (patch == IMAGE_GRIPPER).any(axis=1)
+    last_gripper = np.where(is_gripper.any(axis=1), patch.shape[2] - 1 - np.argmax(is_gripper[:, ::-1], axis=1), -1)
+    first_column = np.maximum(first_column, last_gripper + 1)
+    column_index = first_column[:, None] + np.arange(num_columns)  # (N, columns) into the patch
+    column_valid = column_index < patch.shape[2]
+    strip = np.take_along_axis(patch, np.minimum(column_index, patch.shape[2] - 1)[:, None, :], axis=2)
+    cable = (strip == IMAGE_CABLE) & column_valid[:, None, :]
     # Vertical runs of cable pixels per column: run_id increases at every run start.
     starts = cable & ~np.concatenate([np.zeros_like(cable[:, :1]), cable[:, :-1]], axis=1)
     run_id = np.cumsum(starts, axis=1)
@@ -108,12 +121,12 @@ def visual_pose(images, camera: TopCamera, gripper_xy, plane_z: float) -> Visual
     visible = tracked[:, 0]
     length = tracked.sum(axis=1)
     # From the occlusion edge to the centre of the last strand column, less the drawn cable radius.
-    dx = (first_column + length - 0.5 - u_occluded) * metres_per_pixel - CABLE_RADIUS
+    dx = (centre_column + first_column + length - 0.5 - u_occluded) * metres_per_pixel - CABLE_RADIUS
     confidence = np.where(visible, np.clip(dx / CONFIDENCE_LENGTH, 0.0, 1.0), 0.0)
     # World y grows with -row, so world slope = -(row slope) and y_V = -row offset.
     column_x = np.broadcast_to(np.arange(num_columns, dtype=np.float64), (n, num_columns))
     angle = np.arctan(-line_slope(column_x, centroids, tracked))
-    y = np.where(visible, -centroids[:, 0] * metres_per_pixel, 0.0)
+    y = np.where(visible, np.clip(-centroids[:, 0] * metres_per_pixel, -SEARCH_HALF_WIDTH, SEARCH_HALF_WIDTH), 0.0)
     return VisualPose(visible, confidence, np.where(visible, angle, 0.0), y)
 
 

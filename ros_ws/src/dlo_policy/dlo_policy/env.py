@@ -1,0 +1,203 @@
+"""Gymnasium environments of the cable-following benchmark (paper's task, our Taichi simulator).
+
+``make_vec_env(num_envs, modalities, seed, **options)``: a ``gymnasium.vector.VectorEnv`` running
+N environments batched in ONE ``dlo_sim.RopeSim``, with same-step auto-reset of finished envs.
+``make_env(modalities, seed, **options)``: a single ``gymnasium.Env`` (passes ``check_env``).
+
+Action: [-1, 1]^3 = [dx, dy, c] (dx, dy x 0.0025 m per 0.01 s step, closure c = (a2 + 1) / 2),
+held for one control step of 8 x 0.01 s. Observation: ``dlo_policy.observation`` (K, T, V in that
+order). Reward, ending and outcomes: ``dlo_sim.task``. An episode ends when the cable is dropped
+(terminated) or after ``horizon`` control steps (truncated).
+
+Seeds: ``reset(seed=s)`` starts env i on episode seed s + i; every later episode (auto-reset or
+``reset()`` without seed) takes the next unused seed s + N, s + N + 1, ... in order, so the same
+seed and actions give the same episodes. The tactile noise generator is seeded from s as well.
+
+Options (keywords of both entry points):
+    without=()            modalities zeroed at test time (ablation), e.g. ("T",)
+    tactile_noise="none"  "none" | "partial" | "full" | (sigma_theta [rad], sigma_y [m])
+    horizon=150           control steps per episode
+    end_particles=10      "at the end" = holding one of the last this-many particles
+    camera_resolution=128 top-view image size [px]
+    sim_config=None       a dlo_sim.SimConfig
+
+Info: every step carries "n_held" and "mean_held_index"; an env whose episode ended in this step
+has "outcome" (name), "outcome_code", "time_at_end", "how_far", "episode_return",
+"episode_length", "episode_seed", "unstable" (the simulator had to reset it; the episode is cut and
+counted as truncated), and, in the vector env, "final_obs" (the last observation of that episode,
+the returned one is already the next episode's first). Vector infos follow gymnasium's
+dict-of-arrays layout with "_key" masks.
+"""
+
+from __future__ import annotations
+
+import gymnasium
+import numpy as np
+from gymnasium.vector import AutoresetMode, VectorEnv
+
+from dlo_perception.camera import TopCamera
+from dlo_perception.tactile import noise_sigma, tactile_pose
+from dlo_perception.vision import visual_pose
+from dlo_policy.observation import build_observation, observation_bounds, parse_modalities
+from dlo_sim import RopeSim, task
+from dlo_sim.config import GRIPPER_HEIGHT, P_MAX
+
+class CableFollowingVecEnv(VectorEnv):
+    """N cable-following environments in one batched simulator (gymnasium 1.x VectorEnv)."""
+
+    def __init__(self, num_envs, modalities="All", seed=0, without=(), tactile_noise="none",
+                 horizon=task.HORIZON, end_particles=task.END_PARTICLES, camera_resolution=128,
+                 sim_config=None, autoreset=True):
+        self.num_envs = int(num_envs)
+        self.modalities = parse_modalities(modalities)
+        self.without = parse_modalities(without) if without else ()
+        self.tactile_sigma = noise_sigma(tactile_noise)
+        self.autoreset = bool(autoreset)
+        self.metadata = {"autoreset_mode": AutoresetMode.SAME_STEP if autoreset else AutoresetMode.DISABLED}
+        low, high = observation_bounds(self.modalities)
+        self.single_observation_space = gymnasium.spaces.Box(low, high, dtype=np.float32)
+        self.single_action_space = gymnasium.spaces.Box(-1.0, 1.0, (3,), dtype=np.float32)
+        self.observation_space = gymnasium.vector.utils.batch_space(self.single_observation_space, self.num_envs)
+        self.action_space = gymnasium.vector.utils.batch_space(self.single_action_space, self.num_envs)
+        self.sim = RopeSim(self.num_envs, config=sim_config,
+                           camera=TopCamera.covering_workspace(int(camera_resolution)))
+        self.tracker = task.EpisodeTracker(self.num_envs, horizon=horizon, end_particles=end_particles)
+        self.default_seed = int(seed)
+        self.next_seed = None  # next unused episode seed; None until the first reset
+        self.episode_seed = np.full(self.num_envs, -1, np.int64)
+        self.noise_rng = np.random.default_rng(self.default_seed)
+        self.last_observation = None
+
+    # ------------------------------------------------------------------ gymnasium API
+    def reset(self, *, seed=None, options=None):
+        """Start new episodes in all envs; ``seed`` restarts the seed sequence (see module doc)."""
+        super().reset(seed=seed)
+        if seed is not None or self.next_seed is None:
+            base = self.default_seed if seed is None else int(seed)
+            self.next_seed = base
+            self.noise_rng = np.random.default_rng(base)
+        self._start_episodes(np.arange(self.num_envs))
+        observation, state = self._observe()
+        self.last_observation = observation
+        return observation, {"n_held": state["n_held"], "mean_held_index": state["p_i"],
+                             "episode_seed": self.episode_seed.copy()}
+
+    def step(self, actions):
+        """Advance every env by one control step (8 x 0.01 s); finished envs auto-reset in the same step."""
+        actions = np.asarray(actions, dtype=np.float32).reshape(self.num_envs, 3)
+        self.sim.step(actions)
+        observation, state = self._observe()
+        reward, terminated, truncated = self.tracker.step(state["p_i"], state["n_held"], state["max_held_index"],
+                                                          self.sim.num_particles, self.sim.cable_length)
+        unstable = self.sim.unstable()
+        truncated = truncated | (unstable & ~terminated)
+        done = terminated | truncated
+        info = {"n_held": state["n_held"], "mean_held_index": state["p_i"]}
+        if done.any():
+            info.update(self._episode_end_info(done, unstable))
+            if self.autoreset:
+                info["final_obs"] = np.array([observation[i] if done[i] else None for i in range(self.num_envs)],
+                                             dtype=object)
+                info["_final_obs"] = done.copy()
+                self._start_episodes(np.flatnonzero(done))
+                fresh, _ = self._observe()
+                observation = np.where(done[:, None], fresh, observation)
+        self.last_observation = observation
+        return observation, reward.astype(np.float64), terminated, truncated, info
+
+    def close_extras(self, **kwargs):
+        """Nothing to release: the Taichi fields live as long as the process."""
+
+    # ------------------------------------------------------------------ internals
+    def _start_episodes(self, env_ids):
+        """Reset the simulator and the task tracker of ``env_ids`` with the next episode seeds."""
+        seeds = self.next_seed + np.arange(len(env_ids))
+        self.next_seed += len(env_ids)
+        self.sim.reset(seeds, env_ids=env_ids)
+        self.episode_seed[env_ids] = seeds
+        held = self.sim.held_mask()[env_ids]
+        self.tracker.reset(env_ids, self.sim.mean_held_index()[env_ids], max_held_index(held),
+                           self.sim.num_particles[env_ids])
+
+    def _observe(self):
+        """Observation (N, D) of the current simulator state and the held-particle summary."""
+        held = self.sim.held_mask()
+        gripper = self.sim.gripper_state()
+        state = {"n_held": held.sum(axis=1).astype(np.int32), "p_i": self.sim.mean_held_index(),
+                 "max_held_index": max_held_index(held)}
+        tactile = visual = None
+        if "T" in self.modalities and "T" not in self.without:
+            tactile = tactile_pose(self.sim.positions(), held, gripper[:, :2], gripper[:, 3],
+                                   sigma=self.tactile_sigma, rng=self.noise_rng)
+        if "V" in self.modalities and "V" not in self.without:
+            visual = visual_pose(self.sim.render(), self.sim.camera, gripper[:, :2], GRIPPER_HEIGHT)
+        observation = build_observation(self.modalities, gripper[:, [0, 1, 3]], tactile, visual, without=self.without)
+        return observation, state
+
+    def _episode_end_info(self, done, unstable):
+        """Episode-end metrics of the envs in ``done`` as gymnasium vector infos (arrays + masks)."""
+        values = {
+            "outcome": np.array([task.OUTCOME_NAMES[int(c)] for c in self.tracker.outcome], dtype=object),
+            "outcome_code": self.tracker.outcome.copy(),
+            "time_at_end": self.tracker.time_at_end.copy(),
+            "how_far": self.tracker.how_far(),
+            "episode_return": self.tracker.episode_return.copy(),
+            "episode_length": self.tracker.steps.copy(),
+            "episode_seed": self.episode_seed.copy(),
+            "unstable": unstable.copy(),
+        }
+        info = dict(values)
+        info.update({"_" + key: done.copy() for key in values})
+        return info
+
+
+def max_held_index(held) -> np.ndarray:
+    """(N,) largest held particle index, -1 where nothing is held."""
+    held = np.asarray(held, dtype=bool)
+    return np.where(held.any(axis=1), P_MAX - 1 - np.argmax(held[:, ::-1], axis=1), -1)
+
+
+class CableFollowingEnv(gymnasium.Env):
+    """One cable-following environment (a ``CableFollowingVecEnv`` of 1 without auto-reset)."""
+
+    metadata = {"render_modes": []}
+
+    def __init__(self, modalities="All", seed=0, **options):
+        self.vec = CableFollowingVecEnv(1, modalities=modalities, seed=seed, autoreset=False, **options)
+        self.observation_space = self.vec.single_observation_space
+        self.action_space = self.vec.single_action_space
+
+    @property
+    def sim(self):
+        """The underlying batched simulator (one environment)."""
+        return self.vec.sim
+
+    def reset(self, *, seed=None, options=None):
+        super().reset(seed=seed)
+        observation, info = self.vec.reset(seed=seed, options=options)
+        return observation[0], unbatch_info(info)
+
+    def step(self, action):
+        observation, reward, terminated, truncated, info = self.vec.step(np.asarray(action)[None])
+        return observation[0], float(reward[0]), bool(terminated[0]), bool(truncated[0]), unbatch_info(info)
+
+
+def unbatch_info(info) -> dict:
+    """Env 0's entries of a vector info dict, as plain Python values."""
+    single = {}
+    for key, value in info.items():
+        if key.startswith("_") or (("_" + key) in info and not info["_" + key][0]):
+            continue
+        item = value[0]
+        single[key] = item.item() if isinstance(item, np.generic) else item
+    return single
+
+
+def make_env(modalities="All", seed=0, **options) -> CableFollowingEnv:
+    """A single cable-following ``gymnasium.Env``; options: see the module docstring."""
+    return CableFollowingEnv(modalities=modalities, seed=seed, **options)
+
+
+def make_vec_env(num_envs, modalities="All", seed=0, **options) -> CableFollowingVecEnv:
+    """N cable-following envs batched in one simulator (``gymnasium.vector.VectorEnv``)."""
+    return CableFollowingVecEnv(num_envs, modalities=modalities, seed=seed, **options)
