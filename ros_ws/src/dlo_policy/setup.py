@@ -23,6 +23,7 @@ setup(
             "dlo-evaluate = dlo_policy.evaluate:main",
             "dlo-experiments = dlo_policy.experiments:main",
             "dlo-report = dlo_policy.report:main",
+            "policy_node = dlo_policy.policy_node:main",
         ],
     },
 )

@@ -1,0 +1,146 @@
+"""policy_node: K/T/V of one control step (matched by stamp) -> /dlo/gripper/cmd answering that step.
+
+``policy``: ``sac`` (a checkpoint or shipped policy from dlo-train, deterministic actions),
+``tactile_reactive`` (the classical baseline, observations only) or ``random``. The observation is
+assembled by ``dlo_policy.observation.build_observation``, exactly as in the gym environment.
+Inputs that a step does not deliver within ``input_timeout`` s are reported as an error naming the
+missing topic; the sim node then republishes the step, so nothing deadlocks.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+from rclpy.node import Node
+
+from dlo_msgs.msg import GripperCommand, GripperState, TactilePose, VisualPose
+from dlo_perception.sync import StampSync, stamp_to_ns
+from dlo_perception.tactile import TactilePose as Tactile
+from dlo_perception.vision import VisualPose as Visual
+from dlo_policy.observation import build_observation, parse_modalities
+from dlo_sim.command import action_to_command
+from dlo_tools.node_util import ParameterError, declare_parameters
+
+POLICIES = ("sac", "tactile_reactive", "random")
+SHIPPED_POLICY = "policies/all/policy.pt"
+
+
+def shipped_policy_path() -> Path:
+    """The bundled All-modalities policy: installed share dir first, then the source tree."""
+    try:
+        from ament_index_python.packages import get_package_share_directory
+
+        installed = Path(get_package_share_directory("dlo_policy")) / SHIPPED_POLICY
+        if installed.exists():
+            return installed
+    except (ImportError, LookupError):
+        pass
+    return Path(__file__).resolve().parents[1] / SHIPPED_POLICY
+
+
+def load_policy(kind: str, checkpoint: str, modalities: str, seed: int):
+    """-> (act(observation (1, D)) -> action (1, 3), modalities actually used)."""
+    if kind == "sac":
+        from dlo_policy.evaluate import load_run_config
+        from dlo_policy.sac import SAC
+
+        path = Path(checkpoint) if checkpoint else shipped_policy_path()
+        if not path.exists():
+            raise ParameterError(f"checkpoint {path} does not exist")
+        agent = SAC.load(path)
+        trained_on = load_run_config(path).modalities
+        return (lambda obs: agent.predict(obs, deterministic=True).reshape(1, 3)), trained_on
+    if kind == "tactile_reactive":
+        from dlo_policy.scripted import TactileReactive
+
+        controller = TactileReactive()
+        view = type("ObservationLayout", (), {"modalities": parse_modalities("All")})()
+        return (lambda obs: controller(obs, view)), "All"
+    rng = np.random.default_rng(seed)
+    return (lambda obs: rng.uniform(-1.0, 1.0, (1, 3)).astype(np.float32)), modalities
+
+
+class PolicyNode(Node):
+    """Closes the loop: observations in, one gripper command per control step out."""
+
+    def __init__(self):
+        super().__init__("policy_node")
+        p = declare_parameters(self, [
+            ("policy", "sac", f"controller, one of {POLICIES}"),
+            ("checkpoint", "", "dlo-train policy.pt / checkpoint.pt (empty = the shipped All policy)"),
+            ("modalities", "All", "observation modalities for policy=random (sac uses its training config)"),
+            ("without", "", "test-time ablation: zero these modalities, e.g. 'T' or 'V'"),
+            ("input_timeout", 1.0, "report an error when a step's inputs are incomplete after this long [s]"),
+            ("seed", 0, "seed of the random policy"),
+        ])
+        if p["policy"] not in POLICIES:
+            raise ParameterError(f"parameter 'policy': expected one of {POLICIES}, got {p['policy']!r}")
+        try:
+            self.act, modalities = load_policy(p["policy"], p["checkpoint"], p["modalities"], p["seed"])
+            self.modalities = parse_modalities(modalities)
+            self.without = parse_modalities(p["without"]) if p["without"] else ()
+            build_observation(self.modalities, np.zeros((1, 3)), Tactile(*np.zeros((4, 1))),
+                              Visual(*np.zeros((4, 1))), without=self.without)
+        except (ValueError, FileNotFoundError) as error:
+            raise ParameterError(str(error)) from None
+        self.input_timeout = p["input_timeout"]
+        inputs = ["gripper"] + [key for key, m in (("tactile", "T"), ("vision", "V"))
+                                if m in self.modalities and m not in self.without]
+        self.sync = StampSync(inputs)
+        self.first_seen = {}  # stamp_ns -> wall time of its first input
+        self.publisher = self.create_publisher(GripperCommand, "/dlo/gripper/cmd", 10)
+        self.create_subscription(GripperState, "/dlo/gripper/state", lambda m: self.on_input("gripper", m), 10)
+        if "tactile" in inputs:
+            self.create_subscription(TactilePose, "/dlo/tactile/pose", lambda m: self.on_input("tactile", m), 10)
+        if "vision" in inputs:
+            self.create_subscription(VisualPose, "/dlo/vision/pose", lambda m: self.on_input("vision", m), 10)
+        self.create_timer(0.25, self.check_missing_inputs)
+        self.get_logger().info(f"policy {p['policy']} on {'+'.join(self.modalities)}"
+                               + (f" without {'+'.join(self.without)}" if self.without else "")
+                               + f"; inputs {inputs}")
+
+    def on_input(self, key, msg):
+        stamp = stamp_to_ns(msg.header.stamp)
+        self.first_seen.setdefault(stamp, time.monotonic())
+        matched = self.sync.add(key, stamp, msg)
+        if matched is None:
+            return
+        self.first_seen.pop(stamp, None)
+        values = dict(zip(self.sync.keys, matched))
+        gripper = values["gripper"]
+        tactile = values.get("tactile")
+        vision = values.get("vision")
+        observation = build_observation(
+            self.modalities, np.array([[gripper.x, gripper.y, gripper.closure]]),
+            Tactile(np.array([tactile.angle]), np.array([tactile.y]), np.array([tactile.contact]),
+                    np.array([tactile.contact_count])) if tactile else None,
+            Visual(np.array([vision.visible]), np.array([vision.confidence]), np.array([vision.angle]),
+                   np.array([vision.y])) if vision else None,
+            without=self.without)
+        vx, vy, closure = action_to_command(self.act(observation)[0])
+        command = GripperCommand(vx=vx, vy=vy, closure=closure, episode=gripper.episode, step=gripper.step)
+        command.header = gripper.header
+        self.publisher.publish(command)
+
+    def check_missing_inputs(self):
+        now = time.monotonic()
+        for stamp, seen in list(self.first_seen.items()):
+            if now - seen > self.input_timeout:
+                have = self.sync.pending.get(stamp, {})
+                missing = [k for k in self.sync.keys if k not in have]
+                if missing:
+                    self.get_logger().error(f"step at t={stamp / 1e9:.2f} s: no {', '.join(missing)} input after "
+                                            f"{self.input_timeout} s (is that node running?)")
+                del self.first_seen[stamp]
+
+
+def main(args=None):
+    from dlo_tools.node_main import run_node
+
+    return run_node(PolicyNode, args)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
