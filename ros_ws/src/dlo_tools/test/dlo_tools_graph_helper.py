@@ -1,4 +1,4 @@
-"""Test helper processes for dlo_tools (run as ``python graph_helper.py pub|sub ...``).
+"""Test helper processes for dlo_tools (run as ``python dlo_tools_graph_helper.py pub|sub ...``).
 
 pub: publishes ``--count`` messages on each of the /dlo test topics (every dlo_msgs type +
      PointCloud2 + Image), sequence number i in header.frame_id and header.stamp.nanosec.
@@ -6,13 +6,12 @@ pub: publishes ``--count`` messages on each of the /dlo test topics (every dlo_m
      ``PUBLISHED {json counts}``; then exits (--then exit), idles until signalled (hold), or
      keeps publishing GripperState (stream).
 sub: subscribes raw to the given topics and, when every topic reached ``--expect`` messages
-     (or on SIGINT/timeout), prints ``RECEIVED {json: topic -> [sha1 of each message]}``.
+     (or on SIGINT/timeout), prints ``RECEIVED {json: topic -> [raw CDR hex of each message]}``.
 """
 
 from __future__ import annotations
 
 import argparse
-import hashlib
 import json
 import signal
 import sys
@@ -126,10 +125,10 @@ def run_pub(args, stop) -> int:
 
 def run_sub(args, stop) -> int:
     node = Node("test_sub")
-    received: dict[str, list[str]] = {t: [] for t in args.topics}
+    received: dict[str, list[str]] = {t: [] for t in args.topics}  # raw CDR, hex
 
     def cb(topic, data):
-        received[topic].append(hashlib.sha1(data).hexdigest())
+        received[topic].append(data.hex())
 
     subs = [node.create_subscription(TOPICS[t], t, lambda d, t=t: cb(t, d), QOS, raw=True)
             for t in args.topics]
