@@ -1,0 +1,96 @@
+"""Physical constants and the validated simulator configuration. SI units throughout.
+
+The geometric constants come from the authors' public SoftGym/Flex implementation
+(DESIGN.md section 9). Where this XPBD rebuild needs its own numbers (sub-steps, compliances,
+damping, the contact radius), ``SimConfig`` holds them with the reason next to each.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+DT = 0.01  # s, one simulation step (one "env-step")
+SUBSTEPS_PER_ACTION = 8  # simulation steps per agent action (0.08 s)
+MAX_DISPLACEMENT = 0.0025  # m per step at |action| = 1 (0.25 m/s)
+P_MAX = 60  # particles per environment, padded
+PARTICLE_RADIUS = 0.008  # m, Flex interaction radius: held rule and rendered cable width
+REST_SPACING = 0.0043  # m, rest distance between consecutive particles
+FINGER_RADIUS = 0.0125  # m, capsule radius of each finger
+FINGER_HALF_LENGTH = 0.0075  # m, half-length of the capsule's axis segment (along gripper y)
+FINGER_CLEARANCE = 0.0085  # m, gap between the two finger surfaces
+GRIPPER_HEIGHT = 0.1  # m, height of the gripper centre (midway between the finger axes)
+FIXED_END = (-0.25, 0.0, 0.1)  # m, where particle 0 is pinned
+GRIPPER_START_BEHIND = 0.005  # m, the gripper starts this far behind (-x) the fixed end
+WORKSPACE_HALF_WIDTH = 0.3  # m, gripper x and y are clipped to [-0.3, 0.3]
+NOMINAL_INVERSE_MASS = 2.0  # 1/kg, w_nom (particle mass 0.5 kg)
+GRAVITY = 9.8  # m/s^2
+IMAGE_CABLE = 255  # pixel value of cable in the rendered top view
+IMAGE_GRIPPER = 128  # pixel value of the gripper (drawn over the cable)
+IMAGE_BACKGROUND = 0
+
+
+@dataclass(frozen=True)
+class SimConfig:
+    """Every tunable of the simulator. ``validate()`` runs on construction.
+
+    Stiffness parameters are the paper's dimensionless numbers; they map onto XPBD compliances
+    [m/N] by ``stretch_compliance`` / ``bending_compliance`` (power laws, so a stiffer cable has
+    a smaller compliance and the whole range stays stable).
+    """
+
+    substeps: int = 4  # XPBD sub-steps per 0.01 s step (one constraint pass each)
+    damping: float = 2.0  # 1/s, velocity damping rate (v *= exp(-damping * h))
+    contact_radius: float = 0.004  # m, cable half-thickness for table/finger/self contact
+    stretch_range: tuple = (0.8, 1.4)  # randomised stretch stiffness (paper)
+    bending_range: tuple = (0.8, 2.4)  # randomised bending stiffness (paper)
+    friction_range: tuple = (0.04, 0.3)  # randomised Coulomb coefficient (paper)
+    num_particles_range: tuple = (30, 60)  # randomised particle count, inclusive (paper)
+    stretch_compliance_ref: float = 1.0e-6  # m/N at stretch stiffness 1
+    stretch_exponent: float = 4.0  # compliance ~ stiffness^-exponent
+    bending_compliance_ref: float = 2.0e-4  # m/N at bending stiffness 1
+    bending_exponent: float = 3.0
+    pick_moves: int = 4  # pick-and-drop moves shaping the initial cable
+    pick_steps: int = 60  # steps a picked particle is dragged
+    pick_max_speed: float = 0.0025  # m per step
+    drop_steps: int = 30  # steps after each release
+    settle_steps: int = 100  # steps after the last drop
+    max_speed: float = 20.0  # m/s, a faster particle flags the environment as exploded
+    max_distance: float = 2.0  # m, |x|,|y|,|z| beyond this flags the environment as exploded
+
+    def __post_init__(self):
+        self.validate()
+
+    def validate(self) -> None:
+        """Raise ValueError with a clear message for any physically invalid setting."""
+        if int(self.substeps) < 1:
+            raise ValueError(f"substeps must be >= 1, got {self.substeps}")
+        if self.damping < 0:
+            raise ValueError(f"damping must be >= 0 1/s, got {self.damping}")
+        if not 0 < self.contact_radius <= 0.5 * FINGER_CLEARANCE:
+            raise ValueError(f"contact_radius must be in (0, {0.5 * FINGER_CLEARANCE}] m so the cable "
+                             f"fits between the fingers, got {self.contact_radius}")
+        for name in ("stretch_range", "bending_range"):
+            lo, hi = getattr(self, name)
+            if not 0 < lo <= hi:
+                raise ValueError(f"{name} must satisfy 0 < low <= high (stiffness is positive), got {(lo, hi)}")
+        lo, hi = self.friction_range
+        if not 0 <= lo <= hi:
+            raise ValueError(f"friction_range must satisfy 0 <= low <= high, got {(lo, hi)}")
+        lo, hi = self.num_particles_range
+        if not 2 <= lo <= hi <= P_MAX:
+            raise ValueError(f"num_particles_range must satisfy 2 <= low <= high <= {P_MAX}, got {(lo, hi)}")
+        for name in ("stretch_compliance_ref", "bending_compliance_ref", "stretch_exponent",
+                     "bending_exponent", "pick_max_speed", "max_speed", "max_distance"):
+            if getattr(self, name) <= 0:
+                raise ValueError(f"{name} must be positive, got {getattr(self, name)}")
+        for name in ("pick_moves", "pick_steps", "drop_steps", "settle_steps"):
+            if int(getattr(self, name)) < 0:
+                raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
+
+    def stretch_compliance(self, stretch):
+        """XPBD compliance [m/N] of the (i, i+1) distance constraint for a stretch stiffness."""
+        return self.stretch_compliance_ref * stretch ** -self.stretch_exponent
+
+    def bending_compliance(self, bending):
+        """XPBD compliance [m/N] of the (i-1, i+1) distance constraint for a bending stiffness."""
+        return self.bending_compliance_ref * bending ** -self.bending_exponent

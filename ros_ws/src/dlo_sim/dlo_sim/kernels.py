@@ -1,0 +1,392 @@
+"""Taichi fields and kernels of the batched rope: XPBD physics, grip, explosion check, top-view render.
+
+Layout: one environment per outer (parallel) loop iteration; everything inside an environment
+runs serially (Gauss-Seidel), so an environment's result does not depend on the batch around it.
+Per-environment arrays are padded to ``P_MAX`` particles; loops stop at ``n[e]``.
+"""
+
+
+import os
+
+import taichi as ti
+
+from .config import (DT, FINGER_CLEARANCE, FINGER_HALF_LENGTH, FINGER_RADIUS, FIXED_END, GRAVITY,
+                     GRIPPER_HEIGHT, GRIPPER_START_BEHIND, IMAGE_CABLE, IMAGE_GRIPPER,
+                     MAX_DISPLACEMENT, NOMINAL_INVERSE_MASS, P_MAX, PARTICLE_RADIUS, REST_SPACING,
+                     WORKSPACE_HALF_WIDTH)
+
+FINGER_AXIS_OFFSET = FINGER_RADIUS + 0.5 * FINGER_CLEARANCE  # m, finger axis above/below the gripper centre
+HELD_DISTANCE = PARTICLE_RADIUS + FINGER_RADIUS + REST_SPACING  # m, held rule (DESIGN.md section 9)
+MAX_CORRECTION = 0.25 * REST_SPACING  # m, per sub-step cap on a particle's direct-solve correction
+SELF_EXCLUDE = 3  # particles closer than this along the chain never self-collide
+
+_initialised = False
+
+
+def init_taichi() -> None:
+    """``ti.init`` once per process: CPU, or the backend named by ``DLO_TI_ARCH`` (cpu/cuda/gpu/vulkan).
+
+    ``fast_math`` is off so NaN checks survive and results are bit-reproducible.
+    """
+    global _initialised
+    if _initialised:
+        return
+    arch = {"cpu": ti.cpu, "cuda": ti.cuda, "gpu": ti.gpu, "vulkan": ti.vulkan}[
+        os.environ.get("DLO_TI_ARCH", "cpu").lower()]
+    ti.init(arch=arch, fast_math=False, default_fp=ti.f32, offline_cache=True, log_level=ti.WARN)
+    _initialised = True
+
+
+@ti.data_oriented
+class RopeKernels:
+    """All Taichi state of ``num_envs`` ropes + grippers, and the kernels that advance and draw them."""
+
+    def __init__(self, num_envs: int, cfg, camera):
+        init_taichi()
+        self.num_envs = num_envs
+        self.substeps = int(cfg.substeps)
+        self.h = DT / cfg.substeps  # s, sub-step
+        self.damping_factor = float(pow(2.718281828459045, -cfg.damping * self.h))
+        self.r = float(cfg.contact_radius)
+        self.max_speed = float(cfg.max_speed)
+        self.max_distance = float(cfg.max_distance)
+        self.cam_f = (float(camera.fx), float(camera.fy))
+        self.cam_c = (float(camera.cx), float(camera.cy))
+        self.cam_pos = tuple(float(p) for p in camera.position)
+        self.cam_size = (int(camera.height), int(camera.width))
+
+        shape = (num_envs, P_MAX)
+        self.x = ti.Vector.field(3, ti.f32, shape)  # m, positions (predicted during a sub-step)
+        self.x_old = ti.Vector.field(3, ti.f32, shape)  # m, positions at the start of the sub-step
+        self.v = ti.Vector.field(3, ti.f32, shape)  # m/s
+        self.w = ti.field(ti.f32, shape)  # 1/kg, inverse mass this step (grip law, pin, pick)
+        self.carry = ti.field(ti.f32, shape)  # fraction of the gripper motion a particle follows
+        self.held = ti.field(ti.i32, shape)  # 1 = between the fingers (held rule)
+        self.seg_dir = ti.Vector.field(3, ti.f32, shape)  # unit direction of segment (k, k+1)
+        self.sup = ti.field(ti.f32, shape)  # Thomas algorithm: normalised super-diagonal
+        self.rhs = ti.field(ti.f32, shape)  # Thomas algorithm: right-hand side, then multipliers
+        self.n = ti.field(ti.i32, num_envs)  # particles in use
+        self.alpha_stretch = ti.field(ti.f32, num_envs)  # m/N
+        self.alpha_bend = ti.field(ti.f32, num_envs)  # m/N
+        self.mu = ti.field(ti.f32, num_envs)  # Coulomb friction, table and fingers
+        self.gripper = ti.Vector.field(3, ti.f32, num_envs)  # m, gripper centre
+        self.closure = ti.field(ti.f32, num_envs)  # c in [0, 1]
+        self.cmd = ti.Vector.field(3, ti.f32, num_envs)  # action [dx, dy, c] in [-1, 1]
+        self.active = ti.field(ti.i32, num_envs)  # 1 = advanced by ``advance``
+        self.pick = ti.field(ti.i32, num_envs)  # particle dragged kinematically (-1: none)
+        self.pick_vel = ti.Vector.field(3, ti.f32, num_envs)  # m/s of the dragged particle
+        self.bad = ti.field(ti.i32, num_envs)  # 1 = NaN/inf/explosion seen
+        self.image = ti.field(ti.u8, (num_envs,) + self.cam_size)
+
+    # ---------------------------------------------------------------- reset
+    @ti.kernel
+    def lay_straight(self, mask: ti.types.ndarray()):
+        """Reset masked envs: straight cable along +x from the fixed end, gripper at the start, at rest."""
+        for e in range(self.num_envs):
+            if mask[e] != 0:
+                for i in range(P_MAX):
+                    p = ti.Vector([FIXED_END[0] + i * REST_SPACING, FIXED_END[1], FIXED_END[2]])
+                    if i >= self.n[e]:
+                        p = ti.Vector([0.0, 0.0, 0.0])
+                    self.x[e, i] = p
+                    self.x_old[e, i] = p
+                    self.v[e, i] = ti.Vector([0.0, 0.0, 0.0])
+                    self.held[e, i] = 0
+                self.gripper[e] = ti.Vector([FIXED_END[0] - GRIPPER_START_BEHIND, FIXED_END[1], GRIPPER_HEIGHT])
+                self.closure[e] = 0.0
+                self.pick[e] = -1
+                self.bad[e] = 0
+
+    # ---------------------------------------------------------------- physics
+    @ti.func
+    def grip_inverse_mass(self, c):
+        """The paper's grip law (mirror of ``grip.inverse_mass``) [1/kg]."""
+        w_nom = NOMINAL_INVERSE_MASS
+        return ti.max(2.25 * w_nom - 2.5 * w_nom * ti.max(c, 0.5), 0.0)
+
+    @ti.func
+    def is_held(self, e, i, g):
+        """Held rule: within HELD_DISTANCE of the lower finger's axis (in x-z), inside the finger's
+        extent along y, and above that axis."""
+        q = self.x[e, i]
+        dx = q.x - g.x
+        dz = q.z - (g.z - FINGER_AXIS_OFFSET)
+        return (ti.abs(q.y - g.y) <= FINGER_HALF_LENGTH + FINGER_RADIUS
+                and dx * dx + dz * dz <= HELD_DISTANCE * HELD_DISTANCE and dz > 0.0)
+
+    @ti.kernel
+    def compute_held(self):
+        """``held`` for the current positions of every env."""
+        for e in range(self.num_envs):
+            for i in range(self.n[e]):
+                self.held[e, i] = 1 if self.is_held(e, i, self.gripper[e]) else 0
+
+    @ti.func
+    def update_grip(self, e, g, c):
+        """Held rule + grip law: inverse mass and carried fraction of every particle for this step."""
+        w_held = self.grip_inverse_mass(c)
+        for i in range(self.n[e]):
+            inside = self.is_held(e, i, g)
+            w = NOMINAL_INVERSE_MASS
+            carry = 0.0
+            if inside:
+                w = w_held
+                carry = 1.0 - w_held / NOMINAL_INVERSE_MASS
+            if i == 0 or i == self.pick[e]:
+                w = 0.0
+                carry = 0.0
+            self.held[e, i] = 1 if inside else 0
+            self.w[e, i] = w
+            self.carry[e, i] = carry
+
+    @ti.func
+    def predict(self, e, dg):
+        """Explicit step: damping, gravity, carried fraction of the gripper motion ``dg`` [m]."""
+        h = self.h
+        for i in range(1, self.n[e]):
+            q = self.x[e, i]
+            self.x_old[e, i] = q
+            if i == self.pick[e]:
+                dragged = q + self.pick_vel[e] * h
+                dragged.x = ti.min(ti.max(dragged.x, -WORKSPACE_HALF_WIDTH), WORKSPACE_HALF_WIDTH)
+                dragged.y = ti.min(ti.max(dragged.y, -WORKSPACE_HALF_WIDTH), WORKSPACE_HALF_WIDTH)
+                anchor = ti.Vector([FIXED_END[0], FIXED_END[1], FIXED_END[2]])
+                if (dragged - anchor).norm() < 0.9 * i * REST_SPACING:  # never pull the pinned cable taut
+                    self.x[e, i] = dragged
+            else:
+                v = self.v[e, i] * self.damping_factor + ti.Vector([0.0, 0.0, -GRAVITY * h])
+                f = self.carry[e, i]
+                self.x[e, i] = (1.0 - f) * (q + v * h) + f * (q + dg)
+
+    @ti.func
+    def distance_constraint(self, e, i, j, rest, alpha_tilde):
+        """One XPBD projection of |x_j - x_i| = rest; returns the current distance [m]."""
+        d = self.x[e, j] - self.x[e, i]
+        length = d.norm()
+        w_sum = self.w[e, i] + self.w[e, j]
+        if w_sum > 0.0 and length > 1e-9:
+            corr = (length - rest) / (w_sum + alpha_tilde) / length * d
+            self.x[e, i] += self.w[e, i] * corr
+            self.x[e, j] -= self.w[e, j] * corr
+        return length
+
+    @ti.func
+    def solve_bending(self, e):
+        """Bending as (i-1, i+1) distance constraints, one Gauss-Seidel pass. One-sided: they only
+        push apart (resist bending), never pull together, so a taut cable does not buckle."""
+        a_b = self.alpha_bend[e] / (self.h * self.h)
+        rest = 2.0 * REST_SPACING
+        for i in range(1, self.n[e] - 1):
+            d = self.x[e, i + 1] - self.x[e, i - 1]
+            if d.dot(d) < rest * rest:
+                self.distance_constraint(e, i - 1, i + 1, rest, a_b)
+
+    @ti.func
+    def solve_stretch(self, e):
+        """All (i, i+1) stretch constraints. First a direct solve: the linearised XPBD system is
+        tridiagonal (Deul et al. 2018), solved by the Thomas algorithm, each particle's correction
+        clamped to MAX_CORRECTION (robust where contacts fight a taut cable); then one Gauss-Seidel
+        sweep. Returns the longest segment [m] (bounds how far self-collision may skip)."""
+        a_s = self.alpha_stretch[e] / (self.h * self.h)
+        m = self.n[e] - 1  # constraints
+        for k in range(m):
+            d = self.x[e, k + 1] - self.x[e, k]
+            length = d.norm()
+            self.seg_dir[e, k] = d / ti.max(length, 1e-9)
+            self.rhs[e, k] = REST_SPACING - length  # -C_k
+        # forward elimination: diagonal w_k + w_k+1 + a_s, off-diagonal -w_k+1 (n_k . n_k+1)
+        for k in range(m):
+            b = self.w[e, k] + self.w[e, k + 1] + a_s
+            rhs = self.rhs[e, k]
+            if k > 0:
+                o_prev = -self.w[e, k] * self.seg_dir[e, k - 1].dot(self.seg_dir[e, k])
+                b -= o_prev * self.sup[e, k - 1]
+                rhs -= o_prev * self.rhs[e, k - 1]
+            o = 0.0
+            if k + 1 < m:
+                o = -self.w[e, k + 1] * self.seg_dir[e, k].dot(self.seg_dir[e, k + 1])
+            self.sup[e, k] = o / b
+            self.rhs[e, k] = rhs / b
+        for j in range(1, m):  # back substitution: rhs becomes the multipliers
+            k = m - 1 - j
+            self.rhs[e, k] -= self.sup[e, k] * self.rhs[e, k + 1]
+        for i in range(1, m + 1):  # dx_i = w_i (n_i-1 dl_i-1 - n_i dl_i)
+            pull = self.seg_dir[e, i - 1] * self.rhs[e, i - 1]
+            if i < m:
+                pull -= self.seg_dir[e, i] * self.rhs[e, i]
+            dx = self.w[e, i] * pull
+            size = dx.norm()
+            if size > MAX_CORRECTION:
+                dx *= MAX_CORRECTION / size
+            self.x[e, i] += dx
+        longest = 0.0
+        for i in range(m):
+            longest = ti.max(longest, self.distance_constraint(e, i, i + 1, REST_SPACING, a_s))
+        return longest
+
+    @ti.func
+    def solve_self_collision(self, e, longest):
+        """Push apart particle pairs closer than two contact radii (|i - j| >= SELF_EXCLUDE).
+
+        O(P^2) with an early-out: a pair at distance d proves the next (d - 2r) / longest particles
+        along the chain are out of reach, so they are skipped."""
+        n = self.n[e]
+        two_r = 2.0 * self.r
+        reach = ti.max(longest, 1e-4)
+        for i in range(n):
+            j = i + SELF_EXCLUDE
+            while j < n:
+                d = self.x[e, j] - self.x[e, i]
+                dist2 = d.dot(d)
+                skip = 1
+                if dist2 < two_r * two_r:
+                    w_sum = self.w[e, i] + self.w[e, j]
+                    if w_sum > 0.0 and dist2 > 1e-18:
+                        dist = ti.sqrt(dist2)
+                        corr = (dist - two_r) / (w_sum * dist) * d
+                        self.x[e, i] += self.w[e, i] * corr
+                        self.x[e, j] -= self.w[e, j] * corr
+                else:
+                    skip = ti.min(ti.max(ti.cast((ti.sqrt(dist2) - two_r) / reach, ti.i32), 1), n)
+                j += skip
+
+    @ti.func
+    def contact(self, e, i, normal, depth, surface_motion):
+        """Resolve one contact of particle i: push out by ``depth`` along ``normal`` and apply
+        Coulomb friction (position-based) to its motion relative to the surface this sub-step."""
+        q = self.x[e, i] + depth * normal
+        slip = (q - self.x_old[e, i]) - surface_motion
+        tangent = slip - slip.dot(normal) * normal
+        t_len = tangent.norm()
+        budget = self.mu[e] * depth
+        if t_len <= budget:
+            q -= tangent
+        else:
+            q -= tangent * (budget / t_len)
+        self.x[e, i] = q
+
+    @ti.func
+    def solve_fingers(self, e, g, dg):
+        """Keep particles outside both finger capsules (axis along y, centred at g +- offset)."""
+        reach = FINGER_RADIUS + self.r
+        for k in ti.static(range(2)):
+            sign = 1.0 - 2.0 * k
+            cz = g.z + sign * FINGER_AXIS_OFFSET
+            for i in range(1, self.n[e]):
+                if self.w[e, i] > 0.0:
+                    q = self.x[e, i]
+                    axis_y = g.y + ti.min(ti.max(q.y - g.y, -FINGER_HALF_LENGTH), FINGER_HALF_LENGTH)
+                    d = q - ti.Vector([g.x, axis_y, cz])
+                    dist2 = d.dot(d)
+                    if dist2 < reach * reach:
+                        dist = ti.sqrt(dist2)
+                        normal = ti.Vector([0.0, 0.0, -sign])
+                        if dist > 1e-9:
+                            normal = d / dist
+                        self.contact(e, i, normal, reach - dist, dg)
+
+    @ti.func
+    def solve_table(self, e):
+        """Table z = 0: particles stay ``contact_radius`` above it, with Coulomb friction."""
+        for i in range(1, self.n[e]):
+            depth = self.r - self.x[e, i].z
+            if depth > 0.0 and self.w[e, i] > 0.0:
+                self.contact(e, i, ti.Vector([0.0, 0.0, 1.0]), depth, ti.Vector([0.0, 0.0, 0.0]))
+
+    @ti.func
+    def update_velocities(self, e):
+        for i in range(1, self.n[e]):
+            self.v[e, i] = (self.x[e, i] - self.x_old[e, i]) / self.h
+
+    @ti.func
+    def exploded(self, e) -> ti.i32:
+        """1 if any particle is NaN/inf, too fast or too far (comparisons are false for NaN)."""
+        ok = 1
+        for i in range(self.n[e]):
+            p = self.x[e, i]
+            v = self.v[e, i]
+            if not (ti.abs(p).max() < self.max_distance and v.norm_sqr() < self.max_speed * self.max_speed):
+                ok = 0
+        return 1 - ok
+
+    @ti.func
+    def step_env(self, e):
+        """One 0.01 s step of environment e under its command ``cmd[e]``."""
+        a = self.cmd[e]
+        c = 0.5 * (a.z + 1.0)
+        g0 = self.gripper[e]
+        g1 = g0 + ti.Vector([a.x * MAX_DISPLACEMENT, a.y * MAX_DISPLACEMENT, 0.0])
+        g1.x = ti.min(ti.max(g1.x, -WORKSPACE_HALF_WIDTH), WORKSPACE_HALF_WIDTH)
+        g1.y = ti.min(ti.max(g1.y, -WORKSPACE_HALF_WIDTH), WORKSPACE_HALF_WIDTH)
+        self.closure[e] = c
+        self.update_grip(e, g0, c)
+        dg = (g1 - g0) / self.substeps
+        for k in range(self.substeps):
+            g = g0 + (k + 1) * dg
+            self.predict(e, dg)
+            self.solve_bending(e)
+            longest = self.solve_stretch(e)
+            self.solve_self_collision(e, longest)
+            self.solve_fingers(e, g, dg)
+            self.solve_table(e)
+            self.update_velocities(e)
+        self.gripper[e] = g1
+        self.bad[e] = self.exploded(e)
+
+    @ti.kernel
+    def advance(self, n_steps: ti.i32) -> ti.i32:
+        """``n_steps`` steps of 0.01 s for every active env; returns how many envs exploded."""
+        n_bad = 0
+        for e in range(self.num_envs):
+            if self.active[e] != 0:
+                self.bad[e] = 0
+                for _ in range(n_steps):
+                    if self.bad[e] == 0:
+                        self.step_env(e)
+                n_bad += self.bad[e]
+        return n_bad
+
+    # ---------------------------------------------------------------- rendering
+    @ti.func
+    def project(self, p):
+        """World point [m] -> (u, v) pixel coordinates and metres-to-pixels scale at its depth."""
+        depth = self.cam_pos[2] - p.z
+        u = self.cam_c[0] + self.cam_f[0] * (p.x - self.cam_pos[0]) / depth
+        v = self.cam_c[1] - self.cam_f[1] * (p.y - self.cam_pos[1]) / depth
+        return ti.Vector([u, v]), self.cam_f[0] / depth
+
+    @ti.func
+    def draw_capsule(self, e, a, b, ra, rb, value):
+        """Fill pixels whose centre lies within the capsule a-b (pixel coords, radii ra -> rb)."""
+        lo = ti.min(a - ra, b - rb)
+        hi = ti.max(a + ra, b + rb)
+        u0 = ti.max(ti.cast(ti.floor(lo.x), ti.i32), 0)
+        v0 = ti.max(ti.cast(ti.floor(lo.y), ti.i32), 0)
+        u1 = ti.min(ti.cast(ti.floor(hi.x), ti.i32), self.cam_size[1] - 1)
+        v1 = ti.min(ti.cast(ti.floor(hi.y), ti.i32), self.cam_size[0] - 1)
+        ab = b - a
+        ab2 = ti.max(ab.dot(ab), 1e-12)
+        for pv in range(v0, v1 + 1):
+            for pu in range(u0, u1 + 1):
+                q = ti.Vector([pu + 0.5, pv + 0.5])
+                t = ti.min(ti.max((q - a).dot(ab) / ab2, 0.0), 1.0)
+                rad = ra + t * (rb - ra)
+                d = q - (a + t * ab)
+                if d.dot(d) <= rad * rad:
+                    self.image[e, pv, pu] = ti.cast(value, ti.u8)
+
+    @ti.kernel
+    def render(self):
+        """Top view of every env: background 0, cable capsules 255, top finger footprint 128 over them."""
+        for e, v, u in self.image:
+            self.image[e, v, u] = ti.u8(0)
+        for e in range(self.num_envs):
+            for i in range(self.n[e] - 1):
+                a, sa = self.project(self.x[e, i])
+                b, sb = self.project(self.x[e, i + 1])
+                self.draw_capsule(e, a, b, PARTICLE_RADIUS * sa, PARTICLE_RADIUS * sb, IMAGE_CABLE)
+            g = self.gripper[e]
+            top = g.z + FINGER_AXIS_OFFSET
+            a, s = self.project(ti.Vector([g.x, g.y - FINGER_HALF_LENGTH, top]))
+            b, _ = self.project(ti.Vector([g.x, g.y + FINGER_HALF_LENGTH, top]))
+            self.draw_capsule(e, a, b, FINGER_RADIUS * s, FINGER_RADIUS * s, IMAGE_GRIPPER)

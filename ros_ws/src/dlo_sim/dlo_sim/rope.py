@@ -1,0 +1,234 @@
+"""``RopeSim``: the numpy-facing batched rope simulator (no rclpy).
+
+One ``RopeSim`` holds ``num_envs`` independent environments, each a cable of 30-60 particles
+pinned at the fixed end and a two-finger gripper. Environment ``e`` depends only on its own seed
+and actions: the same seed gives a bit-identical episode in any batch.
+
+Invalid input (documented behaviour):
+- bad ``SimConfig`` values (negative stiffness, zero particles, ...) and ``num_envs < 1``: ValueError;
+- actions containing NaN or inf, or of the wrong shape: ValueError;
+- actions outside [-1, 1]: clipped, with one ``RuntimeWarning`` per simulator;
+- an environment whose state becomes NaN/inf or explodes: flagged in ``unstable()`` and reset
+  cleanly with its own seed; the other environments continue untouched.
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+
+from dlo_perception.camera import TopCamera
+
+from .config import DT, P_MAX, REST_SPACING, SUBSTEPS_PER_ACTION, SimConfig
+from .kernels import RopeKernels
+
+PARAM_KEYS = ("stretch", "bending", "friction", "num_particles")
+
+
+class RopeSim:
+    """Batched Taichi cable simulator. Positions in metres (world frame, z up), time step 0.01 s."""
+
+    def __init__(self, num_envs: int, config: SimConfig | None = None, camera: TopCamera | None = None):
+        if int(num_envs) < 1:
+            raise ValueError(f"num_envs must be >= 1, got {num_envs}")
+        self.num_envs = int(num_envs)
+        self.config = config if config is not None else SimConfig()
+        self.config.validate()
+        self.camera = camera if camera is not None else TopCamera.covering_workspace(128)
+        self._k = RopeKernels(self.num_envs, self.config, self.camera)
+        n = self.num_envs
+        self._params = {"stretch": np.zeros(n, np.float32), "bending": np.zeros(n, np.float32),
+                        "friction": np.zeros(n, np.float32), "num_particles": np.zeros(n, np.int32),
+                        "seed": np.full(n, -1, np.int64)}
+        self._pick = np.full(n, -1, np.int32)
+        self._pick_vel = np.zeros((n, 3), np.float32)
+        self._unstable = np.zeros(n, bool)
+        self._clip_warned = False
+
+    # ------------------------------------------------------------------ episodes
+    def reset(self, seeds, env_ids=None, params: dict | None = None) -> None:
+        """Randomise, lay out (pick-and-drop x4) and settle the given environments (all if None).
+
+        ``seeds``: non-negative ints, one per reset environment. ``params`` optionally overrides
+        drawn values per environment (keys "stretch", "bending", "friction", "num_particles"; arrays
+        of len(env_ids)); the random stream is drawn first, so other draws are unchanged.
+        Environments not listed keep their state."""
+        ids = self._env_ids(env_ids)
+        seeds = np.asarray(seeds).reshape(-1)
+        if seeds.shape[0] != ids.shape[0] or not np.issubdtype(seeds.dtype, np.integer) or np.any(seeds < 0):
+            raise ValueError(f"seeds must be {ids.shape[0]} non-negative integers, got {seeds!r}")
+        draws = [self._draw(int(s)) for s in seeds]
+        values = {key: np.array([d[key] for d in draws]) for key in PARAM_KEYS}
+        for key, given in (params or {}).items():
+            if key not in PARAM_KEYS:
+                raise ValueError(f"unknown parameter override {key!r}; valid: {PARAM_KEYS}")
+            values[key] = np.broadcast_to(np.asarray(given), ids.shape).copy()
+        self._check_params(values)
+        for key in PARAM_KEYS:
+            self._params[key][ids] = values[key]
+        self._params["seed"][ids] = seeds
+        self._push_params()
+
+        mask = np.zeros(self.num_envs, np.int32)
+        mask[ids] = 1
+        k = self._k
+        k.lay_straight(mask)
+        cmd = k.cmd.to_numpy()
+        cmd[ids] = (0.0, 0.0, -1.0)  # gripper still and open while the cable is shaped
+        k.cmd.from_numpy(cmd)
+        k.active.from_numpy(mask)
+        cfg = self.config
+        for move in range(cfg.pick_moves):
+            self._pick[ids] = [d["pick"][move] for d in draws]
+            self._pick_vel[ids] = [d["pick_vel"][move] for d in draws]
+            k.pick.from_numpy(self._pick)
+            k.pick_vel.from_numpy(self._pick_vel)
+            k.advance(cfg.pick_steps)
+            self._pick[ids] = -1
+            k.pick.from_numpy(self._pick)
+            k.advance(cfg.drop_steps)
+        k.advance(cfg.settle_steps)
+        k.active.fill(1)
+        self._unstable[ids] = False
+
+    def step(self, actions) -> None:
+        """One action: ``SUBSTEPS_PER_ACTION`` (8) steps of 0.01 s with the same ``actions`` (N, 3)."""
+        self.step_physics(actions, SUBSTEPS_PER_ACTION)
+
+    def step_physics(self, actions, n: int = 1) -> None:
+        """``n`` steps of 0.01 s. ``actions`` (N, 3) in [-1, 1]: dx, dy (x 0.0025 m per step) and
+        closure c = (a2 + 1) / 2. Exploded environments are flagged and reset with their seed."""
+        if np.any(self._params["seed"] < 0):
+            raise RuntimeError("reset() every environment before stepping")
+        self._k.cmd.from_numpy(self._check_actions(actions))
+        self._unstable[:] = False
+        if self._k.advance(int(n)) > 0:
+            bad = self._k.bad.to_numpy() != 0
+            self.reset(self._params["seed"][bad], env_ids=np.flatnonzero(bad))
+            self._unstable[:] = bad
+
+    # ------------------------------------------------------------------ ground truth
+    def positions(self) -> np.ndarray:
+        """(N, P_MAX, 3) float32 [m]; rows beyond ``num_particles`` are 0."""
+        return self._k.x.to_numpy()
+
+    def velocities(self) -> np.ndarray:
+        """(N, P_MAX, 3) float32 [m/s]; rows beyond ``num_particles`` are 0."""
+        return self._k.v.to_numpy()
+
+    @property
+    def num_particles(self) -> np.ndarray:
+        """(N,) int32, n_c."""
+        return self._params["num_particles"].copy()
+
+    def particle_mask(self) -> np.ndarray:
+        """(N, P_MAX) bool, True for particles in use."""
+        return np.arange(P_MAX)[None, :] < self._params["num_particles"][:, None]
+
+    @property
+    def cable_length(self) -> np.ndarray:
+        """(N,) float32 [m], L_c = (n_c - 1) * rest spacing."""
+        return ((self._params["num_particles"] - 1) * REST_SPACING).astype(np.float32)
+
+    def held_mask(self) -> np.ndarray:
+        """(N, P_MAX) bool: particles between the fingers now (DESIGN.md section 9 rule)."""
+        self._k.compute_held()
+        return self._k.held.to_numpy() != 0
+
+    def n_held(self) -> np.ndarray:
+        """(N,) int32, n_h."""
+        return self.held_mask().sum(axis=1).astype(np.int32)
+
+    def mean_held_index(self) -> np.ndarray:
+        """(N,) float32, p_i = mean index of the held particles; -1.0 when none is held."""
+        held = self.held_mask()
+        count = held.sum(axis=1)
+        total = (held * np.arange(P_MAX)[None, :]).sum(axis=1)
+        return np.where(count > 0, total / np.maximum(count, 1), -1.0).astype(np.float32)
+
+    def gripper_state(self) -> np.ndarray:
+        """(N, 4) float32: x_G, y_G, z_G [m], c_G in [0, 1]."""
+        return np.concatenate([self._k.gripper.to_numpy(), self._k.closure.to_numpy()[:, None]], axis=1)
+
+    @property
+    def params(self) -> dict:
+        """Per-env randomised parameters, (N,) arrays: stretch, bending, friction, num_particles, seed."""
+        return {key: value.copy() for key, value in self._params.items()}
+
+    def unstable(self) -> np.ndarray:
+        """(N,) bool: NaN/inf/explosion detected in the last ``step``/``step_physics`` (env was reset)."""
+        return self._unstable.copy()
+
+    def render(self) -> np.ndarray:
+        """(N, H, W) uint8 top-camera view: 0 background, 255 cable, 128 gripper (drawn over the cable)."""
+        self._k.render()
+        return self._k.image.to_numpy()
+
+    def set_positions(self, positions, env_ids=None) -> None:
+        """Overwrite the particle positions [m] of some environments and zero their velocities
+        (tests and experiments). ``positions``: (len(env_ids), P_MAX, 3); particle 0 stays pinned
+        wherever it is put."""
+        ids = self._env_ids(env_ids)
+        x = self._k.x.to_numpy()
+        x[ids] = np.asarray(positions, np.float32).reshape(len(ids), P_MAX, 3)
+        x[~self.particle_mask()] = 0.0
+        v = self._k.v.to_numpy()
+        v[ids] = 0.0
+        self._k.x.from_numpy(x)
+        self._k.x_old.from_numpy(x)
+        self._k.v.from_numpy(v)
+
+    # ------------------------------------------------------------------ helpers
+    def _draw(self, seed: int) -> dict:
+        """All random draws of one episode, from its own generator (independent of the batch)."""
+        cfg = self.config
+        rng = np.random.default_rng(seed)
+        n = int(rng.integers(cfg.num_particles_range[0], cfg.num_particles_range[1] + 1))
+        draw = {"num_particles": n, "stretch": rng.uniform(*cfg.stretch_range),
+                "bending": rng.uniform(*cfg.bending_range), "friction": rng.uniform(*cfg.friction_range)}
+        picks = rng.integers(n // 2, n, size=cfg.pick_moves)
+        azimuth = rng.uniform(0.0, 2.0 * np.pi, size=cfg.pick_moves)
+        rise = rng.uniform(0.2, 1.0, size=cfg.pick_moves)  # upward bias: sine of the elevation
+        speed = rng.uniform(0.5, 1.0, size=cfg.pick_moves) * cfg.pick_max_speed / DT
+        flat = np.sqrt(1.0 - rise ** 2)
+        draw["pick"] = np.minimum(picks, n - 1)
+        draw["pick_vel"] = speed[:, None] * np.stack([flat * np.cos(azimuth), flat * np.sin(azimuth), rise], 1)
+        return draw
+
+    def _check_params(self, values: dict) -> None:
+        if np.any(~(values["stretch"] > 0)) or np.any(~(values["bending"] > 0)):
+            raise ValueError("stretch and bending stiffness must be positive")
+        if np.any(~(values["friction"] >= 0)):
+            raise ValueError("friction must be >= 0")
+        n = values["num_particles"]
+        if np.any(n < 2) or np.any(n > P_MAX):
+            raise ValueError(f"num_particles must be in [2, {P_MAX}], got {n}")
+
+    def _push_params(self) -> None:
+        p, cfg, k = self._params, self.config, self._k
+        k.n.from_numpy(p["num_particles"])
+        k.alpha_stretch.from_numpy(cfg.stretch_compliance(p["stretch"]).astype(np.float32))
+        k.alpha_bend.from_numpy(cfg.bending_compliance(p["bending"]).astype(np.float32))
+        k.mu.from_numpy(p["friction"])
+
+    def _env_ids(self, env_ids) -> np.ndarray:
+        if env_ids is None:
+            return np.arange(self.num_envs)
+        ids = np.asarray(env_ids, dtype=np.int64).reshape(-1)
+        if np.any(ids < 0) or np.any(ids >= self.num_envs) or len(np.unique(ids)) != len(ids):
+            raise ValueError(f"env_ids must be distinct indices in [0, {self.num_envs}), got {env_ids!r}")
+        return ids
+
+    def _check_actions(self, actions) -> np.ndarray:
+        a = np.asarray(actions, dtype=np.float32)
+        if a.shape != (self.num_envs, 3):
+            raise ValueError(f"actions must have shape ({self.num_envs}, 3), got {a.shape}")
+        if not np.all(np.isfinite(a)):
+            raise ValueError("actions contain NaN or inf")
+        if np.any(np.abs(a) > 1.0):
+            if not self._clip_warned:
+                warnings.warn("actions outside [-1, 1] are clipped (warned once)", RuntimeWarning, stacklevel=3)
+                self._clip_warned = True
+            a = np.clip(a, -1.0, 1.0)
+        return a
