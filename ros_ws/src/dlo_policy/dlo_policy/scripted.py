@@ -20,6 +20,7 @@ from dlo_policy.observation import observation_labels
 from dlo_sim.config import FIXED_END
 
 HOLD_FIRMLY = 1.0  # action a2 for c = 1
+MIN_REACH = 0.02  # m, x distance from the fixed end below which its direction is taken as +x
 
 
 def closure_action(closure):
@@ -84,14 +85,16 @@ class TactileReactive:
     Pose loop: heading = alpha + gain_angle * theta_T + gain_offset * y_T, clipped to +-pi/3, where
     alpha is the direction from the cable's fixed end to the gripper; constant speed.
     Grip loop: c = slide_closure + gain_slip * |change of theta_T| (closing fast, opening with leak
-    ``release``). Stop: hold firmly once vision sees no cable continuing right (q_V < stop_confidence).
+    ``release``). Stop: hold firmly once vision sees no cable continuing right (q_V < stop_confidence),
+    after ``min_steps`` control steps (at the start the cable hangs steeply from its fixed end).
     """
 
-    def __init__(self, gain_angle=1.0, gain_offset=40.0, slide_closure=0.7, gain_slip=0.5, release=0.05,
-                 stop_confidence=0.5, speed=1.0):
+    def __init__(self, gain_angle=0.5, gain_offset=40.0, slide_closure=0.7, gain_slip=0.5, release=0.05,
+                 stop_confidence=0.5, min_steps=10, speed=1.0):
         self.gain_angle, self.gain_offset = gain_angle, gain_offset
         self.slide_closure, self.gain_slip, self.release = slide_closure, gain_slip, release
-        self.stop_confidence, self.speed = stop_confidence, speed
+        self.stop_confidence, self.min_steps, self.speed = stop_confidence, min_steps, speed
+        self.steps = None
         self.previous_angle = None
         self.closure = None
         self.stopped = None
@@ -101,6 +104,7 @@ class TactileReactive:
         if self.previous_angle is None:
             return
         ids = slice(None) if env_ids is None else env_ids
+        self.steps[ids] = 0
         self.previous_angle[ids] = 0.0
         self.closure[ids] = self.slide_closure
         self.stopped[ids] = False
@@ -110,18 +114,22 @@ class TactileReactive:
         value = {label: observation[:, labels.index(label)] for label in labels}
         n = len(observation)
         if self.previous_angle is None or len(self.previous_angle) != n:
+            self.steps = np.zeros(n, np.int64)
             self.previous_angle = np.zeros(n)
             self.closure = np.full(n, self.slide_closure)
             self.stopped = np.zeros(n, bool)
         theta_t, y_t = value["theta_T"], value["y_T"]
-        alpha = np.arctan2(value["y_G"] - FIXED_END[1], value["x_G"] - FIXED_END[0])
+        # Direction of the cable from its fixed end; the gripper starts just behind that end.
+        alpha = np.arctan2(value["y_G"] - FIXED_END[1], np.maximum(value["x_G"] - FIXED_END[0], MIN_REACH))
         heading = np.clip(alpha + self.gain_angle * theta_t + self.gain_offset * y_t, -np.pi / 3, np.pi / 3)
         slip = np.abs(theta_t - self.previous_angle)
         self.previous_angle = theta_t.copy()
         target = self.slide_closure + self.gain_slip * slip
         self.closure = np.clip(np.where(target > self.closure, target, self.closure - self.release),
                                self.slide_closure, 0.89)
-        self.stopped |= (value["v_V"] < 0.5) | (value["q_V"] < self.stop_confidence)
+        self.steps += 1
+        end_seen = (value["v_V"] < 0.5) | (value["q_V"] < self.stop_confidence)
+        self.stopped |= end_seen & (self.steps > self.min_steps)
         move = self.speed * np.stack([np.cos(heading), np.sin(heading)], axis=1)
         move = np.where(self.stopped[:, None], 0.0, move)
         grip = np.where(self.stopped, HOLD_FIRMLY, closure_action(self.closure))

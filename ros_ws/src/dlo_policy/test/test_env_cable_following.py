@@ -1,0 +1,95 @@
+"""The gymnasium environments: checker, spaces, seeding, auto-reset, ablation, episode-end info."""
+
+import warnings
+
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env
+
+from dlo_policy.env import make_env, make_vec_env
+from dlo_policy.observation import build_observation, observation_labels, parse_modalities
+from dlo_perception.tactile import TactilePose
+from dlo_perception.vision import VisualPose
+
+
+def test_single_env_passes_the_gymnasium_checker():
+    env = make_env("All", seed=0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        check_env(env, skip_render_check=True)
+    assert env.observation_space.shape == (9,) and env.action_space.shape == (3,)
+
+
+@pytest.mark.parametrize("modalities, expected", [
+    ("T", ("theta_T", "y_T")), ("K", ("x_G", "y_G", "c_G")), ("V", ("v_V", "q_V", "theta_V", "y_V")),
+    ("T+K", ("x_G", "y_G", "c_G", "theta_T", "y_T")), ("V+K", ("x_G", "y_G", "c_G", "v_V", "q_V", "theta_V", "y_V")),
+    ("T+V", ("theta_T", "y_T", "v_V", "q_V", "theta_V", "y_V")),
+    ("All", ("x_G", "y_G", "c_G", "theta_T", "y_T", "v_V", "q_V", "theta_V", "y_V"))])
+def test_modality_subsets_keep_the_fixed_order(modalities, expected):
+    assert observation_labels(modalities) == expected
+
+
+def test_build_observation_orders_and_ablates():
+    kinematic = np.array([[0.1, -0.2, 0.7]])
+    tactile = TactilePose(np.array([0.3]), np.array([0.004]), np.array([True]), np.array([3]))
+    visual = VisualPose(np.array([True]), np.array([0.5]), np.array([-0.2]), np.array([0.01]))
+    full = build_observation("All", kinematic, tactile, visual)
+    assert full.dtype == np.float32
+    assert full[0] == pytest.approx([0.1, -0.2, 0.7, 0.3, 0.004, 1.0, 0.5, -0.2, 0.01])
+    ablated = build_observation("All", kinematic, None, visual, without=("T",))
+    assert ablated[0] == pytest.approx([0.1, -0.2, 0.7, 0.0, 0.0, 1.0, 0.5, -0.2, 0.01])
+    with pytest.raises(ValueError):
+        build_observation("K", kinematic, without=("V",))
+    with pytest.raises(ValueError):
+        parse_modalities("X+K")
+
+
+def rollout(env, seed, steps=12):
+    """Observations and rewards of a fixed action sequence from reset(seed)."""
+    observation, _ = env.reset(seed=seed)
+    observations, rewards = [observation], []
+    for t in range(steps):
+        action = np.array([1.0, 0.3 * np.sin(t), 0.4], np.float32)
+        observation, reward, terminated, truncated, _ = env.step(action)
+        observations.append(observation)
+        rewards.append(reward)
+        if terminated or truncated:
+            break
+    return np.array(observations), np.array(rewards)
+
+
+def test_same_seed_same_episode_with_tactile_noise():
+    env = make_env("All", seed=0, tactile_noise="full")
+    first = rollout(env, seed=7)
+    other = rollout(env, seed=8)
+    again = rollout(env, seed=7)
+    assert np.array_equal(first[0], again[0]) and np.array_equal(first[1], again[1])
+    assert not np.array_equal(first[0][0], other[0][0])
+
+
+def test_vector_env_batches_autoresets_and_reports_episode_end():
+    env = make_vec_env(3, modalities="T+K", seed=5, horizon=4, without=("T",))
+    observation, info = env.reset()
+    assert observation.shape == (3, 5) and info["episode_seed"].tolist() == [5, 6, 7]
+    assert np.all(observation[:, 3:] == 0.0)  # T ablated
+    for _ in range(4):
+        observation, reward, terminated, truncated, info = env.step(np.tile([0.5, 0.0, 0.4], (3, 1)))
+    assert np.all(terminated | truncated) and reward.shape == (3,)
+    assert info["_outcome"].all() and set(info["outcome"]) <= {"hold_the_end", "stop_before",
+                                                               "reach_end_but_drop", "drop_before"}
+    for key in ("outcome_code", "time_at_end", "how_far", "episode_return"):
+        assert info[key].shape == (3,)
+    assert info["_final_obs"].all() and info["final_obs"][0].shape == (5,)
+    assert env.episode_seed.tolist() == [8, 9, 10]  # auto-reset with the next seeds
+    assert env.tracker.steps.tolist() == [0, 0, 0]
+
+
+def test_single_env_info_at_episode_end():
+    env = make_env("K", seed=0, horizon=3)
+    env.reset(seed=1)
+    done, info = False, {}
+    while not done:
+        _, _, terminated, truncated, info = env.step(np.array([0.0, 0.0, 0.4], np.float32))
+        done = terminated or truncated
+    assert isinstance(info["outcome"], str) and isinstance(info["outcome_code"], int)
+    assert {"time_at_end", "how_far", "episode_return"} <= set(info)
