@@ -41,7 +41,7 @@ def shipped_policy_path() -> Path:
 
 
 def load_policy(kind: str, checkpoint: str, modalities: str, seed: int):
-    """-> (act(observation (1, D)) -> action (1, 3), modalities actually used)."""
+    """-> (act(observation (1, D), new_episode) -> action (1, 3), modalities actually used)."""
     if kind == "sac":
         from dlo_policy.evaluate import load_run_config
         from dlo_policy.sac import SAC
@@ -51,15 +51,20 @@ def load_policy(kind: str, checkpoint: str, modalities: str, seed: int):
             raise ParameterError(f"checkpoint {path} does not exist")
         agent = SAC.load(path)
         trained_on = load_run_config(path).modalities
-        return (lambda obs: agent.predict(obs, deterministic=True).reshape(1, 3)), trained_on
+        return (lambda obs, new_episode: agent.predict(obs, deterministic=True).reshape(1, 3)), trained_on
     if kind == "tactile_reactive":
         from dlo_policy.scripted import TactileReactive
 
         controller = TactileReactive()
-        view = type("ObservationLayout", (), {"modalities": parse_modalities("All")})()
-        return (lambda obs: controller(obs, view)), "All"
+        layout = type("ObservationLayout", (), {"modalities": parse_modalities("All")})()
+
+        def act(obs, new_episode):
+            if new_episode:
+                controller.reset()
+            return controller(obs, layout)
+        return act, "All"
     rng = np.random.default_rng(seed)
-    return (lambda obs: rng.uniform(-1.0, 1.0, (1, 3)).astype(np.float32)), modalities
+    return (lambda obs, new_episode: rng.uniform(-1.0, 1.0, (1, 3)).astype(np.float32)), modalities
 
 
 class PolicyNode(Node):
@@ -90,6 +95,7 @@ class PolicyNode(Node):
                                 if m in self.modalities and m not in self.without]
         self.sync = StampSync(inputs)
         self.first_seen = {}  # stamp_ns -> wall time of its first input
+        self.last = (None, None)  # (stamp_ns, GripperCommand): a republished step gets the same answer
         self.publisher = self.create_publisher(GripperCommand, "/dlo/gripper/cmd", 10)
         self.create_subscription(GripperState, "/dlo/gripper/state", lambda m: self.on_input("gripper", m), 10)
         if "tactile" in inputs:
@@ -108,6 +114,9 @@ class PolicyNode(Node):
         if matched is None:
             return
         self.first_seen.pop(stamp, None)
+        if self.last[0] == stamp:  # the sim republished this step: answer it again, unchanged
+            self.publisher.publish(self.last[1])
+            return
         values = dict(zip(self.sync.keys, matched))
         gripper = values["gripper"]
         tactile = values.get("tactile")
@@ -119,9 +128,10 @@ class PolicyNode(Node):
             Visual(np.array([vision.visible]), np.array([vision.confidence]), np.array([vision.angle]),
                    np.array([vision.y])) if vision else None,
             without=self.without)
-        vx, vy, closure = action_to_command(self.act(observation)[0])
+        vx, vy, closure = action_to_command(self.act(observation, gripper.step == 0)[0])
         command = GripperCommand(vx=vx, vy=vy, closure=closure, episode=gripper.episode, step=gripper.step)
         command.header = gripper.header
+        self.last = (stamp, command)
         self.publisher.publish(command)
 
     def check_missing_inputs(self):
