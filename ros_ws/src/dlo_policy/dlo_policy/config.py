@@ -16,6 +16,8 @@ from typing import Any, Optional
 
 import yaml
 
+from .observation import MODALITY_ORDER, parse_modalities
+
 
 class ConfigError(ValueError):
     """A configuration key is unknown or its value is invalid."""
@@ -76,23 +78,16 @@ class TrainConfig:
         for name in ("total_steps", "eval_every", "eval_episodes", "checkpoint_every"):
             _require(getattr(self, name) >= 1, f"train.{name}", ">= 1")
         _require(self.num_threads >= 0, "train.num_threads", ">= 0")
-        _require(all(m in MODALITY_SIZES for m in self.eval_without), "train.eval_without",
-                 f"a list of modalities from {list(MODALITY_SIZES)}")
+        _require(all(m in MODALITY_ORDER for m in self.eval_without), "train.eval_without",
+                 f"a list of modalities from {list(MODALITY_ORDER)}")
 
 
-# Observation layout (docs/LIBRARY_API.md): K [x_G, y_G, c_G], T [theta_T, y_T], V [v_V, q_V, theta_V, y_V].
-MODALITY_SIZES = {"K": 3, "T": 2, "V": 4}
-
-
-def parse_modalities(modalities: str) -> list[str]:
-    """'All' or '+'-joined letters (e.g. 'T+K') -> the modalities in observation order K, T, V."""
-    if modalities == "All":
-        return list(MODALITY_SIZES)
-    letters = [m.strip() for m in modalities.split("+")]
-    unknown = [m for m in letters if m not in MODALITY_SIZES]
-    if unknown or not letters or len(set(letters)) != len(letters):
-        raise ConfigError(f"modalities: {modalities!r} is not 'All' or a '+'-joined subset of K, T, V")
-    return [m for m in MODALITY_SIZES if m in letters]
+def check_modalities(modalities: str, key: str = "modalities") -> tuple[str, ...]:
+    """The modalities of `modalities` ('All', 'T+K', ...) in observation order, or a ConfigError."""
+    try:
+        return parse_modalities(modalities)
+    except ValueError as error:
+        raise ConfigError(f"{key}: {error}") from error
 
 
 @dataclass
@@ -108,9 +103,9 @@ class RunConfig:
     train: TrainConfig = field(default_factory=TrainConfig)
 
     def __post_init__(self) -> None:
-        parse_modalities(self.modalities)
+        present = check_modalities(self.modalities)
         for removed in self.train.eval_without:
-            _require(removed in parse_modalities(self.modalities), "train.eval_without",
+            _require(removed in present, "train.eval_without",
                      f"modalities that the run observes ({self.modalities})")
 
     @property

@@ -20,7 +20,8 @@ from typing import Any, Optional, Sequence
 import numpy as np
 import torch
 
-from .config import MODALITY_SIZES, RunConfig, load_config, parse_modalities
+from .config import RunConfig, load_config
+from .observation import MODALITY_ORDER, MODALITY_SIZES, parse_modalities
 from .sac import SAC
 
 OUTCOMES = ("hold_the_end", "stop_before", "reach_end_but_drop", "drop_before")
@@ -57,38 +58,39 @@ def blanked_columns(modalities: str, without: Sequence[str]) -> list[int]:
     return columns
 
 
-def evaluate_agent(agent: SAC, vec_env: Any, seeds: Sequence[int],
+def evaluate_agent(agent: SAC, vec_env: Any, first_seed: int, episodes: int,
                    blank: Sequence[int] = ()) -> EvalResult:
-    """Run one deterministic episode per seed, `vec_env.num_envs` at a time.
+    """One deterministic episode per seed first_seed .. first_seed + episodes - 1.
 
-    `blank`: observation columns set to zero before acting. Episode outcomes are read from the
-    `info` of each env's first episode end (`outcome`, `time_at_end`, `how_far`).
+    Runs `vec_env.num_envs` episodes at a time: `reset(seed=s)` starts env i on seed s + i (the
+    gymnasium and dlo_policy.env convention). `blank`: observation columns zeroed before acting.
+    Outcomes come from the `info` of each env's first episode end (`outcome`, `time_at_end`,
+    `how_far`); later episodes of an env (auto-reset) are ignored.
     """
     n_envs = vec_env.num_envs
     rewards: list[float] = []
     ends: list[dict[str, Any]] = []
-    for start in range(0, len(seeds), n_envs):
-        chunk = [int(s) for s in seeds[start:start + n_envs]]
-        padded = chunk + [chunk[-1] + 1 + i for i in range(n_envs - len(chunk))]  # extra envs, ignored
-        obs, _ = vec_env.reset(seed=padded)
+    for start in range(0, episodes, n_envs):
+        wanted = min(n_envs, episodes - start)  # the other envs of the last batch run, ignored
+        obs, _ = vec_env.reset(seed=first_seed + start)
         returns = np.zeros(n_envs)
         finished = np.zeros(n_envs, dtype=bool)
-        chunk_ends: list[dict[str, Any]] = [{} for _ in range(n_envs)]
-        while not finished[:len(chunk)].all():
+        batch_ends: list[dict[str, Any]] = [{} for _ in range(n_envs)]
+        while not finished[:wanted].all():
             obs = np.array(obs, dtype=np.float32)
             obs[:, blank] = 0.0
             obs, reward, terminated, truncated, infos = vec_env.step(agent.predict(obs, deterministic=True))
             returns += np.where(finished, 0.0, reward)
             for i in np.flatnonzero((terminated | truncated) & ~finished):
-                chunk_ends[i] = _episode_end_info(infos, i)
+                batch_ends[i] = _episode_end_info(infos, i)
             finished |= terminated | truncated
-        rewards += returns[:len(chunk)].tolist()
-        ends += chunk_ends[:len(chunk)]
+        rewards += returns[:wanted].tolist()
+        ends += batch_ends[:wanted]
     outcomes = [end.get("outcome") for end in ends]
     has_outcome = all(o is not None for o in outcomes)
     fractions = {name: (float(np.mean([o == name for o in outcomes])) if has_outcome else math.nan)
                  for name in OUTCOMES}
-    return EvalResult(episodes=len(seeds), **fractions, episode_reward=float(np.mean(rewards)),
+    return EvalResult(episodes=episodes, **fractions, episode_reward=float(np.mean(rewards)),
                       time_at_end=_mean_of(ends, "time_at_end"), how_far=_mean_of(ends, "how_far"))
 
 
@@ -142,7 +144,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--episodes", type=int, default=100, help="number of episodes (default 100)")
     parser.add_argument("--seed", type=int, default=0, help="first episode seed (default 0)")
     parser.add_argument("--json", type=Path, help="also write the results to this JSON file")
-    parser.add_argument("--without", choices=sorted(MODALITY_SIZES), action="append", default=[],
+    parser.add_argument("--without", choices=MODALITY_ORDER, action="append", default=[],
                         help="blank this modality's observations (repeatable)")
     parser.add_argument("--num-envs", type=int, default=10, help="environments stepped together (default 10)")
     parser.add_argument("--threads", type=int, default=0, help="torch threads (default: all cores)")
@@ -160,7 +162,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     blank = blanked_columns(config.modalities, args.without)
     vec_env = make_vec_env_for(config, min(args.num_envs, args.episodes), seed=args.seed)
     try:
-        result = evaluate_agent(agent, vec_env, range(args.seed, args.seed + args.episodes), blank)
+        result = evaluate_agent(agent, vec_env, args.seed, args.episodes, blank)
     finally:
         vec_env.close()
     title = f"{config.name}, seeds {args.seed}..{args.seed + args.episodes - 1}"

@@ -101,7 +101,6 @@ class Trainer:
             self.agent = SAC(self.env.observation_space.shape[0], space.low, space.high, config.sac,
                              seed=config.seed)
         self.log = EvalLog(out_dir / EVAL_FILE, self.agent.num_env_steps if resume else None)
-        self.eval_seeds = range(config.train.eval_seed, config.train.eval_seed + config.train.eval_episodes)
         self.tested = [("", [])] + [(m, blanked_columns(config.modalities, [m]))
                                     for m in config.train.eval_without]
         self.started = time.perf_counter()
@@ -115,7 +114,8 @@ class Trainer:
     def evaluate(self) -> None:
         rows = []
         for without, columns in self.tested:
-            result = evaluate_agent(self.agent, self.eval_env, self.eval_seeds, columns)
+            result = evaluate_agent(self.agent, self.eval_env, self.config.train.eval_seed,
+                                    self.config.train.eval_episodes, columns)
             rows.append({"step": self.agent.num_env_steps, "tested_without": without, **result.to_dict(),
                          "train_episodes": self.agent.num_episodes, "wall_time_s": round(self.wall_time(), 2)})
         self.log.append(rows)

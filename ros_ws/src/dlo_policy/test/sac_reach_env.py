@@ -11,7 +11,7 @@ from __future__ import annotations
 import gymnasium as gym
 import numpy as np
 
-from dlo_policy.config import MODALITY_SIZES, parse_modalities
+from dlo_policy.observation import MODALITY_SIZES, parse_modalities
 
 HORIZON = 20
 NEAR = 0.1

@@ -37,10 +37,10 @@ def filled_agent(n: int = 300, **overrides) -> SAC:
 def test_sac_learns_reach_task():
     env = ReachEnv("K")
     agent = SAC(9 - 6, env.action_space.low, env.action_space.high, SACConfig(**SMALL), seed=1)
-    random_policy = evaluate_agent(agent, make_vec_env(10, "K"), range(100, 110))
+    random_policy = evaluate_agent(agent, make_vec_env(10, "K"), first_seed=100, episodes=10)
     agent.learn(env, total_steps=1000)
     assert agent.num_env_steps == 1000 and agent.num_updates == 800
-    trained = evaluate_agent(agent, make_vec_env(10, "K"), range(100, 110))
+    trained = evaluate_agent(agent, make_vec_env(10, "K"), first_seed=100, episodes=10)
     assert trained.hold_the_end >= 0.8, trained
     assert trained.episode_reward > -1.5 > random_policy.episode_reward
 

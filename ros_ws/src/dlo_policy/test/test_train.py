@@ -1,0 +1,123 @@
+"""dlo-train / dlo-evaluate: eval CSV protocol, checkpoints, resume, config errors."""
+import csv
+import json
+import sys
+from pathlib import Path
+
+import pytest
+import torch
+
+from dlo_policy import evaluate, train
+from dlo_policy.config import ConfigError, load_config
+from dlo_policy.sac import SAC
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # --import-mode=importlib: helper modules
+
+TINY = ["env_module=sac_reach_env", "sac.hidden_sizes=[32,32]", "sac.batch_size=32",
+        "sac.learning_starts=50", "sac.buffer_size=2000", "train.eval_every=100",
+        "train.checkpoint_every=100", "train.num_threads=1"]
+
+
+@pytest.fixture(autouse=True)
+def restore_threads():
+    previous = torch.get_num_threads()
+    yield
+    torch.set_num_threads(previous)
+
+
+def read_eval(run: Path) -> list[dict[str, str]]:
+    with (run / train.EVAL_FILE).open(newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def test_eval_csv_has_documented_columns_and_ablation_rows(tmp_path):
+    run = tmp_path / "run"
+    assert train.main(["--out", str(run), "--steps", "300", "--modalities", "All", "--no-progress",
+                       "train.eval_without=[T, V]", *TINY]) == 0
+    with (run / train.EVAL_FILE).open(newline="") as f:
+        assert next(csv.reader(f)) == list(train.EVAL_COLUMNS)
+    rows = read_eval(run)
+    assert [(int(r["step"]), r["tested_without"]) for r in rows] == [
+        (step, without) for step in (0, 100, 200, 300) for without in ("", "T", "V")]
+    for row in rows:
+        assert sum(float(row[o]) for o in evaluate.OUTCOMES) == pytest.approx(1.0)
+        assert int(row["episodes"]) == 10
+    done = json.loads((run / train.DONE_FILE).read_text())
+    assert done["env_steps"] == 300 and done["updates"] == 250
+    assert (run / train.POLICY_FILE).exists() and (run / train.CONFIG_FILE).exists()
+
+
+def test_resume_after_interruption_continues_steps_and_buffer(tmp_path):
+    run = tmp_path / "run"
+    config = load_config(None, [*TINY, "env_options.crash_after=250", "train.progress=false",
+                                "train.total_steps=300", "train.checkpoint_every=200"])
+    with pytest.raises(InterruptedError):
+        train.train(config, run)
+    assert not (run / train.DONE_FILE).exists()
+    checkpoint = SAC.load(run / train.CHECKPOINT_FILE)
+    assert (checkpoint.num_env_steps, len(checkpoint.replay)) == (200, 200)
+    assert train.main(["--out", str(run), "--resume", "--steps", "400"]) == 0
+    agent = SAC.load(run / train.CHECKPOINT_FILE)
+    assert (agent.num_env_steps, agent.num_updates, len(agent.replay)) == (400, 350, 400)
+    assert [int(r["step"]) for r in read_eval(run)] == [0, 100, 200, 300, 400]
+    wall = [float(r["wall_time_s"]) for r in read_eval(run)]
+    assert wall == sorted(wall)
+
+
+def test_existing_run_needs_resume(tmp_path, capsys):
+    run = tmp_path / "run"
+    assert train.main(["--out", str(run), "--steps", "100", "--no-progress", *TINY]) == 0
+    assert train.main(["--out", str(run), "--steps", "100", "--no-progress", *TINY]) == 2
+    assert "--resume" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("override, message", [
+    ("sac.batch_sise=64", "unknown key(s) sac.batch_sise"),
+    ("sac.batch_size=many", "sac.batch_size: expected an integer"),
+    ("sac.tau=1.5", "sac.tau: must be in (0, 1]"),
+    ("modalities=X+K", "modalities: modalities must be a '+'-joined subset"),
+    ("sac.hidden_sizes=64", "sac.hidden_sizes: expected a list"),
+    ("train.eval_without=[V]", "train.eval_without: must be modalities that the run observes"),
+])
+def test_bad_config_is_a_clear_error(override, message, tmp_path, capsys):
+    with pytest.raises(ConfigError, match=message.replace("(", r"\(").replace(")", r"\)").replace("+", r"\+")):
+        load_config(None, ["modalities=T+K", override])
+    assert train.main(["--out", str(tmp_path / "run"), *TINY, "modalities=T+K", override]) == 2
+    assert message in capsys.readouterr().err
+    assert not (tmp_path / "run").exists()
+
+
+def test_yaml_file_then_overrides_then_flags(tmp_path):
+    path = tmp_path / "c.yaml"
+    path.write_text("seed: 4\nsac: {batch_size: 64, actor_lr: 3e-4}\ntrain: {eval_every: 500}\n")
+    config = load_config(path, ["train.eval_every=1000"], {"seed": 7})
+    assert (config.seed, config.sac.batch_size, config.sac.actor_lr, config.train.eval_every) == (7, 64, 3e-4, 1000)
+
+
+def test_evaluate_cli_prints_table_and_writes_json(tmp_path, capsys):
+    run = tmp_path / "run"
+    assert train.main(["--out", str(run), "--steps", "100", "--no-progress", *TINY]) == 0
+    capsys.readouterr()
+    out = tmp_path / "eval.json"
+    assert evaluate.main(["--checkpoint", str(run / train.POLICY_FILE), "--episodes", "12", "--seed", "5",
+                          "--json", str(out), "--without", "V", "--threads", "1"]) == 0
+    printed = capsys.readouterr().out
+    assert "hold_the_end" in printed and "without V" in printed
+    result = json.loads(out.read_text())
+    assert sum(result[o] for o in evaluate.OUTCOMES) == pytest.approx(1.0)
+    assert result["episodes"] == 12 and result["without"] == ["V"]
+
+
+def test_blanked_columns_follow_the_observation_layout():
+    assert evaluate.blanked_columns("All", ["T"]) == [3, 4]
+    assert evaluate.blanked_columns("All", ["V"]) == [5, 6, 7, 8]
+    assert evaluate.blanked_columns("T+V", ["V"]) == [2, 3, 4, 5]
+    with pytest.raises(ValueError):
+        evaluate.blanked_columns("V+K", ["T"])
+
+
+def test_cli_help_exits_cleanly():
+    for main in (train.main, evaluate.main):
+        with pytest.raises(SystemExit) as exit_info:
+            main(["--help"])
+        assert exit_info.value.code == 0
