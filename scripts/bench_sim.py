@@ -1,0 +1,125 @@
+#!/usr/bin/env python3
+"""Benchmark of the dlo_sim Taichi rope against MuJoCo's cable; prints a JSON line last.
+
+One env-step = 0.01 s of simulated time with full physics (stretch, bending, gravity, table
+friction, self-collision, finger capsules, grip law). Ours is timed through the public API,
+``RopeSim.step`` (one action = 8 env-steps in one kernel launch), with random actions, rendering
+off and on (``render()`` once per action, as the policy sees it), for batch sizes 1, 16, 64, 256.
+
+Peer: MuJoCo (>= 3.3, < 4) ``composite type="cable"`` of 50 segments (elasticity.cable plugin),
+first body fixed 0.1 m above a floor, timestep 0.01 / 8 s (8 MuJoCo steps = 1 env-step, as our
+XPBD runs 4 sub-steps), self-collision on, given its fastest setting here: ``jacobian="dense"``
+with ``solver="CG"`` (about 3x the default sparse/Newton on this cable).
+
+Usage: python scripts/bench_sim.py [--seconds 2] [--batches 1 16 64 256]
+"""
+
+import argparse
+import json
+import os
+import sys
+import time
+
+import numpy as np
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+for pkg in ("dlo_sim", "dlo_perception"):
+    sys.path.insert(0, os.path.join(ROOT, "ros_ws", "src", pkg))
+
+from dlo_sim import RopeSim  # noqa: E402
+from dlo_sim.config import DT, SUBSTEPS_PER_ACTION  # noqa: E402
+
+MUJOCO_CABLE = """
+<mujoco model="cable">
+  <extension><plugin plugin="mujoco.elasticity.cable"/></extension>
+  <option timestep="{timestep}" jacobian="dense" solver="CG"/>
+  <worldbody>
+    <geom type="plane" size="1 1 0.1"/>
+    <composite type="cable" curve="s" count="51 1 1" size="0.2537" offset="-0.25 0 0.1" initial="none">
+      <plugin plugin="mujoco.elasticity.cable">
+        <config key="twist" value="1e6"/>
+        <config key="bend" value="2e6"/>
+        <config key="vmax" value="0"/>
+      </plugin>
+      <joint kind="main" damping="0.01"/>
+      <geom type="capsule" size="0.004" density="1000"/>
+    </composite>
+  </worldbody>
+</mujoco>
+"""
+
+
+def time_ours(num_envs: int, seconds: float, render: bool) -> float:
+    """Env-steps per second of ``RopeSim.step`` (+ ``render`` per action if asked)."""
+    sim = RopeSim(num_envs)
+    sim.reset(np.arange(num_envs))
+    rng = np.random.default_rng(0)
+    acts = rng.uniform(-1.0, 1.0, (64, num_envs, 3)).astype(np.float32)
+    acts[..., 2] = rng.uniform(0.0, 1.0, (64, num_envs))  # closure 0.5..1: the cable stays in hand
+    sim.step(acts[0])
+    if render:
+        sim.render()
+    actions_done = 0
+    start = time.perf_counter()
+    while True:
+        for _ in range(8):
+            sim.step(acts[actions_done % 64])
+            if render:
+                sim.render()
+            actions_done += 1
+        elapsed = time.perf_counter() - start
+        if elapsed > seconds:
+            return num_envs * actions_done * SUBSTEPS_PER_ACTION / elapsed
+
+
+def time_mujoco(seconds: float) -> float:
+    """MuJoCo cable env-steps (0.01 s = 8 steps) per second, single environment."""
+    import mujoco
+
+    model = mujoco.MjModel.from_xml_string(MUJOCO_CABLE.format(timestep=DT / 8))
+    data = mujoco.MjData(model)
+    steps = 0
+    start = time.perf_counter()
+    while True:
+        for _ in range(800):
+            mujoco.mj_step(model, data)
+        steps += 800
+        elapsed = time.perf_counter() - start
+        if elapsed > seconds:
+            return steps / 8 / elapsed
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seconds", type=float, default=2.0, help="timing window per measurement [s]")
+    parser.add_argument("--batches", type=int, nargs="+", default=[1, 16, 64, 256])
+    args = parser.parse_args()
+
+    per_batch = {}
+    for n in args.batches:
+        off = time_ours(n, args.seconds, render=False)
+        on = time_ours(n, args.seconds, render=True)
+        per_batch[n] = {"render_off": round(off), "render_on": round(on), "render_overhead": round(off / on - 1.0, 3)}
+        print(f"batch {n:4d}: {off:10.0f} env-steps/s render off, {on:10.0f} render on", flush=True)
+    mujoco_rate = time_mujoco(args.seconds)
+    print(f"mujoco cable (50 segments, dense/CG, 8 x 1.25 ms per env-step): {mujoco_rate:.0f} env-steps/s", flush=True)
+
+    largest = max(args.batches)
+    single = per_batch.get(1, {}).get("render_off")
+    result = {
+        "batched_env_steps_per_s": max(v["render_off"] for v in per_batch.values()),
+        "batched_num_envs": max(per_batch, key=lambda n: per_batch[n]["render_off"]),
+        "single_env_steps_per_s": single,
+        "mujoco_single_env_steps_per_s": round(mujoco_rate, 1),
+        "ratio_vs_mujoco_single": round(single / mujoco_rate, 1) if single else None,
+        "render_overhead": per_batch[largest]["render_overhead"],
+        "render_overhead_batch": largest,
+        "per_batch": per_batch,
+        "mujoco_settings": "composite cable 50 segments, jacobian=dense, solver=CG, timestep=0.00125",
+        "cpu_threads": os.cpu_count(),
+    }
+    print(json.dumps(result))
+
+
+if __name__ == "__main__":
+    main()
