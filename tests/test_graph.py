@@ -1,0 +1,95 @@
+"""The ROS 2 graph end to end: every node a separate process, step-locked, recorded to MCAP.
+
+One recorded run (tactile-reactive policy, 2 episodes) is shared by the checks: the bag holds
+every topic for every step, the graph's observations/actions/outcomes equal the in-process gym
+environment's for the same seeds, and bag analysis equals the live outcomes.
+"""
+
+import json
+import os
+import pathlib
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from dlo_tools.analysis import read_run
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+SEED = 11
+EPISODES = 2
+
+
+@pytest.fixture(scope="module")
+def recorded_run(tmp_path_factory):
+    base = tmp_path_factory.mktemp("graph")
+    bag, logs = base / "bag", base / "logs"
+    result = subprocess.run(
+        ["bash", str(ROOT / "scripts" / "launch_graph.sh"), "--policy", "tactile_reactive", "--episodes",
+         str(EPISODES), "--seed", str(SEED), "--record", str(bag), "--logs", str(logs)],
+        capture_output=True, text=True, timeout=600, env={**os.environ, "DLO_USE_ROS2RUN": "1"})
+    assert result.returncode == 0, result.stdout + result.stderr
+    live = [json.loads(line) for line in (logs / "outcomes.jsonl").read_text().splitlines()]
+    return {"bag": bag, "logs": logs, "stdout": result.stdout, "live": live, "run": read_run(bag)}
+
+
+def test_launch_prints_the_outcome_table(recorded_run):
+    assert "hold_the_end" in recorded_run["stdout"] and "drop_before" in recorded_run["stdout"]
+    assert len(recorded_run["live"]) == EPISODES
+
+
+def test_bag_has_every_topic_for_every_step(recorded_run):
+    run = recorded_run["run"]
+    assert sorted(run) == list(range(EPISODES))
+    for episode, streams in run.items():
+        steps = set(streams["task"])
+        assert steps == set(range(max(steps) + 1))
+        for stream in ("gripper", "tactile", "vision", "particles"):
+            assert set(streams[stream]) == steps, (episode, stream)
+        final = max(steps)
+        assert streams["task"][final].done
+        assert steps - {final} <= set(streams["command"]) <= steps  # the final state may be answered too
+    log = (recorded_run["logs"] / "recorder.log").read_text()
+    assert "dropped 0" in log or "0 dropped" in log, log[-500:]
+
+
+def test_graph_equals_in_process_env(recorded_run):
+    from dlo_policy.env import make_env
+    from dlo_policy.scripted import TactileReactive
+
+    env = make_env("All", seed=SEED)
+    controller = TactileReactive()
+    for episode in range(EPISODES):
+        streams = recorded_run["run"][episode]
+        observation, _ = env.reset(seed=SEED) if episode == 0 else env.reset()
+        controller.reset()
+        for step in sorted(streams["task"]):
+            g, t, v = streams["gripper"][step], streams["tactile"][step], streams["vision"][step]
+            graph_obs = np.array([g.x, g.y, g.closure, t.angle, t.y, float(v.visible), v.confidence, v.angle, v.y],
+                                 np.float32)
+            np.testing.assert_allclose(observation, graph_obs, atol=1e-6, err_msg=f"episode {episode} step {step}")
+            if streams["task"][step].done:
+                break
+            action = controller(observation[None], env.vec)[0]
+            cmd = streams["command"][step]
+            np.testing.assert_allclose([cmd.vx / 0.25, cmd.vy / 0.25, 2 * cmd.closure - 1], action, atol=1e-6)
+            observation, _, terminated, truncated, info = env.step(action)
+        assert terminated or truncated
+        live = recorded_run["live"][episode]
+        assert info["outcome"] == live["outcome"]
+        assert info["episode_return"] == pytest.approx(live["episode_return"], abs=1e-9)
+        assert info["time_at_end"] == live["time_at_end"] and info["how_far"] == live["how_far"]
+
+
+def test_bag_analysis_equals_live_outcomes(recorded_run, tmp_path):
+    out = tmp_path / "analysis.json"
+    result = subprocess.run([sys.executable, "-m", "dlo_tools.analysis", str(recorded_run["bag"]), "--json", str(out),
+                             "--plots", str(tmp_path / "plots")], capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stderr
+    analysed = json.loads(out.read_text())
+    for mine, live in zip(analysed, recorded_run["live"], strict=True):
+        for key in ("outcome", "time_at_end", "how_far", "seed", "episode"):
+            assert mine[key] == live[key], key
+        assert mine["episode_return"] == pytest.approx(live["episode_return"], abs=1e-9)
+    assert len(list((tmp_path / "plots").glob("episode_*.png"))) == EPISODES
