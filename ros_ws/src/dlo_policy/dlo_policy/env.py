@@ -40,7 +40,7 @@ from dlo_perception.tactile import noise_sigma, tactile_pose
 from dlo_perception.vision import visual_pose
 from dlo_policy.observation import build_observation, observation_bounds, parse_modalities
 from dlo_sim import RopeSim, task
-from dlo_sim.config import GRIPPER_HEIGHT, P_MAX
+from dlo_sim.config import GRIPPER_HEIGHT
 
 class CableFollowingVecEnv(VectorEnv):
     """N cable-following environments in one batched simulator (gymnasium 1.x VectorEnv)."""
@@ -115,16 +115,15 @@ class CableFollowingVecEnv(VectorEnv):
         self.next_seed += len(env_ids)
         self.sim.reset(seeds, env_ids=env_ids)
         self.episode_seed[env_ids] = seeds
-        held = self.sim.held_mask()[env_ids]
-        self.tracker.reset(env_ids, self.sim.mean_held_index()[env_ids], max_held_index(held),
-                           self.sim.num_particles[env_ids])
+        _, p_i, max_held = task.held_statistics(self.sim.held_mask()[env_ids])
+        self.tracker.reset(env_ids, p_i, max_held, self.sim.num_particles[env_ids])
 
     def _observe(self):
         """Observation (N, D) of the current simulator state and the held-particle summary."""
         held = self.sim.held_mask()
         gripper = self.sim.gripper_state()
-        state = {"n_held": held.sum(axis=1).astype(np.int32), "p_i": self.sim.mean_held_index(),
-                 "max_held_index": max_held_index(held)}
+        n_held, p_i, max_held = task.held_statistics(held)
+        state = {"n_held": n_held, "p_i": p_i, "max_held_index": max_held}
         tactile = visual = None
         if "T" in self.modalities and "T" not in self.without:
             tactile = tactile_pose(self.sim.positions(), held, gripper[:, :2], gripper[:, 3],
@@ -149,12 +148,6 @@ class CableFollowingVecEnv(VectorEnv):
         info = dict(values)
         info.update({"_" + key: done.copy() for key in values})
         return info
-
-
-def max_held_index(held) -> np.ndarray:
-    """(N,) largest held particle index, -1 where nothing is held."""
-    held = np.asarray(held, dtype=bool)
-    return np.where(held.any(axis=1), P_MAX - 1 - np.argmax(held[:, ::-1], axis=1), -1)
 
 
 class CableFollowingEnv(gymnasium.Env):

@@ -18,6 +18,7 @@ import numpy as np
 
 from dlo_policy.observation import observation_labels
 from dlo_sim.config import FIXED_END
+from dlo_sim.task import held_statistics
 
 HOLD_FIRMLY = 1.0  # action a2 for c = 1
 MIN_REACH = 0.02  # m, x distance from the fixed end below which its direction is taken as +x
@@ -63,11 +64,11 @@ class OracleFollow:
     def __call__(self, observation, env):
         sim = env.sim
         positions = sim.positions()
-        held = sim.held_mask()
+        _, _, max_held = held_statistics(sim.held_mask())
+        max_held = np.maximum(max_held, 0)
         n_c = sim.num_particles
         gripper = sim.gripper_state()
         rows = np.arange(len(n_c))
-        max_held = np.where(held.any(axis=1), held.shape[1] - 1 - np.argmax(held[:, ::-1], axis=1), 0)
         target = positions[rows, np.minimum(max_held + self.lookahead, n_c - 1), :2]
         along_cable = unit(target - gripper[:, :2])
         away_from_fixed_end = unit(target - np.asarray(FIXED_END[:2]))

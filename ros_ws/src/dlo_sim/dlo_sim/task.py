@@ -44,6 +44,16 @@ OUTCOME_NAMES = {
 OUTCOME_CODES = {name: code for code, name in OUTCOME_NAMES.items()}
 
 
+def held_statistics(held_mask):
+    """(N, P) bool held particles -> n_h (N,) int, p_i (N,) mean held index (-1 if none), largest held index (-1)."""
+    held = np.asarray(held_mask, dtype=bool)
+    n_h = held.sum(axis=1)
+    index = np.arange(held.shape[1])
+    p_i = np.where(n_h > 0, (held * index).sum(axis=1) / np.maximum(n_h, 1), -1.0)
+    max_held_index = np.where(n_h > 0, held.shape[1] - 1 - np.argmax(held[:, ::-1], axis=1), -1)
+    return n_h.astype(np.int32), p_i, max_held_index
+
+
 def step_reward(prev_p_i, p_i, n_h, n_c, L_c):
     """Reward of one control step (batched or scalar); see the module docstring."""
     prev_p_i, p_i = np.asarray(prev_p_i, dtype=np.float64), np.asarray(p_i, dtype=np.float64)

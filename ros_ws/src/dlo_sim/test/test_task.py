@@ -81,3 +81,10 @@ def test_end_is_a_parameter_and_batched_envs_are_independent():
     tracker.reset([1], [0.5], [1], [40])
     assert tracker.outcome.tolist() == [task.OUTCOME_STOP_BEFORE, task.OUTCOME_NONE]
     assert tracker.steps.tolist() == [3, 0]
+
+
+def test_held_statistics():
+    held = np.zeros((2, 6), bool)
+    held[0, [2, 3, 5]] = True
+    n_h, p_i, max_held = task.held_statistics(held)
+    assert n_h.tolist() == [3, 0] and p_i.tolist() == [pytest.approx(10 / 3), -1.0] and max_held.tolist() == [5, -1]
