@@ -26,14 +26,14 @@ _initialised = False
 def init_taichi() -> None:
     """``ti.init`` once per process: CPU, or the backend named by ``DLO_TI_ARCH`` (cpu/cuda/gpu/vulkan).
 
-    ``fast_math`` is off so NaN checks survive and results are bit-reproducible.
+    Results are bit-reproducible for a given build; NaN checks test exponent bits, so fast math is safe.
     """
     global _initialised
     if _initialised:
         return
     arch = {"cpu": ti.cpu, "cuda": ti.cuda, "gpu": ti.gpu, "vulkan": ti.vulkan}[
         os.environ.get("DLO_TI_ARCH", "cpu").lower()]
-    ti.init(arch=arch, fast_math=False, default_fp=ti.f32, offline_cache=True, log_level=ti.WARN)
+    ti.init(arch=arch, fast_math=True, default_fp=ti.f32, offline_cache=True, log_level=ti.WARN)
     _initialised = True
 
 
@@ -76,7 +76,6 @@ class RopeKernels:
         self.pick = ti.field(ti.i32, num_envs)  # particle dragged kinematically (-1: none)
         self.pick_vel = ti.Vector.field(3, ti.f32, num_envs)  # m/s of the dragged particle
         self.bad = ti.field(ti.i32, num_envs)  # 1 = NaN/inf/explosion seen
-        self.image = ti.field(ti.u8, (num_envs,) + self.cam_size)
 
     # ---------------------------------------------------------------- reset
     @ti.kernel
@@ -300,13 +299,18 @@ class RopeKernels:
 
     @ti.func
     def exploded(self, e) -> ti.i32:
-        """1 if any particle is NaN/inf, too fast or too far (comparisons are false for NaN)."""
+        """1 if any particle is NaN/inf, too fast or too far."""
         ok = 1
         for i in range(self.n[e]):
             p = self.x[e, i]
             v = self.v[e, i]
             if not (ti.abs(p).max() < self.max_distance and v.norm_sqr() < self.max_speed * self.max_speed):
                 ok = 0
+            for k in ti.static(range(3)):  # NaN/inf by exponent bits: immune to fast-math folding
+                if ti.bit_cast(p[k], ti.i32) & 0x7F800000 == 0x7F800000:
+                    ok = 0
+                if ti.bit_cast(v[k], ti.i32) & 0x7F800000 == 0x7F800000:
+                    ok = 0
         return 1 - ok
 
     @ti.func
@@ -334,11 +338,14 @@ class RopeKernels:
         self.bad[e] = self.exploded(e)
 
     @ti.kernel
-    def advance(self, n_steps: ti.i32) -> ti.i32:
-        """``n_steps`` steps of 0.01 s for every active env; returns how many envs exploded."""
+    def advance(self, actions: ti.types.ndarray(dtype=ti.f32, ndim=2), n_steps: ti.i32) -> ti.i32:
+        """``n_steps`` steps of 0.01 s for every active env under ``actions`` (N, 3); returns how
+        many envs exploded."""
         n_bad = 0
+        ti.loop_config(serialize=self.num_envs == 1)  # a lone env skips the thread pool
         for e in range(self.num_envs):
             if self.active[e] != 0:
+                self.cmd[e] = ti.Vector([actions[e, 0], actions[e, 1], actions[e, 2]])
                 self.bad[e] = 0
                 for _ in range(n_steps):
                     if self.bad[e] == 0:
@@ -356,7 +363,7 @@ class RopeKernels:
         return ti.Vector([u, v]), self.cam_f[0] / depth
 
     @ti.func
-    def draw_capsule(self, e, a, b, ra, rb, value):
+    def draw_capsule(self, image: ti.template(), e, a, b, ra, rb, value):
         """Fill pixels whose centre lies within the capsule a-b (pixel coords, radii ra -> rb)."""
         lo = ti.min(a - ra, b - rb)
         hi = ti.max(a + ra, b + rb)
@@ -373,20 +380,22 @@ class RopeKernels:
                 rad = ra + t * (rb - ra)
                 d = q - (a + t * ab)
                 if d.dot(d) <= rad * rad:
-                    self.image[e, pv, pu] = ti.cast(value, ti.u8)
+                    image[e, pv, pu] = ti.cast(value, ti.u8)
 
     @ti.kernel
-    def render(self):
-        """Top view of every env: background 0, cable capsules 255, top finger footprint 128 over them."""
-        for e, v, u in self.image:
-            self.image[e, v, u] = ti.u8(0)
+    def render(self, image: ti.types.ndarray(dtype=ti.u8, ndim=3)):
+        """Top view of every env into ``image`` (N, H, W): background 0, cable capsules 255, the top
+        finger's footprint 128 over them."""
+        ti.loop_config(serialize=self.num_envs == 1)
         for e in range(self.num_envs):
+            for v, u in ti.ndrange(self.cam_size[0], self.cam_size[1]):
+                image[e, v, u] = ti.u8(0)
             for i in range(self.n[e] - 1):
                 a, sa = self.project(self.x[e, i])
                 b, sb = self.project(self.x[e, i + 1])
-                self.draw_capsule(e, a, b, PARTICLE_RADIUS * sa, PARTICLE_RADIUS * sb, IMAGE_CABLE)
+                self.draw_capsule(image, e, a, b, PARTICLE_RADIUS * sa, PARTICLE_RADIUS * sb, IMAGE_CABLE)
             g = self.gripper[e]
             top = g.z + FINGER_AXIS_OFFSET
             a, s = self.project(ti.Vector([g.x, g.y - FINGER_HALF_LENGTH, top]))
             b, _ = self.project(ti.Vector([g.x, g.y + FINGER_HALF_LENGTH, top]))
-            self.draw_capsule(e, a, b, FINGER_RADIUS * s, FINGER_RADIUS * s, IMAGE_GRIPPER)
+            self.draw_capsule(image, e, a, b, FINGER_RADIUS * s, FINGER_RADIUS * s, IMAGE_GRIPPER)

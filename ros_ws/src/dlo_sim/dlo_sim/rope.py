@@ -74,9 +74,7 @@ class RopeSim:
         mask[ids] = 1
         k = self._k
         k.lay_straight(mask)
-        cmd = k.cmd.to_numpy()
-        cmd[ids] = (0.0, 0.0, -1.0)  # gripper still and open while the cable is shaped
-        k.cmd.from_numpy(cmd)
+        still = np.tile(np.float32([0.0, 0.0, -1.0]), (self.num_envs, 1))  # gripper still and open
         k.active.from_numpy(mask)
         cfg = self.config
         for move in range(cfg.pick_moves):
@@ -84,11 +82,11 @@ class RopeSim:
             self._pick_vel[ids] = [d["pick_vel"][move] for d in draws]
             k.pick.from_numpy(self._pick)
             k.pick_vel.from_numpy(self._pick_vel)
-            k.advance(cfg.pick_steps)
+            k.advance(still, cfg.pick_steps)
             self._pick[ids] = -1
             k.pick.from_numpy(self._pick)
-            k.advance(cfg.drop_steps)
-        k.advance(cfg.settle_steps)
+            k.advance(still, cfg.drop_steps)
+        k.advance(still, cfg.settle_steps)
         k.active.fill(1)
         self._unstable[ids] = False
 
@@ -101,9 +99,9 @@ class RopeSim:
         closure c = (a2 + 1) / 2. Exploded environments are flagged and reset with their seed."""
         if np.any(self._params["seed"] < 0):
             raise RuntimeError("reset() every environment before stepping")
-        self._k.cmd.from_numpy(self._check_actions(actions))
+        actions = self._check_actions(actions)
         self._unstable[:] = False
-        if self._k.advance(int(n)) > 0:
+        if self._k.advance(actions, int(n)) > 0:
             bad = self._k.bad.to_numpy() != 0
             self.reset(self._params["seed"][bad], env_ids=np.flatnonzero(bad))
             self._unstable[:] = bad
@@ -162,8 +160,9 @@ class RopeSim:
 
     def render(self) -> np.ndarray:
         """(N, H, W) uint8 top-camera view: 0 background, 255 cable, 128 gripper (drawn over the cable)."""
-        self._k.render()
-        return self._k.image.to_numpy()
+        image = np.empty((self.num_envs, self.camera.height, self.camera.width), np.uint8)
+        self._k.render(image)
+        return image
 
     def set_positions(self, positions, env_ids=None) -> None:
         """Overwrite the particle positions [m] of some environments and zero their velocities
@@ -221,7 +220,7 @@ class RopeSim:
         return ids
 
     def _check_actions(self, actions) -> np.ndarray:
-        a = np.asarray(actions, dtype=np.float32)
+        a = np.ascontiguousarray(actions, dtype=np.float32)
         if a.shape != (self.num_envs, 3):
             raise ValueError(f"actions must have shape ({self.num_envs}, 3), got {a.shape}")
         if not np.all(np.isfinite(a)):
