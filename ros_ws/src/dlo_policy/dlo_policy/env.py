@@ -39,7 +39,8 @@ from dlo_perception.camera import TopCamera
 from dlo_perception.tactile import noise_sigma, tactile_pose
 from dlo_perception.vision import visual_pose
 from dlo_policy.observation import build_observation, observation_bounds, parse_modalities
-from dlo_sim import RopeSim, task
+from dlo_sim import task
+from dlo_sim.episode import TaskSim
 from dlo_sim.config import GRIPPER_HEIGHT
 
 class CableFollowingVecEnv(VectorEnv):
@@ -59,9 +60,9 @@ class CableFollowingVecEnv(VectorEnv):
         self.single_action_space = gymnasium.spaces.Box(-1.0, 1.0, (3,), dtype=np.float32)
         self.observation_space = gymnasium.vector.utils.batch_space(self.single_observation_space, self.num_envs)
         self.action_space = gymnasium.vector.utils.batch_space(self.single_action_space, self.num_envs)
-        self.sim = RopeSim(self.num_envs, config=sim_config,
-                           camera=TopCamera.covering_workspace(int(camera_resolution)))
-        self.tracker = task.EpisodeTracker(self.num_envs, horizon=horizon, end_particles=end_particles)
+        self.task = TaskSim(self.num_envs, horizon=horizon, end_particles=end_particles, config=sim_config,
+                            camera=TopCamera.covering_workspace(int(camera_resolution)))
+        self.sim, self.tracker = self.task.sim, self.task.tracker
         self.default_seed = int(seed)
         self.next_seed = None  # next unused episode seed; None until the first reset
         self.episode_seed = np.full(self.num_envs, -1, np.int64)
@@ -85,12 +86,8 @@ class CableFollowingVecEnv(VectorEnv):
     def step(self, actions):
         """Advance every env by one control step (8 x 0.01 s); finished envs auto-reset in the same step."""
         actions = np.asarray(actions, dtype=np.float32).reshape(self.num_envs, 3)
-        self.sim.step(actions)
+        reward, terminated, truncated, unstable = self.task.step(actions)
         observation, state = self._observe()
-        reward, terminated, truncated = self.tracker.step(state["p_i"], state["n_held"], state["max_held_index"],
-                                                          self.sim.num_particles, self.sim.cable_length)
-        unstable = self.sim.unstable()
-        truncated = truncated | (unstable & ~terminated)
         done = terminated | truncated
         info = {"n_held": state["n_held"], "mean_held_index": state["p_i"]}
         if done.any():
@@ -113,17 +110,15 @@ class CableFollowingVecEnv(VectorEnv):
         """Reset the simulator and the task tracker of ``env_ids`` with the next episode seeds."""
         seeds = self.next_seed + np.arange(len(env_ids))
         self.next_seed += len(env_ids)
-        self.sim.reset(seeds, env_ids=env_ids)
+        self.task.reset(seeds, env_ids)
         self.episode_seed[env_ids] = seeds
-        _, p_i, max_held = task.held_statistics(self.sim.held_mask()[env_ids])
-        self.tracker.reset(env_ids, p_i, max_held, self.sim.num_particles[env_ids])
 
     def _observe(self):
         """Observation (N, D) of the current simulator state and the held-particle summary."""
-        held = self.sim.held_mask()
+        held = self.task.held
         gripper = self.sim.gripper_state()
-        n_held, p_i, max_held = task.held_statistics(held)
-        state = {"n_held": n_held, "p_i": p_i, "max_held_index": max_held}
+        n_held, p_i, _ = task.held_statistics(held)
+        state = {"n_held": n_held, "p_i": p_i}
         tactile = visual = None
         if "T" in self.modalities and "T" not in self.without:
             tactile = tactile_pose(self.sim.positions(), held, gripper[:, :2], gripper[:, 3],

@@ -115,7 +115,9 @@ class SimNode(Node):
         self.publish_state()
 
     def advance(self, action):
-        reward, terminated, truncated = self.task.step(action[None, :])
+        reward, terminated, truncated, unstable = self.task.step(action[None, :])
+        if unstable[0]:
+            self.get_logger().error("the simulation became unstable: the episode is cut")
         self.step_index += 1
         self.last_reward = float(reward[0])
         self.done = bool(terminated[0] or truncated[0])
@@ -202,7 +204,7 @@ class SimNode(Node):
         self.pub_clock.publish(Clock(clock=stamp))
         n_c = int(sim.num_particles[0])
         positions = sim.positions()[0, :n_c]
-        held = sim.held_mask()[0, :n_c]
+        held = self.task.held[0, :n_c]
         gripper = sim.gripper_state()[0]
 
         cloud = PointCloud2(height=1, width=n_c, is_bigendian=False, point_step=POINT_STEP,
