@@ -22,6 +22,7 @@ setup(
             "playback_node = dlo_tools.playback_node:main",
             "dlo-bag-info = dlo_tools.bag_info:main",
             "dlo-analyze = dlo_tools.analysis:main",
+            "mock_driver_node = dlo_tools.mock_driver_node:main",
         ],
     },
 )
