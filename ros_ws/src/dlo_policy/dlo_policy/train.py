@@ -33,6 +33,7 @@ import time
 from pathlib import Path
 from typing import Any, Optional, Sequence
 
+import numpy as np
 import torch
 from tqdm import tqdm
 
@@ -106,7 +107,7 @@ class Trainer:
         self.started = time.perf_counter()
         self.last_eval: dict[str, float] = {}
         self.episode_return = 0.0
-        self.recent_returns: list[float] = []
+        self.recent_returns: list[float] = []  # the last 10 training episodes' returns, for the progress bar
 
     def wall_time(self) -> float:
         return self.log.wall_time_offset + time.perf_counter() - self.started
@@ -130,9 +131,9 @@ class Trainer:
         step = agent.num_env_steps
         if step % self.config.train.eval_every == 0:
             self.evaluate()
-            self.bar.set_postfix(eval_reward=f"{self.last_eval['episode_reward']:.2f}",
-                                 hold_the_end=f"{self.last_eval['hold_the_end']:.0%}",
-                                 alpha=f"{agent.alpha:.3f}")
+            self.bar.set_postfix(train_return=f"{np.mean(self.recent_returns or [np.nan]):.2f}",
+                                 eval_reward=f"{self.last_eval['episode_reward']:.2f}",
+                                 hold_the_end=f"{self.last_eval['hold_the_end']:.0%}", alpha=f"{agent.alpha:.3f}")
         if step % self.config.train.checkpoint_every == 0:
             agent.save(self.out_dir / CHECKPOINT_FILE)
         return True
