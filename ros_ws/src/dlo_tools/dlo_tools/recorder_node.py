@@ -15,6 +15,7 @@ import sys
 import time
 
 import rclpy
+from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -114,8 +115,12 @@ class RecorderNode(Node):
             qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=self.queue_depth,
                              reliability=ReliabilityPolicy(rel.value),
                              durability=DurabilityPolicy(dur.value))
+            events = SubscriptionEventCallbacks(
+                message_lost=functools.partial(self._on_lost, topic),
+                incompatible_qos=functools.partial(self._on_incompatible, topic))
             self._recorded[topic] = self.create_subscription(
-                msg_class, topic, functools.partial(self._on_message, topic), qos, raw=True)
+                msg_class, topic, functools.partial(self._on_message, topic), qos, raw=True,
+                event_callbacks=events)
             self._reliability[topic] = rel.value
             self.get_logger().info(f"recording {topic} [{msgtype}] "
                                    f"({rel.name.lower()}, {dur.name.lower()})")
@@ -125,6 +130,15 @@ class RecorderNode(Node):
         if error is not None and time.monotonic() - self._error_logged > 1.0:
             self._error_logged = time.monotonic()
             self.get_logger().error(f"write failed ({self.recorder.errors} so far): {error}")
+
+    def _on_lost(self, topic: str, info) -> None:
+        self.recorder.on_lost(topic, int(info.total_count_change))
+        self.get_logger().error(f"{topic}: the middleware lost {info.total_count_change} "
+                                f"message(s) before delivery ({info.total_count} so far)")
+
+    def _on_incompatible(self, topic: str, info) -> None:
+        self._warn_once(topic, "a publisher's QoS is incompatible with the recorder's "
+                               f"subscription (policy {info.last_policy_kind}); not recorded")
 
     @property
     def received(self) -> int:

@@ -50,6 +50,7 @@ class RecordSummary:
     written: dict[str, int]
     errors: int = 0
     last_error: str = ""
+    lost: dict[str, int] | None = None  # messages the middleware reported lost, per topic
 
     @property
     def total_received(self) -> int:
@@ -60,16 +61,23 @@ class RecordSummary:
         return sum(self.written.values())
 
     @property
+    def total_lost(self) -> int:
+        return sum((self.lost or {}).values())
+
+    @property
     def dropped(self) -> int:
-        return self.total_received - self.total_written
+        """Received but not written, plus what the middleware reported lost before delivery."""
+        return self.total_received - self.total_written + self.total_lost
 
     def lines(self) -> list[str]:
         out = [f"bag {self.path} ({len(self.parts)} part{'s' if len(self.parts) != 1 else ''}): "
                f"received {self.total_received}, written {self.total_written}, "
                f"dropped {self.dropped}"]
+        lost = self.lost or {}
         for topic in sorted(set(self.received) | set(self.written)):
             out.append(f"  {topic}: received {self.received.get(topic, 0)}, "
-                       f"written {self.written.get(topic, 0)}")
+                       f"written {self.written.get(topic, 0)}"
+                       + (f", lost before delivery {lost[topic]}" if lost.get(topic) else ""))
         if self.errors:
             out.append(f"  {self.errors} write errors; last: {self.last_error}")
         return out
@@ -93,6 +101,7 @@ class Recorder:
         self.writer = BagWriter(output, self.typestore, split=split_episodes > 0)
         self.writer.open()
         self.received: Counter[str] = Counter()
+        self.lost: Counter[str] = Counter()
         self.errors = 0
         self.last_error = ""
         self._chunk: int | None = None
@@ -136,6 +145,10 @@ class Recorder:
             return self.last_error
         return None
 
+    def on_lost(self, topic: str, count: int) -> None:
+        """The middleware reports ``count`` messages of ``topic`` lost before delivery."""
+        self.lost[topic] += count
+
     def close(self) -> RecordSummary:
         """Finalise the bag (metadata.yaml) and return the counts; idempotent."""
         if self._summary is None:
@@ -144,5 +157,5 @@ class Recorder:
             finally:
                 self._summary = RecordSummary(
                     self.writer.path, list(self.writer.parts), dict(self.received),
-                    dict(self.writer.counts), self.errors, self.last_error)
+                    dict(self.writer.counts), self.errors, self.last_error, dict(self.lost))
         return self._summary
