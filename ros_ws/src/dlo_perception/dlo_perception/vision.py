@@ -16,11 +16,11 @@ Not visible -> confidence = angle = y = 0.
 ``visual_pose_ground_truth`` from the particles (to validate the image pipeline).
 """
 
-from __future__ import annotations
-
+import os
 from dataclasses import dataclass
 
 import numpy as np
+import taichi as ti
 
 from dlo_perception.camera import TopCamera
 
@@ -45,89 +45,156 @@ class VisualPose:
     y: np.ndarray  # y_V [m]
 
 
+def init_taichi() -> None:
+    """``ti.init`` once per process, shared by this module and the simulator (``dlo_sim.kernels``),
+    so every process (env, sim node, vision node) compiles the kernels with the same options: CPU,
+    or the backend named by ``DLO_TI_ARCH`` (cpu/cuda/gpu/vulkan). Results are bit-reproducible for
+    a given build; the simulator's NaN checks test exponent bits, so fast math is safe."""
+    global _taichi_ready
+    if _taichi_ready:
+        return
+    arch = {"cpu": ti.cpu, "cuda": ti.cuda, "gpu": ti.gpu, "vulkan": ti.vulkan}[
+        os.environ.get("DLO_TI_ARCH", "cpu").lower()]
+    ti.init(arch=arch, fast_math=True, default_fp=ti.f32, offline_cache=True, log_level=ti.WARN)
+    _taichi_ready = True
+
+
+_taichi_ready = False
+
+
 def visual_pose(images, camera: TopCamera, gripper_xy, plane_z: float) -> VisualPose:
-    """O_V from top-view images.
+    """O_V from top-view images (numpy, from the renderer or a real camera); one Taichi kernel.
 
     images: (N, H, W) uint8 (cable 255, gripper 128, background 0). camera: the TopCamera that took
     them. gripper_xy: (N, >=2) gripper position [m]. plane_z: height [m] of the gripper and of the
     cable next to it (the gripper's height): pixel offsets are converted to metres at this plane.
     Pixel (row v, column u) covers continuous pixel coordinates [u, u+1) x [v, v+1).
     """
-    images = np.asarray(images)
-    n, height, width = images.shape
+    init_taichi()
+    images = np.ascontiguousarray(images, dtype=np.uint8)
+    n = images.shape[0]
     gripper = np.asarray(gripper_xy, dtype=np.float64).reshape(n, -1)[:, :2]
     metres_per_pixel = camera.metres_per_pixel(plane_z)
     uv = camera.world_to_pixel(np.concatenate([gripper, np.full((n, 1), plane_z)], axis=1))
-    u_occluded = uv[:, 0] + OCCLUSION_RADIUS / metres_per_pixel  # right edge of the occlusion [px]
-    num_columns = int(np.ceil(TRACK_LENGTH / metres_per_pixel))
-    half_rows = int(np.ceil((SEARCH_HALF_WIDTH + TRACK_LENGTH) / metres_per_pixel))
-    centre_row = np.floor(uv[:, 1]).astype(np.int64)
-    centre_column = np.floor(uv[:, 0]).astype(np.int64)
-    margin_columns = int(np.ceil(OCCLUSION_RADIUS / metres_per_pixel)) + GRIPPER_MARGIN_PIXELS
+    pose = np.empty((n, 4))
+    if n > 0:
+        _track_strands(images, uv, pose, metres_per_pixel, n == 1)
+    return VisualPose(pose[:, 0] > 0.0, pose[:, 1], pose[:, 2], pose[:, 3])
 
-    # Patch from the gripper centre rightwards: (N, rows, columns); outside the image = background.
-    row_offsets = np.arange(-half_rows, half_rows + 1)
-    rows = centre_row[:, None] + row_offsets
-    cols = centre_column[:, None] + np.arange(margin_columns + num_columns)
-    inside = ((rows >= 0) & (rows < height))[:, :, None] & ((cols >= 0) & (cols < width))[:, None, :]
-    patch = images[np.arange(n)[:, None, None], np.clip(rows, 0, height - 1)[:, :, None],
-                   np.clip(cols, 0, width - 1)[:, None, :]]
-    patch = np.where(inside, patch, 0)
-    # The strand starts in the first column centred beyond the occlusion edge and past every gripper
-    # pixel (the drawn finger sits higher and may look wider than the occlusion radius).
-    first_column = np.ceil(u_occluded - 0.5).astype(np.int64) - centre_column
-    is_gripper = (patch == IMAGE_GRIPPER).any(axis=1)
-    last_gripper = np.where(is_gripper.any(axis=1), patch.shape[2] - 1 - np.argmax(is_gripper[:, ::-1], axis=1), -1)
-    first_column = np.maximum(first_column, last_gripper + 1)
-    column_index = first_column[:, None] + np.arange(num_columns)  # (N, columns) into the patch
-    column_valid = column_index < patch.shape[2]
-    strip = np.take_along_axis(patch, np.minimum(column_index, patch.shape[2] - 1)[:, None, :], axis=2)
-    cable = (strip == IMAGE_CABLE) & column_valid[:, None, :]
-    # Vertical runs of cable pixels per column: run_id increases at every run start.
-    starts = cable & ~np.concatenate([np.zeros_like(cable[:, :1]), cable[:, :-1]], axis=1)
-    run_id = np.cumsum(starts, axis=1)
 
-    row_pos = (row_offsets + 0.5)[None, :] + (centre_row - uv[:, 1])[:, None]  # row centre - v_G [px]
-    gate_half = SEARCH_HALF_WIDTH / metres_per_pixel
-    gate_lo, gate_hi = np.full(n, -gate_half), np.full(n, gate_half)  # rows the next run must touch
-    predicted = np.zeros(n)
-    slope = np.zeros(n)  # rows per column of the followed strand
-    radius_pixels = CABLE_RADIUS / metres_per_pixel
-    tracking = np.ones(n, dtype=bool)
-    centroids = np.zeros((n, num_columns))
-    tracked = np.zeros((n, num_columns), dtype=bool)
-    for k in range(num_columns):
-        column = cable[:, :, k]
-        candidate = column & (row_pos >= gate_lo[:, None] - 1) & (row_pos <= gate_hi[:, None] + 1)
-        found = tracking & candidate.any(axis=1)
-        nearest = np.argmin(np.where(candidate, np.abs(row_pos - predicted[:, None]), np.inf), axis=1)
-        in_run = column & (run_id[:, :, k] == run_id[np.arange(n), nearest, k][:, None])
-        # A run much longer than one strand (another strand crossing here) is cut to the part
-        # around the prediction: half a strand's vertical extent at the current slope.
-        half_extent = radius_pixels * np.sqrt(1.0 + slope ** 2) + 0.5
-        merged = (in_run.sum(axis=1) > 2.0 * half_extent + 2.0) & (k > 0)
-        strand = in_run & (~merged[:, None] | (np.abs(row_pos - predicted[:, None]) <= half_extent[:, None]))
-        strand |= ~strand.any(axis=1)[:, None] & (np.arange(len(row_offsets)) == nearest[:, None])
-        strand_size = np.maximum(strand.sum(axis=1), 1)
-        centroid = np.where(found, (strand * row_pos).sum(axis=1) / strand_size, 0.0)
-        gate_lo = np.where(found, np.where(strand, row_pos, np.inf).min(axis=1), gate_lo)
-        gate_hi = np.where(found, np.where(strand, row_pos, -np.inf).max(axis=1), gate_hi)
-        centroids[:, k] = centroid
-        tracked[:, k] = found
-        slope = np.where(found, (centroid - centroids[:, 0]) / max(k, 1), slope)
-        predicted = np.where(found, centroid + slope, predicted)
-        tracking = found
+@ti.func
+def _patch_pixel(images: ti.template(), e, row, column) -> ti.i32:
+    """Pixel value of image e at (row, column); 0 (background) outside the image."""
+    value = 0
+    if 0 <= row < images.shape[1] and 0 <= column < images.shape[2]:
+        value = ti.cast(images[e, row, column], ti.i32)
+    return value
 
-    visible = tracked[:, 0]
-    length = tracked.sum(axis=1)
-    # From the occlusion edge to the centre of the last strand column, less the drawn cable radius.
-    dx = (centre_column + first_column + length - 0.5 - u_occluded) * metres_per_pixel - CABLE_RADIUS
-    confidence = np.where(visible, np.clip(dx / CONFIDENCE_LENGTH, 0.0, 1.0), 0.0)
-    # World y grows with -row, so world slope = -(row slope) and y_V = -row offset.
-    column_x = np.broadcast_to(np.arange(num_columns, dtype=np.float64), (n, num_columns))
-    angle = np.arctan(-line_slope(column_x, centroids, tracked))
-    y = np.where(visible, np.clip(-centroids[:, 0] * metres_per_pixel, -SEARCH_HALF_WIDTH, SEARCH_HALF_WIDTH), 0.0)
-    return VisualPose(visible, confidence, np.where(visible, angle, 0.0), y)
+
+@ti.kernel
+def _track_strands(images: ti.types.ndarray(dtype=ti.u8, ndim=3), gripper_uv: ti.types.ndarray(dtype=ti.f64, ndim=2),
+                   pose: ti.types.ndarray(dtype=ti.f64, ndim=2), metres_per_pixel: ti.f64, serial: ti.template()):
+    """O_V of every image into ``pose`` (N, 4): visible (1/0), confidence, angle [rad], y [m].
+
+    Per image, in a patch of rows centre +- ``half_rows`` and columns from the gripper's rightwards:
+    the strand starts in the first column centred beyond the occlusion edge and past every gripper
+    pixel (the drawn finger sits higher and may look wider than the occlusion radius); column by
+    column, the vertical run of cable pixels touching the previous strand's rows (+-1) nearest to
+    the predicted row is followed; a run much longer than one strand (another strand crossing
+    there) is cut to half a strand's vertical extent around the prediction. Row positions are
+    relative to the gripper's v [px]. ``serial``: a lone image skips the thread pool."""
+    occlusion_radius, search_half_width = ti.f64(OCCLUSION_RADIUS), ti.f64(SEARCH_HALF_WIDTH)
+    cable_radius, confidence_length = ti.f64(CABLE_RADIUS), ti.f64(CONFIDENCE_LENGTH)
+    num_columns = ti.cast(ti.ceil(ti.f64(TRACK_LENGTH) / metres_per_pixel), ti.i32)
+    half_rows = ti.cast(ti.ceil((search_half_width + ti.f64(TRACK_LENGTH)) / metres_per_pixel), ti.i32)
+    margin_columns = ti.cast(ti.ceil(occlusion_radius / metres_per_pixel), ti.i32) + GRIPPER_MARGIN_PIXELS
+    ti.loop_config(serialize=serial)
+    for e in range(images.shape[0]):
+        u_occluded = gripper_uv[e, 0] + occlusion_radius / metres_per_pixel  # right edge of the occlusion [px]
+        centre_row = ti.cast(ti.floor(gripper_uv[e, 1]), ti.i32)
+        centre_column = ti.cast(ti.floor(gripper_uv[e, 0]), ti.i32)
+        row_shift = (centre_row - gripper_uv[e, 1]) + 0.5  # row offset -> row centre - v_G [px]
+        patch_columns = margin_columns + num_columns
+        first_column = ti.cast(ti.ceil(u_occluded - 0.5), ti.i32) - centre_column
+        for c in range(patch_columns):
+            for r in range(-half_rows, half_rows + 1):
+                if _patch_pixel(images, e, centre_row + r, centre_column + c) == IMAGE_GRIPPER:
+                    first_column = ti.max(first_column, c + 1)
+
+        gate_half = search_half_width / metres_per_pixel
+        gate_lo, gate_hi = -gate_half, gate_half  # rows the next run must touch
+        predicted = ti.f64(0.0)
+        slope = ti.f64(0.0)  # rows per column of the followed strand
+        radius_pixels = cable_radius / metres_per_pixel
+        tracking = True
+        length = 0
+        first_centroid = ti.f64(0.0)
+        sum_y = ti.f64(0.0)  # sums over the followed columns k of centroid and k * centroid
+        sum_ky = ti.f64(0.0)
+        for k in range(num_columns):
+            column = centre_column + first_column + k
+            if tracking and first_column + k < patch_columns:
+                nearest = half_rows + 1  # none
+                best = ti.f64(0.0)
+                for r in range(-half_rows, half_rows + 1):
+                    pos = r + row_shift
+                    if (_patch_pixel(images, e, centre_row + r, column) == IMAGE_CABLE
+                            and gate_lo - 1.0 <= pos <= gate_hi + 1.0):
+                        if nearest > half_rows or ti.abs(pos - predicted) < best:
+                            nearest = r
+                            best = ti.abs(pos - predicted)
+                if nearest > half_rows:
+                    tracking = False
+                else:
+                    lo, hi = nearest, nearest  # the run of cable pixels containing the nearest
+                    while lo > -half_rows and _patch_pixel(images, e, centre_row + lo - 1, column) == IMAGE_CABLE:
+                        lo -= 1
+                    while hi < half_rows and _patch_pixel(images, e, centre_row + hi + 1, column) == IMAGE_CABLE:
+                        hi += 1
+                    half_extent = radius_pixels * ti.sqrt(1.0 + slope * slope) + 0.5
+                    merged = k > 0 and hi - lo + 1 > 2.0 * half_extent + 2.0
+                    count = 0
+                    total = ti.f64(0.0)
+                    for r in range(lo, hi + 1):
+                        pos = r + row_shift
+                        if not merged or ti.abs(pos - predicted) <= half_extent:
+                            if count == 0:
+                                gate_lo = pos
+                            gate_hi = pos
+                            count += 1
+                            total += pos
+                    if count == 0:
+                        count = 1
+                        total = nearest + row_shift
+                        gate_lo, gate_hi = total, total
+                    centroid = total / count
+                    if k == 0:
+                        first_centroid = centroid
+                    slope = (centroid - first_centroid) / ti.max(k, 1)
+                    predicted = centroid + slope
+                    length += 1
+                    sum_y += centroid
+                    sum_ky += k * centroid
+            else:
+                tracking = False
+
+        visible = length > 0
+        # From the occlusion edge to the centre of the last strand column, less the drawn cable radius.
+        dx = (centre_column + first_column + length - 0.5 - u_occluded) * metres_per_pixel - cable_radius
+        # Least-squares line of the centroids over columns k = 0..length-1 (line_slope); world y
+        # grows with -row, so world slope = -(row slope) and y_V = -row offset.
+        count_f = ti.cast(length, ti.f64)
+        mean_k = 0.5 * (count_f - 1.0)
+        sxx = count_f * (count_f * count_f - 1.0) / 12.0
+        sxy = sum_ky - mean_k * sum_y
+        row_slope = ti.f64(0.0)
+        if length >= 2:
+            row_slope = sxy / sxx
+        pose[e, 0] = 1.0 if visible else 0.0
+        pose[e, 1] = ti.min(ti.max(dx / confidence_length, 0.0), 1.0) if visible else 0.0
+        pose[e, 2] = ti.atan2(-row_slope, 1.0) if visible else 0.0
+        pose[e, 3] = ti.min(ti.max(-first_centroid * metres_per_pixel, -search_half_width),
+                            search_half_width) if visible else 0.0
 
 
 def visual_pose_ground_truth(positions, num_particles, gripper_xy) -> VisualPose:

@@ -61,7 +61,8 @@ class CableFollowingVecEnv(VectorEnv):
         self.observation_space = gymnasium.vector.utils.batch_space(self.single_observation_space, self.num_envs)
         self.action_space = gymnasium.vector.utils.batch_space(self.single_action_space, self.num_envs)
         self.task = TaskSim(self.num_envs, horizon=horizon, end_particles=end_particles, config=sim_config,
-                            camera=TopCamera.covering_workspace(int(camera_resolution)))
+                            camera=TopCamera.covering_workspace(int(camera_resolution)),
+                            render=self._uses("V"))
         self.sim, self.tracker = self.task.sim, self.task.tracker
         self.default_seed = int(seed)
         self.next_seed = None  # next unused episode seed; None until the first reset
@@ -113,18 +114,22 @@ class CableFollowingVecEnv(VectorEnv):
         self.task.reset(seeds, env_ids)
         self.episode_seed[env_ids] = seeds
 
+    def _uses(self, modality) -> bool:
+        """True if the observation computes ``modality`` (selected and not ablated)."""
+        return modality in self.modalities and modality not in self.without
+
     def _observe(self):
-        """Observation (N, D) of the current simulator state and the held-particle summary."""
-        held = self.task.held
-        gripper = self.sim.gripper_state()
-        n_held, p_i, _ = task.held_statistics(held)
+        """Observation (N, D) of the current simulator state (the task's snapshot) and the held-particle summary."""
+        snapshot = self.task.state
+        gripper = snapshot.gripper
+        n_held, p_i, _ = task.held_statistics(snapshot.held)
         state = {"n_held": n_held, "p_i": p_i}
         tactile = visual = None
-        if "T" in self.modalities and "T" not in self.without:
-            tactile = tactile_pose(self.sim.positions(), held, gripper[:, :2], gripper[:, 3],
+        if self._uses("T"):
+            tactile = tactile_pose(snapshot.positions, snapshot.held, gripper[:, :2], gripper[:, 3],
                                    sigma=self.tactile_sigma, rng=self.noise_rng)
-        if "V" in self.modalities and "V" not in self.without:
-            visual = visual_pose(self.sim.render(), self.sim.camera, gripper[:, :2], GRIPPER_HEIGHT)
+        if self._uses("V"):
+            visual = visual_pose(snapshot.image, self.sim.camera, gripper[:, :2], GRIPPER_HEIGHT)
         observation = build_observation(self.modalities, gripper[:, [0, 1, 3]], tactile, visual, without=self.without)
         return observation, state
 

@@ -8,32 +8,40 @@ from __future__ import annotations
 
 import numpy as np
 
-from dlo_sim.rope import RopeSim
+from dlo_sim.rope import RopeSim, Snapshot
 from dlo_sim.task import END_PARTICLES, HORIZON, EpisodeTracker, held_statistics
 
 
 class TaskSim:
     """``num_envs`` environments of the cable-following task (physics + task bookkeeping).
 
-    ``held`` is the (N, P_MAX) held-particle mask of the current state (after the last reset or
-    step), computed once per step for the task and reusable by the observation.
+    ``state`` is the ``RopeSim.Snapshot`` of the current state (after the last reset or step):
+    positions, held mask, gripper and, if ``render``, the top view, read back once per step for
+    the task and reusable by the observation.
     """
 
-    def __init__(self, num_envs: int, horizon: int = HORIZON, end_particles: int = END_PARTICLES, **sim_options):
+    def __init__(self, num_envs: int, horizon: int = HORIZON, end_particles: int = END_PARTICLES,
+                 render: bool = False, **sim_options):
         self.sim = RopeSim(num_envs, **sim_options)
         self.tracker = EpisodeTracker(self.sim.num_envs, horizon=horizon, end_particles=end_particles)
-        self.held = None
+        self.render = bool(render)
+        self.state: Snapshot | None = None
 
     @property
     def num_envs(self) -> int:
         return self.sim.num_envs
 
+    @property
+    def held(self) -> np.ndarray:
+        """(N, P_MAX) bool held-particle mask of the current state."""
+        return self.state.held
+
     def reset(self, seeds, env_ids=None) -> None:
         """Start new episodes from ``seeds`` in ``env_ids`` (all if None)."""
         ids = np.arange(self.num_envs) if env_ids is None else np.asarray(env_ids)
         self.sim.reset(seeds, ids)
-        self.held = self.sim.held_mask()
-        _, p_i, max_index = held_statistics(self.held[ids])
+        self.state = self.sim.snapshot(self.render)
+        _, p_i, max_index = held_statistics(self.state.held[ids])
         self.tracker.reset(ids, p_i, max_index, self.sim.num_particles[ids])
 
     def step(self, actions):
@@ -42,8 +50,8 @@ class TaskSim:
         An environment the simulator had to reset (NaN or explosion, ``unstable``) ends its episode
         as truncated."""
         self.sim.step(actions)
-        self.held = self.sim.held_mask()
-        n_h, p_i, max_index = held_statistics(self.held)
+        self.state = self.sim.snapshot(self.render)
+        n_h, p_i, max_index = held_statistics(self.state.held)
         reward, terminated, truncated = self.tracker.step(p_i, n_h, max_index, self.sim.num_particles,
                                                           self.sim.cable_length)
         unstable = self.sim.unstable()

@@ -1,4 +1,5 @@
-"""Taichi fields and kernels of the batched rope: XPBD physics, grip, explosion check, top-view render.
+"""Taichi fields and kernels of the batched rope: XPBD physics, grip, explosion check, and one
+read-back kernel (``observe``: positions, held set, gripper, top-view render).
 
 Layout: one environment per outer (parallel) loop iteration; everything inside an environment
 runs serially (Gauss-Seidel), so an environment's result does not depend on the batch around it.
@@ -6,9 +7,8 @@ Per-environment arrays are padded to ``P_MAX`` particles; loops stop at ``n[e]``
 """
 
 
-import os
-
 import taichi as ti
+from dlo_perception.vision import init_taichi
 
 from .config import (DT, FINGER_CLEARANCE, FINGER_HALF_LENGTH, FINGER_RADIUS, FIXED_END, GRAVITY,
                      GRIPPER_HEIGHT, GRIPPER_START_BEHIND, IMAGE_CABLE, IMAGE_GRIPPER,
@@ -19,22 +19,6 @@ FINGER_AXIS_OFFSET = FINGER_RADIUS + 0.5 * FINGER_CLEARANCE  # m, finger axis ab
 HELD_DISTANCE = PARTICLE_RADIUS + FINGER_RADIUS + REST_SPACING  # m, held rule (DESIGN.md section 9)
 MAX_CORRECTION = 0.25 * REST_SPACING  # m, per sub-step cap on a particle's direct-solve correction
 SELF_EXCLUDE = 3  # particles closer than this along the chain never self-collide
-
-_initialised = False
-
-
-def init_taichi() -> None:
-    """``ti.init`` once per process: CPU, or the backend named by ``DLO_TI_ARCH`` (cpu/cuda/gpu/vulkan).
-
-    Results are bit-reproducible for a given build; NaN checks test exponent bits, so fast math is safe.
-    """
-    global _initialised
-    if _initialised:
-        return
-    arch = {"cpu": ti.cpu, "cuda": ti.cuda, "gpu": ti.gpu, "vulkan": ti.vulkan}[
-        os.environ.get("DLO_TI_ARCH", "cpu").lower()]
-    ti.init(arch=arch, fast_math=True, default_fp=ti.f32, offline_cache=True, log_level=ti.WARN)
-    _initialised = True
 
 
 @ti.data_oriented
@@ -61,7 +45,6 @@ class RopeKernels:
         self.v = ti.Vector.field(3, ti.f32, shape)  # m/s
         self.w = ti.field(ti.f32, shape)  # 1/kg, inverse mass this step (grip law, pin, pick)
         self.carry = ti.field(ti.f32, shape)  # fraction of the gripper motion a particle follows
-        self.held = ti.field(ti.i32, shape)  # 1 = between the fingers (held rule)
         self.seg_dir = ti.Vector.field(3, ti.f32, shape)  # unit direction of segment (k, k+1)
         self.sup = ti.field(ti.f32, shape)  # Thomas algorithm: normalised super-diagonal
         self.rhs = ti.field(ti.f32, shape)  # Thomas algorithm: right-hand side, then multipliers
@@ -90,7 +73,6 @@ class RopeKernels:
                     self.x[e, i] = p
                     self.x_old[e, i] = p
                     self.v[e, i] = ti.Vector([0.0, 0.0, 0.0])
-                    self.held[e, i] = 0
                 self.gripper[e] = ti.Vector([FIXED_END[0] - GRIPPER_START_BEHIND, FIXED_END[1], GRIPPER_HEIGHT])
                 self.closure[e] = 0.0
                 self.pick[e] = -1
@@ -113,13 +95,6 @@ class RopeKernels:
         return (ti.abs(q.y - g.y) <= FINGER_HALF_LENGTH + FINGER_RADIUS
                 and dx * dx + dz * dz <= HELD_DISTANCE * HELD_DISTANCE and dz > 0.0)
 
-    @ti.kernel
-    def compute_held(self):
-        """``held`` for the current positions of every env."""
-        for e in range(self.num_envs):
-            for i in range(self.n[e]):
-                self.held[e, i] = 1 if self.is_held(e, i, self.gripper[e]) else 0
-
     @ti.func
     def update_grip(self, e, g, c):
         """Held rule + grip law: inverse mass and carried fraction of every particle for this step."""
@@ -134,7 +109,6 @@ class RopeKernels:
             if i == 0 or i == self.pick[e]:
                 w = 0.0
                 carry = 0.0
-            self.held[e, i] = 1 if inside else 0
             self.w[e, i] = w
             self.carry[e, i] = carry
 
@@ -382,20 +356,39 @@ class RopeKernels:
                 if d.dot(d) <= rad * rad:
                     image[e, pv, pu] = ti.cast(value, ti.u8)
 
-    @ti.kernel
-    def render(self, image: ti.types.ndarray(dtype=ti.u8, ndim=3)):
-        """Top view of every env into ``image`` (N, H, W): background 0, cable capsules 255, the top
+    @ti.func
+    def render_env(self, image: ti.template(), e):
+        """Top view of env e into ``image[e]`` (H, W): background 0, cable capsules 255, the top
         finger's footprint 128 over them."""
+        for v, u in ti.ndrange(self.cam_size[0], self.cam_size[1]):
+            image[e, v, u] = ti.u8(0)
+        for i in range(self.n[e] - 1):
+            a, sa = self.project(self.x[e, i])
+            b, sb = self.project(self.x[e, i + 1])
+            self.draw_capsule(image, e, a, b, PARTICLE_RADIUS * sa, PARTICLE_RADIUS * sb, IMAGE_CABLE)
+        g = self.gripper[e]
+        top = g.z + FINGER_AXIS_OFFSET
+        a, s = self.project(ti.Vector([g.x, g.y - FINGER_HALF_LENGTH, top]))
+        b, _ = self.project(ti.Vector([g.x, g.y + FINGER_HALF_LENGTH, top]))
+        self.draw_capsule(image, e, a, b, FINGER_RADIUS * s, FINGER_RADIUS * s, IMAGE_GRIPPER)
+
+    # ---------------------------------------------------------------- read-back
+    @ti.kernel
+    def observe(self, positions: ti.types.ndarray(dtype=ti.f32, ndim=3), held: ti.types.ndarray(dtype=ti.u8, ndim=2),
+                gripper: ti.types.ndarray(dtype=ti.f32, ndim=2), image: ti.types.ndarray(dtype=ti.u8, ndim=3),
+                draw: ti.i32):
+        """Everything the task and the observations read, in one launch: positions (N, P_MAX, 3) [m]
+        (padded rows 0), held (N, P_MAX) 1 = between the fingers (held rule), gripper (N, 4) x, y, z
+        [m] and closure c; and, if ``draw``, the top view into ``image`` (N, H, W)."""
         ti.loop_config(serialize=self.num_envs == 1)
         for e in range(self.num_envs):
-            for v, u in ti.ndrange(self.cam_size[0], self.cam_size[1]):
-                image[e, v, u] = ti.u8(0)
-            for i in range(self.n[e] - 1):
-                a, sa = self.project(self.x[e, i])
-                b, sb = self.project(self.x[e, i + 1])
-                self.draw_capsule(image, e, a, b, PARTICLE_RADIUS * sa, PARTICLE_RADIUS * sb, IMAGE_CABLE)
             g = self.gripper[e]
-            top = g.z + FINGER_AXIS_OFFSET
-            a, s = self.project(ti.Vector([g.x, g.y - FINGER_HALF_LENGTH, top]))
-            b, _ = self.project(ti.Vector([g.x, g.y + FINGER_HALF_LENGTH, top]))
-            self.draw_capsule(image, e, a, b, FINGER_RADIUS * s, FINGER_RADIUS * s, IMAGE_GRIPPER)
+            for k in ti.static(range(3)):
+                gripper[e, k] = g[k]
+            gripper[e, 3] = self.closure[e]
+            for i in range(P_MAX):
+                for k in ti.static(range(3)):
+                    positions[e, i, k] = self.x[e, i][k]
+                held[e, i] = ti.u8(1) if i < self.n[e] and self.is_held(e, i, g) else ti.u8(0)
+            if draw != 0:
+                self.render_env(image, e)

@@ -15,6 +15,7 @@ Invalid input (documented behaviour):
 from __future__ import annotations
 
 import warnings
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -24,6 +25,16 @@ from .config import DT, P_MAX, REST_SPACING, SUBSTEPS_PER_ACTION, SimConfig
 from .kernels import RopeKernels
 
 PARAM_KEYS = ("stretch", "bending", "friction", "num_particles")
+
+
+@dataclass
+class Snapshot:
+    """What the task and the observations read of the current state, from one kernel launch."""
+
+    positions: np.ndarray  # (N, P_MAX, 3) float32 [m], padded rows 0
+    held: np.ndarray  # (N, P_MAX) bool, particles between the fingers (DESIGN.md section 9 rule)
+    gripper: np.ndarray  # (N, 4) float32: x_G, y_G, z_G [m], c_G in [0, 1]
+    image: np.ndarray | None  # (N, H, W) uint8 top view (as ``render``), None if not asked for
 
 
 class RopeSim:
@@ -45,6 +56,7 @@ class RopeSim:
         self._pick_vel = np.zeros((n, 3), np.float32)
         self._unstable = np.zeros(n, bool)
         self._clip_warned = False
+        self._no_image = np.zeros((n, 1, 1), np.uint8)
 
     # ------------------------------------------------------------------ episodes
     def reset(self, seeds, env_ids=None, params: dict | None = None) -> None:
@@ -129,10 +141,19 @@ class RopeSim:
         """(N,) float32 [m], L_c = (n_c - 1) * rest spacing."""
         return ((self._params["num_particles"] - 1) * REST_SPACING).astype(np.float32)
 
+    def snapshot(self, render: bool = True) -> Snapshot:
+        """Positions, held mask, gripper state and (if ``render``) the top view, in one kernel launch."""
+        n = self.num_envs
+        positions = np.empty((n, P_MAX, 3), np.float32)
+        held = np.empty((n, P_MAX), np.uint8)
+        gripper = np.empty((n, 4), np.float32)
+        image = np.empty((n, self.camera.height, self.camera.width), np.uint8) if render else self._no_image
+        self._k.observe(positions, held, gripper, image, int(render))
+        return Snapshot(positions, held.view(bool), gripper, image if render else None)
+
     def held_mask(self) -> np.ndarray:
         """(N, P_MAX) bool: particles between the fingers now (DESIGN.md section 9 rule)."""
-        self._k.compute_held()
-        return self._k.held.to_numpy() != 0
+        return self.snapshot(render=False).held
 
     def n_held(self) -> np.ndarray:
         """(N,) int32, n_h."""
@@ -147,7 +168,7 @@ class RopeSim:
 
     def gripper_state(self) -> np.ndarray:
         """(N, 4) float32: x_G, y_G, z_G [m], c_G in [0, 1]."""
-        return np.concatenate([self._k.gripper.to_numpy(), self._k.closure.to_numpy()[:, None]], axis=1)
+        return self.snapshot(render=False).gripper
 
     @property
     def params(self) -> dict:
@@ -160,9 +181,7 @@ class RopeSim:
 
     def render(self) -> np.ndarray:
         """(N, H, W) uint8 top-camera view: 0 background, 255 cable, 128 gripper (drawn over the cable)."""
-        image = np.empty((self.num_envs, self.camera.height, self.camera.width), np.uint8)
-        self._k.render(image)
-        return image
+        return self.snapshot(render=True).image
 
     def set_positions(self, positions, env_ids=None) -> None:
         """Overwrite the particle positions [m] of some environments and zero their velocities
