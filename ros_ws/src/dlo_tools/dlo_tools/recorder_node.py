@@ -11,8 +11,10 @@ every exit path. At shutdown it logs received/written/dropped counts (dropped mu
 from __future__ import annotations
 
 import functools
+import json
 import sys
 import time
+from pathlib import Path
 
 import rclpy
 from rclpy.event_handler import SubscriptionEventCallbacks
@@ -37,6 +39,8 @@ PARAMETERS = (
     ("task_topic", TASK_TOPIC, "dlo_msgs/TaskState topic that marks episodes for split_episodes."),
     ("discovery_period", 0.25, "Seconds between topic discovery passes."),
     ("queue_depth", 1000, "Subscription history depth (KEEP_LAST) per topic."),
+    ("summary_file", "", "If set, write the received/written/dropped counts there as JSON at "
+                         "shutdown."),
     ("drain_timeout", 2.0, "On shutdown, keep taking already-delivered messages for at most this "
                            "many seconds (stops earlier once nothing arrives for 0.2 s)."),
 )
@@ -61,6 +65,7 @@ class RecorderNode(Node):
         self.extra_topics = [t for t in p["extra_topics"] if t]
         self.queue_depth = p["queue_depth"]
         self.drain_timeout = p["drain_timeout"]
+        self.summary_file = p["summary_file"]
         output = p["output"] or str(default_output())
         self.recorder = Recorder(output, split_episodes=p["split_episodes"],
                                  task_topic=p["task_topic"])
@@ -164,7 +169,12 @@ class RecorderNode(Node):
         for line in summary.lines():
             log.info(line)
         if summary.dropped:
-            log.error(f"{summary.dropped} received messages were not written")
+            log.error(f"{summary.dropped} messages were not written")
+        if self.summary_file:
+            try:
+                Path(self.summary_file).write_text(json.dumps(summary.to_dict()) + "\n")
+            except OSError as err:
+                log.error(f"cannot write summary_file {self.summary_file}: {err}")
         return summary
 
 

@@ -69,6 +69,16 @@ class RecordSummary:
         """Received but not written, plus what the middleware reported lost before delivery."""
         return self.total_received - self.total_written + self.total_lost
 
+    def to_dict(self) -> dict:
+        """JSON-ready counts (e.g. for benchmarks: ``dropped`` must be 0)."""
+        return {"path": str(self.path), "parts": [str(p) for p in self.parts],
+                "received": self.total_received, "written": self.total_written,
+                "lost": self.total_lost, "dropped": self.dropped, "errors": self.errors,
+                "topics": {t: {"received": self.received.get(t, 0),
+                               "written": self.written.get(t, 0),
+                               "lost": (self.lost or {}).get(t, 0)}
+                           for t in sorted(set(self.received) | set(self.written))}}
+
     def lines(self) -> list[str]:
         out = [f"bag {self.path} ({len(self.parts)} part{'s' if len(self.parts) != 1 else ''}): "
                f"received {self.total_received}, written {self.total_written}, "

@@ -39,12 +39,16 @@ def stop_recorder(rec, sig=signal.SIGINT):
 
 def test_records_every_topic_exact_counts_and_hashes(procs, tmp_bags, ros_env):
     bag = tmp_bags / "run"
-    rec = procs("recorder", recorder_cmd(bag))
+    summary_file = tmp_bags / "summary.json"
+    rec = procs("recorder", recorder_cmd(bag, f"summary_file:={summary_file}"))
     pub = procs("pub", helper_cmd("pub", "--count", str(N), "--then", "hold"))
     hashes = json.loads(pub.wait_line("HASHES ").split(" ", 1)[1])
     published = json.loads(pub.wait_line("PUBLISHED ").split(" ", 1)[1])
     out = stop_recorder(rec, signal.SIGINT)  # publisher still alive: SIGINT mid-run
     assert f"received {N * len(TOPICS)}, written {N * len(TOPICS)}, dropped 0" in out
+    summary = json.loads(summary_file.read_text())
+    assert summary["dropped"] == 0 and summary["written"] == N * len(TOPICS)
+    assert summary["topics"]["/dlo/camera/image"] == {"received": N, "written": N, "lost": 0}
 
     # metadata.yaml written, every topic with its type, exact count and rclpy's type hash
     assert (bag / "metadata.yaml").is_file()
