@@ -49,7 +49,8 @@ def test_wrong_python_version_is_a_clear_error(tmp_path):
 
 
 def test_env_sh_works_from_any_directory(tmp_path):
-    script = f"source {ROOT / 'scripts' / 'env.sh'} && python -c 'import rclpy, dlo_msgs.msg, taichi, torch; print(\"ok\")'"
+    script = (f"source {ROOT / 'scripts' / 'env.sh'} && dlo-bag-info --help >/dev/null && dlo-analyze --help >/dev/null"
+              " && ros2run --list >/dev/null && python -c 'import rclpy, dlo_msgs.msg, taichi, torch; print(\"ok\")'")
     result = subprocess.run(["bash", "-c", script], cwd=tmp_path, capture_output=True, text=True,
                             env={k: v for k, v in os.environ.items()
                                  if k not in ("PYTHONPATH", "LD_LIBRARY_PATH", "AMENT_PREFIX_PATH",
