@@ -78,7 +78,8 @@ interrupted=0
 
 subscribers=3
 if [ -n "$record" ]; then
-  start recorder dlo_tools recorder_node --ros-args -p output:="$record" -p record_clock:=true
+  start recorder dlo_tools recorder_node --ros-args -p output:="$record" -p record_clock:=true \
+    -p summary_file:="$logs/recorder_summary.json"
   subscribers=4
 fi
 start tactile dlo_perception tactile_node --ros-args -p noise:="$noise" -p seed:="$seed"
