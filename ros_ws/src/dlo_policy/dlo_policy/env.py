@@ -122,8 +122,7 @@ class CableFollowingVecEnv(VectorEnv):
         """Observation (N, D) of the current simulator state (the task's snapshot) and the held-particle summary."""
         snapshot = self.task.state
         gripper = snapshot.gripper
-        n_held, p_i, _ = task.held_statistics(snapshot.held)
-        state = {"n_held": n_held, "p_i": p_i}
+        state = {"n_held": self.task.n_held, "p_i": self.task.mean_held_index}
         tactile = visual = None
         if self._uses("T"):
             tactile = tactile_pose(snapshot.positions, snapshot.held, gripper[:, :2], gripper[:, 3],

@@ -15,9 +15,10 @@ from dlo_sim.task import END_PARTICLES, HORIZON, EpisodeTracker, held_statistics
 class TaskSim:
     """``num_envs`` environments of the cable-following task (physics + task bookkeeping).
 
-    ``state`` is the ``RopeSim.Snapshot`` of the current state (after the last reset or step):
-    positions, held mask, gripper and, if ``render``, the top view, read back once per step for
-    the task and reusable by the observation.
+    ``state`` is the ``Snapshot`` of the current state (after the last reset or step): positions,
+    held mask, gripper and, if ``render``, the top view, read back with the step in one kernel
+    launch for the task and reusable by the observation; ``n_held`` and ``mean_held_index`` (N,)
+    are its held statistics (n_h, p_i).
     """
 
     def __init__(self, num_envs: int, horizon: int = HORIZON, end_particles: int = END_PARTICLES,
@@ -26,6 +27,7 @@ class TaskSim:
         self.tracker = EpisodeTracker(self.sim.num_envs, horizon=horizon, end_particles=end_particles)
         self.render = bool(render)
         self.state: Snapshot | None = None
+        self.n_held = self.mean_held_index = None
 
     @property
     def num_envs(self) -> int:
@@ -41,18 +43,17 @@ class TaskSim:
         ids = np.arange(self.num_envs) if env_ids is None else np.asarray(env_ids)
         self.sim.reset(seeds, ids)
         self.state = self.sim.snapshot(self.render)
-        _, p_i, max_index = held_statistics(self.state.held[ids])
-        self.tracker.reset(ids, p_i, max_index, self.sim.num_particles[ids])
+        self.n_held, self.mean_held_index, max_index = held_statistics(self.state.held)
+        self.tracker.reset(ids, self.mean_held_index[ids], max_index[ids], self.sim.num_particles[ids])
 
     def step(self, actions):
         """One control step (8 x 0.01 s) of every environment -> (reward, terminated, truncated, unstable), (N,) each.
 
         An environment the simulator had to reset (NaN or explosion, ``unstable``) ends its episode
         as truncated."""
-        self.sim.step(actions)
-        self.state = self.sim.snapshot(self.render)
-        n_h, p_i, max_index = held_statistics(self.state.held)
-        reward, terminated, truncated = self.tracker.step(p_i, n_h, max_index, self.sim.num_particles,
-                                                          self.sim.cable_length)
+        self.state = self.sim.step_snapshot(actions, self.render)
+        self.n_held, self.mean_held_index, max_index = held_statistics(self.state.held)
+        reward, terminated, truncated = self.tracker.step(self.mean_held_index, self.n_held, max_index,
+                                                          self.sim.num_particles, self.sim.cable_length)
         unstable = self.sim.unstable()
         return reward, terminated, truncated | (unstable & ~terminated), unstable

@@ -311,22 +311,6 @@ class RopeKernels:
         self.gripper[e] = g1
         self.bad[e] = self.exploded(e)
 
-    @ti.kernel
-    def advance(self, actions: ti.types.ndarray(dtype=ti.f32, ndim=2), n_steps: ti.i32) -> ti.i32:
-        """``n_steps`` steps of 0.01 s for every active env under ``actions`` (N, 3); returns how
-        many envs exploded."""
-        n_bad = 0
-        ti.loop_config(serialize=self.num_envs == 1)  # a lone env skips the thread pool
-        for e in range(self.num_envs):
-            if self.active[e] != 0:
-                self.cmd[e] = ti.Vector([actions[e, 0], actions[e, 1], actions[e, 2]])
-                self.bad[e] = 0
-                for _ in range(n_steps):
-                    if self.bad[e] == 0:
-                        self.step_env(e)
-                n_bad += self.bad[e]
-        return n_bad
-
     # ---------------------------------------------------------------- rendering
     @ti.func
     def project(self, p):
@@ -358,10 +342,8 @@ class RopeKernels:
 
     @ti.func
     def render_env(self, image: ti.template(), e):
-        """Top view of env e into ``image[e]`` (H, W): background 0, cable capsules 255, the top
-        finger's footprint 128 over them."""
-        for v, u in ti.ndrange(self.cam_size[0], self.cam_size[1]):
-            image[e, v, u] = ti.u8(0)
+        """Top view of env e into ``image[e]`` (H, W), which must hold background (0): cable
+        capsules 255, the top finger's footprint 128 over them."""
         for i in range(self.n[e] - 1):
             a, sa = self.project(self.x[e, i])
             b, sb = self.project(self.x[e, i + 1])
@@ -372,23 +354,41 @@ class RopeKernels:
         b, _ = self.project(ti.Vector([g.x, g.y + FINGER_HALF_LENGTH, top]))
         self.draw_capsule(image, e, a, b, FINGER_RADIUS * s, FINGER_RADIUS * s, IMAGE_GRIPPER)
 
-    # ---------------------------------------------------------------- read-back
-    @ti.kernel
-    def observe(self, positions: ti.types.ndarray(dtype=ti.f32, ndim=3), held: ti.types.ndarray(dtype=ti.u8, ndim=2),
-                gripper: ti.types.ndarray(dtype=ti.f32, ndim=2), image: ti.types.ndarray(dtype=ti.u8, ndim=3),
-                draw: ti.i32):
-        """Everything the task and the observations read, in one launch: positions (N, P_MAX, 3) [m]
-        (padded rows 0), held (N, P_MAX) 1 = between the fingers (held rule), gripper (N, 4) x, y, z
-        [m] and closure c; and, if ``draw``, the top view into ``image`` (N, H, W)."""
-        ti.loop_config(serialize=self.num_envs == 1)
-        for e in range(self.num_envs):
-            g = self.gripper[e]
+    # ---------------------------------------------------------------- the one kernel
+    @ti.func
+    def read_back(self, e, positions: ti.template(), held: ti.template(), gripper: ti.template()):
+        """Env e's positions [m] (padded rows 0), held mask (held rule) and gripper x, y, z [m], c."""
+        g = self.gripper[e]
+        for k in ti.static(range(3)):
+            gripper[e, k] = g[k]
+        gripper[e, 3] = self.closure[e]
+        for i in range(P_MAX):
             for k in ti.static(range(3)):
-                gripper[e, k] = g[k]
-            gripper[e, 3] = self.closure[e]
-            for i in range(P_MAX):
-                for k in ti.static(range(3)):
-                    positions[e, i, k] = self.x[e, i][k]
-                held[e, i] = ti.u8(1) if i < self.n[e] and self.is_held(e, i, g) else ti.u8(0)
+                positions[e, i, k] = self.x[e, i][k]
+            held[e, i] = ti.u8(1) if i < self.n[e] and self.is_held(e, i, g) else ti.u8(0)
+
+    @ti.kernel
+    def advance(self, actions: ti.types.ndarray(dtype=ti.f32, ndim=2), n_steps: ti.i32,
+                positions: ti.types.ndarray(dtype=ti.f32, ndim=3), held: ti.types.ndarray(dtype=ti.u8, ndim=2),
+                gripper: ti.types.ndarray(dtype=ti.f32, ndim=2), image: ti.types.ndarray(dtype=ti.u8, ndim=3),
+                read: ti.i32, draw: ti.i32) -> ti.i32:
+        """``n_steps`` (>= 0) steps of 0.01 s for every active env under ``actions`` (N, 3); returns
+        how many envs exploded. Then, if ``read``, everything the task and the observations read:
+        positions (N, P_MAX, 3), held (N, P_MAX) 0/1, gripper (N, 4); if ``draw`` also the top view
+        into ``image`` (N, H, W), given all 0. One launch per control step; the arrays are not
+        touched when not asked for."""
+        n_bad = 0
+        ti.loop_config(serialize=self.num_envs == 1)  # a lone env skips the thread pool
+        for e in range(self.num_envs):
+            if self.active[e] != 0 and n_steps > 0:
+                self.cmd[e] = ti.Vector([actions[e, 0], actions[e, 1], actions[e, 2]])
+                self.bad[e] = 0
+                for _ in range(n_steps):
+                    if self.bad[e] == 0:
+                        self.step_env(e)
+                n_bad += self.bad[e]
+            if read != 0:
+                self.read_back(e, positions, held, gripper)
             if draw != 0:
                 self.render_env(image, e)
+        return n_bad

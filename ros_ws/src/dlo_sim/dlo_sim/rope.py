@@ -56,7 +56,8 @@ class RopeSim:
         self._pick_vel = np.zeros((n, 3), np.float32)
         self._unstable = np.zeros(n, bool)
         self._clip_warned = False
-        self._no_image = np.zeros((n, 1, 1), np.uint8)
+        self._unread = (np.zeros((1, 1, 1), np.float32), np.zeros((1, 1), np.uint8), np.zeros((1, 1), np.float32),
+                        np.zeros((1, 1, 1), np.uint8))  # stand-ins when nothing is read back
 
     # ------------------------------------------------------------------ episodes
     def reset(self, seeds, env_ids=None, params: dict | None = None) -> None:
@@ -94,11 +95,11 @@ class RopeSim:
             self._pick_vel[ids] = [d["pick_vel"][move] for d in draws]
             k.pick.from_numpy(self._pick)
             k.pick_vel.from_numpy(self._pick_vel)
-            k.advance(still, cfg.pick_steps)
+            k.advance(still, cfg.pick_steps, *self._unread, 0, 0)
             self._pick[ids] = -1
             k.pick.from_numpy(self._pick)
-            k.advance(still, cfg.drop_steps)
-        k.advance(still, cfg.settle_steps)
+            k.advance(still, cfg.drop_steps, *self._unread, 0, 0)
+        k.advance(still, cfg.settle_steps, *self._unread, 0, 0)
         k.active.fill(1)
         self._unstable[ids] = False
 
@@ -109,14 +110,15 @@ class RopeSim:
     def step_physics(self, actions, n: int = 1) -> None:
         """``n`` steps of 0.01 s. ``actions`` (N, 3) in [-1, 1]: dx, dy (x 0.0025 m per step) and
         closure c = (a2 + 1) / 2. Exploded environments are flagged and reset with their seed."""
-        if np.any(self._params["seed"] < 0):
-            raise RuntimeError("reset() every environment before stepping")
-        actions = self._check_actions(actions)
-        self._unstable[:] = False
-        if self._k.advance(actions, int(n)) > 0:
-            bad = self._k.bad.to_numpy() != 0
-            self.reset(self._params["seed"][bad], env_ids=np.flatnonzero(bad))
-            self._unstable[:] = bad
+        self._advance(actions, int(n), *self._unread, 0, 0)
+
+    def step_snapshot(self, actions, render: bool = True) -> Snapshot:
+        """``step(actions)`` and ``snapshot(render)`` of the resulting state in one kernel launch."""
+        out = self._new_snapshot(render)
+        if self._advance(actions, SUBSTEPS_PER_ACTION, out.positions, out.held.view(np.uint8), out.gripper,
+                         self._unread[3] if out.image is None else out.image, 1, int(render)):
+            out = self.snapshot(render)  # some envs were reset after the read-back
+        return out
 
     # ------------------------------------------------------------------ ground truth
     def positions(self) -> np.ndarray:
@@ -143,13 +145,10 @@ class RopeSim:
 
     def snapshot(self, render: bool = True) -> Snapshot:
         """Positions, held mask, gripper state and (if ``render``) the top view, in one kernel launch."""
-        n = self.num_envs
-        positions = np.empty((n, P_MAX, 3), np.float32)
-        held = np.empty((n, P_MAX), np.uint8)
-        gripper = np.empty((n, 4), np.float32)
-        image = np.empty((n, self.camera.height, self.camera.width), np.uint8) if render else self._no_image
-        self._k.observe(positions, held, gripper, image, int(render))
-        return Snapshot(positions, held.view(bool), gripper, image if render else None)
+        out = self._new_snapshot(render)
+        self._k.advance(self._unread[2], 0, out.positions, out.held.view(np.uint8), out.gripper,
+                        self._unread[3] if out.image is None else out.image, 1, int(render))
+        return out
 
     def held_mask(self) -> np.ndarray:
         """(N, P_MAX) bool: particles between the fingers now (DESIGN.md section 9 rule)."""
@@ -198,6 +197,27 @@ class RopeSim:
         self._k.v.from_numpy(v)
 
     # ------------------------------------------------------------------ helpers
+    def _advance(self, actions, n: int, positions, held, gripper, image, read: int, draw: int) -> bool:
+        """``n`` physics steps (+ read-back if asked); resets exploded envs; True if any was reset."""
+        if np.any(self._params["seed"] < 0):
+            raise RuntimeError("reset() every environment before stepping")
+        actions = self._check_actions(actions)
+        self._unstable[:] = False
+        if self._k.advance(actions, n, positions, held, gripper, image, read, draw) == 0:
+            return False
+        bad = self._k.bad.to_numpy() != 0
+        self.reset(self._params["seed"][bad], env_ids=np.flatnonzero(bad))
+        self._unstable[:] = bad
+        return True
+
+    def _new_snapshot(self, render: bool) -> Snapshot:
+        """Uninitialised read-back arrays; the image zeroed (the renderer draws on background; fresh
+        zero pages from the OS cost less than clearing the image in the kernel)."""
+        n = self.num_envs
+        image = np.zeros((n, self.camera.height, self.camera.width), np.uint8) if render else None
+        return Snapshot(np.empty((n, P_MAX, 3), np.float32), np.empty((n, P_MAX), bool),
+                        np.empty((n, 4), np.float32), image)
+
     def _draw(self, seed: int) -> dict:
         """All random draws of one episode, from its own generator (independent of the batch)."""
         cfg = self.config
