@@ -19,6 +19,7 @@ import argparse
 import json
 import statistics
 import time
+from typing import Callable
 
 import gymnasium as gym
 import numpy as np
@@ -56,7 +57,8 @@ def fill(add, rng: np.random.Generator, n: int) -> None:
             float(rng.normal()), rng.normal(size=OBS_DIM).astype(np.float32), bool(rng.random() < 0.05))
 
 
-def ours(updates: int) -> tuple[float, SACConfig]:
+def ours() -> tuple[Callable[[int], float], SACConfig]:
+    """A timer of N of our updates on a filled replay buffer, and the agent's config."""
     config = SACConfig()
     agent = SAC(OBS_DIM, -np.ones(ACT_DIM), np.ones(ACT_DIM), config, seed=0)
     fill(agent.store, np.random.default_rng(0), LEARNING_STARTS)
@@ -80,7 +82,8 @@ class BoxEnv(gym.Env):
         return np.zeros(OBS_DIM, np.float32), 0.0, False, False, {}
 
 
-def sb3():
+def sb3() -> Callable[[int], float]:
+    """A timer of N SB3 gradient steps (`SAC.train`) on a filled replay buffer."""
     from stable_baselines3 import SAC as SB3SAC
     from stable_baselines3.common.logger import configure
 
@@ -119,7 +122,7 @@ def main() -> None:
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
 
-    run_ours, config = ours(args.updates)
+    run_ours, config = ours()
     run_sb3 = sb3()
     run_ours(10), run_sb3(10)  # warm-up
     flops = flops_per_update(config)

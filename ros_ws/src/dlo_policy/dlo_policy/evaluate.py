@@ -138,7 +138,8 @@ def format_table(result: EvalResult) -> str:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="dlo-evaluate", description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(
+        prog="dlo-evaluate", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--checkpoint", required=True, type=Path,
                         help="checkpoint.pt or policy.pt of a dlo-train run directory")
     parser.add_argument("--episodes", type=int, default=100, help="number of episodes (default 100)")

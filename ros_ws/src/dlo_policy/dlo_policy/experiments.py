@@ -170,7 +170,8 @@ def _print_result(run_dir: str, error: Optional[str], done: int, total: int) -> 
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="dlo-experiments", description=__doc__.split("\n\n")[0],
+    parser = argparse.ArgumentParser(
+        prog="dlo-experiments", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter,
                                      epilog="Overrides (key=value) apply to every run, e.g. train.eval_every=500.")
     parser.add_argument("--out", type=Path, required=True, help="results directory (one subdirectory per run)")
     parser.add_argument("--groups", default="single,pairs,ablation,sensitivity",

@@ -244,7 +244,8 @@ def build_report(results: Path, out_dir: Path) -> list[Path]:
 
 
 def main(argv: Optional[Sequence[str]] = None) -> int:
-    parser = argparse.ArgumentParser(prog="dlo-report", description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(
+        prog="dlo-report", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("results", type=Path, help="directory holding dlo-train run directories")
     parser.add_argument("--out", type=Path, help="where to write figures and results.md (default RESULTS/report)")
     args = parser.parse_args(argv)

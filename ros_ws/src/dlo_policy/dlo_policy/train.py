@@ -167,10 +167,9 @@ def train(config: RunConfig, out_dir: str | Path, resume: bool = False) -> dict[
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
-        prog="dlo-train", description="Train a SAC agent on the cable-following env (the paper's protocol).",
-        epilog="Overrides are key=value pairs on config keys, e.g. sac.batch_size=256 train.eval_every=500 "
-               "env_options.tactile_noise=partial. The eval.csv columns are documented in "
-               "dlo_policy/train.py.")
+        prog="dlo-train", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog="Overrides are key=value pairs on config keys (see config/sac_default.yaml), e.g.\n"
+               "  sac.batch_size=256 train.eval_every=500 env_options.tactile_noise=partial")
     parser.add_argument("--modalities", help="All, or a '+'-joined subset of K, T, V (e.g. V+K); default All")
     parser.add_argument("--seed", type=int, help="run seed (default 0)")
     parser.add_argument("--steps", type=int, help="total env steps (default 50000)")
