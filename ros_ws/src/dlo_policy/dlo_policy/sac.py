@@ -208,6 +208,14 @@ class SAC:
         self.replay.add(obs, action, reward, next_obs, terminated)
 
     # ---------------------------------------------------------------- learning
+    @torch.no_grad()
+    def td_target(self, rewards: torch.Tensor, next_obs: torch.Tensor, terminated: torch.Tensor,
+                  alpha: torch.Tensor) -> torch.Tensor:
+        """Soft Bellman target: s * r + gamma * (1 - done) * (min_j Q'_j(s', a') - alpha * log pi(a'|s'))."""
+        next_actions, next_log_pi = self.actor.sample(next_obs, self.generator)
+        next_q = torch.min(*self.critic_target(next_obs, next_actions)) - alpha * next_log_pi
+        return self.config.reward_scale * rewards + self.config.gamma * (1 - terminated) * next_q
+
     def update(self) -> dict[str, float]:
         """One gradient step on a replay batch; returns the losses computed this step."""
         cfg = self.config
@@ -215,10 +223,7 @@ class SAC:
         obs, next_obs = self._normalize(batch.obs), self._normalize(batch.next_obs)
         alpha = self.log_alpha.detach().exp()
 
-        with torch.no_grad():
-            next_actions, next_log_pi = self.actor.sample(next_obs, self.generator)
-            next_q = torch.min(*self.critic_target(next_obs, next_actions)) - alpha * next_log_pi
-            td_target = cfg.reward_scale * batch.rewards + cfg.gamma * (1 - batch.terminated) * next_q
+        td_target = self.td_target(batch.rewards, next_obs, batch.terminated, alpha)
         q1, q2 = self.critic(obs, batch.actions)
         critic_loss = F.mse_loss(q1, td_target) + F.mse_loss(q2, td_target)
         self.critic_optimizer.zero_grad()

@@ -45,6 +45,21 @@ def test_sac_learns_reach_task():
     assert trained.episode_reward > -1.5 > random_policy.episode_reward
 
 
+def test_td_target_bootstraps_from_the_smaller_target_critic_unless_terminal():
+    agent = filled_agent(reward_scale=50.0, gamma=0.9)
+    with torch.no_grad():  # target critics output the constants 3 and 7, whatever the input
+        for head, value in ((agent.critic_target.q1[-1], 3.0), (agent.critic_target.q2[-1], 7.0)):
+            head.weight.zero_()
+            head.bias.fill_(value)
+    rewards, terminated = torch.tensor([1.0, 1.0, -2.0]), torch.tensor([0.0, 1.0, 0.0])
+    tiny_alpha = torch.tensor(1e-9)
+    target = agent.td_target(rewards, torch.randn(3, 9), terminated, tiny_alpha)
+    torch.testing.assert_close(target, torch.tensor([50 + 0.9 * 3, 50.0, -100 + 0.9 * 3]))
+    entropy_bonus = agent.td_target(rewards, torch.zeros(3, 9), terminated, torch.tensor(1.0)) - \
+        agent.td_target(rewards, torch.zeros(3, 9), terminated, tiny_alpha)
+    assert entropy_bonus[1] == 0 and entropy_bonus[0] != 0  # -gamma * alpha * log pi, only when bootstrapping
+
+
 def test_target_critics_track_by_polyak_averaging():
     agent = filled_agent(target_update_every=2, tau=0.05)
     before = [p.clone() for p in agent.critic_target.parameters()]
