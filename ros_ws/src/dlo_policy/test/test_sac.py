@@ -60,6 +60,17 @@ def test_td_target_bootstraps_from_the_smaller_target_critic_unless_terminal():
     assert entropy_bonus[1] == 0 and entropy_bonus[0] != 0  # -gamma * alpha * log pi, only when bootstrapping
 
 
+def test_actor_log_prob_is_the_tanh_gaussian_density():
+    agent = filled_agent(n=0)
+    obs = torch.randn(64, 9)
+    actions, log_prob = agent.actor.sample(obs, torch.Generator().manual_seed(3))
+    mean, log_std = agent.actor(obs)
+    squashed = torch.distributions.TransformedDistribution(
+        torch.distributions.Normal(mean, log_std.exp()), torch.distributions.TanhTransform(cache_size=1))
+    reference = squashed.log_prob(actions.clamp(-1 + 1e-6, 1 - 1e-6)).sum(-1)
+    torch.testing.assert_close(log_prob, reference, rtol=1e-3, atol=1e-2)
+
+
 def test_target_critics_track_by_polyak_averaging():
     agent = filled_agent(target_update_every=2, tau=0.05)
     before = [p.clone() for p in agent.critic_target.parameters()]
