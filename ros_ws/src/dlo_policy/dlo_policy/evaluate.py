@@ -158,9 +158,13 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         raise SystemExit("dlo-evaluate: --episodes must be >= 1")
     if args.threads:
         torch.set_num_threads(args.threads)
-    config = load_run_config(args.checkpoint)
-    agent = SAC.load(args.checkpoint)
-    blank = blanked_columns(config.modalities, args.without)
+    try:
+        config = load_run_config(args.checkpoint)
+        agent = SAC.load(args.checkpoint)
+        blank = blanked_columns(config.modalities, args.without)
+    except (FileNotFoundError, ValueError) as error:
+        print(f"dlo-evaluate: error: {error}", file=sys.stderr)
+        return 2
     vec_env = make_vec_env_for(config, min(args.num_envs, args.episodes), seed=args.seed)
     try:
         result = evaluate_agent(agent, vec_env, args.seed, args.episodes, blank)

@@ -106,6 +106,8 @@ def test_evaluate_cli_prints_table_and_writes_json(tmp_path, capsys):
     result = json.loads(out.read_text())
     assert sum(result[o] for o in evaluate.OUTCOMES) == pytest.approx(1.0)
     assert result["episodes"] == 12 and result["without"] == ["V"]
+    assert evaluate.main(["--checkpoint", str(tmp_path / "missing.pt")]) == 2
+    assert "config.yaml not found" in capsys.readouterr().err
 
 
 def test_blanked_columns_follow_the_observation_layout():
