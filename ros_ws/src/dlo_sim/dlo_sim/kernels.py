@@ -367,28 +367,42 @@ class RopeKernels:
                 positions[e, i, k] = self.x[e, i][k]
             held[e, i] = ti.u8(1) if i < self.n[e] and self.is_held(e, i, g) else ti.u8(0)
 
+    @ti.func
+    def advance_env(self, e, actions: ti.template(), n_steps) -> ti.i32:
+        """``n_steps`` (>= 0) steps of 0.01 s of env e, if active, under ``actions[e]``; 1 if it exploded."""
+        bad = 0
+        if self.active[e] != 0 and n_steps > 0:
+            self.cmd[e] = ti.Vector([actions[e, 0], actions[e, 1], actions[e, 2]])
+            self.bad[e] = 0
+            for _ in range(n_steps):
+                if self.bad[e] == 0:
+                    self.step_env(e)
+            bad = self.bad[e]
+        return bad
+
     @ti.kernel
-    def advance(self, actions: ti.types.ndarray(dtype=ti.f32, ndim=2), n_steps: ti.i32,
-                positions: ti.types.ndarray(dtype=ti.f32, ndim=3), held: ti.types.ndarray(dtype=ti.u8, ndim=2),
-                gripper: ti.types.ndarray(dtype=ti.f32, ndim=2), image: ti.types.ndarray(dtype=ti.u8, ndim=3),
-                read: ti.i32, draw: ti.i32) -> ti.i32:
-        """``n_steps`` (>= 0) steps of 0.01 s for every active env under ``actions`` (N, 3); returns
-        how many envs exploded. Then, if ``read``, everything the task and the observations read:
-        positions (N, P_MAX, 3), held (N, P_MAX) 0/1, gripper (N, 4); if ``draw`` also the top view
-        into ``image`` (N, H, W), given all 0. One launch per control step; the arrays are not
-        touched when not asked for."""
+    def advance(self, actions: ti.types.ndarray(dtype=ti.f32, ndim=2), n_steps: ti.i32) -> ti.i32:
+        """``n_steps`` steps of 0.01 s for every active env under ``actions`` (N, 3); returns how
+        many envs exploded."""
         n_bad = 0
         ti.loop_config(serialize=self.num_envs == 1)  # a lone env skips the thread pool
         for e in range(self.num_envs):
-            if self.active[e] != 0 and n_steps > 0:
-                self.cmd[e] = ti.Vector([actions[e, 0], actions[e, 1], actions[e, 2]])
-                self.bad[e] = 0
-                for _ in range(n_steps):
-                    if self.bad[e] == 0:
-                        self.step_env(e)
-                n_bad += self.bad[e]
-            if read != 0:
-                self.read_back(e, positions, held, gripper)
+            n_bad += self.advance_env(e, actions, n_steps)
+        return n_bad
+
+    @ti.kernel
+    def advance_and_read(self, actions: ti.types.ndarray(dtype=ti.f32, ndim=2), n_steps: ti.i32,
+                         positions: ti.types.ndarray(dtype=ti.f32, ndim=3), held: ti.types.ndarray(dtype=ti.u8, ndim=2),
+                         gripper: ti.types.ndarray(dtype=ti.f32, ndim=2), image: ti.types.ndarray(dtype=ti.u8, ndim=3),
+                         draw: ti.i32) -> ti.i32:
+        """``advance`` (``n_steps`` may be 0), then everything the task and the observations read, in
+        the same launch: positions (N, P_MAX, 3), held (N, P_MAX) 0/1, gripper (N, 4); if ``draw``
+        also the top view into ``image`` (N, H, W), given all 0 (else it is not touched)."""
+        n_bad = 0
+        ti.loop_config(serialize=self.num_envs == 1)
+        for e in range(self.num_envs):
+            n_bad += self.advance_env(e, actions, n_steps)
+            self.read_back(e, positions, held, gripper)
             if draw != 0:
                 self.render_env(image, e)
         return n_bad

@@ -56,8 +56,8 @@ class RopeSim:
         self._pick_vel = np.zeros((n, 3), np.float32)
         self._unstable = np.zeros(n, bool)
         self._clip_warned = False
-        self._unread = (np.zeros((1, 1, 1), np.float32), np.zeros((1, 1), np.uint8), np.zeros((1, 1), np.float32),
-                        np.zeros((1, 1, 1), np.uint8))  # stand-ins when nothing is read back
+        self._no_actions = np.zeros((1, 3), np.float32)  # stand-in for a read-back without steps
+        self._no_image = np.zeros((1, 1, 1), np.uint8)  # stand-in for a read-back without render
 
     # ------------------------------------------------------------------ episodes
     def reset(self, seeds, env_ids=None, params: dict | None = None) -> None:
@@ -95,11 +95,11 @@ class RopeSim:
             self._pick_vel[ids] = [d["pick_vel"][move] for d in draws]
             k.pick.from_numpy(self._pick)
             k.pick_vel.from_numpy(self._pick_vel)
-            k.advance(still, cfg.pick_steps, *self._unread, 0, 0)
+            k.advance(still, cfg.pick_steps)
             self._pick[ids] = -1
             k.pick.from_numpy(self._pick)
-            k.advance(still, cfg.drop_steps, *self._unread, 0, 0)
-        k.advance(still, cfg.settle_steps, *self._unread, 0, 0)
+            k.advance(still, cfg.drop_steps)
+        k.advance(still, cfg.settle_steps)
         k.active.fill(1)
         self._unstable[ids] = False
 
@@ -110,13 +110,12 @@ class RopeSim:
     def step_physics(self, actions, n: int = 1) -> None:
         """``n`` steps of 0.01 s. ``actions`` (N, 3) in [-1, 1]: dx, dy (x 0.0025 m per step) and
         closure c = (a2 + 1) / 2. Exploded environments are flagged and reset with their seed."""
-        self._advance(actions, int(n), *self._unread, 0, 0)
+        self._advance(actions, int(n))
 
     def step_snapshot(self, actions, render: bool = True) -> Snapshot:
         """``step(actions)`` and ``snapshot(render)`` of the resulting state in one kernel launch."""
         out = self._new_snapshot(render)
-        if self._advance(actions, SUBSTEPS_PER_ACTION, out.positions, out.held.view(np.uint8), out.gripper,
-                         self._unread[3] if out.image is None else out.image, 1, int(render)):
+        if self._advance(actions, SUBSTEPS_PER_ACTION, out):
             out = self.snapshot(render)  # some envs were reset after the read-back
         return out
 
@@ -146,8 +145,7 @@ class RopeSim:
     def snapshot(self, render: bool = True) -> Snapshot:
         """Positions, held mask, gripper state and (if ``render``) the top view, in one kernel launch."""
         out = self._new_snapshot(render)
-        self._k.advance(self._unread[2], 0, out.positions, out.held.view(np.uint8), out.gripper,
-                        self._unread[3] if out.image is None else out.image, 1, int(render))
+        self._read(self._no_actions, 0, out)
         return out
 
     def held_mask(self) -> np.ndarray:
@@ -197,18 +195,25 @@ class RopeSim:
         self._k.v.from_numpy(v)
 
     # ------------------------------------------------------------------ helpers
-    def _advance(self, actions, n: int, positions, held, gripper, image, read: int, draw: int) -> bool:
-        """``n`` physics steps (+ read-back if asked); resets exploded envs; True if any was reset."""
+    def _advance(self, actions, n: int, out: Snapshot | None = None) -> bool:
+        """``n`` physics steps (+ read-back into ``out`` if given); resets exploded envs; True if any was."""
         if np.any(self._params["seed"] < 0):
             raise RuntimeError("reset() every environment before stepping")
         actions = self._check_actions(actions)
         self._unstable[:] = False
-        if self._k.advance(actions, n, positions, held, gripper, image, read, draw) == 0:
+        n_bad = self._k.advance(actions, n) if out is None else self._read(actions, n, out)
+        if n_bad == 0:
             return False
         bad = self._k.bad.to_numpy() != 0
         self.reset(self._params["seed"][bad], env_ids=np.flatnonzero(bad))
         self._unstable[:] = bad
         return True
+
+    def _read(self, actions, n: int, out: Snapshot) -> int:
+        """``n`` steps, then the read-back into ``out``, in one launch; returns how many envs exploded."""
+        image = self._no_image if out.image is None else out.image
+        return self._k.advance_and_read(actions, n, out.positions, out.held.view(np.uint8), out.gripper, image,
+                                        int(out.image is not None))
 
     def _new_snapshot(self, render: bool) -> Snapshot:
         """Uninitialised read-back arrays; the image zeroed (the renderer draws on background; fresh
