@@ -45,6 +45,7 @@ EVAL_COLUMNS = ("step", "tested_without", "episodes", *OUTCOMES, "episode_reward
                 "how_far", "train_episodes", "wall_time_s")
 CONFIG_FILE, EVAL_FILE, CHECKPOINT_FILE = "config.yaml", "eval.csv", "checkpoint.pt"
 POLICY_FILE, DONE_FILE = "policy.pt", "done.json"
+BEST_POLICY_FILE, BEST_FILE = "best_policy.pt", "best.json"  # the policy of the best evaluation so far
 
 
 def available_cores() -> int:
@@ -106,6 +107,8 @@ class Trainer:
                                     for m in config.train.eval_without]
         self.started = time.perf_counter()
         self.last_eval: dict[str, float] = {}
+        best_file = out_dir / BEST_FILE
+        self.best = json.loads(best_file.read_text()) if resume and best_file.exists() else None
         self.episode_return = 0.0
         self.recent_returns: list[float] = []  # the last 10 training episodes' returns, for the progress bar
 
@@ -121,6 +124,17 @@ class Trainer:
                          "train_episodes": self.agent.num_episodes, "wall_time_s": round(self.wall_time(), 2)})
         self.log.append(rows)
         self.last_eval = rows[0]
+        self.keep_if_best(rows[0])
+
+    def keep_if_best(self, row: dict[str, Any]) -> None:
+        """Save the policy as best_policy.pt when this evaluation beats every earlier one
+        (higher hold-the-end fraction, then higher episode reward), like SB3's EvalCallback."""
+        score = (row["hold_the_end"], row["episode_reward"])
+        if self.best is not None and score <= (self.best["hold_the_end"], self.best["episode_reward"]):
+            return
+        self.agent.save_policy(self.out_dir / BEST_POLICY_FILE)
+        self.best = {key: row[key] for key in ("step", "hold_the_end", "episode_reward")}
+        (self.out_dir / BEST_FILE).write_text(json.dumps(self.best) + "\n")
 
     def on_step(self, agent: SAC, result: StepResult) -> bool:
         self.bar.update(1)

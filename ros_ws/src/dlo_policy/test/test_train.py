@@ -123,3 +123,16 @@ def test_cli_help_exits_cleanly():
         with pytest.raises(SystemExit) as exit_info:
             main(["--help"])
         assert exit_info.value.code == 0
+
+
+def test_best_policy_is_the_best_evaluation_so_far(tmp_path):
+    run = tmp_path / "run"
+    assert train.main(["--out", str(run), "--steps", "300", "--modalities", "All", "--no-progress", *TINY]) == 0
+    rows = [r for r in read_eval(run) if r["tested_without"] == ""]
+    best_row = max(rows, key=lambda r: (float(r["hold_the_end"]), float(r["episode_reward"])))
+    best = json.loads((run / train.BEST_FILE).read_text())
+    first_best = next(r for r in rows if (r["hold_the_end"], r["episode_reward"]) ==
+                      (best_row["hold_the_end"], best_row["episode_reward"]))
+    assert best["step"] == int(first_best["step"])
+    assert best["episode_reward"] == pytest.approx(float(best_row["episode_reward"]))
+    assert SAC.load(run / train.BEST_POLICY_FILE).num_env_steps == best["step"]
