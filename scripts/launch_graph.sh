@@ -15,6 +15,8 @@ usage: scripts/launch_graph.sh [options]
   --policy P           sac (default: the shipped All policy), tactile_reactive or random
   --checkpoint PATH    policy file for --policy sac (default: the shipped policy)
   --without M          test-time ablation: zero modality M (T or V) for the policy
+  --train-out DIR      learn online (SAC) while running; checkpoints and policy.pt go to DIR
+  --train-config YAML  online training: dlo-train config file (SAC hyperparameters)
   --tactile-noise N    tactile sensitivity: none (default), partial or full
   --record DIR         record every /dlo topic to the rosbag2 (MCAP) directory DIR
   --logs DIR           node logs and the outcome file go here (default: a new temp dir)
@@ -23,6 +25,7 @@ EOF
 }
 
 episodes=5 seed=0 mode=step_locked rate=1.0 policy=sac checkpoint="" without="" noise=none record="" logs=""
+train_out="" train_config=""
 while [ $# -gt 0 ]; do
   case "$1" in
     --episodes) episodes="$2"; shift 2 ;;
@@ -34,6 +37,8 @@ while [ $# -gt 0 ]; do
     --without) without="$2"; shift 2 ;;
     --tactile-noise) noise="$2"; shift 2 ;;
     --record) record="$2"; shift 2 ;;
+    --train-out) train_out="$2"; shift 2 ;;
+    --train-config) train_config="$2"; shift 2 ;;
     --logs) logs="$2"; shift 2 ;;
     -h|--help) usage; exit 0 ;;
     *) echo "launch_graph: unknown option '$1'" >&2; usage >&2; exit 2 ;;
@@ -87,6 +92,8 @@ start vision dlo_perception vision_node
 policy_args=(-p policy:="$policy")
 [ -n "$checkpoint" ] && policy_args+=(-p checkpoint:="$checkpoint")
 [ -n "$without" ] && policy_args+=(-p without:="$without")
+[ -n "$train_out" ] && policy_args+=(-p train:=true -p train_out:="$train_out" -p seed:="$seed")
+[ -n "$train_config" ] && policy_args+=(-p train_config:="$train_config")
 start policy dlo_policy policy_node --ros-args "${policy_args[@]}"
 start sim dlo_sim sim_node --ros-args -p mode:="$mode" -p seed:="$seed" -p episodes:="$episodes" \
   -p rate_factor:="$rate" -p min_subscribers:="$subscribers" -p summary_file:="$outcomes"

@@ -1,7 +1,10 @@
 """policy_node: K/T/V of one control step (matched by stamp) -> /dlo/gripper/cmd answering that step.
 
 ``policy``: ``sac`` (a checkpoint or shipped policy from dlo-train, deterministic actions),
-``tactile_reactive`` (the classical baseline, observations only) or ``random``. The observation is
+``tactile_reactive`` (the classical baseline, observations only), ``oracle`` (ground truth from
+``/dlo/rope/particles``: simulation only) or ``random``. With ``train:=true`` the node learns
+online from the graph's steps (``dlo_policy.online``: same SAC and checkpoints as dlo-train), its
+reward and episode ends taken from ``/dlo/task/state``. The observation is
 assembled by ``dlo_policy.observation.build_observation``, exactly as in the gym environment.
 Inputs that a step does not deliver within ``input_timeout`` s are reported as an error naming the
 missing topic; the sim node then republishes the step, so nothing deadlocks.
@@ -15,7 +18,10 @@ from pathlib import Path
 import numpy as np
 from rclpy.node import Node
 
-from dlo_msgs.msg import GripperCommand, GripperState, TactilePose, VisualPose
+from sensor_msgs.msg import PointCloud2
+
+from dlo_msgs.msg import GripperCommand, GripperState, TactilePose, TaskState, VisualPose
+from dlo_perception.cloud import unpack_particles
 from dlo_perception.sync import StampSync, stamp_to_ns
 from dlo_perception.tactile import TactilePose as Tactile
 from dlo_perception.vision import VisualPose as Visual
@@ -23,7 +29,7 @@ from dlo_policy.observation import build_observation, parse_modalities
 from dlo_sim.command import action_to_command
 from dlo_tools.node_util import ParameterError, declare_parameters
 
-POLICIES = ("sac", "tactile_reactive", "random")
+POLICIES = ("sac", "tactile_reactive", "oracle", "random")
 SHIPPED_POLICY = "policies/all/policy.pt"
 
 
@@ -40,8 +46,30 @@ def shipped_policy_path() -> Path:
     return Path(__file__).resolve().parents[1] / SHIPPED_POLICY
 
 
+class GroundTruthView:
+    """One step's particle cloud and gripper state, shaped like the env's simulator for OracleFollow."""
+
+    def __init__(self):
+        self.sim = self
+        self.cloud = self.gripper = None
+
+    def positions(self):
+        return unpack_particles(self.cloud)[0][None]
+
+    def held_mask(self):
+        return unpack_particles(self.cloud)[1][None]
+
+    @property
+    def num_particles(self):
+        return np.array([self.cloud.width])
+
+    def gripper_state(self):
+        g = self.gripper
+        return np.array([[g.x, g.y, g.z, g.closure]], np.float32)
+
+
 def load_policy(kind: str, checkpoint: str, modalities: str, seed: int):
-    """-> (act(observation (1, D), new_episode) -> action (1, 3), modalities actually used)."""
+    """-> (act(observation (1, D), new_episode, ground truth) -> action (1, 3), modalities actually used)."""
     if kind == "sac":
         from dlo_policy.evaluate import load_run_config
         from dlo_policy.sac import SAC
@@ -51,20 +79,25 @@ def load_policy(kind: str, checkpoint: str, modalities: str, seed: int):
             raise ParameterError(f"checkpoint {path} does not exist")
         agent = SAC.load(path)
         trained_on = load_run_config(path).modalities
-        return (lambda obs, new_episode: agent.predict(obs, deterministic=True).reshape(1, 3)), trained_on
+        return (lambda obs, new_episode, truth: agent.predict(obs, deterministic=True).reshape(1, 3)), trained_on
     if kind == "tactile_reactive":
         from dlo_policy.scripted import TactileReactive
 
         controller = TactileReactive()
         layout = type("ObservationLayout", (), {"modalities": parse_modalities("All")})()
 
-        def act(obs, new_episode):
+        def act(obs, new_episode, truth):
             if new_episode:
                 controller.reset()
             return controller(obs, layout)
         return act, "All"
+    if kind == "oracle":
+        from dlo_policy.scripted import OracleFollow
+
+        oracle = OracleFollow()
+        return (lambda obs, new_episode, truth: oracle(obs, truth)), modalities
     rng = np.random.default_rng(seed)
-    return (lambda obs, new_episode: rng.uniform(-1.0, 1.0, (1, 3)).astype(np.float32)), modalities
+    return (lambda obs, new_episode, truth: rng.uniform(-1.0, 1.0, (1, 3)).astype(np.float32)), modalities
 
 
 class PolicyNode(Node):
@@ -78,21 +111,34 @@ class PolicyNode(Node):
             ("modalities", "All", "observation modalities for policy=random (sac uses its training config)"),
             ("without", "", "test-time ablation: zero these modalities, e.g. 'T' or 'V'"),
             ("input_timeout", 1.0, "report an error when a step's inputs are incomplete after this long [s]"),
-            ("seed", 0, "seed of the random policy"),
+            ("seed", 0, "seed of the random policy and of online training"),
+            ("train", False, "learn online from the graph (policy sac): SAC from scratch or from train_out"),
+            ("train_out", "runs/online", "run directory of online training (config, checkpoint.pt, policy.pt)"),
+            ("checkpoint_every", 1000, "online training: control steps between checkpoints"),
+            ("train_config", "", "online training: a dlo-train YAML config (SAC hyperparameters); empty = defaults"),
         ])
         if p["policy"] not in POLICIES:
             raise ParameterError(f"parameter 'policy': expected one of {POLICIES}, got {p['policy']!r}")
+        if p["train"] and p["policy"] != "sac":
+            raise ParameterError("parameter 'train': online training needs policy:=sac")
         try:
-            self.act, modalities = load_policy(p["policy"], p["checkpoint"], p["modalities"], p["seed"])
+            if p["train"]:
+                self.act, modalities = None, p["modalities"]
+            else:
+                self.act, modalities = load_policy(p["policy"], p["checkpoint"], p["modalities"], p["seed"])
             self.modalities = parse_modalities(modalities)
             self.without = parse_modalities(p["without"]) if p["without"] else ()
             build_observation(self.modalities, np.zeros((1, 3)), Tactile(*np.zeros((4, 1))),
                               Visual(*np.zeros((4, 1))), without=self.without)
-        except (ValueError, FileNotFoundError) as error:
+            self.learner = self.make_learner(p) if p["train"] else None
+        except (ValueError, OSError) as error:
             raise ParameterError(str(error)) from None
         self.input_timeout = p["input_timeout"]
         inputs = ["gripper"] + [key for key, m in (("tactile", "T"), ("vision", "V"))
                                 if m in self.modalities and m not in self.without]
+        inputs += ["task"] if self.learner else []
+        inputs += ["particles"] if p["policy"] == "oracle" else []
+        self.truth = GroundTruthView()
         self.sync = StampSync(inputs)
         self.first_seen = {}  # stamp_ns -> wall time of its first input
         self.last = (None, None)  # (stamp_ns, GripperCommand): a republished step gets the same answer
@@ -102,6 +148,10 @@ class PolicyNode(Node):
             self.create_subscription(TactilePose, "/dlo/tactile/pose", lambda m: self.on_input("tactile", m), 10)
         if "vision" in inputs:
             self.create_subscription(VisualPose, "/dlo/vision/pose", lambda m: self.on_input("vision", m), 10)
+        if "task" in inputs:
+            self.create_subscription(TaskState, "/dlo/task/state", lambda m: self.on_input("task", m), 10)
+        if "particles" in inputs:
+            self.create_subscription(PointCloud2, "/dlo/rope/particles", lambda m: self.on_input("particles", m), 10)
         self.create_timer(0.25, self.check_missing_inputs)
         self.get_logger().info(f"policy {p['policy']} on {'+'.join(self.modalities)}"
                                + (f" without {'+'.join(self.without)}" if self.without else "")
@@ -128,11 +178,35 @@ class PolicyNode(Node):
             Visual(np.array([vision.visible]), np.array([vision.confidence]), np.array([vision.angle]),
                    np.array([vision.y])) if vision else None,
             without=self.without)
-        vx, vy, closure = action_to_command(self.act(observation, gripper.step == 0)[0])
+        if self.learner is not None:
+            task = values["task"]
+            action = self.learner.act(observation[0], task.reward, task.done, task.done and task.n_held == 0,
+                                      gripper.episode, gripper.step)
+        else:
+            self.truth.cloud, self.truth.gripper = values.get("particles"), gripper
+            action = self.act(observation, gripper.step == 0, self.truth)[0]
+        vx, vy, closure = action_to_command(action)
         command = GripperCommand(vx=vx, vy=vy, closure=closure, episode=gripper.episode, step=gripper.step)
         command.header = gripper.header
         self.last = (stamp, command)
         self.publisher.publish(command)
+
+    @staticmethod
+    def make_learner(p):
+        from dlo_policy.config import load_config
+        from dlo_policy.observation import MODALITY_SIZES
+        from dlo_policy.online import OnlineLearner
+
+        config = load_config(p["train_config"] or None, values={"modalities": p["modalities"], "seed": p["seed"]})
+        obs_dim = sum(MODALITY_SIZES[m] for m in parse_modalities(p["modalities"]))
+        return OnlineLearner(config, obs_dim, p["train_out"], p["checkpoint_every"])
+
+    def destroy_node(self):
+        if getattr(self, "learner", None) is not None:
+            self.learner.save()
+            self.get_logger().info(f"online training: {self.learner.agent.num_env_steps} steps, saved to "
+                                   f"{self.learner.run_dir}")
+        super().destroy_node()
 
     def check_missing_inputs(self):
         now = time.monotonic()
