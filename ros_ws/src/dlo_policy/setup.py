@@ -1,3 +1,5 @@
+from glob import glob
+
 from setuptools import find_packages, setup
 
 package_name = "dlo_policy"
@@ -10,6 +12,8 @@ setup(
         ("share/ament_index/resource_index/packages", ["resource/" + package_name]),
         ("share/" + package_name, ["package.xml"]),
         ("share/" + package_name + "/config", ["config/sac_default.yaml"]),
+        # the shipped All-modalities policy (actor + run config), used by policy_node by default
+        ("share/" + package_name + "/policies/all", sorted(glob("policies/all/*"))),
     ],
     install_requires=["setuptools"],
     zip_safe=True,

@@ -43,7 +43,7 @@ class SACConfig:
     batch_size: int = 128
     learning_starts: int = 1000  # uniformly random actions and no updates before this env step
     reward_scale: float = 50.0
-    normalize_observations: bool = False
+    normalize_observations: bool = True  # deviation from the authors: see config/sac_default.yaml
 
     def __post_init__(self) -> None:
         _require(len(self.hidden_sizes) >= 1 and all(h > 0 for h in self.hidden_sizes),
