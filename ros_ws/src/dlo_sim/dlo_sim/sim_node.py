@@ -35,7 +35,7 @@ from dlo_sim.command import CommandError, command_to_action, hold_action
 from dlo_sim.config import DT, FINGER_CLEARANCE, FINGER_HALF_LENGTH, FINGER_RADIUS, SUBSTEPS_PER_ACTION
 from dlo_sim.episode import TaskSim
 from dlo_sim.task import HORIZON, OUTCOME_NAMES
-from dlo_tools.node_util import ParameterError, declare_parameters
+from dlo_tools.node_util import ParameterError, declare_parameters, require_bounds
 
 CONTROL_PERIOD_NS = int(round(DT * SUBSTEPS_PER_ACTION * 1e9))  # 0.08 s of simulation time per action
 MODES = ("step_locked", "real_time")
@@ -65,12 +65,8 @@ class SimNode(Node):
         ])
         if p["mode"] not in MODES:
             raise ParameterError(f"parameter 'mode': expected one of {MODES}, got {p['mode']!r}")
-        for name, low in (("episodes", 0), ("horizon", 1), ("camera_resolution", 8), ("seed", 0), ("min_subscribers", 0)):
-            if p[name] < low:
-                raise ParameterError(f"parameter '{name}': must be >= {low}, got {p[name]}")
-        for name in ("rate_factor", "command_timeout", "step_timeout"):
-            if not p[name] > 0:
-                raise ParameterError(f"parameter '{name}': must be > 0, got {p[name]}")
+        require_bounds(p, at_least={"episodes": 0, "horizon": 1, "camera_resolution": 8, "seed": 0, "min_subscribers": 0},
+                       above={"rate_factor": 0, "command_timeout": 0, "step_timeout": 0})
         self.p = p
         self.camera = TopCamera.covering_workspace(p["camera_resolution"])
         self.task = TaskSim(1, horizon=p["horizon"], camera=self.camera)

@@ -60,6 +60,17 @@ def declare_parameters(node: Any, specs: Sequence[tuple[str, Any, str]]) -> dict
     return values
 
 
+def require_bounds(values: dict[str, Any], at_least: dict[str, float] | None = None,
+                   above: dict[str, float] | None = None) -> None:
+    """Raise ParameterError for the first value below its ``at_least`` bound or not above its ``above`` bound."""
+    for name, low in (at_least or {}).items():
+        if values[name] < low:
+            raise ParameterError(f"parameter '{name}': must be >= {low}, got {values[name]}")
+    for name, low in (above or {}).items():
+        if not values[name] > low:
+            raise ParameterError(f"parameter '{name}': must be > {low}, got {values[name]}")
+
+
 class ShutdownRequest:
     """Turns SIGINT/SIGTERM/SIGHUP into a flag the spin loop checks (no exception mid-write)."""
 

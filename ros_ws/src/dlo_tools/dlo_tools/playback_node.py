@@ -21,7 +21,7 @@ from rclpy.signals import SignalHandlerOptions
 from rosbags.interfaces import QosDurability, QosReliability
 
 from .bag import BagError, bag_info, read_messages
-from .node_util import ParameterError, ShutdownRequest, declare_parameters
+from .node_util import ParameterError, ShutdownRequest, declare_parameters, require_bounds
 from .playback import Pacer, import_message_class, playback_qos
 
 PARAMETERS = (
@@ -48,8 +48,7 @@ class PlaybackNode(Node):
             raise ParameterError("parameter 'bag' is required: -p bag:=<bag directory>")
         if p["rate"] < 0:
             raise ParameterError(f"parameter 'rate': must be >= 0 (1.0 = recorded speed), got {p['rate']}")
-        if p["queue_depth"] < 1:
-            raise ParameterError(f"parameter 'queue_depth': must be >= 1, got {p['queue_depth']}")
+        require_bounds(p, at_least={"queue_depth": 1})
         self.bag = p["bag"]
         self.pacer = Pacer(p["rate"])
         self.loop = p["loop"]

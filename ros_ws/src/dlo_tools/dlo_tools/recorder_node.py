@@ -24,7 +24,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from rclpy.signals import SignalHandlerOptions
 
 from .bag import BagError, qos_from_profile, subscription_qos
-from .node_util import ParameterError, ShutdownRequest, declare_parameters
+from .node_util import ParameterError, ShutdownRequest, declare_parameters, require_bounds
 from .playback import import_message_class
 from .recording import TASK_TOPIC, Recorder, RecordSummary, default_output, topic_selected
 
@@ -52,14 +52,8 @@ class RecorderNode(Node):
     def __init__(self) -> None:
         super().__init__("recorder")
         p = declare_parameters(self, PARAMETERS)
-        if p["discovery_period"] <= 0:
-            raise ParameterError(f"parameter 'discovery_period': must be > 0, got {p['discovery_period']}")
-        if p["queue_depth"] < 1:
-            raise ParameterError(f"parameter 'queue_depth': must be >= 1, got {p['queue_depth']}")
-        if p["split_episodes"] < 0:
-            raise ParameterError(f"parameter 'split_episodes': must be >= 0, got {p['split_episodes']}")
-        if p["drain_timeout"] < 0:
-            raise ParameterError(f"parameter 'drain_timeout': must be >= 0, got {p['drain_timeout']}")
+        require_bounds(p, at_least={"queue_depth": 1, "split_episodes": 0, "drain_timeout": 0},
+                       above={"discovery_period": 0})
         self.namespace = p["namespace"] or "/"
         self.record_clock = p["record_clock"]
         self.extra_topics = [t for t in p["extra_topics"] if t]
