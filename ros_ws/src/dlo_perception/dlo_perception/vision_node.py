@@ -35,6 +35,10 @@ class VisionNode(Node):
         except (ValueError, AssertionError):
             raise ParameterError(f"camera_position must be three numbers 'x,y,z', got {p['camera_position']}") from None
         self.camera = None
+        # Compile the vision kernel now, not on the first frame (a replayed or live stream would
+        # queue up behind the compilation and drop frames).
+        visual_pose(np.zeros((1, DEFAULT_CAMERA.height, DEFAULT_CAMERA.width), np.uint8), DEFAULT_CAMERA,
+                    np.zeros((1, 2)), 0.1)
         self.sync = StampSync(("image", "gripper"))
         self.publisher = self.create_publisher(VisualPose, "/dlo/vision/pose", 10)
         latched = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
