@@ -19,6 +19,7 @@ FINGER_AXIS_OFFSET = FINGER_RADIUS + 0.5 * FINGER_CLEARANCE  # m, finger axis ab
 HELD_DISTANCE = PARTICLE_RADIUS + FINGER_RADIUS + REST_SPACING  # m, held rule (DESIGN.md section 9)
 MAX_CORRECTION = 0.25 * REST_SPACING  # m, per sub-step cap on a particle's direct-solve correction
 SELF_EXCLUDE = 3  # particles closer than this along the chain never self-collide
+THREAD_POOL_GRAIN = 512  # loop items Taichi 1.7 hands one CPU thread at the least (measured; see RopeKernels.__init__)
 
 
 @ti.data_oriented
@@ -28,6 +29,10 @@ class RopeKernels:
     def __init__(self, num_envs: int, cfg, camera):
         init_taichi()
         self.num_envs = num_envs
+        # Taichi 1.7's CPU thread pool gives a thread work only in runs of >= 512 loop items, so a
+        # loop over a few hundred envs runs on one core. The stepping kernels spread each env over
+        # ``spread`` items (only the first does the work), so every core gets envs.
+        self.spread = 1 if num_envs == 1 else -(-THREAD_POOL_GRAIN * 2 // num_envs)
         self.substeps = int(cfg.substeps)
         self.h = DT / cfg.substeps  # s, sub-step
         self.damping_factor = float(pow(2.718281828459045, -cfg.damping * self.h))
@@ -386,8 +391,9 @@ class RopeKernels:
         many envs exploded."""
         n_bad = 0
         ti.loop_config(serialize=self.num_envs == 1)  # a lone env skips the thread pool
-        for e in range(self.num_envs):
-            n_bad += self.advance_env(e, actions, n_steps)
+        for item in range(self.num_envs * self.spread):
+            if item % self.spread == 0:
+                n_bad += self.advance_env(item // self.spread, actions, n_steps)
         return n_bad
 
     @ti.kernel
@@ -400,9 +406,11 @@ class RopeKernels:
         also the top view into ``image`` (N, H, W), given all 0 (else it is not touched)."""
         n_bad = 0
         ti.loop_config(serialize=self.num_envs == 1)
-        for e in range(self.num_envs):
-            n_bad += self.advance_env(e, actions, n_steps)
-            self.read_back(e, positions, held, gripper)
-            if draw != 0:
-                self.render_env(image, e)
+        for item in range(self.num_envs * self.spread):
+            if item % self.spread == 0:
+                e = item // self.spread
+                n_bad += self.advance_env(e, actions, n_steps)
+                self.read_back(e, positions, held, gripper)
+                if draw != 0:
+                    self.render_env(image, e)
         return n_bad
