@@ -141,17 +141,25 @@ def test_playback_reruns_perception_on_recorded_images(recorded_run):
 
 def test_sigint_mid_run_leaves_a_complete_readable_bag(tmp_path):
     bag = tmp_path / "bag"
+    # SIGINT default in the child even when this test runs in a background job (where it is ignored
+    # and a shell could not trap it): what a user's Ctrl-C does in a terminal.
     launch = subprocess.Popen(["bash", str(ROOT / "scripts" / "launch_graph.sh"), "--policy", "tactile_reactive",
                                "--episodes", "0", "--record", str(bag), "--logs", str(tmp_path / "logs")],
-                              stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                              stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True,
+                              preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
                               env={**os.environ, "DLO_USE_ROS2RUN": "1"})
-    outcomes = tmp_path / "logs" / "outcomes.jsonl"
-    deadline = time.monotonic() + 240
-    while time.monotonic() < deadline and not (outcomes.exists() and outcomes.read_text().strip()):
-        time.sleep(0.5)  # run until at least one episode has finished, then interrupt mid-episode
-    time.sleep(1.0)
-    launch.send_signal(signal.SIGINT)
-    out, _ = launch.communicate(timeout=120)
+    try:
+        outcomes = tmp_path / "logs" / "outcomes.jsonl"
+        deadline = time.monotonic() + 240
+        while time.monotonic() < deadline and not (outcomes.exists() and outcomes.read_text().strip()):
+            time.sleep(0.5)  # run until at least one episode has finished, then interrupt mid-episode
+        time.sleep(1.0)
+        launch.send_signal(signal.SIGINT)
+        out, _ = launch.communicate(timeout=120)
+    finally:
+        if launch.poll() is None:  # never leave a graph running into the next tests
+            os.killpg(launch.pid, signal.SIGKILL)
+            launch.wait()
     assert launch.returncode == 130, out
     assert (bag / "metadata.yaml").exists()
     run = read_run(bag)
