@@ -122,6 +122,8 @@ class PlaybackNode(Node):
             left = end - time.monotonic()
             if left <= 0:
                 break
+            if pub.get_subscription_count() == 0:  # nobody left to acknowledge (a reader may exit once served)
+                continue
             pub.wait_for_all_acked(Duration(nanoseconds=int(left * 1e9)))
 
 
