@@ -69,7 +69,7 @@ class SimNode(Node):
                        above={"rate_factor": 0, "command_timeout": 0, "step_timeout": 0})
         self.p = p
         self.camera = TopCamera.covering_workspace(p["camera_resolution"])
-        self.task = TaskSim(1, horizon=p["horizon"], camera=self.camera)
+        self.task = TaskSim(1, horizon=p["horizon"], render=True, camera=self.camera)
         self.episode = 0
         self.episode_seed = p["seed"]
         self.step_index = 0
@@ -142,7 +142,7 @@ class SimNode(Node):
             action = command_to_action(msg.vx, msg.vy, msg.closure)
         except CommandError as error:
             self.get_logger().warning(f"rejected command: {error}; the gripper holds")
-            action = hold_action(self.task.sim.gripper_state()[0, 3])
+            action = hold_action(self.task.state.gripper[0, 3])
         if self.p["mode"] == "real_time":
             self.command = (action, time.monotonic())
             return
@@ -154,7 +154,7 @@ class SimNode(Node):
     def on_real_time_tick(self):
         if not self.started:
             return
-        closure = self.task.sim.gripper_state()[0, 3]
+        closure = self.task.state.gripper[0, 3]
         if self.command is None or time.monotonic() - self.command[1] > self.p["command_timeout"]:
             if self.command is not None:
                 self.get_logger().warning("command timed out: the gripper stops and holds",
@@ -199,23 +199,24 @@ class SimNode(Node):
         stamp = to_time(self.stamp_ns)
         self.pub_clock.publish(Clock(clock=stamp))
         n_c = int(sim.num_particles[0])
-        positions = sim.positions()[0, :n_c]
-        held = self.task.held[0, :n_c]
-        gripper = sim.gripper_state()[0]
+        snapshot = self.task.state  # read back with the step: no further kernel launches here
+        positions = snapshot.positions[0, :n_c]
+        held = snapshot.held[0, :n_c]
+        gripper = snapshot.gripper[0]
 
         cloud = PointCloud2(height=1, width=n_c, is_bigendian=False, point_step=POINT_STEP,
                             row_step=POINT_STEP * n_c, is_dense=True, data=pack_particles(positions, held))
         cloud.fields = [PointField(name=n, offset=4 * i, datatype=FLOAT32, count=1) for i, n in enumerate(FIELD_NAMES)]
         state = GripperState(x=float(gripper[0]), y=float(gripper[1]), z=float(gripper[2]),
                              closure=float(gripper[3]), episode=self.episode, step=self.step_index)
-        pixels = sim.render()[0]
+        pixels = snapshot.image[0]
         image = Image(height=pixels.shape[0], width=pixels.shape[1], encoding="mono8", is_bigendian=0,
                       step=pixels.shape[1], data=pixels.tobytes())
         tracker = self.task.tracker
         held_indices = np.flatnonzero(held).astype(np.int32)
         task = TaskState(episode=self.episode, seed=self.episode_seed, step=self.step_index,
                          held_indices=held_indices.tolist(), n_held=len(held_indices),
-                         mean_held_index=float(held_indices.mean()) if len(held_indices) else -1.0,
+                         mean_held_index=float(self.task.mean_held_index[0]),
                          num_particles=n_c, cable_length=float(sim.cable_length[0]), reward=self.last_reward,
                          episode_return=float(tracker.episode_return[0]), done=self.done,
                          outcome=int(tracker.outcome[0]) if self.done else 0)
