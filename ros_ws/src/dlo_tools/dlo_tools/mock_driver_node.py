@@ -17,11 +17,11 @@ import numpy as np
 from builtin_interfaces.msg import Time
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile
-from sensor_msgs.msg import CameraInfo, Image, PointCloud2, PointField
+from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 
 from dlo_msgs.msg import GripperCommand, GripperState
 from dlo_perception.camera import TopCamera
-from dlo_perception.cloud import FIELD_NAMES, FLOAT32, POINT_STEP, pack_particles
+from dlo_perception.cloud import particle_cloud
 from dlo_tools.node_util import ParameterError, declare_parameters
 
 CONTROL_PERIOD_NS = 80_000_000  # one command per 0.08 s of driver time
@@ -90,9 +90,7 @@ class MockDriver(Node):
     def publish_state(self):
         stamp = Time(sec=self.stamp_ns // 1_000_000_000, nanosec=self.stamp_ns % 1_000_000_000)
         contact = np.linalg.norm(self.cable[:, :2] - self.gripper, axis=1) <= FINGER_REACH
-        cloud = PointCloud2(height=1, width=len(self.cable), point_step=POINT_STEP, row_step=POINT_STEP * len(self.cable),
-                            is_dense=True, data=pack_particles(self.cable, contact))
-        cloud.fields = [PointField(name=n, offset=4 * i, datatype=FLOAT32, count=1) for i, n in enumerate(FIELD_NAMES)]
+        cloud = particle_cloud(self.cable, contact)
         pixels = draw_cable(self.cable, self.camera, self.gripper)
         image = Image(height=pixels.shape[0], width=pixels.shape[1], encoding="mono8", step=pixels.shape[1],
                       data=pixels.tobytes())
