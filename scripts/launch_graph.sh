@@ -81,11 +81,11 @@ stop_all() {
 trap 'echo "[launch] interrupted: stopping the graph"; stop_all; interrupted=1' INT TERM
 interrupted=0
 
-subscribers=3
+subscribers=3 sim_extra=()
 if [ -n "$record" ]; then
   start recorder dlo_tools recorder_node --ros-args -p output:="$record" -p record_clock:=true \
     -p summary_file:="$logs/recorder_summary.json"
-  subscribers=4
+  subscribers=4 sim_extra=(-p wait_for_recorder:=recorder)  # the first episode is recorded whole
 fi
 start tactile dlo_perception tactile_node --ros-args -p noise:="$noise" -p seed:="$seed"
 start vision dlo_perception vision_node
@@ -96,7 +96,8 @@ policy_args=(-p policy:="$policy")
 [ -n "$train_config" ] && policy_args+=(-p train_config:="$train_config")
 start policy dlo_policy policy_node --ros-args "${policy_args[@]}"
 start sim dlo_sim sim_node --ros-args -p mode:="$mode" -p seed:="$seed" -p episodes:="$episodes" \
-  -p rate_factor:="$rate" -p min_subscribers:="$subscribers" -p summary_file:="$outcomes"
+  -p rate_factor:="$rate" -p min_subscribers:="$subscribers" -p summary_file:="$outcomes" \
+  "${sim_extra[@]}"
 sim_pid="${pids[-1]}"
 
 set +e

@@ -24,13 +24,13 @@ from geometry_msgs.msg import Point
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile
 from rosgraph_msgs.msg import Clock
-from sensor_msgs.msg import CameraInfo, Image, PointCloud2, PointField
+from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 from visualization_msgs.msg import Marker, MarkerArray
 
 from dlo_msgs.msg import GripperCommand, GripperState, TaskState
 from dlo_msgs.srv import ResetEpisode
 from dlo_perception.camera import TopCamera
-from dlo_perception.cloud import FIELD_NAMES, FLOAT32, POINT_STEP, pack_particles
+from dlo_perception.cloud import particle_cloud
 from dlo_sim.command import CommandError, command_to_action, hold_action
 from dlo_sim.config import DT, FINGER_CLEARANCE, FINGER_HALF_LENGTH, FINGER_RADIUS, SUBSTEPS_PER_ACTION
 from dlo_sim.episode import TaskSim
@@ -59,6 +59,8 @@ class SimNode(Node):
             ("command_timeout", 0.5, "real_time mode: a command older than this [s] stops the gripper"),
             ("step_timeout", 1.0, "step_locked mode: republish the state after this long [s] without a command"),
             ("min_subscribers", 0, "wait until /dlo/gripper/state has this many subscribers before the first episode"),
+            ("wait_for_recorder", "", "name of a recorder node that must subscribe to every published /dlo topic "
+                                      "before the first episode (empty = do not wait)"),
             ("camera_resolution", 128, "top-view image width = height [px]"),
             ("publish_markers", True, "publish /dlo/markers for RViz/Foxglove"),
             ("summary_file", "", "write the per-episode outcomes as JSON lines here (empty = off)"),
@@ -167,7 +169,7 @@ class SimNode(Node):
     def on_watchdog(self):
         """Start once enough subscribers are up; in step_locked mode republish a state nobody answered."""
         if not self.started:
-            if self.count_subscribers("/dlo/gripper/state") >= self.p["min_subscribers"]:
+            if self.count_subscribers("/dlo/gripper/state") >= self.p["min_subscribers"] and self.recorder_ready():
                 self.started = True
                 self.start_episode(self.p["seed"])
             return
@@ -180,6 +182,18 @@ class SimNode(Node):
             self.get_logger().warning(f"no command for episode {self.episode} step {self.step_index} in "
                                       f"{self.p['step_timeout']} s: republishing the state", throttle_duration_sec=5.0)
             self.publish_state(new_stamp=False)
+
+    def recorder_ready(self) -> bool:
+        """True when ``wait_for_recorder`` is unset or that node subscribes to every /dlo topic with a publisher,
+        so the recording misses nothing of the first episode (the graph's other publishers are up by then:
+        they create their publishers before their /dlo/gripper/state subscriptions)."""
+        recorder = self.p["wait_for_recorder"]
+        if not recorder:
+            return True
+        topics = [t for t, _ in self.get_topic_names_and_types()
+                  if t.startswith("/dlo/") and self.count_publishers(t) > 0]
+        return all(any(info.node_name == recorder for info in self.get_subscriptions_info_by_topic(t))
+                   for t in topics)
 
     def on_reset_service(self, request, response):
         seed = int(request.seed) if request.seed >= 0 else self.p["seed"] + self.episode + 1
@@ -204,9 +218,7 @@ class SimNode(Node):
         held = snapshot.held[0, :n_c]
         gripper = snapshot.gripper[0]
 
-        cloud = PointCloud2(height=1, width=n_c, is_bigendian=False, point_step=POINT_STEP,
-                            row_step=POINT_STEP * n_c, is_dense=True, data=pack_particles(positions, held))
-        cloud.fields = [PointField(name=n, offset=4 * i, datatype=FLOAT32, count=1) for i, n in enumerate(FIELD_NAMES)]
+        cloud = particle_cloud(positions, held)
         state = GripperState(x=float(gripper[0]), y=float(gripper[1]), z=float(gripper[2]),
                              closure=float(gripper[3]), episode=self.episode, step=self.step_index)
         pixels = snapshot.image[0]
