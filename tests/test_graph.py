@@ -112,8 +112,11 @@ def test_playback_reruns_perception_on_recorded_images(recorded_run):
     try:
         node = rclpy.create_node("replay_probe")
         replayed = {}
-        node.create_subscription(VisualPose, "/replay/vision",
-                                 lambda m: replayed.setdefault(stamp_to_ns(m.header.stamp), m), 1000)
+        probe = node.create_subscription(VisualPose, "/replay/vision",
+                                         lambda m: replayed.setdefault(stamp_to_ns(m.header.stamp), m), 1000)
+        deadline = time.monotonic() + 120
+        while probe.get_publisher_count() == 0 and time.monotonic() < deadline:  # the vision node is up and matched
+            rclpy.spin_once(node, timeout_sec=0.1)
         topics = "['/dlo/camera/image', '/dlo/camera/camera_info', '/dlo/gripper/state']"
         playback = subprocess.Popen([ros2run, "dlo_tools", "playback_node", "--ros-args", "-p", f"bag:={recorded_run['bag']}",
                                      "-p", "rate:=2.0", "-p", f"topics:={topics}", "-p", "wait_for_subscribers:=1",
