@@ -18,6 +18,8 @@ from .config import (DT, FINGER_CLEARANCE, FINGER_HALF_LENGTH, FINGER_RADIUS, FI
 FINGER_AXIS_OFFSET = FINGER_RADIUS + 0.5 * FINGER_CLEARANCE  # m, finger axis above/below the gripper centre
 HELD_DISTANCE = PARTICLE_RADIUS + FINGER_RADIUS + REST_SPACING  # m, held rule (DESIGN.md section 9)
 MAX_CORRECTION = 0.25 * REST_SPACING  # m, per sub-step cap on a particle's direct-solve correction
+GRIP_SLIP_STRAIN = 0.0  # a gripped particle slips once the straight line to the fixed end exceeds its rest length along the cable by this
+GRIP_SLIP_FRACTION = 0.01  # inverse mass of a firmly gripped particle in the constraint solve, as a fraction of w_nom
 SELF_EXCLUDE = 3  # particles closer than this along the chain never self-collide
 THREAD_POOL_GRAIN = 512  # loop items Taichi 1.7 hands one CPU thread at the least (measured; see RopeKernels.__init__)
 
@@ -109,7 +111,7 @@ class RopeKernels:
             w = NOMINAL_INVERSE_MASS
             carry = 0.0
             if inside:
-                w = w_held
+                w = ti.max(w_held, GRIP_SLIP_FRACTION * NOMINAL_INVERSE_MASS)
                 carry = 1.0 - w_held / NOMINAL_INVERSE_MASS
             if i == 0 or i == self.pick[e]:
                 w = 0.0
@@ -135,6 +137,21 @@ class RopeKernels:
                 v = self.v[e, i] * self.damping_factor + ti.Vector([0.0, 0.0, -GRAVITY * h])
                 f = self.carry[e, i]
                 self.x[e, i] = (1.0 - f) * (q + v * h) + f * (q + dg)
+
+    @ti.func
+    def slip_taut_grip(self, e):
+        """Finite grip: a gripped particle (carried, so the stretch solve cannot hold it back) is kept
+        within (1 + GRIP_SLIP_STRAIN) of its rest length along the cable from the fixed end (a long-range
+        attachment, Kim et al. 2012). Pulling a taut cable further makes it slide through the fingers
+        instead of stretching it."""
+        anchor = self.x[e, 0]
+        for i in range(1, self.n[e]):
+            if self.carry[e, i] > 0.0:
+                d = self.x[e, i] - anchor
+                reach = (1.0 + GRIP_SLIP_STRAIN) * i * REST_SPACING
+                length = d.norm()
+                if length > reach:
+                    self.x[e, i] = anchor + d * (reach / length)
 
     @ti.func
     def distance_constraint(self, e, i, j, rest, alpha_tilde):
@@ -307,6 +324,7 @@ class RopeKernels:
         for k in range(self.substeps):
             g = g0 + (k + 1) * dg
             self.predict(e, dg)
+            self.slip_taut_grip(e)
             self.solve_bending(e)
             longest = self.solve_stretch(e)
             self.solve_self_collision(e, longest)
