@@ -18,8 +18,7 @@ from .config import (DT, FINGER_CLEARANCE, FINGER_HALF_LENGTH, FINGER_RADIUS, FI
 FINGER_AXIS_OFFSET = FINGER_RADIUS + 0.5 * FINGER_CLEARANCE  # m, finger axis above/below the gripper centre
 HELD_DISTANCE = PARTICLE_RADIUS + FINGER_RADIUS + REST_SPACING  # m, held rule (DESIGN.md section 9)
 MAX_CORRECTION = 0.25 * REST_SPACING  # m, per sub-step cap on a particle's direct-solve correction
-GRIP_SLIP_STRAIN = 0.0  # a gripped particle slips once the straight line to the fixed end exceeds its rest length along the cable by this
-GRIP_SLIP_FRACTION = 0.01  # inverse mass of a firmly gripped particle in the constraint solve, as a fraction of w_nom
+GRIP_SLIP_STRAIN = 0.0  # a grip slips (c < 0.9) or stalls (c >= 0.9) once the straight line fixed end -> held particle exceeds its rest length along the cable by this
 SELF_EXCLUDE = 3  # particles closer than this along the chain never self-collide
 THREAD_POOL_GRAIN = 512  # loop items Taichi 1.7 hands one CPU thread at the least (measured; see RopeKernels.__init__)
 
@@ -111,7 +110,7 @@ class RopeKernels:
             w = NOMINAL_INVERSE_MASS
             carry = 0.0
             if inside:
-                w = ti.max(w_held, GRIP_SLIP_FRACTION * NOMINAL_INVERSE_MASS)
+                w = w_held
                 carry = 1.0 - w_held / NOMINAL_INVERSE_MASS
             if i == 0 or i == self.pick[e]:
                 w = 0.0
@@ -137,6 +136,24 @@ class RopeKernels:
                 v = self.v[e, i] * self.damping_factor + ti.Vector([0.0, 0.0, -GRAVITY * h])
                 f = self.carry[e, i]
                 self.x[e, i] = (1.0 - f) * (q + v * h) + f * (q + dg)
+
+    @ti.func
+    def stall_firm_grip(self, e, dg):
+        """A firm grip (c >= 0.9: held particles fully carried) on a cable pulled straight from the
+        fixed end stops the gripper: the part of the sub-step motion ``dg`` [m] that would take a
+        held particle beyond its rest length along the cable from the fixed end is removed (it may
+        still move sideways or back). This is the robot's force limit; a lighter grip slides instead."""
+        anchor = self.x[e, 0]
+        for i in range(1, self.n[e]):
+            if self.carry[e, i] >= 1.0:
+                d = self.x[e, i] - anchor
+                reach = (1.0 + GRIP_SLIP_STRAIN) * i * REST_SPACING
+                if (d + dg).norm() > reach:
+                    r = d / ti.max(d.norm(), 1e-9)
+                    outward = dg.dot(r)
+                    if outward > 0.0:
+                        dg -= outward * r
+        return dg
 
     @ti.func
     def slip_taut_grip(self, e):
@@ -320,9 +337,11 @@ class RopeKernels:
         g1.y = ti.min(ti.max(g1.y, -WORKSPACE_HALF_WIDTH), WORKSPACE_HALF_WIDTH)
         self.closure[e] = c
         self.update_grip(e, g0, c)
-        dg = (g1 - g0) / self.substeps
+        dg_commanded = (g1 - g0) / self.substeps
+        g = g0
         for k in range(self.substeps):
-            g = g0 + (k + 1) * dg
+            dg = self.stall_firm_grip(e, dg_commanded)
+            g = g + dg
             self.predict(e, dg)
             self.slip_taut_grip(e)
             self.solve_bending(e)
@@ -331,7 +350,7 @@ class RopeKernels:
             self.solve_fingers(e, g, dg)
             self.solve_table(e)
             self.update_velocities(e)
-        self.gripper[e] = g1
+        self.gripper[e] = g
         self.bad[e] = self.exploded(e)
 
     # ---------------------------------------------------------------- rendering
