@@ -138,6 +138,11 @@ class RopeKernels:
                 self.x[e, i] = (1.0 - f) * (q + v * h) + f * (q + dg)
 
     @ti.func
+    def taut_reach(self, i):
+        """Straight-line distance [m] from the fixed end at which particle i's cable is pulled taut."""
+        return (1.0 + GRIP_SLIP_STRAIN) * i * REST_SPACING
+
+    @ti.func
     def stall_firm_grip(self, e, dg):
         """A firm grip (c >= 0.9: held particles fully carried) on a cable pulled straight from the
         fixed end stops the gripper: the part of the sub-step motion ``dg`` [m] that would take a
@@ -147,7 +152,7 @@ class RopeKernels:
         for i in range(1, self.n[e]):
             if self.carry[e, i] >= 1.0:
                 d = self.x[e, i] - anchor
-                reach = (1.0 + GRIP_SLIP_STRAIN) * i * REST_SPACING
+                reach = self.taut_reach(i)
                 if (d + dg).norm() > reach:
                     r = d / ti.max(d.norm(), 1e-9)
                     outward = dg.dot(r)
@@ -165,7 +170,7 @@ class RopeKernels:
         for i in range(1, self.n[e]):
             if self.carry[e, i] > 0.0:
                 d = self.x[e, i] - anchor
-                reach = (1.0 + GRIP_SLIP_STRAIN) * i * REST_SPACING
+                reach = self.taut_reach(i)
                 length = d.norm()
                 if length > reach:
                     self.x[e, i] = anchor + d * (reach / length)
