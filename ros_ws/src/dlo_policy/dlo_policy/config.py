@@ -43,7 +43,11 @@ class SACConfig:
     batch_size: int = 128
     learning_starts: int = 1000  # uniformly random actions and no updates before this env step
     reward_scale: float = 50.0
-    normalize_observations: bool = True  # deviation from the authors: see config/sac_default.yaml
+    # how observations are scaled before the networks (deviation from the authors: see
+    # config/sac_default.yaml): "running" mean/std z-scores updated every step; "frozen": the same,
+    # but fixed once learning starts; "bounds": a fixed affine map of the observation bounds onto
+    # [-1, 1]; "none": raw SI values (the authors' agent)
+    observation_scaling: str = "running"
 
     def __post_init__(self) -> None:
         _require(len(self.hidden_sizes) >= 1 and all(h > 0 for h in self.hidden_sizes),
@@ -57,6 +61,20 @@ class SACConfig:
             _require(getattr(self, name) >= 1, f"sac.{name}", ">= 1")
         _require(self.learning_starts >= 0, "sac.learning_starts", ">= 0")
         _require(self.log_std_min < self.log_std_max, "sac.log_std_min", "< sac.log_std_max")
+        _require(self.observation_scaling in OBSERVATION_SCALINGS, "sac.observation_scaling",
+                 f"one of {', '.join(OBSERVATION_SCALINGS)}")
+
+    @classmethod
+    def upgrade(cls, data: dict[str, Any]) -> dict[str, Any]:
+        """Config dicts of older versions: `normalize_observations: bool` became `observation_scaling`."""
+        data = dict(data)
+        if "normalize_observations" in data:
+            legacy = data.pop("normalize_observations")
+            data.setdefault("observation_scaling", "running" if legacy else "none")
+        return data
+
+
+OBSERVATION_SCALINGS = ("running", "frozen", "bounds", "none")
 
 
 @dataclass
@@ -66,16 +84,21 @@ class TrainConfig:
     total_steps: int = 50_000
     eval_every: int = 200
     eval_episodes: int = 10
-    eval_seed: int = 1_000_000  # evaluation episodes use seeds eval_seed .. eval_seed + eval_episodes - 1
+    eval_seed: int = 1_000_000  # evaluations draw fresh episodes from seed eval_seed + 100,000 x run seed on (dlo_policy.train)
+    test_episodes: int = 100  # held-out test of the best evaluation's policy after training
+    test_seed: int = 5_000  # held-out test episodes: seeds test_seed .. test_seed + test_episodes - 1
     eval_without: tuple[str, ...] = ()  # also evaluate with these modalities blanked (ablation), e.g. [T, V]
     checkpoint_every: int = 5000
     num_threads: int = 0  # torch threads; 0: all cores this process may use
     progress: bool = True
 
     def __post_init__(self) -> None:
-        for name in ("total_steps", "eval_every", "eval_episodes", "checkpoint_every"):
+        for name in ("total_steps", "eval_every", "eval_episodes", "checkpoint_every", "test_episodes"):
             _require(getattr(self, name) >= 1, f"train.{name}", ">= 1")
         _require(self.num_threads >= 0, "train.num_threads", ">= 0")
+        _require(self.test_seed >= 0 and self.test_seed + self.test_episodes <= self.eval_seed,
+                 "train.test_seed", "in [0, train.eval_seed - train.test_episodes] (held-out test seeds lie "
+                                    "below every evaluation seed)")
         if self.eval_without:
             check_modalities("+".join(self.eval_without), "train.eval_without")
 
@@ -102,6 +125,7 @@ class RunConfig:
     train: TrainConfig = field(default_factory=TrainConfig)
 
     def __post_init__(self) -> None:
+        _require(self.seed >= 0, "seed", ">= 0")
         present = check_modalities(self.modalities)
         for removed in self.train.eval_without:
             _require(removed in present, "train.eval_without",
@@ -163,6 +187,8 @@ def _set_dotted(data: dict[str, Any], key: str, value: Any) -> None:
 def _build(cls: type, data: Any, prefix: str) -> Any:
     if not isinstance(data, dict):
         raise ConfigError(f"{prefix.rstrip('.') or 'config'}: expected a mapping, got {data!r}")
+    if hasattr(cls, "upgrade"):
+        data = cls.upgrade(data)
     hints = typing.get_type_hints(cls)
     known = {f.name for f in dataclasses.fields(cls)}
     unknown = sorted(set(data) - known)

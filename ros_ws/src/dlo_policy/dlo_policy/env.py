@@ -22,7 +22,8 @@ Options (keywords of both entry points):
     sim_config=None       a dlo_sim.SimConfig
 
 Info: every step carries "n_held" and "mean_held_index"; an env whose episode ended in this step
-has "outcome" (name), "outcome_code", "time_at_end", "how_far", "episode_return",
+has "outcome" (name; paper-text rule), "outcome_code", "outcome_authors" (name; the authors'-code
+rule, ``dlo_sim.task``), "time_at_end", "how_far", "episode_return",
 "episode_length", "episode_seed", "unstable" (the simulator had to reset it; the episode is cut and
 counted as truncated), and, in the vector env, "final_obs" (the last observation of that episode,
 the returned one is already the next episode's first). Vector infos follow gymnasium's
@@ -137,6 +138,8 @@ class CableFollowingVecEnv(VectorEnv):
         values = {
             "outcome": np.array([task.OUTCOME_NAMES[int(c)] for c in self.tracker.outcome], dtype=object),
             "outcome_code": self.tracker.outcome.copy(),
+            "outcome_authors": np.array([task.OUTCOME_NAMES[int(c)] for c in self.tracker.outcome_authors],
+                                        dtype=object),
             "time_at_end": self.tracker.time_at_end.copy(),
             "how_far": self.tracker.how_far(),
             "episode_return": self.tracker.episode_return.copy(),

@@ -24,7 +24,9 @@ from .config import RunConfig, load_config
 from .observation import MODALITY_ORDER, MODALITY_SIZES, parse_modalities
 from .sac import SAC
 
-OUTCOMES = ("hold_the_end", "stop_before", "reach_end_but_drop", "drop_before")
+OUTCOMES = ("hold_the_end", "stop_before", "reach_end_but_drop", "drop_before")  # paper-text rule
+AUTHORS_SUFFIX = "_authors"
+OUTCOMES_AUTHORS = tuple(name + AUTHORS_SUFFIX for name in OUTCOMES)  # authors'-code rule (dlo_sim.task)
 
 
 @dataclass
@@ -32,16 +34,26 @@ class EvalResult:
     """Means over `episodes` evaluation episodes (NaN where the env reports no such info)."""
 
     episodes: int
-    hold_the_end: float
+    hold_the_end: float  # outcome fractions, paper-text rule
     stop_before: float
     reach_end_but_drop: float
     drop_before: float
+    hold_the_end_authors: float  # outcome fractions, authors'-code rule
+    stop_before_authors: float
+    reach_end_but_drop_authors: float
+    drop_before_authors: float
     episode_reward: float  # undiscounted, unscaled sum of env rewards
     time_at_end: float  # steps spent holding one of the last particles
     how_far: float  # the env's how-far-it-goes metric
 
     def to_dict(self) -> dict[str, float]:
         return asdict(self)
+
+    def to_json(self) -> dict[str, Any]:
+        """dlo-evaluate's JSON: the paper-text rule at the top level, the authors' rule under "authors_code"."""
+        values = self.to_dict()
+        authors = {name: values.pop(name + AUTHORS_SUFFIX) for name in OUTCOMES}
+        return {**values, "authors_code": authors}
 
 
 def blanked_columns(modalities: str, without: Sequence[str]) -> list[int]:
@@ -64,8 +76,8 @@ def evaluate_agent(agent: SAC, vec_env: Any, first_seed: int, episodes: int,
 
     Runs `vec_env.num_envs` episodes at a time: `reset(seed=s)` starts env i on seed s + i (the
     gymnasium and dlo_policy.env convention). `blank`: observation columns zeroed before acting.
-    Outcomes come from the `info` of each env's first episode end (`outcome`, `time_at_end`,
-    `how_far`); later episodes of an env (auto-reset) are ignored.
+    Outcomes come from the `info` of each env's first episode end (`outcome`, `outcome_authors`,
+    `time_at_end`, `how_far`); later episodes of an env (auto-reset) are ignored.
     """
     n_envs = vec_env.num_envs
     rewards: list[float] = []
@@ -86,12 +98,17 @@ def evaluate_agent(agent: SAC, vec_env: Any, first_seed: int, episodes: int,
             finished |= terminated | truncated
         rewards += returns[:wanted].tolist()
         ends += batch_ends[:wanted]
-    outcomes = [end.get("outcome") for end in ends]
-    has_outcome = all(o is not None for o in outcomes)
-    fractions = {name: (float(np.mean([o == name for o in outcomes])) if has_outcome else math.nan)
-                 for name in OUTCOMES}
+    fractions = {**_fractions(ends, "outcome", ""), **_fractions(ends, "outcome_authors", AUTHORS_SUFFIX)}
     return EvalResult(episodes=episodes, **fractions, episode_reward=float(np.mean(rewards)),
                       time_at_end=_mean_of(ends, "time_at_end"), how_far=_mean_of(ends, "how_far"))
+
+
+def _fractions(ends: list[dict[str, Any]], key: str, suffix: str) -> dict[str, float]:
+    """Fraction of episodes per outcome name under info `key` (NaN if an episode lacks it)."""
+    outcomes = [end.get(key) for end in ends]
+    known = all(o is not None for o in outcomes)
+    return {name + suffix: (float(np.mean([o == name for o in outcomes])) if known else math.nan)
+            for name in OUTCOMES}
 
 
 def _episode_end_info(infos: dict[str, Any], i: int) -> dict[str, Any]:
@@ -128,12 +145,14 @@ def load_run_config(checkpoint: Path) -> RunConfig:
 
 
 def format_table(result: EvalResult) -> str:
-    lines = [f"{'outcome':<20} {'fraction':>8}", "-" * 29]
-    lines += [f"{name:<20} {getattr(result, name):>8.1%}" for name in OUTCOMES]
-    lines += ["-" * 29, f"{'episodes':<20} {result.episodes:>8d}",
-              f"{'episode reward':<20} {result.episode_reward:>8.3f}",
-              f"{'time at end':<20} {result.time_at_end:>8.2f}",
-              f"{'how far':<20} {result.how_far:>8.2f}"]
+    """Outcome fractions under both rules, then the metrics, as fixed-width text."""
+    lines = [f"{'outcome':<20} {'paper rule':>10} {'authors rule':>12}", "-" * 44]
+    lines += [f"{name:<20} {getattr(result, name):>10.1%} {getattr(result, name + AUTHORS_SUFFIX):>12.1%}"
+              for name in OUTCOMES]
+    lines += ["-" * 44, f"{'episodes':<20} {result.episodes:>10d}",
+              f"{'episode reward':<20} {result.episode_reward:>10.3f}",
+              f"{'time at end':<20} {result.time_at_end:>10.2f}",
+              f"{'how far':<20} {result.how_far:>10.2f}"]
     return "\n".join(lines)
 
 
@@ -174,7 +193,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     print(title + (f", without {'+'.join(args.without)}" if args.without else ""))
     print(format_table(result))
     if args.json:
-        payload = {**result.to_dict(), "checkpoint": str(args.checkpoint), "seed": args.seed,
+        payload = {**result.to_json(), "checkpoint": str(args.checkpoint), "seed": args.seed,
                    "without": args.without, "modalities": config.modalities,
                    "env_steps": agent.num_env_steps}
         args.json.write_text(json.dumps(payload, indent=2) + "\n")

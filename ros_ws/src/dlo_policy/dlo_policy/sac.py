@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import contextlib
 import copy
+import dataclasses
 import math
 import os
 from pathlib import Path
@@ -90,15 +91,36 @@ class TwinQ(nn.Module):
 
 
 class ObservationNormalizer:
-    """Running mean / variance (parallel Welford) of observations; maps obs to clipped z-scores."""
+    """Maps observations to clipped z-scores (obs - mean) / std.
+
+    `running` (default): mean / variance of every observation stored so far (parallel Welford);
+    `frozen`: the same until `freeze()`, fixed after; `bounds`: fixed mean = (low + high) / 2 and
+    std = (high - low) / 2, i.e. the observation box onto [-1, 1] (`from_bounds`).
+    """
 
     def __init__(self, obs_dim: int, clip: float = 10.0):
         self.mean = torch.zeros(obs_dim, dtype=torch.float64)
         self.var = torch.ones(obs_dim, dtype=torch.float64)
         self.count = 0
         self.clip = clip
+        self.frozen = False
+
+    @classmethod
+    def from_bounds(cls, low: np.ndarray, high: np.ndarray) -> "ObservationNormalizer":
+        low, high = (torch.as_tensor(np.asarray(b, dtype=np.float64)) for b in (low, high))
+        if not (torch.isfinite(low).all() and torch.isfinite(high).all() and (high > low).all()):
+            raise ValueError("observation_scaling=bounds needs finite observation bounds with high > low")
+        normalizer = cls(len(low))
+        normalizer.mean, normalizer.var = (low + high) / 2, ((high - low) / 2).pow(2)
+        normalizer.frozen = True
+        return normalizer
+
+    def freeze(self) -> None:
+        self.frozen = True
 
     def update(self, obs: np.ndarray) -> None:
+        if self.frozen:
+            return
         batch = torch.as_tensor(np.atleast_2d(obs), dtype=torch.float64)
         n = batch.shape[0]
         delta = batch.mean(0) - self.mean
@@ -113,10 +135,11 @@ class ObservationNormalizer:
         return ((obs - self.mean.float()) / std.float()).clamp(-self.clip, self.clip)
 
     def state_dict(self) -> dict:
-        return {"mean": self.mean.clone(), "var": self.var.clone(), "count": self.count}
+        return {"mean": self.mean.clone(), "var": self.var.clone(), "count": self.count, "frozen": self.frozen}
 
     def load_state_dict(self, state: dict) -> None:
         self.mean, self.var, self.count = state["mean"].clone(), state["var"].clone(), state["count"]
+        self.frozen = bool(state.get("frozen", False))
 
 
 @contextlib.contextmanager
@@ -145,7 +168,8 @@ class SAC:
     """The agent: networks, optimisers, temperature, replay buffer, counters and RNG state."""
 
     def __init__(self, obs_dim: int, action_low: np.ndarray, action_high: np.ndarray,
-                 config: Optional[SACConfig] = None, seed: int = 0):
+                 config: Optional[SACConfig] = None, seed: int = 0,
+                 observation_low: Optional[np.ndarray] = None, observation_high: Optional[np.ndarray] = None):
         self.config = config = config or SACConfig()
         self.obs_dim, self.act_dim = int(obs_dim), len(action_low)
         self.action_low = np.asarray(action_low, dtype=np.float32)
@@ -166,7 +190,15 @@ class SAC:
         self.alpha_optimizer = torch.optim.Adam([self.log_alpha], lr=config.alpha_lr, betas=config.alpha_betas)
 
         self.replay = ReplayBuffer(config.buffer_size, self.obs_dim, self.act_dim)
-        self.normalizer = ObservationNormalizer(self.obs_dim) if config.normalize_observations else None
+        if config.observation_scaling == "bounds":
+            if observation_low is None or observation_high is None:
+                raise ValueError("observation_scaling=bounds: pass observation_low and observation_high")
+            self.normalizer: Optional[ObservationNormalizer] = ObservationNormalizer.from_bounds(
+                observation_low, observation_high)
+        elif config.observation_scaling in ("running", "frozen"):
+            self.normalizer = ObservationNormalizer(self.obs_dim)
+        else:
+            self.normalizer = None
         self.num_env_steps = 0
         self.num_updates = 0
         self.num_episodes = 0
@@ -205,6 +237,8 @@ class SAC:
               terminated: bool) -> None:
         if self.normalizer is not None:
             self.normalizer.update(obs)
+            if self.config.observation_scaling == "frozen" and self.num_env_steps + 1 >= self.config.learning_starts:
+                self.normalizer.freeze()  # statistics of the random-action phase, fixed from the first update on
         self.replay.add(obs, action, reward, next_obs, terminated)
 
     # ---------------------------------------------------------------- learning
@@ -333,9 +367,13 @@ class SAC:
         state = torch.load(path, map_location="cpu", weights_only=True)
         if state.get("format") != CHECKPOINT_FORMAT:
             raise ValueError(f"{path}: not a {CHECKPOINT_FORMAT} checkpoint")
-        config = SACConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in state["config"].items()})
+        values = SACConfig.upgrade(state["config"])
+        config = SACConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in values.items()})
+        if config.observation_scaling == "bounds":  # the map comes from the saved normaliser state
+            config = dataclasses.replace(config, observation_scaling="frozen")
         agent = cls(state["obs_dim"], state["action_low"].numpy(), state["action_high"].numpy(),
                     config, seed=state["seed"])
+        agent.config = dataclasses.replace(agent.config, observation_scaling=values.get("observation_scaling", "running"))
         agent.load_state_dict(state)
         return agent
 

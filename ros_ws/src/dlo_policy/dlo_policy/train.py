@@ -4,18 +4,31 @@
     dlo-train --out runs/V+K/seed3 --resume          # continue from the last checkpoint
 
 Every `train.eval_every` env steps (and at step 0) the agent is evaluated with deterministic
-actions on `train.eval_episodes` environments seeded `train.eval_seed + i`; each evaluation
-appends a row to `eval.csv` per tested input set (all inputs, then each of `train.eval_without`):
+actions on `train.eval_episodes` FRESH episodes: evaluation k (k = step / eval_every) uses seeds
+`eval_seeds(config, k)` = eval_seed + 100,000 seed + k eval_episodes + i, so no two evaluations of
+a run (nor of runs with other seeds) share an episode, and the same run reproduces them (every
+tested input set of one evaluation sees the same episodes). Each evaluation appends a row to
+`eval.csv` per tested input set (all inputs, then each of `train.eval_without`):
 
     step             env steps taken when evaluated
     tested_without   '' (all inputs), or the modality blanked for this row (ablation)
     episodes         evaluation episodes
-    hold_the_end, stop_before, reach_end_but_drop, drop_before   outcome fractions (sum to 1)
+    eval_seed        seed of the evaluation's first episode (the others follow it)
+    hold_the_end, stop_before, reach_end_but_drop, drop_before   outcome fractions (sum to 1),
+                     paper-text rule (dlo_sim.task)
+    hold_the_end_authors, stop_before_authors, reach_end_but_drop_authors, drop_before_authors
+                     the same under the authors'-code rule (dlo_sim.task)
     episode_reward   mean undiscounted episode reward
     time_at_end      mean steps spent at the end of the cable
     how_far          mean how-far-it-goes metric reported by the env
     train_episodes   training episodes finished so far
     wall_time_s      training seconds so far (across resumes)
+
+After the last step, the best evaluation's policy (best_policy.pt: highest hold-the-end
+fraction, then reward) is tested once on `train.test_episodes` held-out episodes, seeds
+`train.test_seed + i` (below every evaluation seed: never seen during training or selection):
+test.json (dlo-evaluate's JSON; also test_without_X.json for each of `train.eval_without`).
+The paper reports the best evaluation during training; the held-out test is the unbiased number.
 
 The run directory also holds config.yaml (resolved config), checkpoint.pt (everything, replay
 buffer included, every `train.checkpoint_every` steps), policy.pt (actor only, at the end) and
@@ -38,13 +51,14 @@ import torch
 from tqdm import tqdm
 
 from .config import ConfigError, RunConfig, load_config, save_config
-from .evaluate import OUTCOMES, blanked_columns, evaluate_agent, make_vec_env_for
+from .evaluate import OUTCOMES, OUTCOMES_AUTHORS, blanked_columns, evaluate_agent, make_vec_env_for
 from .sac import SAC, StepResult
 
-EVAL_COLUMNS = ("step", "tested_without", "episodes", *OUTCOMES, "episode_reward", "time_at_end",
-                "how_far", "train_episodes", "wall_time_s")
+EVAL_COLUMNS = ("step", "tested_without", "episodes", "eval_seed", *OUTCOMES, *OUTCOMES_AUTHORS,
+                "episode_reward", "time_at_end", "how_far", "train_episodes", "wall_time_s")
+EVAL_SEED_STRIDE = 100_000  # eval seeds of run seed s lie in eval_seed + [s, s + 1) * EVAL_SEED_STRIDE
 CONFIG_FILE, EVAL_FILE, CHECKPOINT_FILE = "config.yaml", "eval.csv", "checkpoint.pt"
-POLICY_FILE, DONE_FILE = "policy.pt", "done.json"
+POLICY_FILE, DONE_FILE, TEST_FILE = "policy.pt", "done.json", "test.json"
 BEST_POLICY_FILE, BEST_FILE = "best_policy.pt", "best.json"  # the policy of the best evaluation so far
 
 
@@ -57,6 +71,19 @@ def set_threads(num_threads: int) -> int:
     threads = num_threads or available_cores()
     torch.set_num_threads(threads)
     return threads
+
+
+def eval_seeds(config: RunConfig, evaluation: int) -> int:
+    """First episode seed of the run's `evaluation`-th evaluation (0 = the one at step 0)."""
+    stride = config.train.eval_episodes
+    if (evaluation + 1) * stride > EVAL_SEED_STRIDE:
+        raise ValueError(f"evaluation {evaluation}: more than {EVAL_SEED_STRIDE} evaluation episodes in one run")
+    return config.train.eval_seed + EVAL_SEED_STRIDE * config.seed + evaluation * stride
+
+
+def test_file(without: str = "") -> str:
+    """Name of the held-out test's JSON (all inputs, or with one modality blanked)."""
+    return f"test_without_{without}.json" if without else TEST_FILE
 
 
 class EvalLog:
@@ -101,7 +128,8 @@ class Trainer:
         else:
             space = self.env.action_space
             self.agent = SAC(self.env.observation_space.shape[0], space.low, space.high, config.sac,
-                             seed=config.seed)
+                             seed=config.seed, observation_low=self.env.observation_space.low,
+                             observation_high=self.env.observation_space.high)
         self.log = EvalLog(out_dir / EVAL_FILE, self.agent.num_env_steps if resume else None)
         self.tested = [("", [])] + [(m, blanked_columns(config.modalities, [m]))
                                     for m in config.train.eval_without]
@@ -117,10 +145,11 @@ class Trainer:
 
     def evaluate(self) -> None:
         rows = []
+        first_seed = eval_seeds(self.config, self.agent.num_env_steps // self.config.train.eval_every)
         for without, columns in self.tested:
-            result = evaluate_agent(self.agent, self.eval_env, self.config.train.eval_seed,
-                                    self.config.train.eval_episodes, columns)
-            rows.append({"step": self.agent.num_env_steps, "tested_without": without, **result.to_dict(),
+            result = evaluate_agent(self.agent, self.eval_env, first_seed, self.config.train.eval_episodes, columns)
+            rows.append({"step": self.agent.num_env_steps, "tested_without": without, "eval_seed": first_seed,
+                         **result.to_dict(),
                          "train_episodes": self.agent.num_episodes, "wall_time_s": round(self.wall_time(), 2)})
         self.log.append(rows)
         self.last_eval = rows[0]
@@ -152,6 +181,25 @@ class Trainer:
             agent.save(self.out_dir / CHECKPOINT_FILE)
         return True
 
+    def test_best(self) -> dict[str, Any]:
+        """Held-out test of best_policy.pt on train.test_episodes episodes (seeds train.test_seed + i);
+        writes test.json (+ test_without_X.json) and returns the all-inputs result (dlo-evaluate JSON)."""
+        cfg = self.config.train
+        best = SAC.load(self.out_dir / BEST_POLICY_FILE)
+        env = make_vec_env_for(self.config, min(cfg.test_episodes, cfg.eval_episodes), seed=cfg.test_seed)
+        results = {}
+        try:
+            for without, columns in self.tested:
+                result = evaluate_agent(best, env, cfg.test_seed, cfg.test_episodes, columns).to_json()
+                payload = {**result, "checkpoint": BEST_POLICY_FILE, "seed": cfg.test_seed,
+                           "without": [without] if without else [], "modalities": self.config.modalities,
+                           "env_steps": best.num_env_steps}
+                (self.out_dir / test_file(without)).write_text(json.dumps(payload, indent=2) + "\n")
+                results[without] = payload
+        finally:
+            env.close()
+        return results[""]
+
     def run(self) -> dict[str, Any]:
         total = self.config.train.total_steps
         if self.agent.num_env_steps == 0:
@@ -167,9 +215,11 @@ class Trainer:
         if self.agent.num_env_steps % self.config.train.checkpoint_every != 0:
             self.agent.save(self.out_dir / CHECKPOINT_FILE)
         self.agent.save_policy(self.out_dir / POLICY_FILE)
+        test = self.test_best()
         summary = {"env_steps": self.agent.num_env_steps, "updates": self.agent.num_updates,
                    "episodes": self.agent.num_episodes, "wall_time_s": round(self.wall_time(), 2),
-                   "threads": self.threads, "last_eval": self.last_eval}
+                   "threads": self.threads, "last_eval": self.last_eval, "best_eval": self.best,
+                   "test": test}
         (self.out_dir / DONE_FILE).write_text(json.dumps(summary, indent=2) + "\n")
         return summary
 

@@ -19,6 +19,7 @@ FINGER_RADIUS = 0.0125  # m, capsule radius of each finger
 FINGER_HALF_LENGTH = 0.0075  # m, half-length of the capsule's axis segment (along gripper y)
 FINGER_CLEARANCE = 0.0085  # m, gap between the two finger surfaces
 GRIPPER_HEIGHT = 0.1  # m, height of the gripper centre (midway between the finger axes)
+FINGER_AXIS_OFFSET = FINGER_RADIUS + 0.5 * FINGER_CLEARANCE  # m, each finger's axis above/below the gripper centre
 FIXED_END = (-0.25, 0.0, 0.1)  # m, where particle 0 is pinned
 GRIPPER_START_BEHIND = 0.005  # m, the gripper starts this far behind (-x) the fixed end
 WORKSPACE_HALF_WIDTH = 0.3  # m, gripper x and y are clipped to [-0.3, 0.3]

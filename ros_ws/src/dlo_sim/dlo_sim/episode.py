@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from dlo_sim.rope import RopeSim, Snapshot
-from dlo_sim.task import END_PARTICLES, HORIZON, EpisodeTracker, held_statistics
+from dlo_sim.task import END_PARTICLES, HORIZON, EpisodeTracker, held_mask_authors, held_statistics
 
 
 class TaskSim:
@@ -18,7 +18,8 @@ class TaskSim:
     ``state`` is the ``Snapshot`` of the current state (after the last reset or step): positions,
     held mask, gripper and, if ``render``, the top view, read back with the step in one kernel
     launch for the task and reusable by the observation; ``n_held`` and ``mean_held_index`` (N,)
-    are its held statistics (n_h, p_i).
+    are its held statistics (n_h, p_i); ``held_authors`` (N, P_MAX) and ``mean_held_index_authors``
+    (N,) the same for the authors' narrower held set (the second outcome definition).
     """
 
     def __init__(self, num_envs: int, horizon: int = HORIZON, end_particles: int = END_PARTICLES,
@@ -28,6 +29,7 @@ class TaskSim:
         self.render = bool(render)
         self.state: Snapshot | None = None
         self.n_held = self.mean_held_index = None
+        self.held_authors = self.mean_held_index_authors = None
 
     @property
     def num_envs(self) -> int:
@@ -43,8 +45,9 @@ class TaskSim:
         ids = np.arange(self.num_envs) if env_ids is None else np.asarray(env_ids)
         self.sim.reset(seeds, ids)
         self.state = self.sim.snapshot(self.render)
-        self.n_held, self.mean_held_index, max_index = held_statistics(self.state.held)
-        self.tracker.reset(ids, self.mean_held_index[ids], max_index[ids], self.sim.num_particles[ids])
+        self._held_statistics()
+        self.tracker.reset(ids, self.mean_held_index[ids], self.max_held_index[ids], self.sim.num_particles[ids],
+                           self.mean_held_index_authors[ids])
 
     def step(self, actions):
         """One control step (8 x 0.01 s) of every environment -> (reward, terminated, truncated, unstable), (N,) each.
@@ -52,8 +55,15 @@ class TaskSim:
         An environment the simulator had to reset (NaN or explosion, ``unstable``) ends its episode
         as truncated."""
         self.state = self.sim.step_snapshot(actions, self.render)
-        self.n_held, self.mean_held_index, max_index = held_statistics(self.state.held)
-        reward, terminated, truncated = self.tracker.step(self.mean_held_index, self.n_held, max_index,
-                                                          self.sim.num_particles, self.sim.cable_length)
+        self._held_statistics()
+        reward, terminated, truncated = self.tracker.step(self.mean_held_index, self.n_held, self.max_held_index,
+                                                          self.sim.num_particles, self.sim.cable_length,
+                                                          self.mean_held_index_authors)
         unstable = self.sim.unstable()
         return reward, terminated, truncated | (unstable & ~terminated), unstable
+
+    def _held_statistics(self) -> None:
+        """Held statistics of the current snapshot under both held rules."""
+        self.n_held, self.mean_held_index, self.max_held_index = held_statistics(self.state.held)
+        self.held_authors = held_mask_authors(self.state.positions, self.sim.num_particles, self.state.gripper)
+        self.mean_held_index_authors = held_statistics(self.held_authors)[1]

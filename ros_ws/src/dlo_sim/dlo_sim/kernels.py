@@ -10,12 +10,11 @@ Per-environment arrays are padded to ``P_MAX`` particles; loops stop at ``n[e]``
 import taichi as ti
 from dlo_perception.vision import init_taichi
 
-from .config import (DT, FINGER_CLEARANCE, FINGER_HALF_LENGTH, FINGER_RADIUS, FIXED_END, GRAVITY,
+from .config import (DT, FINGER_AXIS_OFFSET, FINGER_CLEARANCE, FINGER_HALF_LENGTH, FINGER_RADIUS, FIXED_END, GRAVITY,
                      GRIPPER_HEIGHT, GRIPPER_START_BEHIND, IMAGE_CABLE, IMAGE_GRIPPER,
                      MAX_DISPLACEMENT, NOMINAL_INVERSE_MASS, P_MAX, PARTICLE_RADIUS, REST_SPACING,
                      WORKSPACE_HALF_WIDTH)
 
-FINGER_AXIS_OFFSET = FINGER_RADIUS + 0.5 * FINGER_CLEARANCE  # m, finger axis above/below the gripper centre
 HELD_DISTANCE = PARTICLE_RADIUS + FINGER_RADIUS + REST_SPACING  # m, held rule (DESIGN.md section 9)
 MAX_CORRECTION = 0.25 * REST_SPACING  # m, per sub-step cap on a particle's direct-solve correction
 GRIP_SLIP_STRAIN = 0.0  # a grip slips (c < 0.9) or stalls (c >= 0.9) once the straight line fixed end -> held particle exceeds its rest length along the cable by this

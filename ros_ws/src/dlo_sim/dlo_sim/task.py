@@ -8,12 +8,25 @@ Reward per control step (n_h held particles, p_i their mean index, n_c particles
     R = FALL_PENALTY and the episode ends when n_h = 0.
 When nothing was held before the step (p_{t-1} < 0) there is no d_{t-1}: R_move = 0.
 
-"At the end" = holding any of the last ``end_particles`` (paper: 10) particles.
-Outcomes (codes equal dlo_msgs/TaskState.OUTCOME_*):
+Outcomes (codes equal dlo_msgs/TaskState.OUTCOME_*), decided when the episode ends, under two
+definitions that are both always computed (DESIGN.md section 5):
+
+**paper text** (``classify_outcome``): "at the end" = holding any of the last ``end_particles``
+(paper: 10) particles, held set = the physics' held rule (DESIGN.md section 9).
     HOLD_THE_END        not dropped and at the end on the last step (horizon)
     STOP_BEFORE         not dropped and not at the end on the last step
     REACH_END_BUT_DROP  dropped after having been at the end at some step
     DROP_BEFORE         dropped without ever being at the end
+
+**authors' code** (``classify_outcome_authors``; SoftSlidingGym ``rope_follow.py``, what produced
+the paper's numbers): held set ``held_mask_authors`` (narrower: |y - y_G| < 0.0075 m, distance to
+the lower finger's axis in x-z < 0.0245 m, z above that axis + 0.0125 m); p_a = mean index of
+that set on the last step it was non-empty; "at the end" = (n_c - 1) - p_a < 5.
+    HOLD_THE_END        the authors' held set is non-empty on the last step and p_a is at the end
+    STOP_BEFORE         it is non-empty on the last step and p_a is not at the end
+    REACH_END_BUT_DROP  it is empty on the last step and the last p_a was at the end
+    DROP_BEFORE         it is empty on the last step and the last p_a was not at the end
+The episode itself (reward, termination, horizon) always uses the paper-text quantities.
 Metrics: time at end = number of control steps at the end; how far = particles from the end,
 n_c - 1 - (largest held index reached in the episode), 0 = it held the last particle.
 """
@@ -22,12 +35,18 @@ from __future__ import annotations
 
 import numpy as np
 
+from dlo_sim.config import FINGER_AXIS_OFFSET
+
 ALPHA_MOVE = 10.0
 ALPHA_END = 1.0 / 20.0
 END_REWARD_WINDOW = 20  # particles
 FALL_PENALTY = -0.5
 END_PARTICLES = 10  # "at the end" = any of the last 10 held (the authors' code used 5)
 HORIZON = 150  # control steps per episode
+AUTHORS_HELD_HALF_WIDTH = 0.0075  # m, authors' held set: |y - y_G| below this (the finger axis segment)
+AUTHORS_HELD_DISTANCE = 0.0245  # m, authors' held set: distance to the lower finger's axis in x-z below this
+AUTHORS_HELD_ABOVE = 0.0125  # m, authors' held set: z above the lower finger's axis by more than this
+AUTHORS_END_WINDOW = 5  # authors' "at the end": (n_c - 1) - mean held index < this
 
 OUTCOME_NONE = 0
 OUTCOME_HOLD_THE_END = 1
@@ -69,6 +88,36 @@ def at_end(max_held_index, n_c, end_particles=END_PARTICLES):
     return (max_held_index >= 0) & (max_held_index >= np.asarray(n_c) - end_particles)
 
 
+def held_mask_authors(positions, num_particles, gripper):
+    """(N, P) bool held set of the authors' code (module docstring) from positions (N, P, 3) [m],
+    num_particles (N,) and the gripper (N, >=3): x_G, y_G, z_G [m] (rows beyond n_c are False)."""
+    positions = np.asarray(positions, dtype=np.float64)
+    gripper = np.asarray(gripper, dtype=np.float64)
+    g = gripper[:, None, :3]
+    dx = positions[..., 0] - g[..., 0]
+    dy = positions[..., 1] - g[..., 1]
+    dz = positions[..., 2] - (g[..., 2] - FINGER_AXIS_OFFSET)
+    inside = np.arange(positions.shape[1])[None, :] < np.asarray(num_particles)[:, None]
+    return (inside & (np.abs(dy) < AUTHORS_HELD_HALF_WIDTH)
+            & (dx * dx + dz * dz < AUTHORS_HELD_DISTANCE ** 2) & (dz > AUTHORS_HELD_ABOVE))
+
+
+def at_end_authors(mean_index, n_c):
+    """Authors' "at the end": a mean held index (-1 = none) within AUTHORS_END_WINDOW of the last index."""
+    mean_index = np.asarray(mean_index, dtype=np.float64)
+    return (mean_index >= 0) & (np.asarray(n_c) - 1 - mean_index < AUTHORS_END_WINDOW)
+
+
+def classify_outcome_authors(holding_now, last_mean_index, n_c):
+    """Authors' outcome code of finished episodes from: their held set non-empty on the last step,
+    the mean index of that set on the last step it was non-empty (-1 = never), n_c."""
+    holding_now = np.asarray(holding_now, dtype=bool)
+    end = at_end_authors(last_mean_index, n_c)
+    kept = np.where(end, OUTCOME_HOLD_THE_END, OUTCOME_STOP_BEFORE)
+    lost = np.where(end, OUTCOME_REACH_END_BUT_DROP, OUTCOME_DROP_BEFORE)
+    return np.where(holding_now, kept, lost).astype(np.int64)
+
+
 def classify_outcome(dropped, reached_end, at_end_now):
     """Outcome code of finished episodes from: dropped (n_h = 0 ended it), ever at the end, at the end on the last step."""
     dropped, reached_end, at_end_now = (np.asarray(a, dtype=bool) for a in (dropped, reached_end, at_end_now))
@@ -82,8 +131,9 @@ class EpisodeTracker:
 
     Call ``reset(env_ids, ...)`` after the simulator reset those environments, then ``step(...)``
     after every control step. ``step`` returns (reward, terminated, truncated): terminated = dropped,
-    truncated = horizon reached while holding. Finished episodes keep their ``outcome`` and metrics
-    until the next ``reset`` of that environment.
+    truncated = horizon reached while holding. Finished episodes keep their ``outcome`` (paper
+    text) and ``outcome_authors`` (authors' code) and metrics until the next ``reset`` of that
+    environment. ``p_i_authors``: mean index of ``held_mask_authors`` (-1 when it is empty).
     """
 
     def __init__(self, num_envs, horizon=HORIZON, end_particles=END_PARTICLES):
@@ -97,8 +147,10 @@ class EpisodeTracker:
         self.reached_end = np.zeros(n, bool)
         self.num_particles = np.zeros(n, np.int64)
         self.outcome = np.full(n, OUTCOME_NONE, np.int64)
+        self.last_p_i_authors = np.full(n, -1.0)  # authors' mean held index on the last step it was defined
+        self.outcome_authors = np.full(n, OUTCOME_NONE, np.int64)
 
-    def reset(self, env_ids, p_i, max_held_index, n_c):
+    def reset(self, env_ids, p_i, max_held_index, n_c, p_i_authors):
         """Start new episodes in ``env_ids`` from the state right after the simulator reset."""
         ids = np.arange(self.num_envs) if env_ids is None else np.asarray(env_ids)
         self.prev_p_i[ids] = p_i
@@ -109,8 +161,10 @@ class EpisodeTracker:
         self.reached_end[ids] = False
         self.num_particles[ids] = n_c
         self.outcome[ids] = OUTCOME_NONE
+        self.last_p_i_authors[ids] = p_i_authors
+        self.outcome_authors[ids] = OUTCOME_NONE
 
-    def step(self, p_i, n_h, max_held_index, n_c, L_c):
+    def step(self, p_i, n_h, max_held_index, n_c, L_c, p_i_authors):
         """Account one control step of all environments; arrays (N,). Returns reward, terminated, truncated."""
         reward = step_reward(self.prev_p_i, p_i, n_h, n_c, L_c)
         end_now = at_end(max_held_index, n_c, self.end_particles)
@@ -125,6 +179,11 @@ class EpisodeTracker:
         truncated = ~terminated & (self.steps >= self.horizon)
         done = terminated | truncated
         self.outcome = np.where(done, classify_outcome(terminated, self.reached_end, end_now), self.outcome)
+        p_i_authors = np.asarray(p_i_authors, dtype=np.float64)
+        holding_authors = p_i_authors >= 0
+        self.last_p_i_authors = np.where(holding_authors, p_i_authors, self.last_p_i_authors)
+        self.outcome_authors = np.where(
+            done, classify_outcome_authors(holding_authors, self.last_p_i_authors, n_c), self.outcome_authors)
         return reward, terminated, truncated
 
     def how_far(self):
@@ -137,6 +196,7 @@ class EpisodeTracker:
         return {
             "outcome": OUTCOME_NAMES[code],
             "outcome_code": code,
+            "outcome_authors": OUTCOME_NAMES[int(self.outcome_authors[env_id])],
             "time_at_end": int(self.time_at_end[env_id]),
             "how_far": int(self.how_far()[env_id]),
             "episode_return": float(self.episode_return[env_id]),
