@@ -21,6 +21,7 @@ setup(
             "recorder_node = dlo_tools.recorder_node:main",
             "playback_node = dlo_tools.playback_node:main",
             "dlo-bag-info = dlo_tools.bag_info:main",
+            "dlo-bag-recover = dlo_tools.recover:main",
             "dlo-analyze = dlo_tools.analysis:main",
             "mock_driver_node = dlo_tools.mock_driver_node:main",
         ],

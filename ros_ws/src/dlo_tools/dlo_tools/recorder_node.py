@@ -3,9 +3,15 @@
     ros2run dlo_tools recorder_node --ros-args -p output:=bags/run1 [-p split_episodes:=10]
 
 Topics are discovered periodically; each is subscribed with ``raw=True`` once it has a
-publisher, with the reliability/durability its publishers offer. SIGINT/SIGTERM/SIGHUP stop
-the node after draining what has already arrived, and the bag is closed (metadata.yaml) on
-every exit path. At shutdown it logs received/written/dropped counts (dropped must be 0).
+publisher, with the reliability/durability its publishers offer. What is received goes to disk
+every ``flush_period`` seconds (a SIGKILL loses at most that; ``dlo-bag-recover`` restores the
+rest). SIGINT/SIGTERM/SIGHUP stop the node after draining what has already arrived, and the bag
+is closed (metadata.yaml) on every exit path. At shutdown it logs received/written/dropped
+counts (dropped must be 0).
+
+Exit status: 0 = complete bag, 1 = messages were dropped, 2 = bad parameter or output,
+3 = the recording failed (a write error: disk full, permission, I/O; logged once as
+``recording failed: <cause>``); the bag then holds everything written before the failure.
 """
 
 from __future__ import annotations
@@ -23,7 +29,7 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 
-from .bag import BagError, qos_from_profile, subscription_qos
+from .bag import BagError, BagWriteError, qos_from_profile, subscription_qos
 from .node_util import ParameterError, ShutdownRequest, declare_parameters, require_bounds
 from .playback import import_message_class
 from .recording import TASK_TOPIC, Recorder, RecordSummary, default_output, topic_selected
@@ -43,17 +49,23 @@ PARAMETERS = (
                          "shutdown."),
     ("drain_timeout", 2.0, "On shutdown, keep taking already-delivered messages for at most this "
                            "many seconds (stops earlier once nothing arrives for 0.2 s)."),
+    ("flush_period", 0.5, "Seconds between writes of what was received to disk (a killed "
+                          "recorder loses at most this much)."),
+    ("fsync", True, "fsync the bag on every flush (survives a power loss, not only a kill)."),
 )
+
+EXIT_DROPPED, EXIT_BAD_PARAMETER, EXIT_RECORDING_FAILED = 1, 2, 3
 
 
 class RecorderNode(Node):
     """Thin node around :class:`dlo_tools.recording.Recorder`."""
 
-    def __init__(self) -> None:
+    def __init__(self, stop: ShutdownRequest | None = None) -> None:
         super().__init__("recorder")
+        self.stop = stop
         p = declare_parameters(self, PARAMETERS)
         require_bounds(p, at_least={"queue_depth": 1, "split_episodes": 0, "drain_timeout": 0},
-                       above={"discovery_period": 0})
+                       above={"discovery_period": 0, "flush_period": 0})
         self.namespace = p["namespace"] or "/"
         self.record_clock = p["record_clock"]
         self.extra_topics = [t for t in p["extra_topics"] if t]
@@ -62,7 +74,7 @@ class RecorderNode(Node):
         self.summary_file = p["summary_file"]
         output = p["output"] or str(default_output())
         self.recorder = Recorder(output, split_episodes=p["split_episodes"],
-                                 task_topic=p["task_topic"])
+                                 task_topic=p["task_topic"], fsync=p["fsync"])
         self._recorded: dict[str, object] = {}
         self._reliability: dict[str, object] = {}
         self._skipped: set[str] = set()
@@ -73,6 +85,8 @@ class RecorderNode(Node):
             f"{' + ' + ', '.join(self.extra_topics) if self.extra_topics else ''} "
             f"to {self.recorder.path}")
         self.create_timer(p["discovery_period"], self.discover)
+        self.create_timer(p["flush_period"], self.flush)
+        self._failure_logged = False
 
     def _warn_once(self, topic: str, text: str) -> None:
         if (topic, text) not in self._warned:
@@ -126,9 +140,26 @@ class RecorderNode(Node):
 
     def _on_message(self, topic: str, data: bytes) -> None:
         error = self.recorder.on_message(topic, data, self.get_clock().now().nanoseconds)
-        if error is not None and time.monotonic() - self._error_logged > 1.0:
+        if self.recorder.failure:
+            self._on_failure()
+        elif error is not None and time.monotonic() - self._error_logged > 1.0:
             self._error_logged = time.monotonic()
             self.get_logger().error(f"write failed ({self.recorder.errors} so far): {error}")
+
+    def flush(self) -> None:
+        self.recorder.flush()
+        if self.recorder.failure:
+            self._on_failure()
+
+    def _on_failure(self) -> None:
+        """A write error is fatal: log the cause once and stop (the bag is closed in finish())."""
+        if self._failure_logged:
+            return
+        self._failure_logged = True
+        self.get_logger().error(f"recording failed: {self.recorder.failure} ({self.recorder.last_error}); "
+                                "stopping and closing the bag with what was written")
+        if self.stop is not None:
+            self.stop.request()
 
     def _on_lost(self, topic: str, info) -> None:
         self.recorder.on_lost(topic, int(info.total_count_change))
@@ -161,7 +192,10 @@ class RecorderNode(Node):
         summary = self.recorder.close()
         log = self.get_logger()
         for line in summary.lines():
-            log.info(line)
+            (log.error if line.startswith("recording failed") else log.info)(line)
+        if summary.failure and not self._failure_logged:
+            self._failure_logged = True
+            log.error(f"recording failed: {summary.failure} ({summary.last_error})")
         if summary.dropped:
             log.error(f"{summary.dropped} messages were not written")
         if self.summary_file:
@@ -178,21 +212,27 @@ def main(args: list[str] | None = None) -> int:
     node = None
     rc = 0
     try:
-        node = RecorderNode()
+        node = RecorderNode(stop)
         executor = SingleThreadedExecutor()
         executor.add_node(node)
         node.discover()
         while not stop.is_set() and rclpy.ok():
             executor.spin_once(timeout_sec=0.1)
-        node.get_logger().info(f"stopping ({stop.name}): draining and closing the bag")
-        node.drain(executor)
+        if not node.recorder.failure:
+            node.get_logger().info(f"stopping ({stop.name}): draining and closing the bag")
+            node.drain(executor)
+    except BagWriteError as err:  # the bag cannot even be created (disk full, permission)
+        print(f"recorder_node: recording failed: {err.cause} ({err})", file=sys.stderr)
+        rc = EXIT_RECORDING_FAILED
     except (ParameterError, BagError) as err:
         print(f"recorder_node: error: {err}", file=sys.stderr)
-        rc = 2
+        rc = EXIT_BAD_PARAMETER
     finally:
         if node is not None:
             summary = node.finish()
-            rc = rc or (1 if summary.dropped else 0)
+            if summary.failure:
+                rc = EXIT_RECORDING_FAILED
+            rc = rc or (EXIT_DROPPED if summary.dropped else 0)
             node.destroy_node()
         stop.restore()
         rclpy.try_shutdown()

@@ -147,7 +147,10 @@ def test_recorder_counts_write_errors(tmp_path):
 def test_incomplete_bag_is_reported(tmp_path):
     (tmp_path / "killed").mkdir()
     (tmp_path / "killed" / "killed.mcap").write_bytes(b"\x89MCAP0\r\n")
-    with pytest.raises(BagError, match="incomplete"):
+    with pytest.raises(BagError, match="needs recovering.*run: dlo-bag-recover .*killed$"):
         bag_parts(tmp_path / "killed")
-    with pytest.raises(BagError, match="not a rosbag2 bag"):
+    with pytest.raises(BagError, match="does not exist"):
         bag_parts(tmp_path / "nothing")
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(BagError, match="not a rosbag2 bag"):
+        bag_parts(tmp_path / "empty")

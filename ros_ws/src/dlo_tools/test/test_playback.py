@@ -38,7 +38,7 @@ def write_bag(path: Path) -> dict[str, list[bytes]]:
 
 
 def test_playback_republishes_the_same_messages(procs, tmp_path):
-    bag = tmp_path / "bag"
+    bag = tmp_path / "run.bag"  # a '.bag' directory name is a rosbag2 bag too (not ROS 1)
     sent = write_bag(bag)
     assert [m.topic for m in read_messages(bag)][:len(TOPICS)] == list(TOPICS)
     sub = procs("sub", helper_cmd("sub", "--topics", *PLAYED, "--expect", str(N),
@@ -68,9 +68,17 @@ def test_playback_bad_parameters(procs, tmp_path):
     play = procs("playback", [str(ROS2RUN), "dlo_tools", "playback_node", "--ros-args",
                               "-p", f"bag:={tmp_path / 'missing'}"])
     assert play.wait(timeout=60) == 2
-    assert "not a rosbag2 bag" in play.output() and "Traceback" not in play.output()
+    assert "does not exist" in play.output() and "Traceback" not in play.output()
     bag = tmp_path / "bag"
     write_bag(bag)
+    killed = tmp_path / "killed"  # a recorder killed before closing: .mcap, no metadata.yaml
+    killed.mkdir()
+    (killed / "killed.mcap").write_bytes((bag / "bag.mcap").read_bytes()[:-200])
+    play = procs("playback", [str(ROS2RUN), "dlo_tools", "playback_node", "--ros-args",
+                              "-p", f"bag:={killed}"])
+    assert play.wait(timeout=60) == 2
+    lines = [line for line in play.output().splitlines() if line.strip()]
+    assert len(lines) == 1 and f"dlo-bag-recover {killed}" in lines[0], play.output()
     for param, text in [("rate:=-1.0", "parameter 'rate'"),
                         ("rate:=fast", "parameter 'rate': expected a number"),
                         ("topics:=['/dlo/nope']", "parameter 'topics'")]:
