@@ -40,8 +40,8 @@ def procs(ros_env):
     """Start processes with ``start(name, cmd)``; every one still running is killed afterwards."""
     started: list[Proc] = []
 
-    def start(name: str, cmd: list[str]) -> Proc:
-        proc = Proc(cmd, ros_env, name)
+    def start(name: str, cmd: list[str], **popen) -> Proc:
+        proc = Proc(cmd, ros_env, name, **popen)
         started.append(proc)
         return proc
 

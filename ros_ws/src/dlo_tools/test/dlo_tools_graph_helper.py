@@ -4,7 +4,9 @@ pub: publishes ``--count`` messages on each of the /dlo test topics (every dlo_m
      PointCloud2 + Image), sequence number i in header.frame_id and header.stamp.nanosec.
      Prints ``HASHES {json}`` (rclpy's type hashes of its own publishers) and
      ``PUBLISHED {json counts}``; then exits (--then exit), idles until signalled (hold), or
-     keeps publishing GripperState (stream).
+     keeps publishing ``--stream-topic`` (default GripperState) until signalled (stream).
+     ``--latched``: first publish one CameraInfo on /dlo/camera/camera_info (transient local,
+     depth 1) and print ``LATCHED``, before waiting for subscribers.
 sub: subscribes raw to the given topics and, when every topic reached ``--expect`` messages
      (or on SIGINT/timeout), prints ``RECEIVED {json: topic -> [raw CDR hex of each message]}``.
 """
@@ -23,7 +25,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from rclpy.signals import SignalHandlerOptions
 
 from dlo_msgs.msg import GripperCommand, GripperState, TactilePose, TaskState, VisualPose
-from sensor_msgs.msg import Image, PointCloud2, PointField
+from sensor_msgs.msg import CameraInfo, Image, PointCloud2, PointField
 
 TOPICS = {
     "/dlo/gripper/state": GripperState,
@@ -45,6 +47,17 @@ TYPE_NAMES = {
 }
 QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000,
                  reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE)
+LATCHED_TOPIC = "/dlo/camera/camera_info"
+LATCHED_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
+                         reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+
+def latched_message() -> CameraInfo:
+    info = CameraInfo(width=128, height=96, distortion_model="plumb_bob")
+    info.header.frame_id = "top_camera_optical"
+    info.k = [100.0, 0.0, 64.0, 0.0, 100.0, 48.0, 0.0, 0.0, 1.0]
+    return info
 
 
 def make_message(topic: str, i: int, episode_every: int = 0):
@@ -84,6 +97,10 @@ def run_pub(args, stop) -> int:
     node = Node("test_pub")
     topics = args.topics or list(TOPICS)
     pubs = {t: node.create_publisher(TOPICS[t], t, QOS) for t in topics}
+    if args.latched:
+        latched = node.create_publisher(CameraInfo, LATCHED_TOPIC, LATCHED_QOS)
+        latched.publish(latched_message())
+        print("LATCHED", flush=True)
     end = time.monotonic() + args.timeout
     while args.wait_subs and time.monotonic() < end and not stop[0]:
         if all(p.get_subscription_count() >= args.wait_subs for p in pubs.values()):
@@ -113,7 +130,9 @@ def run_pub(args, stop) -> int:
             rclpy.spin_once(node, timeout_sec=0.05)
     elif args.then == "stream":
         i = args.start + args.count
-        t = "/dlo/gripper/state"
+        t = args.stream_topic
+        if t not in pubs:
+            pubs[t] = node.create_publisher(TOPICS[t], t, QOS)
         while not stop[0]:
             pubs[t].publish(make_message(t, i))
             i += 1
@@ -153,6 +172,8 @@ def main() -> int:
     ap.add_argument("--episode-every", type=int, default=0)
     ap.add_argument("--wait-subs", type=int, default=1)
     ap.add_argument("--then", choices=["exit", "hold", "stream"], default="exit")
+    ap.add_argument("--stream-topic", default="/dlo/gripper/state", choices=sorted(TOPICS))
+    ap.add_argument("--latched", action="store_true")
     ap.add_argument("--expect", type=int, default=0)
     ap.add_argument("--timeout", type=float, default=30.0)
     args = ap.parse_args()

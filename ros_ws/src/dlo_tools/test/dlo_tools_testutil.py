@@ -19,11 +19,11 @@ HELPER = HERE / "dlo_tools_graph_helper.py"
 class Proc:
     """A child process whose merged stdout/stderr is collected line by line."""
 
-    def __init__(self, cmd: list[str], env: dict[str, str], name: str) -> None:
+    def __init__(self, cmd: list[str], env: dict[str, str], name: str, **popen) -> None:
         self.name = name
         self.cmd = cmd
         self.p = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                                  text=True, bufsize=1, start_new_session=True)
+                                  text=True, bufsize=1, start_new_session=True, **popen)
         self.lines: list[str] = []
         self._q: queue.Queue[str | None] = queue.Queue()
         self._t = threading.Thread(target=self._pump, daemon=True)
