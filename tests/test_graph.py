@@ -79,7 +79,7 @@ def test_graph_equals_in_process_env(recorded_run):
             observation, _, terminated, truncated, info = env.step(action)
         assert terminated or truncated
         live = recorded_run["live"][episode]
-        assert info["outcome"] == live["outcome"]
+        assert info["outcome"] == live["outcome"] and info["outcome_authors"] == live["outcome_authors"]
         assert info["episode_return"] == pytest.approx(live["episode_return"], abs=1e-9)
         assert info["time_at_end"] == live["time_at_end"] and info["how_far"] == live["how_far"]
 
@@ -91,7 +91,7 @@ def test_bag_analysis_equals_live_outcomes(recorded_run, tmp_path):
     assert result.returncode == 0, result.stderr
     analysed = json.loads(out.read_text())
     for mine, live in zip(analysed, recorded_run["live"], strict=True):
-        for key in ("outcome", "time_at_end", "how_far", "seed", "episode"):
+        for key in ("outcome", "outcome_authors", "time_at_end", "how_far", "seed", "episode"):
             assert mine[key] == live[key], key
         assert mine["episode_return"] == pytest.approx(live["episode_return"], abs=1e-9)
     assert len(list((tmp_path / "plots").glob("episode_*.png"))) == EPISODES

@@ -25,7 +25,9 @@ def sample_messages():
     visual = VisualPose(visible=True, confidence=0.75, angle=-0.2, y=0.006)
     task = TaskState(episode=3, seed=2**40 + 7, step=42, held_indices=[10, 11, 12], n_held=3,
                      mean_held_index=11.0, num_particles=47, cable_length=0.1978, reward=0.0431,
-                     episode_return=1.5, done=True, outcome=TaskState.OUTCOME_HOLD_THE_END)
+                     episode_return=1.5, done=True, outcome=TaskState.OUTCOME_HOLD_THE_END,
+                     held_indices_authors=[11], mean_held_index_authors=11.0,
+                     outcome_authors=TaskState.OUTCOME_STOP_BEFORE)
     return [state, command, tactile, visual, task]
 
 

@@ -54,7 +54,9 @@ class ReachEnv(gym.Env):
         info = {}
         if terminated or truncated:
             outcome = "drop_before" if terminated else ("hold_the_end" if distance < NEAR else "stop_before")
-            info = {"outcome": outcome, "time_at_end": self.time_at_end, "how_far": 1.0 - distance,
+            # the authors' rule is stricter: within half the distance
+            strict = "drop_before" if terminated else ("hold_the_end" if distance < NEAR / 2 else "stop_before")
+            info = {"outcome": outcome, "outcome_authors": strict, "time_at_end": self.time_at_end, "how_far": 1.0 - distance,
                     "episode_return": self.episode_return}
         return self._obs(), reward, terminated, truncated, info
 

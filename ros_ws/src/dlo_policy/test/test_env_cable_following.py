@@ -77,6 +77,8 @@ def test_vector_env_batches_autoresets_and_reports_episode_end():
     assert np.all(terminated | truncated) and reward.shape == (3,)
     assert info["_outcome"].all() and set(info["outcome"]) <= {"hold_the_end", "stop_before",
                                                                "reach_end_but_drop", "drop_before"}
+    assert info["_outcome_authors"].all() and set(info["outcome_authors"]) <= {
+        "hold_the_end", "stop_before", "reach_end_but_drop", "drop_before"}
     for key in ("outcome_code", "time_at_end", "how_far", "episode_return"):
         assert info[key].shape == (3,)
     assert info["_final_obs"].all() and info["final_obs"][0].shape == (5,)
@@ -92,4 +94,5 @@ def test_single_env_info_at_episode_end():
         _, _, terminated, truncated, info = env.step(np.array([0.0, 0.0, 0.4], np.float32))
         done = terminated or truncated
     assert isinstance(info["outcome"], str) and isinstance(info["outcome_code"], int)
+    assert isinstance(info["outcome_authors"], str)
     assert {"time_at_end", "how_far", "episode_return"} <= set(info)

@@ -126,7 +126,7 @@ def test_save_load_gives_identical_actions_and_state(tmp_path):
 
 
 def test_policy_file_is_actor_only_and_acts_identically(tmp_path):
-    agent = filled_agent(normalize_observations=True)
+    agent = filled_agent(observation_scaling="running")
     agent.save(tmp_path / "full.pt")
     agent.save_policy(tmp_path / "policy.pt")
     policy = SAC.load(tmp_path / "policy.pt")
@@ -143,7 +143,7 @@ def test_predict_maps_to_the_env_action_box():
 
 
 def test_observation_normalizer_tracks_mean_and_variance():
-    agent = filled_agent(n=0, normalize_observations=True)
+    agent = filled_agent(n=0, observation_scaling="running")
     data = np.random.default_rng(1).normal(3.0, 2.0, size=(500, 9))
     for row in data:
         agent.normalizer.update(row)
@@ -162,3 +162,42 @@ def test_replay_buffer_wraps_and_round_trips():
     batch = copy.sample(32, torch.Generator().manual_seed(0))
     assert torch.equal(batch.next_obs.squeeze(1), batch.obs.squeeze(1) + 1)
     assert torch.equal(batch.terminated, (batch.rewards == 5).float())
+
+
+def test_frozen_scaling_keeps_the_statistics_of_the_random_action_phase():
+    agent = SAC(2, -np.ones(1), np.ones(1), SACConfig(**{**SMALL, "observation_scaling": "frozen",
+                                                         "learning_starts": 100}), seed=0)
+    rng = np.random.default_rng(2)
+    for step in range(300):  # store() is called before the step counter moves, as in learn()
+        agent.store(rng.normal(1.0 if step < 100 else 50.0, 1.0, 2), np.zeros(1), 0.0, np.zeros(2), False)
+        agent.num_env_steps += 1
+    assert agent.normalizer.count == 100 and agent.normalizer.frozen
+    np.testing.assert_allclose(agent.normalizer.mean.numpy(), [1.0, 1.0], atol=0.3)
+
+
+def test_bounds_scaling_maps_the_observation_box_onto_minus_one_one_and_survives_save_load(tmp_path):
+    low, high = np.array([-0.3, 0.0, -0.002]), np.array([0.3, 1.0, 0.002])
+    agent = SAC(3, -np.ones(1), np.ones(1), SACConfig(**{**SMALL, "observation_scaling": "bounds"}), seed=0,
+                observation_low=low, observation_high=high)
+    corners = torch.tensor(np.stack([low, high, (low + high) / 2]), dtype=torch.float32)
+    np.testing.assert_allclose(agent.normalizer(corners).numpy(), [[-1, -1, -1], [1, 1, 1], [0, 0, 0]], atol=1e-6)
+    agent.store(np.array([5.0, 5.0, 5.0]), np.zeros(1), 0.0, np.zeros(3), False)  # never moves the map
+    np.testing.assert_allclose(agent.normalizer(corners).numpy()[1], [1, 1, 1], atol=1e-6)
+    agent.save_policy(tmp_path / "policy.pt")
+    loaded = SAC.load(tmp_path / "policy.pt")
+    assert loaded.config.observation_scaling == "bounds"
+    np.testing.assert_allclose(loaded.normalizer(corners).numpy(), agent.normalizer(corners).numpy())
+
+
+def test_checkpoints_of_the_boolean_normalize_observations_era_still_load(tmp_path):
+    agent = filled_agent(observation_scaling="running")
+    state = agent.state_dict(include_replay=False)
+    legacy = dict(state["config"])
+    del legacy["observation_scaling"]
+    legacy["normalize_observations"] = True
+    state["config"] = legacy
+    torch.save(state, tmp_path / "old.pt")
+    loaded = SAC.load(tmp_path / "old.pt")
+    assert loaded.config.observation_scaling == "running"
+    obs = np.random.default_rng(3).normal(size=(4, 9)).astype(np.float32)
+    np.testing.assert_array_equal(agent.predict(obs), loaded.predict(obs))

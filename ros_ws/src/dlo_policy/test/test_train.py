@@ -41,9 +41,23 @@ def test_eval_csv_has_documented_columns_and_ablation_rows(tmp_path):
         (step, without) for step in (0, 100, 200, 300) for without in ("", "T", "V")]
     for row in rows:
         assert sum(float(row[o]) for o in evaluate.OUTCOMES) == pytest.approx(1.0)
+        assert sum(float(row[o]) for o in evaluate.OUTCOMES_AUTHORS) == pytest.approx(1.0)
         assert int(row["episodes"]) == 10
+    # fresh episodes at every evaluation, the same ones for every tested input set of an evaluation
+    first_seeds = {int(r["step"]): int(r["eval_seed"]) for r in rows}
+    assert all(int(r["eval_seed"]) == first_seeds[int(r["step"])] for r in rows)
+    seeds = sorted(first_seeds.values())
+    assert all(b - a >= 10 for a, b in zip(seeds, seeds[1:]))
+    # held-out test of the best policy, once per tested input set, on seeds below every evaluation seed
+    for name in (train.TEST_FILE, train.test_file("T"), train.test_file("V")):
+        test = json.loads((run / name).read_text())
+        assert test["episodes"] == 100 and test["seed"] + 100 <= seeds[0]
+        assert sum(test[o] for o in evaluate.OUTCOMES) == pytest.approx(1.0)
+        assert sum(test["authors_code"][o] for o in evaluate.OUTCOMES) == pytest.approx(1.0)
+    assert json.loads((run / train.TEST_FILE).read_text())["without"] == []
     done = json.loads((run / train.DONE_FILE).read_text())
     assert done["env_steps"] == 300 and done["updates"] == 250
+    assert done["test"] == json.loads((run / train.TEST_FILE).read_text())
     assert (run / train.POLICY_FILE).exists() and (run / train.CONFIG_FILE).exists()
 
 
@@ -102,7 +116,8 @@ def test_evaluate_cli_prints_table_and_writes_json(tmp_path, capsys):
     assert evaluate.main(["--checkpoint", str(run / train.POLICY_FILE), "--episodes", "12", "--seed", "5",
                           "--json", str(out), "--without", "V", "--threads", "1"]) == 0
     printed = capsys.readouterr().out
-    assert "hold_the_end" in printed and "without V" in printed
+    assert "hold_the_end" in printed and "authors rule" in printed and "without V" in printed
+    assert set(json.loads(out.read_text())["authors_code"]) == set(evaluate.OUTCOMES)
     result = json.loads(out.read_text())
     assert sum(result[o] for o in evaluate.OUTCOMES) == pytest.approx(1.0)
     assert result["episodes"] == 12 and result["without"] == ["V"]
@@ -136,3 +151,12 @@ def test_best_policy_is_the_best_evaluation_so_far(tmp_path):
     assert best["step"] == int(first_best["step"])
     assert best["episode_reward"] == pytest.approx(float(best_row["episode_reward"]))
     assert SAC.load(run / train.BEST_POLICY_FILE).num_env_steps == best["step"]
+
+
+def test_evaluation_seeds_depend_on_run_seed_and_index_and_never_meet_the_test_seeds():
+    seeds = {train.eval_seeds(load_config(None, [f"seed={s}"]), k) for s in range(3) for k in range(300)}
+    assert len(seeds) == 900 and min(seeds) >= load_config().train.test_seed + load_config().train.test_episodes
+    ranges = sorted(seeds)
+    assert all(b - a >= 10 for a, b in zip(ranges, ranges[1:]))  # 10 episodes each: no overlap
+    with pytest.raises(ConfigError, match="train.test_seed"):
+        load_config(None, ["train.test_seed=999990"])

@@ -36,12 +36,14 @@ def test_outcome_codes_match_task_state_message():
 
 
 def run(trajectory, n_c=N_C, horizon=task.HORIZON):
-    """Drive one tracker with a list of (p_i, n_h, max_held_index) steps; returns rewards and summary."""
+    """Drive one tracker with a list of (p_i, n_h, max_held_index[, p_i_authors]) steps (p_i_authors
+    defaults to p_i); returns rewards and summary."""
     tracker = EpisodeTracker(1, horizon=horizon)
-    tracker.reset(None, [0.5], [1], [n_c])
+    tracker.reset(None, [0.5], [1], [n_c], [0.5])
     rewards = []
-    for p_i, n_h, max_held in trajectory:
-        reward, terminated, truncated = tracker.step([p_i], [n_h], [max_held], [n_c], [(n_c - 1) * 0.0043])
+    for p_i, n_h, max_held, *authors in trajectory:
+        p_a = authors[0] if authors else p_i
+        reward, terminated, truncated = tracker.step([p_i], [n_h], [max_held], [n_c], [(n_c - 1) * 0.0043], [p_a])
         rewards.append(float(reward[0]))
         if terminated[0] or truncated[0]:
             break
@@ -73,12 +75,12 @@ def test_stop_before_and_drop_outcomes():
 
 def test_end_is_a_parameter_and_batched_envs_are_independent():
     tracker = EpisodeTracker(2, horizon=3, end_particles=5)
-    tracker.reset(None, [0.5, 0.5], [1, 1], [40, 40])
+    tracker.reset(None, [0.5, 0.5], [1, 1], [40, 40], [0.5, 0.5])
     for _ in range(3):
-        _, terminated, truncated = tracker.step([33.0, 36.0], [2, 2], [34, 36], [40, 40], [0.17, 0.17])
+        _, terminated, truncated = tracker.step([33.0, 36.0], [2, 2], [34, 36], [40, 40], [0.17, 0.17], [33.0, 36.0])
     assert truncated.tolist() == [True, True] and not terminated.any()
     assert [tracker.summary(i)["outcome"] for i in range(2)] == ["stop_before", "hold_the_end"]
-    tracker.reset([1], [0.5], [1], [40])
+    tracker.reset([1], [0.5], [1], [40], [0.5])
     assert tracker.outcome.tolist() == [task.OUTCOME_STOP_BEFORE, task.OUTCOME_NONE]
     assert tracker.steps.tolist() == [3, 0]
 
@@ -88,3 +90,73 @@ def test_held_statistics():
     held[0, [2, 3, 5]] = True
     n_h, p_i, max_held = task.held_statistics(held)
     assert n_h.tolist() == [3, 0] and p_i.tolist() == [pytest.approx(10 / 3), -1.0] and max_held.tolist() == [5, -1]
+
+
+# ---------------------------------------------------------------- the authors'-code rule
+G = np.array([[0.0, 0.0, 0.1, 1.0]])  # gripper x, y, z [m], closure
+AXIS_Z = 0.1 - task.FINGER_AXIS_OFFSET  # the lower finger's axis
+
+
+def authors_held(*points):
+    """held_mask_authors of single particles at the given (x, y, z) around the gripper G."""
+    positions = np.array(points, dtype=np.float64)[None]
+    return task.held_mask_authors(positions, [len(points)], G)[0].tolist()
+
+
+def test_authors_held_set_is_the_narrow_box_of_their_code():
+    resting = AXIS_Z + 0.0165  # a particle resting on the lower finger (radius 0.0125 + cable 0.004)
+    assert authors_held((0.0, 0.0, resting)) == [True]
+    # along the finger: |dy| < 0.0075 only (the paper-text rule takes the rounded ends up to 0.02)
+    assert authors_held((0.0, 0.0074, resting), (0.0, 0.0076, resting), (0.0, -0.0076, resting)) == [True, False, False]
+    # height: more than 0.0125 above the axis
+    assert authors_held((0.0, 0.0, AXIS_Z + 0.0126), (0.0, 0.0, AXIS_Z + 0.0124)) == [True, False]
+    # distance to the axis in x-z below 0.0245
+    assert authors_held((0.0, 0.0, AXIS_Z + 0.0244), (0.0, 0.0, AXIS_Z + 0.0246)) == [True, False]
+    assert authors_held((0.0195, 0.0, AXIS_Z + 0.0145), (0.02, 0.0, AXIS_Z + 0.0145)) == [True, False]
+    # padded rows beyond n_c never count
+    positions = np.array([[[0.0, 0.0, resting], [0.0, 0.0, resting]]])
+    assert task.held_mask_authors(positions, [1], G).tolist() == [[True, False]]
+
+
+def test_authors_held_set_lies_inside_the_paper_text_one():
+    rng = np.random.default_rng(0)
+    points = rng.uniform([-0.03, -0.03, AXIS_Z - 0.01], [0.03, 0.03, AXIS_Z + 0.03], (1, 20000, 3))
+    authors = task.held_mask_authors(points, [20000], G)[0]
+    dx, dy, dz = points[0, :, 0], points[0, :, 1], points[0, :, 2] - AXIS_Z
+    paper = (np.abs(dy) <= 0.0075 + 0.0125) & (dx ** 2 + dz ** 2 <= (0.008 + 0.0125 + 0.0043) ** 2) & (dz > 0)
+    assert authors.sum() > 100 and not (authors & ~paper).any()
+
+
+def test_authors_at_end_is_the_mean_held_index_within_5_of_the_last():
+    # n_c = 40: last index 39; (39 - p) < 5  <=>  p > 34
+    assert task.at_end_authors([34.0, 34.01, 39.0, -1.0], 40).tolist() == [False, True, True, False]
+    assert task.classify_outcome_authors([True, True, False, False], [36.0, 20.0, 36.0, 20.0],
+                                         [40] * 4).tolist() == [1, 2, 3, 4]
+
+
+def test_oracle_touching_particle_n_c_minus_10_holds_the_end_only_under_the_paper_rule():
+    """Slide until the largest held index is n_c - 10 (mean index ~ n_c - 11) and stop there."""
+    slide = [(0.5 + i, 2, 1 + i) for i in range(30)]  # max held index reaches 30 = n_c - 10
+    stop = [(29.5, 2, 30)] * (task.HORIZON - len(slide))
+    summary = run(slide + stop)[1]
+    assert summary["outcome"] == "hold_the_end" and summary["outcome_authors"] == "stop_before"
+
+
+def test_authors_outcomes_over_episodes():
+    # at the end under both rules until the horizon
+    to_end = [(0.5 + i, 2, 1 + i) for i in range(39)] + [(38.5, 2, 39)] * 111
+    assert run(to_end)[1]["outcome_authors"] == "hold_the_end"
+    # paper set still holds at the horizon, the authors' narrower set lost the cable: their drop,
+    # classified by the last mean index their set had (at the end -> reach end but drop)
+    lost = [(0.5 + i, 2, 1 + i) for i in range(39)] + [(38.5, 2, 39, -1.0)] * 111
+    summary = run(lost)[1]
+    assert summary["outcome"] == "hold_the_end" and summary["outcome_authors"] == "reach_end_but_drop"
+    # dropped far from the end: drop before under both rules
+    dropped = [(5.5, 2, 6)] * 10 + [(-1.0, 0, -1)]
+    summary = run(dropped)[1]
+    assert summary["outcome"] == summary["outcome_authors"] == "drop_before"
+    # reached the end, slid back and dropped: the paper rule remembers the visit, the authors' rule
+    # only the last held mean index
+    back = [(0.5 + i, 2, 1 + i) for i in range(39)] + [(10.0, 2, 11)] * 5 + [(-1.0, 0, -1)]
+    summary = run(back)[1]
+    assert summary["outcome"] == "reach_end_but_drop" and summary["outcome_authors"] == "drop_before"

@@ -4,7 +4,8 @@
 
 The per-step task inputs (held particle indices, n_c, L_c) recorded on ``/dlo/task/state`` are
 fed through the same ``dlo_sim.task.EpisodeTracker`` the sim node and the gym environment use,
-so the recomputed outcomes must equal the recorded ones (a mismatch is reported and exits 1).
+so the recomputed outcomes (paper-text rule, and the authors'-code rule from the recorded
+``held_indices_authors``) must equal the recorded ones (a mismatch is reported and exits 1).
 Plots (PNG, one per episode): the gripper path over the cable at the start and the end seen from
 the top, and closure and the distilled tactile/visual poses over time.
 """
@@ -60,21 +61,26 @@ def recompute_episode(task_states: dict) -> dict:
     tracker = EpisodeTracker(1, horizon=final if final else 10**9)
 
     def held_inputs(msg):
+        """p_i, n_h, largest held index (paper-text held set) and p_i of the authors' held set."""
         held = np.asarray(msg.held_indices, dtype=np.int64)
+        held_authors = np.asarray(msg.held_indices_authors, dtype=np.int64)
         return (np.array([held.mean() if len(held) else -1.0]), np.array([len(held)]),
-                np.array([held.max() if len(held) else -1]))
+                np.array([held.max() if len(held) else -1]),
+                np.array([held_authors.mean() if len(held_authors) else -1.0]))
 
     first = task_states[0]
-    p_i, _, max_index = held_inputs(first)
-    tracker.reset([0], p_i, max_index, np.array([first.num_particles]))
+    p_i, _, max_index, p_i_authors = held_inputs(first)
+    tracker.reset([0], p_i, max_index, np.array([first.num_particles]), p_i_authors)
     for step in steps[1:final + 1 if final else None]:
         msg = task_states[step]
-        p_i, n_h, max_index = held_inputs(msg)
-        tracker.step(p_i, n_h, max_index, np.array([msg.num_particles]), np.array([msg.cable_length]))
+        p_i, n_h, max_index, p_i_authors = held_inputs(msg)
+        tracker.step(p_i, n_h, max_index, np.array([msg.num_particles]), np.array([msg.cable_length]), p_i_authors)
     last = task_states[final if final else steps[-1]]
     summary = tracker.summary(0)
     summary.update(seed=int(first.seed), complete=final is not None,
-                   recorded_outcome=OUTCOME_NAMES[int(last.outcome)], recorded_return=float(last.episode_return))
+                   recorded_outcome=OUTCOME_NAMES[int(last.outcome)],
+                   recorded_outcome_authors=OUTCOME_NAMES[int(last.outcome_authors)],
+                   recorded_return=float(last.episode_return))
     return summary
 
 
@@ -146,10 +152,12 @@ def main(argv=None) -> int:
     if len(complete) < len(summaries):
         print(f"({len(summaries) - len(complete)} episode(s) unfinished in the bag, not counted)")
     mismatched = [s for s in complete if s["outcome"] != s["recorded_outcome"]
+                  or s["outcome_authors"] != s["recorded_outcome_authors"]
                   or abs(s["episode_return"] - s["recorded_return"]) > 1e-6]
     for s in mismatched:
-        print(f"MISMATCH episode {s['episode']}: recomputed {s['outcome']} {s['episode_return']:.6f}, "
-              f"recorded {s['recorded_outcome']} {s['recorded_return']:.6f}", file=sys.stderr)
+        print(f"MISMATCH episode {s['episode']}: recomputed {s['outcome']} / {s['outcome_authors']} "
+              f"{s['episode_return']:.6f}, recorded {s['recorded_outcome']} / {s['recorded_outcome_authors']} "
+              f"{s['recorded_return']:.6f} (paper rule / authors' rule, return)", file=sys.stderr)
     if args.json:
         args.json.write_text(json.dumps(summaries, indent=1) + "\n")
     if args.plots:

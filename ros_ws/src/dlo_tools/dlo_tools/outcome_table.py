@@ -15,16 +15,19 @@ OUTCOMES = [name for code, name in sorted(OUTCOME_NAMES.items()) if code != OUTC
 
 
 def outcome_table(episodes) -> str:
-    """Per-episode lines and the fraction of each outcome, as fixed-width text."""
-    lines = [f"{'episode':>7} {'seed':>6}  {'outcome':<20} {'return':>8} {'time at end':>11} {'from end':>8}"]
+    """Per-episode lines and the fraction of each outcome under both rules (paper text, authors'
+    code: dlo_sim.task), as fixed-width text."""
+    lines = [f"{'episode':>7} {'seed':>6}  {'outcome (paper rule)':<20} {'authors rule':<20} {'return':>8} "
+             f"{'time at end':>11} {'from end':>8}"]
     for e in episodes:
-        lines.append(f"{e['episode']:>7} {e['seed']:>6}  {e['outcome']:<20} {e['episode_return']:>8.3f} "
-                     f"{e['time_at_end']:>11} {e['how_far']:>8}")
+        lines.append(f"{e['episode']:>7} {e['seed']:>6}  {e['outcome']:<20} {e.get('outcome_authors', '?'):<20} "
+                     f"{e['episode_return']:>8.3f} {e['time_at_end']:>11} {e['how_far']:>8}")
     n = len(episodes)
-    lines.append("")
+    lines += ["", f"{'outcome':<20} {'paper rule':>16} {'authors rule':>16}"]
     for name in OUTCOMES:
-        count = sum(e["outcome"] == name for e in episodes)
-        lines.append(f"{name:<20} {count:>4}/{n:<4} {100.0 * count / max(n, 1):5.1f}%")
+        counts = [sum(e.get(key) == name for e in episodes) for key in ("outcome", "outcome_authors")]
+        cells = [f"{c:>4}/{n:<4} {100.0 * c / max(n, 1):5.1f}%" for c in counts]
+        lines.append(f"{name:<20} {cells[0]:>16} {cells[1]:>16}")
     return "\n".join(lines)
 
 
