@@ -126,7 +126,8 @@ class SimNode(Node):
     def finish_episode(self):
         summary = {"episode": self.episode, "seed": self.episode_seed, **self.task.tracker.summary(0)}
         self.finished.append(summary)
-        self.get_logger().info(f"episode {self.episode} (seed {self.episode_seed}): {summary['outcome']}, "
+        self.get_logger().info(f"episode {self.episode} (seed {self.episode_seed}): {summary['outcome']} "
+                               f"(authors' rule: {summary['outcome_authors']}), "
                                f"return {summary['episode_return']:.3f}, time at end {summary['time_at_end']}, "
                                f"{summary['how_far']} particles from the end")
         if self.p["summary_file"]:
@@ -231,7 +232,10 @@ class SimNode(Node):
                          mean_held_index=float(self.task.mean_held_index[0]),
                          num_particles=n_c, cable_length=float(sim.cable_length[0]), reward=self.last_reward,
                          episode_return=float(tracker.episode_return[0]), done=self.done,
-                         outcome=int(tracker.outcome[0]) if self.done else 0)
+                         outcome=int(tracker.outcome[0]) if self.done else 0,
+                         held_indices_authors=np.flatnonzero(self.task.held_authors[0, :n_c]).astype(np.int32).tolist(),
+                         mean_held_index_authors=float(self.task.mean_held_index_authors[0]),
+                         outcome_authors=int(tracker.outcome_authors[0]) if self.done else 0)
         for msg in (cloud, state, image, task):
             msg.header.stamp = stamp
             msg.header.frame_id = "world"
