@@ -1,62 +1,85 @@
-"""dlo-report: statistics, and figures + table built from real (tiny) training runs."""
+"""dlo-report: statistics, tables and figures from hand-made run directories, and one real tiny run."""
+import csv
+import json
+import math
 import sys
 from pathlib import Path
 
+import matplotlib.pyplot as plt
 import numpy as np
 import pytest
 import torch
+from matplotlib.collections import PolyCollection
 
 from dlo_policy import report
-from dlo_policy.config import load_config
+from dlo_policy.config import load_config, save_config
+from dlo_policy.evaluate import OUTCOMES_AUTHORS
 from dlo_policy.experiments import RunSpec, run_config
-from dlo_policy.train import train
+from dlo_policy.train import EVAL_COLUMNS, train
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # --import-mode=importlib: helper modules
 
-TINY = ["env_module=sac_reach_env", "sac.hidden_sizes=[16,16]", "sac.batch_size=16", "sac.learning_starts=20",
-        "sac.buffer_size=500", "train.eval_every=20", "train.checkpoint_every=1000", "train.eval_episodes=4"]
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+OLD_COLUMNS = tuple(c for c in EVAL_COLUMNS if c not in OUTCOMES_AUTHORS and c != "eval_seed")
+EVERY = 100
 
 
-@pytest.fixture(scope="module")
-def results(tmp_path_factory):
-    """Two seeds each of All (also tested without T and V), V+K, T+K, and a tactile-noise label."""
-    previous = torch.get_num_threads()
-    out = tmp_path_factory.mktemp("results")
-    specs = [RunSpec(label, modalities, seed, eval_without=without)
-             for label, modalities, without in (("All", "All", ("T", "V")), ("V+K", "V+K", ()), ("T+K", "T+K", ()),
-                                                ("All tactile-partial", "All", ()))
-             for seed in (0, 1)]
-    for spec in specs:
-        train(run_config(spec, None, TINY, steps=120, threads=1), spec.directory(out))
-    torch.set_num_threads(previous)
-    return out
+def write_run(root: Path, label: str, seed: int, hold, *, authors=None, modalities=None, done=True,
+              test=None, without=None, old_csv=False, total_steps=None, config_overrides=()):
+    """A run directory as dlo-train leaves it: config.yaml, eval.csv (hold the end per evaluation,
+    every EVERY steps; authors' rule = `authors` or hold - 0.1), done.json and test.json if given.
+    without: {modality: hold curve} extra ablation rows; test: (paper, authors) or
+    {tested_without: (paper, authors)}; old_csv: no *_authors / eval_seed columns."""
+    directory = root / label.replace(" ", "_") / f"seed{seed}"
+    directory.mkdir(parents=True)
+    without = without or {}
+    config = load_config(None, config_overrides, {
+        "modalities": modalities or label, "seed": seed, "label": label, "train.eval_every": EVERY,
+        "train.total_steps": total_steps or (len(hold) - 1) * EVERY, "train.eval_without": sorted(without)})
+    save_config(config, directory / "config.yaml")
+    curves = {"": (hold, authors if authors is not None else [max(h - 0.1, 0.0) for h in hold])}
+    curves.update({w: (c, [max(h - 0.1, 0.0) for h in c]) for w, c in without.items()})
+    rows = []
+    for k in range(len(hold)):
+        for tested, (paper, authors_curve) in curves.items():
+            h, a = paper[k], authors_curve[k]
+            rows.append({"step": k * EVERY, "tested_without": tested, "episodes": 10,
+                         "eval_seed": 1_000_000 + 100_000 * seed + 10 * k,
+                         "hold_the_end": h, "stop_before": 1 - h, "reach_end_but_drop": 0.0, "drop_before": 0.0,
+                         "hold_the_end_authors": a, "stop_before_authors": 1 - a, "reach_end_but_drop_authors": 0.0,
+                         "drop_before_authors": 0.0, "episode_reward": 3 * h, "time_at_end": 20 * h,
+                         "how_far": 30 * (1 - h), "train_episodes": k, "wall_time_s": k})
+    columns = OLD_COLUMNS if old_csv else EVAL_COLUMNS
+    with (directory / "eval.csv").open("w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=columns, extrasaction="ignore")
+        writer.writeheader()
+        writer.writerows(rows)
+    if done:
+        (directory / "done.json").write_text("{}\n")
+    tests = test if isinstance(test, dict) else ({"": test} if test is not None else {})
+    for tested, (paper, authors_value) in tests.items():
+        name = f"test_without_{tested}.json" if tested else "test.json"
+        payload = {"episodes": 100, "hold_the_end": paper, "stop_before": 1 - paper}
+        if authors_value is not None:
+            payload["authors_code"] = {"hold_the_end": authors_value}
+        (directory / name).write_text(json.dumps(payload))
+    return directory
 
 
-def test_report_builds_figures_and_table_from_run_directories(results, capsys):
-    out = results / "report"
-    assert report.main([str(results), "--out", str(out)]) == 0
-    for name in ("outcomes_single.png", "outcomes_pairs.png", "metrics_single.png", "metrics_pairs.png",
-                 "ablation.png", "sensitivity.png"):
-        data = (out / name).read_bytes()
-        assert data.startswith(PNG_MAGIC) and len(data) > 10_000, name
-    table = (out / "results.md").read_text()
-    assert table in capsys.readouterr().out
-    lines = {line.split(" | ")[0].lstrip("| "): line for line in table.splitlines() if line.startswith("| ")}
-    assert lines["All"].endswith("| 92% |") and lines["V+K"].endswith("| 89% |") and lines["T+K"].endswith("| 16% |")
-    assert "| 2 |" in lines["All, tested without T"] and lines["All, tested without T"].endswith("|  |")
-    assert "All tactile-partial" in lines and "| 120 |" in lines["All"]
+def table_rows(text: str) -> dict[str, list[str]]:
+    """Markdown table -> first cell -> all cells (first table of the text)."""
+    rows = {}
+    for line in text.splitlines():
+        if line.startswith("| ") and not line.startswith("| configuration"):
+            cells = [c.strip() for c in line.strip().strip("|").split(" | ")]
+            rows.setdefault(cells[0], cells)
+    return rows
 
 
-def test_load_runs_groups_seeds_by_label_and_tested_inputs(results):
-    runs = report.load_runs(results)
-    assert set(runs) == {"All", "V+K", "T+K", "All tactile-partial"}
-    assert set(runs["All"]) == {"", "T", "V"} and set(runs["V+K"]) == {""}
-    curves = runs["All"]["T"]
-    assert curves.seeds == 2 and list(curves.steps) == list(range(0, 121, 20))
-    outcome_sum = sum(curves.values[o] for o in report.OUTCOMES)
-    np.testing.assert_allclose(outcome_sum, 1.0)
-    assert load_config(results / "All" / "seed0" / "config.yaml").train.eval_without == ("T", "V")
+FLAT = [0.5] * 12
+
+
+# ------------------------------------------------------------------------------------------ statistics
 
 
 def test_smoothing_and_confidence_interval():
@@ -65,7 +88,246 @@ def test_smoothing_and_confidence_interval():
     mean, ci = report.mean_and_ci(np.array([[1.0], [2.0], [3.0]]))
     assert mean[0] == pytest.approx(2.0) and ci[0] == pytest.approx(4.303 / np.sqrt(3))
     assert report.mean_and_ci(np.array([[5.0]]))[1][0] == 0.0
+    single = report.stat_of([0.4])
+    assert single.mean == pytest.approx(0.4) and single.n == 1 and math.isnan(single.ci)
 
 
-def test_report_without_runs_is_an_error(tmp_path):
-    assert report.main([str(tmp_path)]) == 2
+def test_last5_over_best_ratio_on_a_hand_made_curve():
+    """Rises to 1.0 for 5 evaluations, sags to 0.5: best smoothed 1.0 at the 10th, last-5 0.5, ratio 0.5."""
+    sag = [0, 0, 0, 0, 0, 1, 1, 1, 1, 1, 0.5, 0.5, 0.5, 0.5, 0.5]
+    curves = report.Curves(np.arange(len(sag)) * EVERY, {"hold_the_end": np.array([sag, sag])})
+    best, step = report.best_smoothed(curves)
+    assert best.mean == pytest.approx(1.0) and step == 9 * EVERY and best.ci == pytest.approx(0.0)
+    last = report.last_mean(curves)
+    assert last.mean == pytest.approx(0.5)
+    assert report.level_ratio(last, best) == pytest.approx(0.5)
+    assert report.format_ratio(0.5) == "0.50 (sags)"
+    # the threshold: 0.9 holds; 0.8999 sags and is not printed as "0.90"
+    assert report.format_ratio(0.45 / 0.5) == "0.90 (holds)" and report.format_ratio(0.8999) == "0.89 (sags)"
+    # two seeds, different levels: the ratio is of the seed means
+    other = [x * 0.5 for x in sag[:10]] + [0.5] * 5  # best smoothed 0.5, last-5 0.5
+    curves = report.Curves(curves.steps, {"hold_the_end": np.array([sag, other])})
+    best, step = report.best_smoothed(curves)
+    assert best.mean == pytest.approx(0.75) and step == 9 * EVERY
+    assert report.level_ratio(report.last_mean(curves), best) == pytest.approx(0.5 / 0.75)
+
+
+def test_ratio_in_the_table_of_a_hand_made_run(tmp_path):
+    write_run(tmp_path, "V", 0, [0, 0.2, 0.4, 0.6, 0.8, 1, 1, 1, 1, 1, 0.7, 0.7, 0.7, 0.7, 0.7])
+    row = table_rows(report.results_table(report.load_runs(tmp_path)))["V"]
+    assert row[2] == f"100% (1 seed) at {9 * EVERY:,}" and row[4] == "70% (1 seed)" and row[5] == "0.70 (sags)"
+
+
+def test_band_only_from_three_seeds():
+    assert not report.band_allowed(1) and not report.band_allowed(2)
+    assert report.band_allowed(3) and report.band_allowed(10)
+    rng = np.random.default_rng(0)
+    for seeds, bands in ((2, 0), (3, 1)):
+        fig, ax = plt.subplots()
+        drawn = report.draw_curve(ax, np.arange(8), rng.random((seeds, 8)), "C0")
+        polys = [c for c in ax.collections if isinstance(c, PolyCollection)]
+        assert drawn == bool(bands) and len(polys) == bands
+        assert len(ax.lines) == seeds + 1  # a thin line per seed and the mean
+        plt.close(fig)
+
+
+# -------------------------------------------------------------------------------------- report files
+
+
+def test_no_pairs_figure_without_pair_runs(tmp_path, capsys):
+    results, out = tmp_path / "results", tmp_path / "out"
+    for label, seeds in (("T", 1), ("V", 2), ("All", 3)):
+        for seed in range(seeds):
+            write_run(results, label, seed, FLAT, test=(0.5, 0.4))
+    assert report.main([str(results), "--out", str(out)]) == 0
+    printed = capsys.readouterr().out
+    for name in ("outcomes_single.png", "metrics_single.png"):
+        data = (out / name).read_bytes()
+        assert data.startswith(PNG_MAGIC) and len(data) > 10_000, name
+    for name in ("outcomes_pairs.png", "metrics_pairs.png", "ablation.png", "sensitivity.png"):
+        assert not (out / name).exists() and f"skipped {name}: " in printed
+    assert "skipped outcomes_pairs.png: no runs of T+K, V+K or T+V" in printed
+    assert (out / "results.md").read_text() in printed
+
+
+def test_pairs_figures_hold_all_as_reference_when_pairs_exist(tmp_path):
+    for label in ("V+K", "All"):
+        write_run(tmp_path, label, 0, FLAT)
+    runs = report.load_runs(tmp_path)
+    figures = {name: draw for name, draw, _ in report.planned_figures(runs)}
+    fig = figures["outcomes_pairs.png"]()
+    titles = [ax.get_title() for ax in fig.axes if ax.get_title()]
+    assert titles == ["V+K (1 seed)", "All (1 seed)"]
+    plt.close(fig)
+    assert figures["outcomes_single.png"]() is not None  # All
+    write_run(tmp_path / "only_all", "All", 0, FLAT)
+    runs = report.load_runs(tmp_path / "only_all")
+    assert {n: d() for n, d, _ in report.planned_figures(runs)}["outcomes_pairs.png"] is None
+
+
+def test_figures_state_seeds_and_smoothing(tmp_path):
+    for seed in range(3):
+        write_run(tmp_path, "V", seed, FLAT, done=seed < 2)
+    write_run(tmp_path, "T", 0, FLAT)
+    runs = report.load_runs(tmp_path)
+    fig = report.outcome_figure(runs, report.SINGLE)
+    assert [ax.get_title() for ax in fig.axes[:2]] == ["T (1 seed)", "V (3 seeds, 2 finished)"]
+    assert "trailing mean of 5 evaluations" in fig.get_suptitle()
+    bands = [len([c for c in ax.collections if isinstance(c, PolyCollection)]) for ax in fig.axes[:2]]
+    assert bands == [0, 1]  # the hold-the-end band: V only
+    plt.close(fig)
+    fig = report.metrics_figure(runs, report.SINGLE)
+    assert "trailing mean of 5 evaluations" in fig.get_suptitle()
+    assert all("seeds per configuration" in ax.get_title() for ax in fig.axes[:5])
+    legend = [t.get_text() for t in fig.axes[5].get_legend().get_texts()]
+    assert "T (1 seed)" in legend and "V (3 seeds, 2 finished)" in legend
+    plt.close(fig)
+
+
+def test_single_seed_rows_show_no_plus_minus(tmp_path):
+    write_run(tmp_path, "T", 0, [0.1, 0.2, 0.3, 0.2, 0.2, 0.2], test=(0.25, 0.2))
+    for seed in range(2):
+        write_run(tmp_path, "V", seed, [0.5, 0.6, 0.7, 0.8, 0.8, 0.8 + 0.1 * seed], test=(0.8, 0.7))
+    rows = table_rows(report.results_table(report.load_runs(tmp_path)))
+    assert not any("±" in cell for cell in rows["T"])
+    assert rows["T"][1] == "1/1 × 500" and rows["T"][6:8] == ["25% (1 seed)", "20% (1 seed)"]
+    assert "(1 seed)" in rows["T"][2] and rows["T"][-1] == "12%"
+    assert "±" in rows["V"][2] and "±" in rows["V"][6] and "(1 seed)" not in " ".join(rows["V"])
+
+
+def test_held_out_test_means_come_from_test_json_of_finished_seeds(tmp_path):
+    for seed, paper, authors in ((0, 0.9, 0.6), (1, 0.8, 0.5), (2, 0.7, 0.4)):
+        write_run(tmp_path, "All", seed, FLAT, test={"": (paper, authors), "T": (paper - 0.5, authors - 0.3)},
+                  without={"T": [0.2] * len(FLAT)})
+    # a seed still training: a stray test.json of it does not count, its curve does
+    write_run(tmp_path, "All", 3, FLAT[:8], done=False, test=(0.0, 0.0), without={"T": [0.2] * 8},
+              total_steps=1100)
+    runs = report.load_runs(tmp_path)
+    curves = runs["All"][""]
+    assert curves.seeds == 4 and curves.finished_seeds == 3 and list(curves.steps) == [k * EVERY for k in range(8)]
+    paper, authors = report.held_out_test(curves), report.held_out_test(curves, authors=True)
+    half_width = 4.303 * 0.1 / math.sqrt(3)
+    assert (paper.mean, paper.ci, paper.n) == pytest.approx((0.8, half_width, 3))
+    assert (authors.mean, authors.ci) == pytest.approx((0.5, half_width))
+    rows = table_rows(report.results_table(runs))
+    assert rows["All"][1] == "3/4 × 700 (of 1,100)"
+    assert rows["All"][6:8] == [f"80% ± {half_width:.0%}", f"50% ± {half_width:.0%}"]
+    assert rows["All, tested without T"][6:8] == [f"30% ± {half_width:.0%}", f"20% ± {half_width:.0%}"]
+    assert rows["All"][-1] == "92%" and rows["All, tested without T"][-1] == "—"
+
+
+def test_held_out_test_without_authors_rule_is_na(tmp_path):
+    for seed in range(2):
+        write_run(tmp_path, "K", seed, FLAT, test=(0.3, None))
+    write_run(tmp_path, "V", 0, FLAT, test=(0.3, 0.2))
+    (tmp_path / "V" / "seed0" / "test.json").unlink()
+    rows = table_rows(report.results_table(report.load_runs(tmp_path)))
+    assert rows["K"][6].startswith("30% ± ") and rows["K"][7] == "n/a"
+    assert rows["V"][6:8] == ["n/a", "n/a"]
+
+
+def test_old_eval_csv_without_authors_columns_gives_na(tmp_path, capsys):
+    for seed in range(3):
+        write_run(tmp_path, "V", seed, FLAT, old_csv=True, test=(0.5, None))
+    out = tmp_path / "out"
+    assert report.main([str(tmp_path), "--out", str(out)]) == 0
+    captured = capsys.readouterr()
+    row = table_rows((out / "results.md").read_text())["V"]
+    assert row[2].startswith("50% ± 0% at") and row[3] == "n/a" and row[7] == "n/a"
+    assert (out / "outcomes_single.png").read_bytes().startswith(PNG_MAGIC)
+    assert (out / "metrics_single.png").read_bytes().startswith(PNG_MAGIC)
+    assert "repeat the same episodes" in captured.err and "repeat the same episodes" in (out / "results.md").read_text()
+
+
+def test_compare_writes_both_settings_with_their_numbers(tmp_path, capsys):
+    rising = [0.0, 0.25, 0.5, 0.75, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0]  # quarters: exact sums
+    sagging = rising[:5] + [0.5] * 6
+    for seed in range(3):
+        write_run(tmp_path / "a", "All", seed, rising, test=(0.9, 0.8))
+        write_run(tmp_path / "b", "All", seed, sagging, test=(0.6 + 0.1 * seed, 0.5))
+    out = tmp_path / "cmp"
+    assert report.main(["--compare", f"frozen={tmp_path / 'a'}", f"running={tmp_path / 'b'}", "--out", str(out)]) == 0
+    text = (out / "compare.md").read_text()
+    assert text in capsys.readouterr().out
+    rows = {tuple(cells[:2]): cells for cells in
+            ([c.strip() for c in line.strip().strip("|").split(" | ")] for line in text.splitlines())
+            if cells[0] == "All"}
+    assert set(rows) == {("All", "frozen"), ("All", "running")}
+    frozen, running = rows[("All", "frozen")], rows[("All", "running")]
+    # frozen: smoothed 1.0 first at evaluation 8 (evaluations 4..8 are 1.0); last-5 1.0
+    assert frozen[2] == "3/3 × 1,000" and frozen[3] == f"100% ± 0% at {8 * EVERY:,}"
+    assert frozen[5:9] == ["100% ± 0%", "1.00 (holds)", "90% ± 0%", "80% ± 0%"]
+    # running: smoothed best (0.5 + 0.75 + 1 + 0.5 + 0.5) / 5 = 0.65 first at evaluation 6; last-5 0.5
+    assert running[3] == f"65% ± 0% at {6 * EVERY:,}" and running[5] == "50% ± 0%"
+    assert running[6] == "0.76 (sags)"  # 0.5 / 0.65 = 0.769, rounded down
+    assert running[7:9] == [f"70% ± {4.303 * 0.1 / math.sqrt(3):.0%}", "50% ± 0%"]
+    assert (out / "compare.png").read_bytes().startswith(PNG_MAGIC)
+    assert not (out / "results.md").exists()
+
+
+# --------------------------------------------------------------------------------------- command line
+
+
+@pytest.mark.parametrize("case", ["missing", "empty", "malformed", "duplicate", "no_out", "both", "neither",
+                                  "same_name", "unknown_flag"])
+def test_bad_input_is_one_line_and_exit_2(tmp_path, capsys, case):
+    results = tmp_path / "results"
+    write_run(results, "V", 0, FLAT)
+    (tmp_path / "empty").mkdir()
+    argv = {"missing": [str(tmp_path / "nope")],
+            "empty": [str(tmp_path / "empty")],
+            "malformed": ["--compare", str(results), "--out", str(tmp_path / "o")],
+            "no_out": ["--compare", f"a={results}"],
+            "both": [str(results), "--compare", f"a={results}", "--out", str(tmp_path / "o")],
+            "neither": [],
+            "same_name": ["--compare", f"a={results}", f"a={results}", "--out", str(tmp_path / "o")],
+            "unknown_flag": [str(results), "--bogus"]}
+    if case == "duplicate":  # the same label and seed twice: two settings mixed
+        write_run(tmp_path / "results" / "other", "V", 0, FLAT)
+        argv["duplicate"] = [str(results)]
+    assert report.main(argv[case]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("dlo-report: error: ") and "Traceback" not in err
+
+
+def test_help_describes_both_modes_and_the_statistics(capsys):
+    assert report.main(["--help"]) == 0
+    text = capsys.readouterr().out
+    for phrase in ("--compare NAME=DIR", "compare.md", "results.md", "outcomes_pairs.png", "held-out test",
+                   "trailing mean", ">= 3 seeds", "(1 seed)", "authors' rule", "last-5 mean", "exit status 2"):
+        assert phrase.lower() in text.lower(), phrase
+
+
+def test_differing_configs_of_one_label_are_a_warning(tmp_path, capsys):
+    write_run(tmp_path, "V", 0, FLAT)
+    write_run(tmp_path, "V", 1, FLAT, config_overrides=["sac.observation_scaling=none"])
+    assert report.main([str(tmp_path), "--out", str(tmp_path / "out")]) == 0
+    assert "differ in sac.observation_scaling" in capsys.readouterr().err
+    assert "differ in sac.observation_scaling" in (tmp_path / "out" / "results.md").read_text()
+
+
+# ------------------------------------------------------------------------------------------ real run
+
+
+def test_report_reads_what_dlo_train_writes(tmp_path, capsys):
+    """One tiny real training run (All, also evaluated without T): eval.csv, done.json, test.json and
+    test_without_T.json as dlo-train writes them give a full table row and the ablation figure."""
+    previous = torch.get_num_threads()
+    tiny = ["env_module=sac_reach_env", "sac.hidden_sizes=[16,16]", "sac.batch_size=16", "sac.learning_starts=20",
+            "sac.buffer_size=500", "train.eval_every=20", "train.checkpoint_every=1000", "train.eval_episodes=4",
+            "train.test_episodes=6"]
+    spec = RunSpec("All", "All", 0, eval_without=("T",))
+    try:
+        train(run_config(spec, None, tiny, steps=100, threads=1), spec.directory(tmp_path))
+    finally:
+        torch.set_num_threads(previous)
+    out = tmp_path / "report"
+    assert report.main([str(tmp_path), "--out", str(out)]) == 0
+    rows = table_rows((out / "results.md").read_text())
+    test = json.loads((spec.directory(tmp_path) / "test.json").read_text())
+    assert rows["All"][1] == "1/1 × 100"
+    assert rows["All"][6] == f"{test['hold_the_end']:.0%} (1 seed)"
+    assert rows["All"][7] == f"{test['authors_code']['hold_the_end']:.0%} (1 seed)"
+    assert "All, tested without T" in rows and rows["All, tested without T"][6] != "n/a"
+    assert (out / "ablation.png").read_bytes().startswith(PNG_MAGIC)
+    assert "warning" not in capsys.readouterr().err
