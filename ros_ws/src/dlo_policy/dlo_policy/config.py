@@ -144,6 +144,21 @@ class RunConfig:
         return _build(cls, data, prefix="")
 
 
+def check_env_options(config: RunConfig) -> None:
+    """ConfigError for env_options the run's env module rejects (its `check_options`, if it has one)."""
+    import importlib  # noqa: PLC0415 (the env module imports the simulator: only when asked)
+    try:
+        module = importlib.import_module(config.env_module)
+    except ImportError as error:
+        raise ConfigError(f"env_module: cannot import {config.env_module!r} ({error})") from None
+    check = getattr(module, "check_options", None)
+    if check is not None:
+        try:
+            check(config.env_options)
+        except ValueError as error:
+            raise ConfigError(f"env_options: {error}") from None
+
+
 def load_config(path: Optional[str | Path] = None, overrides: typing.Sequence[str] = (),
                 values: Optional[typing.Mapping[str, Any]] = None) -> RunConfig:
     """Defaults, then the YAML file (if any), then `key=value` overrides (values parsed as YAML),

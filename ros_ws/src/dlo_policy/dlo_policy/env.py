@@ -44,6 +44,26 @@ from dlo_sim import task
 from dlo_sim.episode import TaskSim
 from dlo_sim.config import GRIPPER_HEIGHT
 
+def check_options(options) -> None:
+    """Raise ValueError with a one-line reason for an unknown option or a bad value (module
+    docstring), before any simulator is built: what dlo-train checks its ``env_options`` with."""
+    known = ("without", "tactile_noise", "horizon", "end_particles", "camera_resolution", "sim_config")
+    unknown = sorted(set(options) - set(known))
+    if unknown:
+        raise ValueError(f"unknown option(s) {', '.join(unknown)}; known: {', '.join(known)}")
+    if "tactile_noise" in options:
+        try:
+            noise_sigma(options["tactile_noise"])
+        except (TypeError, ValueError) as error:
+            raise ValueError(f"tactile_noise: {error}; or a pair [sigma_theta, sigma_y]") from None
+    if options.get("without"):
+        parse_modalities(options["without"])
+    for name, low in (("horizon", 1), ("end_particles", 1), ("camera_resolution", 16)):
+        value = options.get(name, low)
+        if isinstance(value, bool) or not isinstance(value, int) or value < low:
+            raise ValueError(f"{name}: expected an integer >= {low}, got {value!r}")
+
+
 class CableFollowingVecEnv(VectorEnv):
     """N cable-following environments in one batched simulator (gymnasium 1.x VectorEnv)."""
 

@@ -173,13 +173,14 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: Optional[Sequence[str]] = None) -> int:
     args = build_parser().parse_args(argv)
-    if args.episodes < 1:
-        raise SystemExit("dlo-evaluate: --episodes must be >= 1")
+    if args.episodes < 1 or args.num_envs < 1:
+        print("dlo-evaluate: error: --episodes and --num-envs must be >= 1", file=sys.stderr)
+        return 2
     if args.threads:
         torch.set_num_threads(args.threads)
     try:
+        agent = SAC.load(args.checkpoint)  # first: a missing or foreign file is named as such
         config = load_run_config(args.checkpoint)
-        agent = SAC.load(args.checkpoint)
         blank = blanked_columns(config.modalities, args.without)
     except (FileNotFoundError, ValueError) as error:
         print(f"dlo-evaluate: error: {error}", file=sys.stderr)

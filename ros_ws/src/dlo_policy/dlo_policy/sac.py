@@ -32,6 +32,26 @@ from .config import SACConfig
 from .replay import ReplayBuffer
 
 CHECKPOINT_FORMAT = "dlo_policy.sac/1"
+
+
+class CheckpointError(ValueError):
+    """A checkpoint file is missing or is not a dlo_policy checkpoint (one-line message)."""
+
+
+def read_checkpoint(path: str | Path) -> dict[str, Any]:
+    """The state dict of a `SAC.save` / `save_policy` file (weights_only: never unpickles code)."""
+    path = Path(path)
+    if not path.is_file():
+        raise CheckpointError(f"checkpoint {path} not found" if not path.exists()
+                              else f"checkpoint {path} is not a file")
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as error:  # noqa: BLE001 (torch raises many types for foreign bytes: pickle, zip, EOF, ...)
+        raise CheckpointError(f"{path} is not a dlo_policy checkpoint ({type(error).__name__}: "
+                              f"{str(error).splitlines()[0][:80] if str(error) else 'unreadable'})") from None
+    if not isinstance(state, dict) or state.get("format") != CHECKPOINT_FORMAT:
+        raise CheckpointError(f"{path} is not a {CHECKPOINT_FORMAT} checkpoint")
+    return state
 LOG_SQRT_2PI = 0.5 * math.log(2 * math.pi)
 
 
@@ -343,30 +363,35 @@ class SAC:
             state["replay"] = self.replay.state_dict()
         return state
 
-    def save(self, path: str | Path, include_replay: bool = True) -> None:
-        """Write a checkpoint atomically (a reader never sees a half-written file)."""
-        path = Path(path)
-        tmp = path.with_name(path.name + ".tmp")
-        torch.save(self.state_dict(include_replay), tmp)
-        os.replace(tmp, path)
+    def save(self, path: str | Path, include_replay: bool = True, extra: Optional[dict[str, Any]] = None) -> None:
+        """Write a checkpoint atomically (a reader never sees a half-written file); `extra`: the
+        caller's own state (tensors, numbers, strings, dicts), read back by `extra_state`."""
+        state = self.state_dict(include_replay)
+        if extra is not None:
+            state["extra"] = extra
+        _atomic_save(state, Path(path))
 
-    def save_policy(self, path: str | Path) -> None:
+    @staticmethod
+    def extra_state(path: str | Path) -> dict[str, Any]:
+        """The `extra` dict saved with a checkpoint ({} if none)."""
+        return read_checkpoint(path).get("extra") or {}
+
+    def policy_state(self) -> dict[str, Any]:
         """Actor, normaliser and config only: what acting needs (small enough to ship)."""
         state = self.state_dict(include_replay=False)
         for training_only in ("critic", "critic_target", "actor_optimizer", "critic_optimizer",
                               "alpha_optimizer"):
             del state[training_only]
-        path = Path(path)
-        tmp = path.with_name(path.name + ".tmp")
-        torch.save(state, tmp)
-        os.replace(tmp, path)
+        return copy.deepcopy(state)
+
+    def save_policy(self, path: str | Path) -> None:
+        """`policy_state` to a file, atomically."""
+        _atomic_save(self.policy_state(), Path(path))
 
     @classmethod
     def load(cls, path: str | Path) -> "SAC":
         """Rebuild an agent from `save` (everything) or `save_policy` (acting only)."""
-        state = torch.load(path, map_location="cpu", weights_only=True)
-        if state.get("format") != CHECKPOINT_FORMAT:
-            raise ValueError(f"{path}: not a {CHECKPOINT_FORMAT} checkpoint")
+        state = read_checkpoint(path)
         values = SACConfig.upgrade(state["config"])
         config = SACConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in values.items()})
         if config.observation_scaling == "bounds":  # the map comes from the saved normaliser state
@@ -396,6 +421,12 @@ class SAC:
         torch.set_rng_state(state["rng"]["torch"])
         if "replay" in state:
             self.replay.load_state_dict(state["replay"])
+
+
+def _atomic_save(state: dict[str, Any], path: Path) -> None:
+    tmp = path.with_name(path.name + ".tmp")
+    torch.save(state, tmp)
+    os.replace(tmp, path)
 
 
 def _plain_config(config: SACConfig) -> dict[str, Any]:

@@ -50,7 +50,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from .config import ConfigError, RunConfig, load_config, save_config
+from .config import ConfigError, RunConfig, check_env_options, load_config, save_config
 from .evaluate import OUTCOMES, OUTCOMES_AUTHORS, blanked_columns, evaluate_agent, make_vec_env_for
 from .sac import SAC, StepResult
 
@@ -123,8 +123,14 @@ class Trainer:
         env_module = importlib.import_module(config.env_module)
         self.env = env_module.make_env(modalities=config.modalities, seed=config.seed, **config.env_options)
         self.eval_env = make_vec_env_for(config, config.train.eval_episodes, seed=config.train.eval_seed)
+        self.best: Optional[dict[str, Any]] = None
+        self.best_policy_state: Optional[dict[str, Any]] = None
         if resume:
             self.agent = SAC.load(checkpoint)
+            extra = SAC.extra_state(checkpoint)
+            self.best, self.best_policy_state = extra.get("best"), extra.get("best_policy")
+            if self.best is not None:
+                self.write_best()  # rewind: evaluations after the checkpoint are re-run
         else:
             space = self.env.action_space
             self.agent = SAC(self.env.observation_space.shape[0], space.low, space.high, config.sac,
@@ -135,8 +141,7 @@ class Trainer:
                                     for m in config.train.eval_without]
         self.started = time.perf_counter()
         self.last_eval: dict[str, float] = {}
-        best_file = out_dir / BEST_FILE
-        self.best = json.loads(best_file.read_text()) if resume and best_file.exists() else None
+        self.checkpoint_due = False
         self.episode_return = 0.0
         self.recent_returns: list[float] = []  # the last 10 training episodes' returns, for the progress bar
 
@@ -161,8 +166,14 @@ class Trainer:
         score = (row["hold_the_end"], row["episode_reward"])
         if self.best is not None and score <= (self.best["hold_the_end"], self.best["episode_reward"]):
             return
-        self.agent.save_policy(self.out_dir / BEST_POLICY_FILE)
         self.best = {key: row[key] for key in ("step", "hold_the_end", "episode_reward")}
+        self.best_policy_state = self.agent.policy_state()
+        self.write_best()
+
+    def write_best(self) -> None:
+        """best_policy.pt and best.json from the best evaluation so far."""
+        torch.save(self.best_policy_state, self.out_dir / (BEST_POLICY_FILE + ".tmp"))
+        os.replace(self.out_dir / (BEST_POLICY_FILE + ".tmp"), self.out_dir / BEST_POLICY_FILE)
         (self.out_dir / BEST_FILE).write_text(json.dumps(self.best) + "\n")
 
     def on_step(self, agent: SAC, result: StepResult) -> bool:
@@ -177,9 +188,18 @@ class Trainer:
             self.bar.set_postfix(train_return=f"{np.mean(self.recent_returns or [np.nan]):.2f}",
                                  eval_reward=f"{self.last_eval['episode_reward']:.2f}",
                                  hold_the_end=f"{self.last_eval['hold_the_end']:.0%}", alpha=f"{agent.alpha:.3f}")
-        if step % self.config.train.checkpoint_every == 0:
-            agent.save(self.out_dir / CHECKPOINT_FILE)
+        self.checkpoint_due |= step % self.config.train.checkpoint_every == 0
+        if self.checkpoint_due and (result.terminated or result.truncated):
+            self.save_checkpoint()
         return True
+
+    def save_checkpoint(self) -> None:
+        """checkpoint.pt at an episode boundary (the next episode has not taken a step: a resumed run
+        starts it from its seed exactly as the uninterrupted run does), with the best evaluation so
+        far and its policy, so a resume rewinds best_policy.pt / best.json to this step too."""
+        extra = {"best": self.best, "best_policy": self.best_policy_state}
+        self.agent.save(self.out_dir / CHECKPOINT_FILE, extra=extra)
+        self.checkpoint_due = False
 
     def test_best(self) -> dict[str, Any]:
         """Held-out test of best_policy.pt on train.test_episodes episodes (seeds train.test_seed + i);
@@ -212,8 +232,7 @@ class Trainer:
             self.bar.close()
             self.env.close()
             self.eval_env.close()
-        if self.agent.num_env_steps % self.config.train.checkpoint_every != 0:
-            self.agent.save(self.out_dir / CHECKPOINT_FILE)
+        self.save_checkpoint()
         self.agent.save_policy(self.out_dir / POLICY_FILE)
         test = self.test_best()
         summary = {"env_steps": self.agent.num_env_steps, "updates": self.agent.num_updates,
@@ -266,6 +285,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         config = resolve_config(args)
+        check_env_options(config)
         summary = train(config, args.out, resume=args.resume)
     except (ConfigError, FileExistsError, FileNotFoundError) as error:
         print(f"dlo-train: error: {error}", file=sys.stderr)

@@ -9,6 +9,8 @@ each carrying the position error, so any modality subset can solve it.
 from __future__ import annotations
 
 import gymnasium as gym
+import time
+
 import numpy as np
 
 from dlo_policy.observation import MODALITY_SIZES, parse_modalities
@@ -18,7 +20,7 @@ NEAR = 0.1
 
 
 class ReachEnv(gym.Env):
-    def __init__(self, modalities: str = "All", horizon: int = HORIZON, crash_after: int = 0):
+    def __init__(self, modalities: str = "All", horizon: int = HORIZON, crash_after: int = 0, step_delay: float = 0.0):
         self.modalities = parse_modalities(modalities)
         size = sum(MODALITY_SIZES[m] for m in self.modalities)
         self.observation_space = gym.spaces.Box(-2.0, 2.0, (size,), np.float32)
@@ -26,6 +28,7 @@ class ReachEnv(gym.Env):
         self.horizon = horizon
         self.crash_after = crash_after  # > 0: raise after this many steps (simulates an interrupted run)
         self.steps_taken = 0
+        self.step_delay = step_delay  # seconds slept per step (gives a test time to kill the run)
 
     def _obs(self) -> np.ndarray:
         error = self.target - self.x
@@ -40,6 +43,8 @@ class ReachEnv(gym.Env):
         return self._obs(), {}
 
     def step(self, action):
+        if self.step_delay:
+            time.sleep(self.step_delay)
         self.steps_taken += 1
         if self.crash_after and self.steps_taken > self.crash_after:
             raise InterruptedError(f"reach env: simulated crash after {self.crash_after} steps")

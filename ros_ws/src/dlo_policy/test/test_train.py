@@ -1,7 +1,11 @@
 """dlo-train / dlo-evaluate: eval CSV protocol, checkpoints, resume, config errors."""
 import csv
 import json
+import os
+import signal
+import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -121,7 +125,8 @@ def test_evaluate_cli_prints_table_and_writes_json(tmp_path, capsys):
     result = json.loads(out.read_text())
     assert sum(result[o] for o in evaluate.OUTCOMES) == pytest.approx(1.0)
     assert result["episodes"] == 12 and result["without"] == ["V"]
-    assert evaluate.main(["--checkpoint", str(tmp_path / "missing.pt")]) == 2
+    (run / "config.yaml").unlink()
+    assert evaluate.main(["--checkpoint", str(run / train.POLICY_FILE)]) == 2
     assert "config.yaml not found" in capsys.readouterr().err
 
 
@@ -160,3 +165,78 @@ def test_evaluation_seeds_depend_on_run_seed_and_index_and_never_meet_the_test_s
     assert all(b - a >= 10 for a, b in zip(ranges, ranges[1:]))  # 10 episodes each: no overlap
     with pytest.raises(ConfigError, match="train.test_seed"):
         load_config(None, ["train.test_seed=999990"])
+
+
+def eval_rows_without_wall_time(run: Path) -> list[dict[str, str]]:
+    return [{k: v for k, v in row.items() if k != "wall_time_s"} for row in read_eval(run)]
+
+
+def test_resume_after_sigkill_reproduces_the_uninterrupted_run(tmp_path):
+    """A real SIGKILL of dlo-train mid-run, then --resume: the same evaluations, best policy and
+    final weights as the run that was never interrupted (same seed, same config)."""
+    args = ["--steps", "700", "--seed", "3", "--modalities", "All", "--no-progress", *TINY,
+            "train.checkpoint_every=150", "train.eval_every=50", "env_options.step_delay=0.004"]
+    whole, killed = tmp_path / "whole", tmp_path / "killed"
+    assert train.main(["--out", str(whole), *args]) == 0
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(Path(__file__).resolve().parent),
+                                                        os.environ.get("PYTHONPATH", "")])}
+    process = subprocess.Popen([sys.executable, "-m", "dlo_policy.train", "--out", str(killed), *args],
+                               env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and process.poll() is None:
+        if (killed / train.CHECKPOINT_FILE).exists() and len(read_eval(killed)) >= 9:  # past the checkpoint
+            break
+        time.sleep(0.05)
+    assert process.poll() is None, "the run ended before it could be killed"
+    os.kill(process.pid, signal.SIGKILL)
+    process.wait()
+    interrupted_at = SAC.load(killed / train.CHECKPOINT_FILE).num_env_steps
+    assert 150 <= interrupted_at < 700 and not (killed / train.DONE_FILE).exists()
+    assert train.main(["--out", str(killed), "--resume"]) == 0
+    assert eval_rows_without_wall_time(killed) == eval_rows_without_wall_time(whole)
+    assert (killed / train.BEST_FILE).read_text() == (whole / train.BEST_FILE).read_text()
+    for name in (train.POLICY_FILE, train.BEST_POLICY_FILE):
+        a, b = SAC.load(whole / name), SAC.load(killed / name)
+        for p, q in zip(a.actor.parameters(), b.actor.parameters()):
+            assert torch.equal(p, q), name
+    assert json.loads((killed / train.TEST_FILE).read_text()) == json.loads((whole / train.TEST_FILE).read_text())
+
+
+def test_checkpoints_fall_on_episode_boundaries(tmp_path):
+    run = tmp_path / "run"
+    assert train.main(["--out", str(run), "--steps", "230", "--no-progress", *TINY, "train.checkpoint_every=110"]) == 0
+    agent = SAC.load(run / train.CHECKPOINT_FILE)
+    assert agent.num_env_steps == 230  # the final save
+    extra = SAC.extra_state(run / train.CHECKPOINT_FILE)
+    assert extra["best"] == json.loads((run / train.BEST_FILE).read_text())
+
+
+@pytest.mark.parametrize("content", [b"", os.urandom(4096), b"PK\x03\x04 not a zip", b"\x80\x02}q\x00."])
+def test_garbage_checkpoint_is_one_line_naming_the_file(content, tmp_path, capsys):
+    path = tmp_path / "policy.pt"
+    path.write_bytes(content)
+    (tmp_path / "config.yaml").write_text("modalities: All\n")
+    assert evaluate.main(["--checkpoint", str(path), "--episodes", "1"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and str(path) in err and "not a dlo_policy" in err
+    with pytest.raises(ValueError, match="not a dlo_policy"):
+        SAC.load(path)
+
+
+def test_missing_checkpoint_is_named(tmp_path, capsys):
+    assert evaluate.main(["--checkpoint", "/missing.pt"]) == 2
+    assert capsys.readouterr().err.strip() == "dlo-evaluate: error: checkpoint /missing.pt not found"
+
+
+@pytest.mark.parametrize("override, message", [
+    ("env_options.tactile_noise=loud", "env_options: tactile_noise: unknown tactile noise preset 'loud'"),
+    ("env_options.tactile_nois=full", "env_options: unknown option(s) tactile_nois"),
+    ("env_options.horizon=0", "env_options: horizon: expected an integer >= 1"),
+    ("env_options.without=X", "env_options: modalities must be"),
+])
+def test_bad_env_options_are_one_line_and_write_nothing(override, message, tmp_path, capsys):
+    run = tmp_path / "run"
+    assert train.main(["--out", str(run), "--steps", "10", "--no-progress", override]) == 2
+    err = capsys.readouterr().err
+    assert message in err and len(err.strip().splitlines()) == 1
+    assert not run.exists()
