@@ -29,17 +29,23 @@ Statistics, per configuration, for n seeds s with x_s(k) = the seed's value at e
     holds its level  L / B >= 0.9
     held-out test    (1/m) sum over the m finished seeds of test.json's hold_the_end (paper rule)
                      and authors_code.hold_the_end (authors' rule), +- 95% CI for m >= 2
+    last-5 / best    printed with two decimals rounded down, so "0.89 (sags)" never reads "0.90"
 Each evaluation runs the deterministic policy on fresh episodes (seeds never reused, see
-dlo-train); the held-out test runs once after training on episodes whose seeds no evaluation used.
+dlo-train; an eval.csv without distinct eval_seed values gives a warning: its best mean is selected
+on repeated episodes); the held-out test runs once after training on episodes whose seeds no
+evaluation used.
 
 Output of `dlo-report RESULTS` (PNG via matplotlib Agg; a figure is written only when its group
 has runs, else it is skipped with the reason printed):
     outcomes_single.png   per configuration T, K, V, All: the four outcome fractions over
                           training, mean over seeds, solid = paper-text rule, dashed = authors'
-                          rule; thin lines = each seed's hold the end (paper rule)
-    outcomes_pairs.png    the same for T+K, V+K, T+V (with All as the reference)
+                          rule; thin lines = each seed's hold the end (paper rule), band = its
+                          95% CI for >= 3 seeds
+    outcomes_pairs.png    the same for T+K, V+K, T+V, with All as the reference (only when one of
+                          T+K, V+K, T+V has runs)
     metrics_single.png    episode reward, hold the end (paper rule), hold the end (authors' rule),
     metrics_pairs.png     time at end, how far: thin line per seed, bold mean, band for >= 3 seeds
+                          (same groups as the outcome figures)
     ablation.png          final episode reward of All tested with all inputs / without T / without V
                           (last-5 mean per seed as dots, bar = mean) and reward over training
                           against the agents trained without that input (V+K, T+K)
@@ -496,7 +502,7 @@ def definitions(runs_list: Sequence[Runs]) -> str:
     tests = sorted(set().union(*(test_episodes(c) for c in curves))) if curves else []
     episodes = sorted({int(e) for c in curves for e in c.values["episodes"].ravel() if not math.isnan(e)})
     episodes_text = "/".join(map(str, episodes)) if episodes else "`train.eval_episodes`"
-    tests_text = "/".join(map(str, tests)) if tests else "the configured number of (train.test_episodes)"
+    tests_text = "/".join(map(str, tests)) if tests else "`train.test_episodes`"
     return "\n".join([
         "Definitions. Every `train.eval_every` steps each seed's deterministic policy is evaluated on "
         f"{episodes_text} fresh episodes (seeds never reused within or across runs; see the warnings otherwise). "
@@ -505,7 +511,7 @@ def definitions(runs_list: Sequence[Runs]) -> str:
         "*± x%*: 95% confidence half-width of the mean over seeds (Student t, n - 1 degrees of freedom), "
         "written for >= 2 seeds only; \"(1 seed)\" marks a single seed's value. "
         f"*Last-5 mean*: per seed the mean of its last {FINAL_EVALUATIONS} (unsmoothed) evaluations, averaged over "
-        f"seeds; *last-5 / best* (rounded down) >= {HOLDS_LEVEL_RATIO} means training holds its level, else it sags. "
+        f"seeds; *last-5 / best* (printed rounded down) >= {HOLDS_LEVEL_RATIO}: training holds its level, else it sags. "
         "*Seeds*: finished (done.json) / all seeds; unfinished seeds count up to the last step every seed has "
         "reached (steps column; \"of N\": the configured length). "
         f"*Held-out test*: each finished seed's best evaluation policy (highest hold the end, then reward) tested "
@@ -547,7 +553,8 @@ def compare_table(named: Sequence[tuple[str, Runs]], warnings: Sequence[str] = (
             cells = summary_cells(summarize(name, curves)) if curves is not None else ["no runs"] + [""] * 6
             rows.append([row_name(label, without), name, *cells])
     text = "\n".join(markdown_table(["configuration", "setting", *SUMMARY_HEADER], rows))
-    text += "\n\n" + definitions([runs for _, runs in named]) + "\n"
+    text += ("\n\n" + definitions([runs for _, runs in named])
+             + "\n- *setting*: the NAME of a results directory given as --compare NAME=DIR.\n")
     if warnings:
         text += "\nWarnings:\n" + "".join(f"- {w}\n" for w in warnings)
     return text
@@ -591,9 +598,10 @@ def _step_axis(ax) -> None:
     ax.grid(alpha=0.3, linewidth=0.5)
 
 
-def style_handles(band_drawn: bool, seed_label: str = "one seed") -> list:
-    handles = [Line2D([], [], color="gray", **SEED_LINE, label=seed_label),
-               Line2D([], [], color="gray", linewidth=MEAN_LINEWIDTH, label="mean over seeds")]
+def style_handles(band_drawn: bool, seed_lines: bool = True) -> list:
+    """Legend entries of the line styles: one seed (if drawn), the mean, the band (if drawn)."""
+    handles = [Line2D([], [], color="gray", **SEED_LINE, label="one seed")] if seed_lines else []
+    handles.append(Line2D([], [], color="gray", linewidth=MEAN_LINEWIDTH, label="mean over seeds"))
     if band_drawn:
         handles.append(Patch(color="gray", alpha=BAND_ALPHA * 2, label=f"95% CI of the mean (>= {MIN_SEEDS_FOR_BAND} seeds)"))
     return handles
@@ -612,7 +620,7 @@ def outcome_figure(runs: Runs, labels: Sequence[str]) -> Optional[Figure]:
         return None
     columns = min(len(present), 4)
     rows = math.ceil(len(present) / columns)
-    fig, axes = plt.subplots(rows, columns, figsize=(3.9 * columns, 3.3 * rows + 1.2), sharey=True,
+    fig, axes = plt.subplots(rows, columns, figsize=(max(3.9 * columns, 7.5), 3.3 * rows + 1.2), sharey=True,
                              squeeze=False, layout="constrained")
     band_drawn, authors_drawn = False, False
     for ax, label in zip(axes.flat, present):
@@ -639,12 +647,14 @@ def outcome_figure(runs: Runs, labels: Sequence[str]) -> Optional[Figure]:
     handles += [Line2D([], [], color="black", linewidth=1.4, label="paper-text rule (solid)")]
     handles += [Line2D([], [], color="black", linewidth=1.4, linestyle="--",
                        label="authors' rule (dashed)" if authors_drawn else "authors' rule: n/a in these eval.csv")]
-    handles.append(Line2D([], [], color=OUTCOME_COLORS[HOLD], **SEED_LINE, label="one seed, hold the end (paper rule)"))
+    if any(runs[label][""].seeds > 1 for label in present):
+        handles.append(Line2D([], [], color=OUTCOME_COLORS[HOLD], **SEED_LINE,
+                              label="one seed, hold the end (paper rule)"))
     if band_drawn:
         handles.append(Patch(color=OUTCOME_COLORS[HOLD], alpha=BAND_ALPHA * 2,
                              label=f"95% CI of the mean (>= {MIN_SEEDS_FOR_BAND} seeds)"))
     fig.legend(handles=handles, loc="outside lower center", ncol=4, fontsize=8, frameon=False)
-    fig.suptitle(f"Outcomes over training: mean over seeds, {SMOOTHING_TEXT}", fontsize=10)
+    fig.suptitle(f"Outcomes over training: mean over seeds\n({SMOOTHING_TEXT})", fontsize=10)
     return fig
 
 
@@ -676,7 +686,8 @@ def metrics_figure(runs: Runs, labels: Sequence[str]) -> Optional[Figure]:
     legend_ax.axis("off")
     handles = [Line2D([], [], color=config_color(label, i), linewidth=MEAN_LINEWIDTH,
                       label=f"{label} ({seeds_text(runs[label][''])})") for i, label in enumerate(present)]
-    legend_ax.legend(handles=handles + style_handles(band_drawn), loc="center", fontsize=9, frameon=False,
+    seed_lines = any(runs[label][""].seeds > 1 for label in present)
+    legend_ax.legend(handles=handles + style_handles(band_drawn, seed_lines), loc="center", fontsize=9, frameon=False,
                      title=f"{SMOOTHING_TEXT.capitalize()}", title_fontsize=9)
     fig.suptitle(f"Evaluation metrics over training ({SMOOTHING_TEXT})", fontsize=11)
     return fig
@@ -737,7 +748,8 @@ def ablation_figure(runs: Runs) -> Optional[Figure]:
         ax.set_title(f"without {removed}", fontsize=10)
         ax.set_ylabel("episode reward")
         _step_axis(ax)
-        ax.legend(handles=ax.get_legend_handles_labels()[0] + style_handles(band_drawn), fontsize=7)
+        ax.legend(handles=ax.get_legend_handles_labels()[0]
+                  + style_handles(band_drawn, any(c.seeds > 1 for _, c, _ in entries)), fontsize=7)
     fig.suptitle(f"Ablation: episode reward (curves: {SMOOTHING_TEXT})", fontsize=11)
     return fig
 
@@ -771,7 +783,7 @@ def compare_figure(named: Sequence[tuple[str, Runs]]) -> Optional[Figure]:
         return None
     columns = min(len(labels), 4)
     rows = math.ceil(len(labels) / columns)
-    fig, axes = plt.subplots(rows, columns, figsize=(4.2 * columns, 3.4 * rows + 1.0), sharey=True,
+    fig, axes = plt.subplots(rows, columns, figsize=(max(4.2 * columns, 7.5), 3.4 * rows + 1.0), sharey=True,
                              squeeze=False, layout="constrained")
     colors = {name: COMPARE_COLORS[i % len(COMPARE_COLORS)] for i, (name, _) in enumerate(named)}
     band_drawn = False
@@ -792,14 +804,15 @@ def compare_figure(named: Sequence[tuple[str, Runs]]) -> Optional[Figure]:
     for ax in axes[:, 0]:
         ax.set_ylabel("hold the end (paper rule)")
     handles = [Line2D([], [], color=colors[name], linewidth=MEAN_LINEWIDTH, label=name) for name, _ in named]
-    fig.legend(handles=handles + style_handles(band_drawn), loc="outside lower center",
-               ncol=len(handles) + 3, fontsize=8, frameon=False)
-    fig.suptitle(f"Hold the end per setting: mean over seeds, {SMOOTHING_TEXT}", fontsize=10)
+    seed_lines = any(by_without[""].seeds > 1 for _, runs in named for by_without in runs.values() if "" in by_without)
+    fig.legend(handles=handles + style_handles(band_drawn, seed_lines), loc="outside lower center",
+               ncol=min(len(handles) + 3, 5), fontsize=8, frameon=False)
+    fig.suptitle(f"Hold the end per setting: mean over seeds\n({SMOOTHING_TEXT})", fontsize=10)
     return fig
 
 
 def save_figure(fig: Figure, path: Path) -> Path:
-    fig.savefig(path, dpi=130)
+    fig.savefig(path, dpi=130, bbox_inches="tight")  # "tight": nothing outside the axes is cut off
     plt.close(fig)
     return path
 
@@ -890,9 +903,9 @@ class _Parser(argparse.ArgumentParser):
 
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="dlo-report", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("results", type=Path, nargs="?",
+    parser.add_argument("results", type=Path, nargs="?", metavar="RESULTS",
                         help="directory holding dlo-train run directories (anywhere below it)")
-    parser.add_argument("--out", type=Path, help="where to write (default RESULTS/report; required with --compare)")
+    parser.add_argument("--out", type=Path, metavar="DIR", help="where to write (default RESULTS/report; required with --compare)")
     parser.add_argument("--compare", nargs="+", metavar="NAME=DIR",
                         help="compare results directories of the same configurations trained under different "
                              "settings: writes compare.md and compare.png instead of the study's report")
