@@ -1,10 +1,12 @@
 #!/usr/bin/env bash
-# Start the whole dlo-vitac graph (sim, tactile, vision, policy [, recorder]) as separate processes,
-# wait until the sim has run its episodes (or Ctrl-C), stop every process it started, print the
-# outcome table. Uses `ros2 run` on a real ROS 2 install, scripts/ros2run with the PyPI wheels.
+# Start the whole dlo-vitac graph (sim, tactile, vision, policy [, recorder]) as separate processes
+# on a DDS domain of its own, wait until the sim has run its episodes (or Ctrl-C), stop every
+# process it started, print the outcome table; fail loudly (exit codes in --help) when a node dies
+# or the recording fails. Uses `ros2 run` on a real ROS 2 install, scripts/ros2run with the wheels.
 set -euo pipefail
 
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+EXIT_USAGE=2 EXIT_NODE_FAILED=3 EXIT_RECORDING_FAILED=4 EXIT_INTERRUPTED=130
 usage() {
   cat <<EOF
 usage: scripts/launch_graph.sh [options]
@@ -20,13 +22,31 @@ usage: scripts/launch_graph.sh [options]
   --tactile-noise N    tactile sensitivity: none (default), partial or full
   --record DIR         record every /dlo topic to the rosbag2 (MCAP) directory DIR
   --logs DIR           node logs and the outcome file go here (default: a new temp dir)
+  --domain-id N        run on ROS_DOMAIN_ID N (default: a free domain of its own, so that two
+                       graphs on one machine never see each other; the chosen id is printed)
+  --namespace NS       put every topic of the graph under /NS (/NS/dlo/..., /NS/clock): several
+                       graphs can then share a domain deliberately (with --domain-id)
   -h, --help           this help
+
+exit status:
+  0    every episode ran (and the bag, with --record, is complete)
+  2    bad option, or a node rejected its parameters
+  3    a node died or exited early (also the sim interrupted on its own, or the sim refusing to
+       start because another simulator publishes on the domain); the graph was stopped
+  4    the recording failed (a write error such as a full disk, or the recorder died or dropped
+       messages); the graph was stopped and the cause printed
+  130  interrupted (Ctrl-C or SIGTERM to this script)
 EOF
 }
 
 episodes=5 seed=0 mode=step_locked rate=1.0 policy=sac checkpoint="" without="" noise=none record="" logs=""
-train_out="" train_config=""
+train_out="" train_config="" domain="" namespace=""
 while [ $# -gt 0 ]; do
+  case "$1" in
+    --episodes|--seed|--mode|--rate-factor|--policy|--checkpoint|--without|--tactile-noise|--record|\
+    --train-out|--train-config|--logs|--domain-id|--namespace)
+      [ $# -ge 2 ] || { echo "launch_graph: $1 needs a value" >&2; usage >&2; exit $EXIT_USAGE; } ;;
+  esac
   case "$1" in
     --episodes) episodes="$2"; shift 2 ;;
     --seed) seed="$2"; shift 2 ;;
@@ -40,15 +60,25 @@ while [ $# -gt 0 ]; do
     --train-out) train_out="$2"; shift 2 ;;
     --train-config) train_config="$2"; shift 2 ;;
     --logs) logs="$2"; shift 2 ;;
+    --domain-id) domain="$2"; shift 2 ;;
+    --namespace) namespace="$2"; shift 2 ;;
     -h|--help) usage; exit 0 ;;
-    *) echo "launch_graph: unknown option '$1'" >&2; usage >&2; exit 2 ;;
+    *) echo "launch_graph: unknown option '$1'" >&2; usage >&2; exit $EXIT_USAGE ;;
   esac
 done
-[[ "$episodes" =~ ^[0-9]+$ ]] || { echo "launch_graph: --episodes must be a number >= 0, got '$episodes'" >&2; exit 2; }
-[[ "$seed" =~ ^[0-9]+$ ]] || { echo "launch_graph: --seed must be a number >= 0, got '$seed'" >&2; exit 2; }
-case "$mode" in step_locked|real_time) ;; *) echo "launch_graph: --mode must be step_locked or real_time" >&2; exit 2 ;; esac
+bad() { echo "launch_graph: $*" >&2; exit $EXIT_USAGE; }
+[[ "$episodes" =~ ^[0-9]+$ ]] || bad "--episodes must be a number >= 0, got '$episodes'"
+[[ "$seed" =~ ^[0-9]+$ ]] || bad "--seed must be a number >= 0, got '$seed'"
+case "$mode" in step_locked|real_time) ;; *) bad "--mode must be step_locked or real_time" ;; esac
+if [ -n "$domain" ]; then
+  [[ "$domain" =~ ^[0-9]+$ ]] && [ "$domain" -le 232 ] || bad "--domain-id must be a number in 0..232, got '$domain'"
+fi
+namespace="${namespace#/}" namespace="${namespace%/}"
+if [ -n "$namespace" ] && ! [[ "$namespace" =~ ^[A-Za-z][A-Za-z0-9_]*(/[A-Za-z][A-Za-z0-9_]*)*$ ]]; then
+  bad "--namespace must be a ROS name like 'robot1' or 'lab/robot1', got '$namespace'"
+fi
 if [ -n "$record" ] && [ -e "$record" ]; then
-  echo "launch_graph: --record $record already exists; choose a new directory" >&2; exit 2
+  bad "--record $record already exists; choose a new directory"
 fi
 
 if command -v ros2 >/dev/null 2>&1 && [ -z "${DLO_USE_ROS2RUN:-}" ]; then
@@ -62,60 +92,197 @@ mkdir -p "$logs"
 outcomes="$logs/outcomes.jsonl"
 rm -f "$outcomes"
 
+# ---- a DDS domain of its own ---------------------------------------------------------------
+# A domain is busy when a participant on this machine has bound one of its UDP ports (RTPS:
+# 7400 + 250 * domain + 0..249); a lock per domain keeps two launchers starting at the same
+# moment apart. The lock is held (inherited by the nodes) while the graph runs.
+domain_busy() {
+  local lo=$((7400 + 250 * $1)) hi=$((7400 + 250 * $1 + 249)) f local_address port
+  for f in /proc/net/udp /proc/net/udp6; do
+    [ -r "$f" ] || continue
+    while read -r _ local_address _; do
+      port="${local_address##*:}"
+      [[ "$port" =~ ^[0-9A-Fa-f]{4}$ ]] || continue
+      port=$((16#$port))
+      if [ "$port" -ge "$lo" ] && [ "$port" -le "$hi" ]; then return 0; fi
+    done < "$f"
+  done
+  return 1
+}
+lockdir="${XDG_RUNTIME_DIR:-/tmp}/dlo-vitac-domains-$(id -u)"
+lock_domain() {  # lock_domain N: hold the lock of domain N (false if another launcher holds it)
+  command -v flock >/dev/null 2>&1 || return 0
+  mkdir -p "$lockdir" 2>/dev/null || return 0
+  exec {domain_lock}>>"$lockdir/$1.lock"
+  if flock -n "$domain_lock"; then return 0; fi
+  exec {domain_lock}>&-
+  return 1
+}
+if [ -n "$domain" ]; then
+  lock_domain "$domain" || echo "[launch] warning: another launch_graph.sh runs on ROS_DOMAIN_ID=$domain" >&2
+  [ -n "$namespace" ] || ! domain_busy "$domain" || \
+    echo "[launch] warning: ROS_DOMAIN_ID=$domain is in use on this machine; without --namespace the graphs' topics mix (the sim refuses to start next to another simulator)" >&2
+else
+  start_at=$((RANDOM % 90))
+  for ((i = 0; i < 90; i++)); do
+    d=$(( (start_at + i) % 90 + 10 ))  # 10..99: not 0 (the default), below the ephemeral ports
+    if ! domain_busy "$d" && lock_domain "$d"; then domain="$d"; break; fi
+  done
+  [ -n "$domain" ] || { echo "launch_graph: no free ROS_DOMAIN_ID in 10..99 on this machine; give --domain-id N" >&2; exit $EXIT_USAGE; }
+fi
+export ROS_DOMAIN_ID="$domain"
+prefix="${namespace:+/$namespace}"
+echo "[launch] ROS_DOMAIN_ID=$domain${namespace:+, topics under $prefix/} (to watch: ROS_DOMAIN_ID=$domain ros2 topic list)"
+
+remap=()
+if [ -n "$namespace" ]; then
+  for t in /clock /dlo/rope/particles /dlo/gripper/state /dlo/gripper/cmd /dlo/camera/image \
+           /dlo/camera/camera_info /dlo/task/state /dlo/markers /dlo/tactile/pose /dlo/vision/pose /dlo/sim/reset \
+           /dlo/sim/instance; do
+    remap+=(-r "$t:=$prefix$t")
+  done
+fi
+
+# ---- processes -----------------------------------------------------------------------------
 pids=() names=()
+declare -A status=()
 start() {  # start <name> <pkg> <exe> [ros args...]
   local name="$1"; shift
   "${RUN[@]}" "$@" > "$logs/$name.log" 2>&1 &
   pids+=("$!") names+=("$name")
   echo "[launch] $name (pid $!) -> $logs/$name.log"
 }
+describe() {  # describe <exit status>
+  if [ "$1" -gt 128 ]; then echo "status $1: killed by SIG$(kill -l $(($1 - 128)) 2>/dev/null || echo $(($1 - 128)))"
+  else echo "status $1"; fi
+}
+show_log_end() {  # show_log_end <name>
+  local log="$logs/$1.log"
+  if [ -s "$log" ]; then tail -n 8 "$log" | sed 's/^/    /' >&2
+  else echo "    (its log $log is empty)" >&2; fi
+}
+reap() {  # reap <index>: record the exit status of a process that ended
+  local name="${names[$1]}"
+  if [ -z "${status[$name]+x}" ]; then
+    wait "${pids[$1]}" 2>/dev/null && status[$name]=0 || status[$name]=$?
+  fi
+}
 stop_all() {
   trap - INT TERM
+  local i pid
   for pid in "${pids[@]}"; do kill -INT "$pid" 2>/dev/null || true; done
-  for pid in "${pids[@]}"; do
+  for i in "${!pids[@]}"; do
+    pid="${pids[$i]}"
     for _ in $(seq 1 100); do kill -0 "$pid" 2>/dev/null || break; sleep 0.1; done
-    kill -KILL "$pid" 2>/dev/null || true
-    wait "$pid" 2>/dev/null || true
+    if kill -0 "$pid" 2>/dev/null; then
+      echo "[launch] ${names[$i]} did not stop within 10 s of SIGINT: killing it" >&2
+      kill -KILL "$pid" 2>/dev/null || true
+    fi
+    reap "$i"
   done
 }
 trap 'echo "[launch] interrupted: stopping the graph"; stop_all; interrupted=1' INT TERM
 interrupted=0
 
 subscribers=3 sim_extra=()
+[ -z "$record" ] || subscribers=4 sim_extra=(-p wait_for_recorder:=recorder)  # the first episode is recorded whole
+# The sim first: it refuses to start next to another simulator on this domain; nothing else of this graph
+# starts before it has looked (no second graph's nodes answering, publishing or recording into the first).
+start sim dlo_sim sim_node --ros-args -p mode:="$mode" -p seed:="$seed" -p episodes:="$episodes" \
+  -p rate_factor:="$rate" -p min_subscribers:="$subscribers" -p summary_file:="$outcomes" \
+  ${sim_extra[@]+"${sim_extra[@]}"} ${remap[@]+"${remap[@]}"}
+sim_index=0
+sim_pid="${pids[0]}"
+for _ in $(seq 1 1200); do
+  grep -q "alone on ROS_DOMAIN_ID" "$logs/sim.log" 2>/dev/null && break
+  kill -0 "$sim_pid" 2>/dev/null || break
+  [ "$interrupted" = 0 ] || break
+  sleep 0.1
+done
+if kill -0 "$sim_pid" 2>/dev/null && [ "$interrupted" = 0 ]; then
 if [ -n "$record" ]; then
-  start recorder dlo_tools recorder_node --ros-args -p output:="$record" -p record_clock:=true \
-    -p summary_file:="$logs/recorder_summary.json"
-  subscribers=4 sim_extra=(-p wait_for_recorder:=recorder)  # the first episode is recorded whole
+  if [ -n "$namespace" ]; then rec_topics=(-p namespace:="$prefix"); else rec_topics=(-p record_clock:=true); fi
+  start recorder dlo_tools recorder_node --ros-args -p output:="$record" "${rec_topics[@]}" \
+    -p summary_file:="$logs/recorder_summary.json" ${remap[@]+"${remap[@]}"}
 fi
-start tactile dlo_perception tactile_node --ros-args -p noise:="$noise" -p seed:="$seed"
-start vision dlo_perception vision_node
+start tactile dlo_perception tactile_node --ros-args -p noise:="$noise" -p seed:="$seed" ${remap[@]+"${remap[@]}"}
+start vision dlo_perception vision_node --ros-args ${remap[@]+"${remap[@]}"}
 policy_args=(-p policy:="$policy")
 [ -n "$checkpoint" ] && policy_args+=(-p checkpoint:="$checkpoint")
 [ -n "$without" ] && policy_args+=(-p without:="$without")
 [ -n "$train_out" ] && policy_args+=(-p train:=true -p train_out:="$train_out" -p seed:="$seed")
 [ -n "$train_config" ] && policy_args+=(-p train_config:="$train_config")
-start policy dlo_policy policy_node --ros-args "${policy_args[@]}"
-start sim dlo_sim sim_node --ros-args -p mode:="$mode" -p seed:="$seed" -p episodes:="$episodes" \
-  -p rate_factor:="$rate" -p min_subscribers:="$subscribers" -p summary_file:="$outcomes" \
-  "${sim_extra[@]}"
-sim_pid="${pids[-1]}"
+start policy dlo_policy policy_node --ros-args "${policy_args[@]}" ${remap[@]+"${remap[@]}"}
+fi
 
+# ---- watch ---------------------------------------------------------------------------------
 set +e
-while kill -0 "$sim_pid" 2>/dev/null && [ "$interrupted" = 0 ]; do
+failed_node="" rc=0
+while kill -0 "$sim_pid" 2>/dev/null && [ "$interrupted" = 0 ] && [ -z "$failed_node" ]; do
   for i in "${!pids[@]}"; do
-    if ! kill -0 "${pids[$i]}" 2>/dev/null && [ "${pids[$i]}" != "$sim_pid" ]; then
-      echo "[launch] ${names[$i]} exited early; the end of its log:" >&2
-      tail -5 "$logs/${names[$i]}.log" >&2
-      stop_all; interrupted=1; break
+    [ "$i" = "$sim_index" ] && continue
+    if ! kill -0 "${pids[$i]}" 2>/dev/null; then
+      reap "$i"
+      failed_node="${names[$i]}"
+      break
     fi
   done
-  sleep 0.2
+  [ -n "$failed_node" ] || sleep 0.2
 done
-wait "$sim_pid" 2>/dev/null
-sim_status=$?
-set -e
+reap "$sim_index" 2>/dev/null
 [ "$interrupted" = 1 ] || stop_all
 
-python -m dlo_tools.outcome_table "$outcomes"
-[ -n "$record" ] && [ -f "$record/metadata.yaml" ] && echo "[launch] bag: $record (inspect: dlo-bag-info $record)"
-[ "$interrupted" = 0 ] && exit "$sim_status" || exit 130
+done_episodes=0
+[ -f "$outcomes" ] && done_episodes=$(grep -c . "$outcomes")
+recorder_failure() {  # the one-line cause the recorder logged, if any
+  grep -m1 -o "recording failed: [^(;]*" "$logs/recorder.log" 2>/dev/null | sed 's/ *$//'
+}
+if [ "$interrupted" = 1 ]; then
+  rc=$EXIT_INTERRUPTED
+elif [ -n "$failed_node" ]; then
+  st="${status[$failed_node]}"
+  if [ "$failed_node" = recorder ] && [ -n "$(recorder_failure)" ]; then
+    echo "[launch] $(recorder_failure): the recorder stopped ($(describe "$st")); graph stopped" >&2
+    rc=$EXIT_RECORDING_FAILED
+  else
+    echo "[launch] $failed_node exited early ($(describe "$st")); the end of its log:" >&2
+    show_log_end "$failed_node"
+    if [ "$failed_node" = recorder ]; then rc=$EXIT_RECORDING_FAILED
+    elif [ "$st" = 2 ]; then rc=$EXIT_USAGE
+    else rc=$EXIT_NODE_FAILED; fi
+  fi
+else
+  st="${status[sim]}"
+  if [ "$st" = 0 ] && [ "$episodes" != 0 ] && [ "$done_episodes" -ge "$episodes" ]; then
+    rc=0
+  else
+    of="$episodes"; [ "$episodes" != 0 ] || of="unlimited"
+    echo "[launch] sim exited early ($(describe "$st"), $done_episodes of $of episodes done); the end of its log:" >&2
+    show_log_end sim
+    if [ "$st" = 2 ]; then rc=$EXIT_USAGE; else rc=$EXIT_NODE_FAILED; fi
+  fi
+fi
+
+python -m dlo_tools.outcome_table "$outcomes" || true
+if [ -n "$record" ]; then
+  rst="${status[recorder]:-}"
+  cause="$(recorder_failure)"
+  if [ -n "$cause" ]; then
+    [ "$failed_node" = recorder ] || echo "[launch] $cause (see $logs/recorder.log)" >&2
+    [ "$rc" = "$EXIT_INTERRUPTED" ] || rc=$EXIT_RECORDING_FAILED
+  elif [ "$rst" = 1 ]; then
+    echo "[launch] recording incomplete: the recorder dropped messages (see $logs/recorder.log)" >&2
+    [ "$rc" = "$EXIT_INTERRUPTED" ] || rc=$EXIT_RECORDING_FAILED
+  elif [ -n "$rst" ] && [ "$rst" != 0 ] && [ "$failed_node" != recorder ]; then
+    echo "[launch] the recorder ended with $(describe "$rst"); the end of its log:" >&2
+    show_log_end recorder
+    [ "$rc" = "$EXIT_INTERRUPTED" ] || rc=$EXIT_RECORDING_FAILED
+  fi
+  if [ -f "$record/metadata.yaml" ] || compgen -G "$record/*/metadata.yaml" >/dev/null; then
+    echo "[launch] bag: $record (inspect: dlo-bag-info $record)"
+  elif [ -e "$record" ]; then
+    echo "[launch] the bag $record is incomplete: recover it with: dlo-bag-recover $record" >&2
+    [ "$rc" = "$EXIT_INTERRUPTED" ] || rc=$EXIT_RECORDING_FAILED
+  fi
+fi
+exit "$rc"

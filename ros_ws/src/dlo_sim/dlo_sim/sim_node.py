@@ -9,13 +9,23 @@ Obeys ``/dlo/gripper/cmd``. Modes:
 - ``real_time``: advance every 0.08 s / ``rate_factor`` of wall time holding the last command; a
   command older than ``command_timeout`` s stops the gripper and holds its closure.
 Episodes run back to back; episode k is randomised with seed ``seed + k`` (or a seed given to the
-``/dlo/sim/reset`` service). Invalid commands (NaN, out of range) are rejected with a warning and
-the gripper holds.
+``/dlo/sim/reset`` service). Invalid commands (NaN, out of range) are rejected and the gripper
+holds; in both modes a command acts only if it answers the current episode and the current step
+(step_locked) or a step not older than ``command_timeout`` (real_time). Rejections are logged at
+most once a second per cause, with a count.
+
+It starts only when it is the only publisher of its topics (another simulator or driver on the
+same DDS domain would mix two graphs: it exits with a one-line reason), at least
+``min_subscribers`` subscribe to the gripper state, and ``wait_for_recorder`` subscribes to every
+published /dlo topic (the topics it still lacks are named while it waits). Exit status: 0 after
+``episodes`` episodes, 130 when interrupted (SIGINT/SIGTERM), 2 bad parameter, 3 refused to start.
 """
 
 from __future__ import annotations
 
 import json
+import os
+import socket
 import time
 
 import numpy as np
@@ -25,20 +35,24 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
+from std_msgs.msg import String
 from visualization_msgs.msg import Marker, MarkerArray
 
 from dlo_msgs.msg import GripperCommand, GripperState, TaskState
 from dlo_msgs.srv import ResetEpisode
 from dlo_perception.camera import TopCamera
 from dlo_perception.cloud import particle_cloud
-from dlo_sim.command import CommandError, command_to_action, hold_action
+from dlo_sim.command import CommandError, RejectionLog, command_mismatch, command_to_action, hold_action
 from dlo_sim.config import DT, FINGER_CLEARANCE, FINGER_HALF_LENGTH, FINGER_RADIUS, SUBSTEPS_PER_ACTION
 from dlo_sim.episode import TaskSim
 from dlo_sim.task import HORIZON, OUTCOME_NAMES
-from dlo_tools.node_util import ParameterError, declare_parameters, require_bounds
+from dlo_tools.node_util import NodeStartError, ParameterError, declare_parameters, require_bounds
 
 CONTROL_PERIOD_NS = int(round(DT * SUBSTEPS_PER_ACTION * 1e9))  # 0.08 s of simulation time per action
 MODES = ("step_locked", "real_time")
+DISCOVERY_GRACE = 1.0  # s: look for another simulator on the domain this long before building the simulation
+INSTANCE_TOPIC = "/dlo/sim/instance"  # latched: who runs here since when (the later of two simulators leaves)
+WAIT_REPORT_PERIOD = 5.0  # s between "waiting for ..." lines
 
 
 def to_time(ns: int) -> Time:
@@ -70,8 +84,6 @@ class SimNode(Node):
         require_bounds(p, at_least={"episodes": 0, "horizon": 1, "camera_resolution": 8, "seed": 0, "min_subscribers": 0},
                        above={"rate_factor": 0, "command_timeout": 0, "step_timeout": 0})
         self.p = p
-        self.camera = TopCamera.covering_workspace(p["camera_resolution"])
-        self.task = TaskSim(1, horizon=p["horizon"], render=True, camera=self.camera)
         self.episode = 0
         self.episode_seed = p["seed"]
         self.step_index = 0
@@ -82,6 +94,11 @@ class SimNode(Node):
         self.last_publish_wall = time.monotonic()
         self.finished = []
         self.started = False
+        self.created_wall = time.monotonic()
+        self.info_published = False
+        self.previous_final = None  # (episode, step) of the last state of the previous episode
+        self.rejections = RejectionLog(interval=1.0)
+        self.period_wall = DT * SUBSTEPS_PER_ACTION / p["rate_factor"]
 
         qos = QoSProfile(depth=10)
         latched = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
@@ -94,8 +111,20 @@ class SimNode(Node):
         self.pub_markers = self.create_publisher(MarkerArray, "/dlo/markers", qos) if p["publish_markers"] else None
         self.create_subscription(GripperCommand, "/dlo/gripper/cmd", self.on_command, qos)
         self.create_service(ResetEpisode, "/dlo/sim/reset", self.on_reset_service)
+        self.instance = {"host": socket.gethostname(), "pid": os.getpid(), "started_ns": time.time_ns()}
+        self.pub_instance = self.create_publisher(String, INSTANCE_TOPIC, latched)
+        self.create_subscription(String, INSTANCE_TOPIC, self.on_instance, latched)
 
-        self.pub_info.publish(self.camera_info())
+        # Another simulator or driver on this DDS domain would mix two graphs: look before building (slow) and
+        # publishing anything (discovery runs meanwhile); looked at again until the first episode starts.
+        time.sleep(DISCOVERY_GRACE)
+        self.check_alone()
+        self.pub_instance.publish(String(data=json.dumps(self.instance)))
+        self.get_logger().info(f"alone on ROS_DOMAIN_ID={os.environ.get('ROS_DOMAIN_ID') or '0'}: no other publisher "
+                               f"of {self.pub_gripper.topic_name}; building the simulation")
+        self.camera = TopCamera.covering_workspace(p["camera_resolution"])
+        self.task = TaskSim(1, horizon=p["horizon"], render=True, camera=self.camera)
+
         if p["mode"] == "real_time":
             self.create_timer(DT * SUBSTEPS_PER_ACTION / p["rate_factor"], self.on_real_time_tick)
         self.create_timer(0.05, self.on_watchdog)
@@ -133,6 +162,7 @@ class SimNode(Node):
         if self.p["summary_file"]:
             with open(self.p["summary_file"], "a") as f:
                 f.write(json.dumps(summary) + "\n")
+        self.previous_final = (self.episode, self.step_index)
         self.episode += 1
         if self.p["episodes"] and self.episode >= self.p["episodes"]:
             self.get_logger().info(f"ran {self.episode} episodes: exiting")
@@ -140,17 +170,33 @@ class SimNode(Node):
         self.start_episode(self.p["seed"] + self.episode)
 
     # ------------------------------------------------------------------ inputs
+    def reject(self, cause: str, text: str):
+        """Log a rejected command: at most one line a second per cause, with a count."""
+        line = self.rejections.note(cause, text, time.monotonic())
+        if line is not None:
+            self.get_logger().warning(line)
+
     def on_command(self, msg: GripperCommand):
+        if not self.started:
+            self.get_logger().debug(f"ignoring command for episode {msg.episode} step {msg.step}: not started")
+            return
+        mismatch = command_mismatch(self.p["mode"], self.episode, self.step_index, int(msg.episode), int(msg.step),
+                                    period=self.period_wall, command_timeout=self.p["command_timeout"],
+                                    previous_final=self.previous_final)
+        if mismatch is not None:
+            cause, text = mismatch
+            if cause == "previous episode":  # the policy answered the final state: expected
+                self.get_logger().debug(f"ignoring command {text}")
+            else:
+                self.reject(cause, f"{text}: ignored")
+            return
         try:
             action = command_to_action(msg.vx, msg.vy, msg.closure)
         except CommandError as error:
-            self.get_logger().warning(f"rejected command: {error}; the gripper holds")
+            self.reject(error.cause, f": {error}; the gripper holds")
             action = hold_action(self.task.state.gripper[0, 3])
         if self.p["mode"] == "real_time":
             self.command = (action, time.monotonic())
-            return
-        if not self.started or msg.episode != self.episode or msg.step != self.step_index:
-            self.get_logger().debug(f"ignoring command for episode {msg.episode} step {msg.step}")
             return
         self.advance(action)
 
@@ -169,8 +215,25 @@ class SimNode(Node):
 
     def on_watchdog(self):
         """Start once enough subscribers are up; in step_locked mode republish a state nobody answered."""
+        now = time.monotonic()
+        for line in self.rejections.due(now):
+            self.get_logger().warning(line)
+        if self.count_publishers(self.pub_gripper.topic_name) > 1:  # a driver, or a simulator about to leave
+            self.get_logger().error(f"another node publishes {self.pub_gripper.topic_name} too "
+                                    f"({', '.join(self.other_publishers(self.pub_gripper.topic_name))}): "
+                                    "two graphs share this DDS domain and their messages mix",
+                                    throttle_duration_sec=WAIT_REPORT_PERIOD)
         if not self.started:
-            if self.count_subscribers("/dlo/gripper/state") >= self.p["min_subscribers"] and self.recorder_ready():
+            if not self.info_published:  # after the look for another simulator (__init__)
+                self.pub_info.publish(self.camera_info())
+                self.info_published = True
+                return
+            subscribers = self.count_subscribers(self.pub_gripper.topic_name)
+            if subscribers < self.p["min_subscribers"]:
+                self.get_logger().info(f"waiting for {self.p['min_subscribers']} subscribers of "
+                                       f"{self.pub_gripper.topic_name} (have {subscribers})",
+                                       throttle_duration_sec=WAIT_REPORT_PERIOD)
+            elif self.recorder_ready():
                 self.started = True
                 self.start_episode(self.p["seed"])
             return
@@ -184,22 +247,76 @@ class SimNode(Node):
                                       f"{self.p['step_timeout']} s: republishing the state", throttle_duration_sec=5.0)
             self.publish_state(new_stamp=False)
 
+    def own_publishers(self):
+        return [pub for pub in (self.pub_clock, self.pub_particles, self.pub_gripper, self.pub_image, self.pub_info,
+                                self.pub_task, self.pub_markers, getattr(self, "pub_instance", None)) if pub is not None]
+
+    def other_publishers(self, topic: str) -> list:
+        """Names of the nodes publishing ``topic`` besides this one."""
+        names = [f"{i.node_namespace.rstrip('/')}/{i.node_name}" for i in self.get_publishers_info_by_topic(topic)]
+        mine = f"{self.get_namespace().rstrip('/')}/{self.get_name()}"
+        if mine in names:
+            names.remove(mine)
+        return names or ["unknown"]
+
+    def on_instance(self, msg: String):
+        """Another simulator announced itself (discovery can take seconds): the later one of the two leaves."""
+        try:
+            other = json.loads(msg.data)
+            key = (int(other["started_ns"]), str(other["host"]), int(other["pid"]))
+        except (ValueError, KeyError, TypeError):
+            return
+        mine = (self.instance["started_ns"], self.instance["host"], self.instance["pid"])
+        if key == mine:
+            return
+        domain = os.environ.get("ROS_DOMAIN_ID") or "0"
+        who = f"pid {key[2]} on {key[1]}, started {time.strftime('%H:%M:%S', time.localtime(key[0] / 1e9))}"
+        if key < mine:
+            raise NodeStartError(f"another simulator already runs on ROS_DOMAIN_ID={domain} ({who}): two graphs would "
+                                 "mix; stop it, or use another ROS_DOMAIN_ID (scripts/launch_graph.sh picks a free one) "
+                                 "or --namespace")
+        self.get_logger().error(f"a second simulator appeared on ROS_DOMAIN_ID={domain} ({who}); it leaves, but "
+                                "messages of the two graphs may have mixed meanwhile")
+
+    def check_alone(self):
+        """Refuse to start when another node already publishes one of this simulator's topics."""
+        for pub in self.own_publishers():
+            if self.count_publishers(pub.topic_name) > 1:
+                domain = os.environ.get("ROS_DOMAIN_ID") or "0"
+                raise NodeStartError(
+                    f"another node already publishes {pub.topic_name} ({', '.join(self.other_publishers(pub.topic_name))}) "
+                    f"on ROS_DOMAIN_ID={domain}: a second simulator or driver would mix two graphs; stop it, or use "
+                    "another ROS_DOMAIN_ID (scripts/launch_graph.sh picks a free one) or --namespace")
+
     def recorder_ready(self) -> bool:
         """True when ``wait_for_recorder`` is unset or that node subscribes to every /dlo topic with a publisher,
         so the recording misses nothing of the first episode (the graph's other publishers are up by then:
-        they create their publishers before their /dlo/gripper/state subscriptions)."""
+        they create their publishers before their /dlo/gripper/state subscriptions). While it waits, the topics
+        the recorder still lacks are named every few seconds."""
         recorder = self.p["wait_for_recorder"]
         if not recorder:
             return True
-        topics = [t for t, _ in self.get_topic_names_and_types()
-                  if t.startswith("/dlo/") and self.count_publishers(t) > 0]
-        return all(any(info.node_name == recorder for info in self.get_subscriptions_info_by_topic(t))
-                   for t in topics)
+        prefix = self.pub_gripper.topic_name[:-len("gripper/state")]  # /dlo/, or /<namespace>/dlo/
+        topics = sorted(t for t, _ in self.get_topic_names_and_types()
+                        if t.startswith(prefix) and self.count_publishers(t) > 0)
+        missing = [t for t in topics
+                   if not any(info.node_name == recorder for info in self.get_subscriptions_info_by_topic(t))]
+        if missing and time.monotonic() - self.created_wall > DISCOVERY_GRACE + 1.0:
+            known = recorder in self.get_node_names()
+            self.get_logger().warning(
+                f"waiting for the recorder '{recorder}' to subscribe to {', '.join(missing)}"
+                + ("" if known else f" (no node '{recorder}' in the graph: is it running?)"),
+                throttle_duration_sec=WAIT_REPORT_PERIOD)
+        return not missing
 
     def on_reset_service(self, request, response):
         seed = int(request.seed) if request.seed >= 0 else self.p["seed"] + self.episode + 1
+        self.previous_final = (self.episode, self.step_index)
         self.episode += 1
         self.started = True
+        if not self.info_published:
+            self.pub_info.publish(self.camera_info())
+            self.info_published = True
         self.start_episode(seed)
         response.success, response.message = True, f"episode {self.episode} started with seed {seed}"
         response.episode, response.seed = self.episode, seed
@@ -278,7 +395,7 @@ class SimNode(Node):
 def main(args=None):
     from dlo_tools.node_main import run_node
 
-    return run_node(SimNode, args)
+    return run_node(SimNode, args, interrupted_rc=130)
 
 
 if __name__ == "__main__":

@@ -14,6 +14,10 @@ class ParameterError(ValueError):
     """A parameter has a wrong type or value (the message names it and what is expected)."""
 
 
+class NodeStartError(RuntimeError):
+    """A node refuses to start or go on (e.g. another simulator already publishes its topics)."""
+
+
 def _coerce(name: str, value: Any, default: Any) -> Any:
     """Coerce a parameter value to the type of its default, or raise ParameterError."""
     def bad(expected: str) -> ParameterError:
