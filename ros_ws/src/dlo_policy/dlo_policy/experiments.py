@@ -14,11 +14,20 @@ Each run trains into OUT/<label>/seed<k> (see dlo-train). A run whose directory 
 skipped; one with a checkpoint resumes from it; so an interrupted grid continues where it stopped.
 Runs go to local processes (`--jobs` x `--threads` <= cores: oversubscription costs ~4x) or, with
 `--ray-address`, to an existing Ray cluster (`pip install ray`; OUT must be shared storage).
+
+`--dry-run` lists the runs and estimates the wall time from a short calibration measured now, on
+this machine, under its current load: `CALIBRATION_STEPS` SAC steps (env step + one gradient
+update, the run's network, `--threads` threads) and one evaluation of the configuration with the
+most expensive observation; per run  t = steps x t_step + evaluations x tested input sets x t_eval
+(+ the held-out test), and the runs are packed onto `--jobs` workers longest first.
 """
 from __future__ import annotations
 
 import argparse
 import concurrent.futures
+import csv
+import importlib
+import math
 import multiprocessing
 import os
 import re
@@ -28,8 +37,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Optional, Sequence
 
-from .config import ConfigError, RunConfig, load_config
-from .train import CHECKPOINT_FILE, DONE_FILE, EVAL_FILE, available_cores, train
+from .config import ConfigError, RunConfig, check_env_options, load_config
+from .train import CHECKPOINT_FILE, DONE_FILE, EVAL_FILE, available_cores, set_threads, train
 
 GROUPS = ("single", "pairs", "ablation", "sensitivity")
 TACTILE_NOISE_LEVELS = ("partial", "full")
@@ -164,6 +173,95 @@ def run_ray(tasks: list[tuple[dict[str, Any], str]], address: str, threads: int)
     return results
 
 
+CALIBRATION_STEPS = 120
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """Seconds per training step (env step + update) and per evaluation, measured here."""
+
+    step_s: float
+    eval_s: float
+
+    def run_seconds(self, config: RunConfig, done_steps: int = 0) -> float:
+        """Estimated seconds for the rest of a run (from `done_steps` on) incl. evaluations and the test."""
+        cfg = config.train
+        steps = max(cfg.total_steps - done_steps, 0)
+        tested = 1 + len(cfg.eval_without)
+        evaluations = steps // cfg.eval_every + (done_steps == 0)
+        test_evaluations = math.ceil(cfg.test_episodes / cfg.eval_episodes)
+        return steps * self.step_s + (evaluations + test_evaluations) * tested * self.eval_s
+
+
+def calibrate(config: RunConfig, steps: int = CALIBRATION_STEPS) -> Calibration:
+    """Time `steps` SAC steps (each with one update) and one evaluation of `config` in this process."""
+    import dataclasses  # noqa: PLC0415
+    import time  # noqa: PLC0415
+
+    from .evaluate import evaluate_agent, make_vec_env_for  # noqa: PLC0415
+    from .sac import SAC  # noqa: PLC0415
+
+    set_threads(config.train.num_threads)
+    env_module = importlib.import_module(config.env_module)
+    env = env_module.make_env(modalities=config.modalities, seed=config.seed, **config.env_options)
+    sac_config = dataclasses.replace(config.sac, learning_starts=config.sac.batch_size)
+    agent = SAC(env.observation_space.shape[0], env.action_space.low, env.action_space.high, sac_config,
+                seed=config.seed, observation_low=env.observation_space.low,
+                observation_high=env.observation_space.high)
+    agent.learn(env, sac_config.learning_starts + 5)  # fill a batch; first updates warm up
+    start = time.perf_counter()
+    agent.learn(env, agent.num_env_steps + steps)
+    step_s = (time.perf_counter() - start) / steps
+    env.close()
+    vec_env = make_vec_env_for(config, config.train.eval_episodes, seed=config.train.eval_seed)
+    evaluate_agent(agent, vec_env, config.train.eval_seed, vec_env.num_envs)  # warm-up (kernel compilation)
+    start = time.perf_counter()
+    evaluate_agent(agent, vec_env, config.train.eval_seed, config.train.eval_episodes)
+    eval_s = time.perf_counter() - start
+    vec_env.close()
+    return Calibration(step_s, eval_s)
+
+
+def done_steps(run_dir: Path) -> int:
+    """Env steps a partial run has already taken (its last evaluation row), 0 if none."""
+    try:
+        with (run_dir / EVAL_FILE).open(newline="") as f:
+            rows = list(csv.DictReader(f))
+        return int(rows[-1]["step"]) if rows and (run_dir / CHECKPOINT_FILE).exists() else 0
+    except (OSError, KeyError, ValueError):
+        return 0
+
+
+def makespan(durations: Sequence[float], jobs: int) -> float:
+    """Wall time of running `durations` on `jobs` workers, longest first onto the least loaded."""
+    loads = [0.0] * max(jobs, 1)
+    for duration in sorted(durations, reverse=True):
+        loads[loads.index(min(loads))] += duration
+    return max(loads)
+
+
+def estimate(specs: Sequence[RunSpec], configs: Sequence[RunConfig], statuses: Sequence[str], out: Path,
+             jobs: int) -> str:
+    """One paragraph: calibration and the estimated wall time of the runs still to do."""
+    todo = [(spec, config) for spec, config, status in zip(specs, configs, statuses) if status != "done"]
+    if not todo:
+        return "estimate: nothing to run"
+    # the most expensive observation: vision (rendering) if any run uses it, then the most inputs
+    probe = max((config for _, config in todo),
+                key=lambda c: ("V" in c.modalities or c.modalities == "All", len(c.modalities)))
+    calibration = calibrate(probe)
+    durations = [calibration.run_seconds(config, done_steps(spec.directory(out))) for spec, config in todo]
+    wall = makespan(durations, jobs)
+    return (f"estimate: {len(todo)} runs, {sum(durations) / 3600:.1f} run-hours, wall ~{_duration(wall)} on "
+            f"{jobs} job(s) (calibrated now on {probe.modalities}: {1000 * calibration.step_s:.0f} ms per step "
+            f"with its update, {calibration.eval_s:.1f} s per evaluation of {probe.train.eval_episodes} episodes; "
+            f"other load on this machine is included)")
+
+
+def _duration(seconds: float) -> str:
+    return f"{seconds / 3600:.1f} h" if seconds >= 3600 else f"{seconds / 60:.0f} min"
+
+
 def _print_result(run_dir: str, error: Optional[str], done: int, total: int) -> None:
     status = "ok" if error is None else f"FAILED\n{error}"
     print(f"[{done}/{total}] {run_dir}: {status}", flush=True)
@@ -184,7 +282,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--threads", type=int, default=1, help="torch threads per run (default 1)")
     parser.add_argument("--jobs", type=int, help="parallel local runs (default: cores // threads)")
     parser.add_argument("--ray-address", help="dispatch to this Ray cluster instead (e.g. auto, ray://host:10001)")
-    parser.add_argument("--dry-run", action="store_true", help="list the runs and their status, run nothing")
+    parser.add_argument("--dry-run", action="store_true",
+                        help="list the runs and their status, estimate the wall time (short calibration), run nothing")
     parser.add_argument("overrides", nargs="*", metavar="key=value", help="config overrides for every run")
     return parser
 
@@ -206,6 +305,8 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
             wanted = {label.strip() for label in args.labels.split(",")}
             specs = [s for s in specs if s.label in wanted]
         configs = [run_config(s, args.config, args.overrides, args.steps, args.threads) for s in specs]
+        for config in configs:
+            check_env_options(config)
     except (ConfigError, ValueError) as error:
         print(f"dlo-experiments: error: {error}", file=sys.stderr)
         return 2
@@ -215,7 +316,10 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     tasks = [(config.to_dict(), str(spec.directory(args.out)))
              for spec, config, status in zip(specs, configs, statuses) if status != "done"]
     print(f"{len(specs)} runs, {len(specs) - len(tasks)} done, {len(tasks)} to run", flush=True)
-    if args.dry_run or not tasks:
+    if args.dry_run:
+        print(estimate(specs, configs, statuses, args.out, 1 if args.ray_address else jobs), flush=True)
+        return 0
+    if not tasks:
         return 0
     if args.ray_address:
         results = run_ray(tasks, args.ray_address, args.threads)

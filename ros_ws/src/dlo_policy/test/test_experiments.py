@@ -75,3 +75,31 @@ def test_run_config_carries_the_spec_and_overrides(tmp_path):
 def test_ray_address_without_ray_is_a_clear_error(tmp_path):
     with pytest.raises(SystemExit, match="pip install ray"):
         experiments.main(["--out", str(tmp_path), "--ray-address", "auto"])
+
+
+def test_makespan_packs_longest_first_and_run_time_counts_evaluations():
+    assert experiments.makespan([3, 3, 2, 2, 2], jobs=2) == 7
+    assert experiments.makespan([5, 1], jobs=4) == 5
+    cal = experiments.Calibration(step_s=0.1, eval_s=2.0)
+    config = experiments.load_config(None, ["train.total_steps=1000", "train.eval_every=200",
+                                            "train.eval_without=[T]", "train.test_episodes=100"])
+    # 1000 steps + (5 evaluations + the one at step 0 + 10 test batches of 10) x 2 tested input sets
+    assert cal.run_seconds(config) == pytest.approx(100 + (6 + 10) * 2 * 2.0)
+    assert cal.run_seconds(config, done_steps=600) == pytest.approx(40 + (2 + 10) * 2 * 2.0)
+
+
+def test_dry_run_estimates_from_a_measured_calibration(tmp_path, capsys):
+    argv = ["--out", str(tmp_path / "grid"), "--groups", "single", "--seeds", "2", "--steps", "400",
+            "--jobs", "2", "--dry-run", *TINY]
+    assert experiments.main(argv) == 0
+    out = capsys.readouterr().out
+    assert "8 runs, 0 done, 8 to run" in out and "estimate: 8 runs" in out and "ms per step" in out
+    assert not (tmp_path / "grid").exists()
+
+
+def test_bad_env_option_stops_the_grid_before_any_run(tmp_path, capsys):
+    argv = ["--out", str(tmp_path / "grid"), "--groups", "single", "--seeds", "1",
+            "env_options.tactile_noise=loud"]
+    assert experiments.main(argv) == 2
+    assert "env_options: tactile_noise" in capsys.readouterr().err
+    assert not (tmp_path / "grid").exists()
