@@ -10,6 +10,7 @@ Groups (paper, Results):
                  trained without them (V+K, T+K)
     sensitivity  tactile noise none / partial / full with K (All) and without K (T+V), against no
                  tactile input (V+K, V); "none" is the env's default, so it reuses All and T+V
+Runs are started seed by seed (all configurations of the first seed, then of the second, ...).
 Each run trains into OUT/<label>/seed<k> (see dlo-train). A run whose directory has done.json is
 skipped; one with a checkpoint resumes from it; so an interrupted grid continues where it stopped.
 Runs go to local processes (`--jobs` x `--threads` <= cores: oversubscription costs ~4x) or, with
@@ -94,8 +95,10 @@ def experiment_grid(groups: Sequence[str], seeds: Sequence[int]) -> list[RunSpec
                 add("sensitivity", sensitivity_label(modalities, noise), modalities,
                     env_options=(("tactile_noise", noise),))
             add("sensitivity", no_tactile, no_tactile)
+    # seed-major: every configuration's first seed before any second one, so a grid that is
+    # stopped part-way leaves the same number of finished seeds per configuration (+- 1)
     return [RunSpec(label, c["modalities"], seed, c["env_options"], c["eval_without"], c["groups"])
-            for label, c in configs.items() for seed in seeds]
+            for seed in seeds for label, c in configs.items()]
 
 
 def run_config(spec: RunSpec, config_path: Optional[Path], overrides: Sequence[str], steps: Optional[int],

@@ -137,7 +137,7 @@ class TactileReactive:
         return np.concatenate([move, grip[:, None]], axis=1).astype(np.float32)
 
 
-EPISODE_END_KEYS = ("outcome", "outcome_code", "time_at_end", "how_far", "episode_return", "episode_length",
+EPISODE_END_KEYS = ("outcome", "outcome_code", "outcome_authors", "time_at_end", "how_far", "episode_return", "episode_length",
                     "episode_seed", "unstable")
 
 

@@ -28,6 +28,8 @@ def test_grid_covers_the_papers_experiments_once_per_seed():
     assert dict(by_label["T+V tactile-full"].env_options) == {"tactile_noise": "full"}
     assert by_label["V"].eval_without == () and by_label["V"].env_options == ()
     assert experiments.experiment_grid(["single"], seeds=[3])[0].seed == 3
+    order = [(s.seed, s.label) for s in experiments.experiment_grid(["single"], seeds=[1, 2])]
+    assert order == [(1, "T"), (1, "K"), (1, "V"), (1, "All"), (2, "T"), (2, "K"), (2, "V"), (2, "All")]
     with pytest.raises(ValueError, match="unknown group"):
         experiments.experiment_grid(["singles"], seeds=[0])
 
