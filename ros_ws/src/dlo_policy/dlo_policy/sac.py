@@ -308,6 +308,24 @@ class SAC:
                                      list(self.critic.parameters()), cfg.tau)
         return losses
 
+    @torch.no_grad()
+    def diagnostics(self, batch_size: int = 1024, seed: int = 0) -> dict[str, float]:
+        """Health of the learner on a replay batch, drawn with its own generator (the agent's RNG
+        stream, hence training, is untouched): temperature alpha; policy entropy estimate
+        E[-log pi(a|s)] [nats]; mean min_j Q_j(s, a~) of the policy's actions (reward-scaled
+        units); fraction of deterministic action components with |a| > 0.99 (tanh saturation)."""
+        nan = float("nan")
+        if len(self.replay) == 0:
+            return {"alpha": self.alpha, "entropy": nan, "q_value": nan, "saturated": nan}
+        generator = torch.Generator().manual_seed(seed)
+        batch = self.replay.sample(min(batch_size, len(self.replay)), generator)
+        obs = self._normalize(batch.obs)
+        actions, log_pi = self.actor.sample(obs, generator)
+        q = torch.min(*self.critic(obs, actions))
+        deterministic = self.actor.deterministic(obs)
+        return {"alpha": self.alpha, "entropy": float(-log_pi.mean()), "q_value": float(q.mean()),
+                "saturated": float((deterministic.abs() > 0.99).float().mean())}
+
     def episode_seed(self, episode: int) -> int:
         """Seed of the run's `episode`-th training episode (reproducible across resumes)."""
         return int(np.random.SeedSequence([self.seed, episode]).generate_state(1)[0])

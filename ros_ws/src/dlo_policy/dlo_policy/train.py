@@ -23,6 +23,8 @@ tested input set of one evaluation sees the same episodes). Each evaluation appe
     how_far          mean how-far-it-goes metric reported by the env
     train_episodes   training episodes finished so far
     wall_time_s      training seconds so far (across resumes)
+    alpha, entropy, q_value, saturated   learner health (SAC.diagnostics, on 1,024 replay samples
+                     drawn with a generator of their own: logging does not change the run)
 
 After the last step, the best evaluation's policy (best_policy.pt: highest hold-the-end
 fraction, then reward) is tested once on `train.test_episodes` held-out episodes, seeds
@@ -55,7 +57,8 @@ from .evaluate import OUTCOMES, OUTCOMES_AUTHORS, blanked_columns, evaluate_agen
 from .sac import SAC, StepResult
 
 EVAL_COLUMNS = ("step", "tested_without", "episodes", "eval_seed", *OUTCOMES, *OUTCOMES_AUTHORS,
-                "episode_reward", "time_at_end", "how_far", "train_episodes", "wall_time_s")
+                "episode_reward", "time_at_end", "how_far", "train_episodes", "wall_time_s",
+                "alpha", "entropy", "q_value", "saturated")
 EVAL_SEED_STRIDE = 100_000  # eval seeds of run seed s lie in eval_seed + [s, s + 1) * EVAL_SEED_STRIDE
 CONFIG_FILE, EVAL_FILE, CHECKPOINT_FILE = "config.yaml", "eval.csv", "checkpoint.pt"
 POLICY_FILE, DONE_FILE, TEST_FILE = "policy.pt", "done.json", "test.json"
@@ -151,11 +154,14 @@ class Trainer:
     def evaluate(self) -> None:
         rows = []
         first_seed = eval_seeds(self.config, self.agent.num_env_steps // self.config.train.eval_every)
+        health = {key: round(value, 6) for key, value in
+                  self.agent.diagnostics(seed=self.agent.num_env_steps).items()}
         for without, columns in self.tested:
             result = evaluate_agent(self.agent, self.eval_env, first_seed, self.config.train.eval_episodes, columns)
             rows.append({"step": self.agent.num_env_steps, "tested_without": without, "eval_seed": first_seed,
                          **result.to_dict(),
-                         "train_episodes": self.agent.num_episodes, "wall_time_s": round(self.wall_time(), 2)})
+                         "train_episodes": self.agent.num_episodes, "wall_time_s": round(self.wall_time(), 2),
+                         **health})
         self.log.append(rows)
         self.last_eval = rows[0]
         self.keep_if_best(rows[0])

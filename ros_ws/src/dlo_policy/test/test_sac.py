@@ -201,3 +201,14 @@ def test_checkpoints_of_the_boolean_normalize_observations_era_still_load(tmp_pa
     assert loaded.config.observation_scaling == "running"
     obs = np.random.default_rng(3).normal(size=(4, 9)).astype(np.float32)
     np.testing.assert_array_equal(agent.predict(obs), loaded.predict(obs))
+
+
+def test_diagnostics_leave_the_training_stream_untouched():
+    probed, plain = filled_agent(), filled_agent()
+    for step in range(3):
+        health = probed.diagnostics(batch_size=256, seed=step)
+        assert probed.update() == plain.update()
+    assert set(health) == {"alpha", "entropy", "q_value", "saturated"} and 0 <= health["saturated"] <= 1
+    assert health["alpha"] == pytest.approx(probed.alpha) and np.isfinite(health["entropy"])
+    for p, q in zip(probed.actor.parameters(), plain.actor.parameters()):
+        assert torch.equal(p, q)
