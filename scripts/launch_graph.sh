@@ -152,9 +152,15 @@ start() {  # start <name> <pkg> <exe> [ros args...]
   pids+=("$!") names+=("$name")
   echo "[launch] $name (pid $!) -> $logs/$name.log"
 }
-describe() {  # describe <exit status>
-  if [ "$1" -gt 128 ]; then echo "status $1: killed by SIG$(kill -l $(($1 - 128)) 2>/dev/null || echo $(($1 - 128)))"
-  else echo "status $1"; fi
+describe() {  # describe <exit status>: 130 is what a node returns when interrupted, or SIGINT's status
+  local sig
+  case "$1" in
+    130) echo "status 130: interrupted by SIGINT" ;;
+    13[1-9]|1[4-9][0-9]|2[0-5][0-9])
+      sig="$(kill -l $(($1 - 128)) 2>/dev/null || echo $(($1 - 128)))"
+      echo "status $1: killed by SIG$sig" ;;
+    *) echo "status $1" ;;
+  esac
 }
 show_log_end() {  # show_log_end <name>
   local log="$logs/$1.log"
@@ -229,7 +235,7 @@ while kill -0 "$sim_pid" 2>/dev/null && [ "$interrupted" = 0 ] && [ -z "$failed_
   done
   [ -n "$failed_node" ] || sleep 0.2
 done
-reap "$sim_index" 2>/dev/null
+kill -0 "$sim_pid" 2>/dev/null || reap "$sim_index"  # (a sim still running is stopped and reaped by stop_all)
 [ "$interrupted" = 1 ] || stop_all
 
 done_episodes=0

@@ -657,6 +657,23 @@ def _bag_typestore(connections: Sequence[Any], default: Typestore | None) -> Typ
     return store
 
 
+def _graph_topics(available: Iterable[str], wanted: Iterable[str]) -> dict[str, str]:
+    """Bag topic -> requested name. A requested topic the bag lacks is found under the one namespace
+    the bag's graph ran in (``launch_graph.sh --namespace NS`` records ``/NS/dlo/...``)."""
+    available = set(available)
+    mapping = {t: t for t in wanted if t in available}
+    prefixes: dict[str, list[str]] = {}
+    for topic in set(wanted) - set(mapping):
+        for name in available:
+            prefix = name[:-len(topic)]
+            if name.endswith(topic) and len(prefix) > 1 and prefix.startswith("/") and not prefix.endswith("/"):
+                prefixes.setdefault(prefix, []).append(topic)
+    if len(prefixes) == 1:
+        (prefix, topics), = prefixes.items()
+        mapping.update({prefix + t: t for t in topics})
+    return mapping
+
+
 @dataclass
 class BagMessage:
     """One message of a bag: topic, type name, receive timestamp [ns], message or raw CDR."""
@@ -672,14 +689,17 @@ def read_messages(path: str | os.PathLike, topics: Iterable[str] | None = None, 
     """Iterate the messages of a bag (or of all its rolled parts) in timestamp order.
 
     ``raw=True`` yields the CDR bytes; otherwise rosbags messages (attribute access like the
-    rclpy ones), decoded with the definitions recorded in the bag. ``topics`` filters by name.
-    Any bag directory name works (also ``run.bag``). A damaged bag raises :class:`BagError`
-    naming ``dlo-bag-recover``.
+    rclpy ones), decoded with the definitions recorded in the bag. ``topics`` filters by name;
+    a bag recorded from a graph in a namespace (``/NS/dlo/...``) answers for ``/dlo/...`` (the
+    messages carry the requested name). Any bag directory name works (also ``run.bag``). A
+    damaged bag raises :class:`BagError` naming ``dlo-bag-recover``.
     """
     wanted = set(topics) if topics is not None else None
     bag = Path(path)
     with _Parts(bag) as readers:
-        conns = [c for r in readers for c in r.connections if wanted is None or c.topic in wanted]
+        names = ({c.topic: c.topic for r in readers for c in r.connections} if wanted is None
+                 else _graph_topics((c.topic for r in readers for c in r.connections), wanted))
+        conns = [c for r in readers for c in r.connections if c.topic in names]
         if not conns:
             return
         try:
@@ -710,7 +730,7 @@ def read_messages(path: str | os.PathLike, topics: Iterable[str] | None = None, 
                     raise BagError(f"'{bag}': message {count} on {conn.topic} cannot be decoded as "
                                    f"{conn.msgtype}: {_first_line(err)}") from None
             count += 1
-            yield BagMessage(conn.topic, conn.msgtype, timestamp, msg)
+            yield BagMessage(names[conn.topic], conn.msgtype, timestamp, msg)
 
 
 @dataclass

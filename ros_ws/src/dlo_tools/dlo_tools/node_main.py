@@ -29,6 +29,7 @@ def run_node(make_node: Callable[[], "rclpy.node.Node"], args=None, *, interrupt
         node = make_node()
         name = node.get_name()
         rclpy.spin(node)
+        rc = interrupted_rc  # spin returns when a signal has shut the context down
     except ParameterError as error:
         print(f"[{name}] bad parameter: {error}", file=sys.stderr)
         rc = EXIT_BAD_PARAMETER

@@ -1,0 +1,222 @@
+"""launch_graph.sh under real faults: two graphs at once, a shared domain, a recorder killed with
+SIGKILL, a full disk (a real 2 MiB tmpfs), the sim interrupted alone. Each case checks the exit
+code, the one-line cause and what the bag still holds. Every launcher runs in its own session and
+its whole process group is killed if a test fails, so no node outlives a test."""
+
+import json
+import os
+import pathlib
+import re
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+
+from dlo_tools.analysis import read_run
+from dlo_tools.bag import bag_info, read_messages
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+LAUNCH = ROOT / "scripts" / "launch_graph.sh"
+ENV = {**os.environ, "DLO_USE_ROS2RUN": "1"}
+EXIT_NODE_FAILED, EXIT_RECORDING_FAILED = 3, 4
+
+
+class Launch:
+    """launch_graph.sh in its own session, output to a file (read while it runs)."""
+
+    def __init__(self, tmp, name, *args):
+        self.logs = tmp / f"{name}_logs"
+        self.out_path = tmp / f"{name}.out"
+        self.out_file = open(self.out_path, "w")
+        self.p = subprocess.Popen(["bash", str(LAUNCH), *map(str, args), "--logs", str(self.logs)],
+                                  stdout=self.out_file, stderr=subprocess.STDOUT, env=ENV, start_new_session=True)
+
+    @property
+    def out(self):
+        return self.out_path.read_text()
+
+    def pid_of(self, node, timeout=120):
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            found = re.search(rf"\[launch\] {node} \(pid (\d+)\)", self.out)
+            if found:
+                return int(found.group(1))
+            assert self.p.poll() is None, self.out
+            time.sleep(0.2)
+        raise AssertionError(f"{node} never started:\n{self.out}")
+
+    def episodes_done(self):
+        path = self.logs / "outcomes.jsonl"
+        return [json.loads(line) for line in path.read_text().splitlines()] if path.exists() else []
+
+    def wait_episodes(self, n, timeout=300):
+        deadline = time.monotonic() + timeout
+        while len(self.episodes_done()) < n:
+            assert time.monotonic() < deadline and self.p.poll() is None, self.out
+            time.sleep(0.3)
+
+    def wait(self, timeout=600):
+        try:
+            return self.p.wait(timeout=timeout)
+        finally:
+            self.kill()
+
+    def kill(self):
+        """Kill the launcher's whole process group (its nodes too) if anything is left."""
+        try:
+            os.killpg(self.p.pid, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
+        self.p.wait()
+        self.out_file.close()
+
+
+@pytest.fixture
+def launches():
+    started = []
+
+    def start(tmp, name, *args):
+        launch = Launch(tmp, name, *args)
+        started.append(launch)
+        return launch
+
+    yield start
+    for launch in started:
+        launch.kill()
+
+
+def reference_outcome(seed):
+    """The in-process gym environment with the same controller: what a graph alone must give."""
+    from dlo_policy.env import make_env
+    from dlo_policy.scripted import TactileReactive
+
+    env = make_env("All", seed=seed)
+    controller = TactileReactive()
+    observation, _ = env.reset(seed=seed)
+    controller.reset()
+    while True:
+        observation, _, terminated, truncated, info = env.step(controller(observation[None], env.vec)[0])
+        if terminated or truncated:
+            return info["outcome"], info["episode_return"]
+
+
+def one_step_each(bag, seed):
+    """Every step of the bag's episode 0 recorded once, all of it from one simulator (seed)."""
+    tasks = [m.msg for m in read_messages(bag, ["/dlo/task/state"])]
+    assert {t.seed for t in tasks} == {seed}
+    steps = [t.step for t in tasks if t.episode == 0]
+    assert sorted(set(steps)) == list(range(max(steps) + 1))
+    states = [(m.msg.episode, m.msg.step) for m in read_messages(bag, ["/dlo/gripper/state"])]
+    assert len(states) - len(set(states)) <= 3  # a republished start-up state at most, no second graph
+
+
+def test_two_graphs_at_once_never_see_each_other(tmp_path, launches):
+    """Two launchers with default options at the same time: own domains, own bags, unchanged outcomes."""
+    a = launches(tmp_path, "a", "--policy", "tactile_reactive", "--episodes", 1, "--seed", 11, "--record", tmp_path / "bag_a")
+    b = launches(tmp_path, "b", "--policy", "tactile_reactive", "--episodes", 1, "--seed", 11, "--record", tmp_path / "bag_b")
+    assert a.wait() == 0, a.out
+    assert b.wait() == 0, b.out
+    domains = {re.search(r"ROS_DOMAIN_ID=(\d+)", x.out).group(1) for x in (a, b)}
+    assert len(domains) == 2
+    outcome, episode_return = reference_outcome(11)
+    for launch, bag in ((a, tmp_path / "bag_a"), (b, tmp_path / "bag_b")):
+        live = launch.episodes_done()
+        assert [e["outcome"] for e in live] == [outcome]
+        assert live[0]["episode_return"] == pytest.approx(episode_return, abs=1e-9)
+        one_step_each(bag, 11)
+        assert "another" not in (launch.logs / "sim.log").read_text()
+
+
+def test_a_second_simulator_on_a_shared_domain_refuses_to_start(tmp_path, launches):
+    a = launches(tmp_path, "a", "--policy", "tactile_reactive", "--episodes", 0, "--seed", 11,
+                 "--domain-id", os.environ["ROS_DOMAIN_ID"])
+    a.wait_episodes(1)
+    b = launches(tmp_path, "b", "--policy", "tactile_reactive", "--episodes", 1, "--seed", 12,  # a long episode
+                 "--domain-id", os.environ["ROS_DOMAIN_ID"])
+    assert b.wait() == EXIT_NODE_FAILED, b.out
+    assert "sim exited early (status 3, 0 of 1 episodes done)" in b.out
+    # one line, at start-up or as soon as discovery shows the running simulator (the later one leaves)
+    assert re.search(r"another (simulator already runs|node already publishes \S+ \(/sim_node\)) on ROS_DOMAIN_ID",
+                     b.out), b.out
+    assert a.p.poll() is None, a.out  # the running graph goes on
+    done = len(a.episodes_done())
+    a.wait_episodes(done + 1)
+    a.p.send_signal(signal.SIGINT)
+    assert a.wait() == 130, a.out
+
+
+def test_namespaces_share_a_domain_deliberately(tmp_path, launches):
+    domain = os.environ["ROS_DOMAIN_ID"]
+    a = launches(tmp_path, "a", "--policy", "tactile_reactive", "--episodes", 1, "--seed", 11,
+                 "--domain-id", domain, "--namespace", "robot1", "--record", tmp_path / "bag")
+    b = launches(tmp_path, "b", "--policy", "tactile_reactive", "--episodes", 1, "--seed", 11,
+                 "--domain-id", domain, "--namespace", "robot2")
+    assert a.wait() == 0, a.out
+    assert b.wait() == 0, b.out
+    outcome, _ = reference_outcome(11)
+    assert [e["outcome"] for e in a.episodes_done()] == [e["outcome"] for e in b.episodes_done()] == [outcome]
+    topics = set(bag_info(tmp_path / "bag").topics)
+    assert "/robot1/dlo/task/state" in topics and "/robot1/clock" in topics
+    assert not any(t.startswith("/robot2") or t.startswith("/dlo") for t in topics)
+    result = subprocess.run([sys.executable, "-m", "dlo_tools.analysis", str(tmp_path / "bag"),
+                             "--json", str(tmp_path / "a.json")], capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert [s["outcome"] for s in json.loads((tmp_path / "a.json").read_text())] == [outcome]
+
+
+def test_recorder_killed_mid_run_fails_the_launch_and_the_bag_is_recovered(tmp_path, launches):
+    bag = tmp_path / "bag"
+    run = launches(tmp_path, "run", "--policy", "tactile_reactive", "--episodes", 0, "--seed", 5, "--record", bag)
+    recorder = run.pid_of("recorder")
+    run.wait_episodes(1)
+    time.sleep(1.5)  # more than the recorder's flush period into the next episode
+    os.kill(recorder, signal.SIGKILL)
+    assert run.wait() == EXIT_RECORDING_FAILED, run.out
+    assert "recorder exited early (status 137: killed by SIGKILL)" in run.out
+    assert f"dlo-bag-recover {bag}" in run.out
+    live = run.episodes_done()
+    fixed = subprocess.run([str(ROOT / "scripts" / "ros2run"), "dlo_tools", "dlo-bag-recover", str(bag)],
+                           capture_output=True, text=True, timeout=120)
+    assert fixed.returncode == 0 and "recovered" in fixed.stdout, fixed.stdout + fixed.stderr
+    episodes = read_run(bag)
+    finished = [e for e, streams in episodes.items() if any(m.done for m in streams["task"].values())]
+    assert finished and finished == list(range(len(finished)))
+    assert len(finished) >= len(live) - 1  # every episode finished before the kill is in the bag
+    result = subprocess.run([sys.executable, "-m", "dlo_tools.analysis", str(bag), "--json", str(tmp_path / "a.json")],
+                            capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stdout + result.stderr
+    analysed = [s for s in json.loads((tmp_path / "a.json").read_text()) if s["complete"]]
+    for mine, truth in zip(analysed, live):
+        assert (mine["episode"], mine["outcome"]) == (truth["episode"], truth["outcome"])
+
+
+def test_disk_full_stops_the_graph_and_names_the_cause(tmp_path, launches):
+    if os.geteuid() != 0:
+        pytest.skip("needs root to mount a tmpfs; the write-failure injection of the recorder tests covers the rest")
+    disk = tmp_path / "disk"
+    disk.mkdir()
+    if subprocess.run(["mount", "-t", "tmpfs", "-o", "size=2m", "tmpfs", str(disk)]).returncode != 0:
+        pytest.skip("cannot mount a tmpfs here")
+    try:
+        bag = disk / "bag"
+        run = launches(tmp_path, "run", "--policy", "tactile_reactive", "--episodes", 0, "--seed", 5, "--record", bag)
+        assert run.wait() == EXIT_RECORDING_FAILED, run.out
+        assert "[launch] recording failed: no space left on device" in run.out
+        assert "Traceback" not in (run.logs / "recorder.log").read_text()
+        summary = json.loads((run.logs / "recorder_summary.json").read_text())
+        assert summary["failure"] == "no space left on device" and summary["complete"]
+        assert summary["written"] == summary["received_at_failure"] == bag_info(bag).message_count
+        assert read_run(bag)  # readable as it is: no recovery needed
+    finally:
+        subprocess.run(["umount", "-l", str(disk)])
+
+
+def test_the_sim_interrupted_alone_is_a_failed_run(tmp_path, launches):
+    run = launches(tmp_path, "run", "--policy", "tactile_reactive", "--episodes", 3, "--seed", 5)
+    sim = run.pid_of("sim")
+    run.wait_episodes(1)
+    os.kill(sim, signal.SIGINT)
+    assert run.wait() == EXIT_NODE_FAILED, run.out
+    assert re.search(r"sim exited early \(status 130: interrupted by SIGINT, [12] of 3 episodes done\)", run.out), run.out
