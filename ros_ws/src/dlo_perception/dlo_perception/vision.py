@@ -53,10 +53,27 @@ def init_taichi() -> None:
     global _taichi_ready
     if _taichi_ready:
         return
-    arch = {"cpu": ti.cpu, "cuda": ti.cuda, "gpu": ti.gpu, "vulkan": ti.vulkan}[
-        os.environ.get("DLO_TI_ARCH", "cpu").lower()]
-    ti.init(arch=arch, fast_math=True, default_fp=ti.f32, offline_cache=True, log_level=ti.WARN)
+    name = os.environ.get("DLO_TI_ARCH", "cpu").lower()
+    if name not in TAICHI_ARCHS:
+        raise ValueError(f"DLO_TI_ARCH={name!r}: expected one of {', '.join(TAICHI_ARCHS)}")
+    ti.init(arch=TAICHI_ARCHS[name], fast_math=True, default_fp=ti.f32, offline_cache=True,
+            log_level=ti.WARN if name == "cpu" else ti.ERROR)  # a missing GPU: our one line, not Taichi's three
     _taichi_ready = True
+    if name == "cuda" and ti.lang.impl.current_cfg().arch != ti.cuda:  # Taichi falls back to the CPU silently
+        raise ValueError("Taichi arch cuda asked for (DLO_TI_ARCH / train.sim_arch), but Taichi found no "
+                         "CUDA device and fell back to the CPU (use cpu)")
+
+
+TAICHI_ARCHS = {"cpu": ti.cpu, "cuda": ti.cuda, "gpu": ti.gpu, "vulkan": ti.vulkan}
+
+
+def select_taichi_arch(name: str) -> None:
+    """Ask for a Taichi backend before the first kernel runs (same as DLO_TI_ARCH=name)."""
+    if name not in TAICHI_ARCHS:
+        raise ValueError(f"Taichi arch: expected one of {', '.join(TAICHI_ARCHS)}, got {name!r}")
+    if _taichi_ready and os.environ.get("DLO_TI_ARCH", "cpu").lower() != name:
+        raise ValueError(f"Taichi is already running on {os.environ.get('DLO_TI_ARCH', 'cpu')} in this process")
+    os.environ["DLO_TI_ARCH"] = name
 
 
 _taichi_ready = False

@@ -91,11 +91,16 @@ class TrainConfig:
     checkpoint_every: int = 5000
     num_threads: int = 0  # torch threads; 0: all cores this process may use
     progress: bool = True
+    device: str = "auto"  # SAC's device: auto (cuda if available), cpu or cuda
+    sim_arch: str = "cpu"  # the simulator's Taichi backend: cpu or cuda
 
     def __post_init__(self) -> None:
         for name in ("total_steps", "eval_every", "eval_episodes", "checkpoint_every", "test_episodes"):
             _require(getattr(self, name) >= 1, f"train.{name}", ">= 1")
         _require(self.num_threads >= 0, "train.num_threads", ">= 0")
+        _require(self.device in ("auto", "cpu", "cuda") or self.device.startswith("cuda:"), "train.device",
+                 "auto, cpu or cuda")
+        _require(self.sim_arch in ("cpu", "cuda"), "train.sim_arch", "cpu or cuda")
         _require(self.test_seed >= 0 and self.test_seed + self.test_episodes <= self.eval_seed,
                  "train.test_seed", "in [0, train.eval_seed - train.test_episodes] (held-out test seeds lie "
                                     "below every evaluation seed)")

@@ -1,4 +1,4 @@
-"""Preallocated replay buffer of transitions (torch, fp32, CPU) with a saveable state."""
+"""Preallocated replay buffer of transitions (torch, fp32, on the agent's device) with a saveable state."""
 from __future__ import annotations
 
 from typing import NamedTuple
@@ -18,13 +18,14 @@ class Batch(NamedTuple):
 class ReplayBuffer:
     """Ring buffer of `capacity` transitions; sampling is uniform with replacement."""
 
-    def __init__(self, capacity: int, obs_dim: int, act_dim: int):
+    def __init__(self, capacity: int, obs_dim: int, act_dim: int, device: torch.device | str = "cpu"):
         self.capacity = capacity
-        self.obs = torch.zeros(capacity, obs_dim)
-        self.actions = torch.zeros(capacity, act_dim)
-        self.rewards = torch.zeros(capacity)
-        self.next_obs = torch.zeros(capacity, obs_dim)
-        self.terminated = torch.zeros(capacity)
+        self.device = torch.device(device)
+        self.obs = torch.zeros(capacity, obs_dim, device=self.device)
+        self.actions = torch.zeros(capacity, act_dim, device=self.device)
+        self.rewards = torch.zeros(capacity, device=self.device)
+        self.next_obs = torch.zeros(capacity, obs_dim, device=self.device)
+        self.terminated = torch.zeros(capacity, device=self.device)
         self.position = 0  # where the next transition goes
         self.size = 0
 
@@ -43,17 +44,16 @@ class ReplayBuffer:
         self.size = min(self.size + 1, self.capacity)
 
     def sample(self, batch_size: int, generator: torch.Generator) -> Batch:
-        idx = torch.randint(self.size, (batch_size,), generator=generator)
+        idx = torch.randint(self.size, (batch_size,), generator=generator, device=generator.device)
         return Batch(self.obs[idx], self.actions[idx], self.rewards[idx], self.next_obs[idx],
                      self.terminated[idx])
 
     def state_dict(self) -> dict:
-        """The stored transitions only (not the empty preallocated rows)."""
+        """The stored transitions only (not the empty preallocated rows), on the CPU."""
         n = self.size
         return {"capacity": self.capacity, "position": self.position, "size": n,
-                "obs": self.obs[:n].clone(), "actions": self.actions[:n].clone(),
-                "rewards": self.rewards[:n].clone(), "next_obs": self.next_obs[:n].clone(),
-                "terminated": self.terminated[:n].clone()}
+                **{name: getattr(self, name)[:n].to("cpu", copy=True)
+                   for name in ("obs", "actions", "rewards", "next_obs", "terminated")}}
 
     def load_state_dict(self, state: dict) -> None:
         if state["capacity"] != self.capacity:

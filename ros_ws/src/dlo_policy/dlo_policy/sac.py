@@ -1,4 +1,4 @@
-"""Soft Actor-Critic (Haarnoja et al. 2018) for continuous actions, lean and readable, on CPU.
+"""Soft Actor-Critic (Haarnoja et al. 2018) for continuous actions, lean and readable, CPU or GPU.
 
 Written in the style of CleanRL's sac_continuous_action.py, with an SB3-like surface:
 `SAC(obs_dim, action_low, action_high, config, seed)`, `learn(env, total_steps, callback)`,
@@ -12,6 +12,8 @@ The update, per gradient step (DESIGN.md section 9 defaults):
     alpha: minimise -alpha * (log pi(a~|s) + target_entropy)    (alpha = exp(log_alpha))
   every `target_update_every` steps: Q'_j <- (1 - tau) Q'_j + tau Q_j
 Speed (DESIGN.md section 10): fp32, no critic weight gradients in the actor loss, fused Adam.
+Device (`device`: "cpu", "cuda", "auto" = cuda if available): networks, replay buffer, sampling
+and normaliser live there; checkpoints are written with CPU tensors and load on either device.
 """
 from __future__ import annotations
 
@@ -36,6 +38,19 @@ CHECKPOINT_FORMAT = "dlo_policy.sac/1"
 
 class CheckpointError(ValueError):
     """A checkpoint file is missing or is not a dlo_policy checkpoint (one-line message)."""
+
+
+def resolve_device(device: str | torch.device = "cpu") -> torch.device:
+    """"auto" -> cuda if available else cpu; "cuda" without a CUDA device -> ValueError (one line)."""
+    name = str(device)
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    if name not in ("cpu", "cuda") and not name.startswith("cuda:"):
+        raise ValueError(f"device: expected auto, cpu or cuda, got {name!r}")
+    if name.startswith("cuda") and not torch.cuda.is_available():
+        raise ValueError(f"device {name!r} asked for, but torch {torch.__version__} sees no CUDA device "
+                         "here (use device auto or cpu)")
+    return torch.device(name)
 
 
 def read_checkpoint(path: str | Path) -> dict[str, Any]:
@@ -86,7 +101,7 @@ class Actor(nn.Module):
     def sample(self, obs: torch.Tensor, generator: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:
         """Reparameterised action a = tanh(mean + std * eps) and its log-probability, shape (B,)."""
         mean, log_std = self(obs)
-        eps = torch.randn(mean.shape, generator=generator)
+        eps = torch.randn(mean.shape, generator=generator, device=mean.device)
         pre_tanh = mean + log_std.exp() * eps
         gaussian_log_prob = (-0.5 * eps.pow(2) - log_std - LOG_SQRT_2PI).sum(-1)
         # log|d tanh(x)/dx| = log(1 - tanh(x)^2) = 2 * (log 2 - x - softplus(-2x)), stable for large |x|
@@ -119,11 +134,12 @@ class ObservationNormalizer:
     """
 
     def __init__(self, obs_dim: int, clip: float = 10.0):
-        self.mean = torch.zeros(obs_dim, dtype=torch.float64)
+        self.mean = torch.zeros(obs_dim, dtype=torch.float64)  # statistics on the CPU (float64)
         self.var = torch.ones(obs_dim, dtype=torch.float64)
         self.count = 0
         self.clip = clip
         self.frozen = False
+        self._applied: Optional[tuple[torch.Tensor, torch.Tensor]] = None  # (mean, std) as used, cached
 
     @classmethod
     def from_bounds(cls, low: np.ndarray, high: np.ndarray) -> "ObservationNormalizer":
@@ -133,6 +149,7 @@ class ObservationNormalizer:
         normalizer = cls(len(low))
         normalizer.mean, normalizer.var = (low + high) / 2, ((high - low) / 2).pow(2)
         normalizer.frozen = True
+        normalizer._applied = None
         return normalizer
 
     def freeze(self) -> None:
@@ -149,10 +166,14 @@ class ObservationNormalizer:
         self.var = (self.var * self.count + batch.var(0, unbiased=False) * n
                     + delta.pow(2) * self.count * n / total) / total
         self.count = total
+        self._applied = None
 
     def __call__(self, obs: torch.Tensor) -> torch.Tensor:
-        std = self.var.sqrt().clamp_min(1e-8)
-        return ((obs - self.mean.float()) / std.float()).clamp(-self.clip, self.clip)
+        if self._applied is None or self._applied[0].device != obs.device:
+            std = self.var.sqrt().clamp_min(1e-8)
+            self._applied = (self.mean.float().to(obs.device), std.float().to(obs.device))
+        mean, std = self._applied
+        return ((obs - mean) / std).clamp(-self.clip, self.clip)
 
     def state_dict(self) -> dict:
         return {"mean": self.mean.clone(), "var": self.var.clone(), "count": self.count, "frozen": self.frozen}
@@ -160,6 +181,7 @@ class ObservationNormalizer:
     def load_state_dict(self, state: dict) -> None:
         self.mean, self.var, self.count = state["mean"].clone(), state["var"].clone(), state["count"]
         self.frozen = bool(state.get("frozen", False))
+        self._applied = None
 
 
 @contextlib.contextmanager
@@ -189,27 +211,30 @@ class SAC:
 
     def __init__(self, obs_dim: int, action_low: np.ndarray, action_high: np.ndarray,
                  config: Optional[SACConfig] = None, seed: int = 0,
-                 observation_low: Optional[np.ndarray] = None, observation_high: Optional[np.ndarray] = None):
+                 observation_low: Optional[np.ndarray] = None, observation_high: Optional[np.ndarray] = None,
+                 device: str | torch.device = "cpu"):
         self.config = config = config or SACConfig()
+        self.device = resolve_device(device)
         self.obs_dim, self.act_dim = int(obs_dim), len(action_low)
         self.action_low = np.asarray(action_low, dtype=np.float32)
         self.action_high = np.asarray(action_high, dtype=np.float32)
         self.seed = seed
-        torch.manual_seed(seed)  # network initialisation
-        self.generator = torch.Generator().manual_seed(seed)  # every later random draw of the agent
+        torch.manual_seed(seed)  # network initialisation (on the CPU: the same weights on every device)
+        self.generator = torch.Generator(self.device).manual_seed(seed)  # every later random draw of the agent
 
-        self.actor = Actor(self.obs_dim, self.act_dim, config)
-        self.critic = TwinQ(self.obs_dim, self.act_dim, config)
+        self.actor = Actor(self.obs_dim, self.act_dim, config).to(self.device)
+        self.critic = TwinQ(self.obs_dim, self.act_dim, config).to(self.device)
         self.critic_target = copy.deepcopy(self.critic).requires_grad_(False)
         self.actor_optimizer = torch.optim.Adam(self.actor.parameters(), lr=config.actor_lr, fused=True)
         self.critic_optimizer = torch.optim.Adam(self.critic.parameters(), lr=config.critic_lr, fused=True)
 
         self.target_entropy = (-float(self.act_dim) if config.target_entropy is None
                                else config.target_entropy)
-        self.log_alpha = torch.tensor(math.log(config.initial_alpha), requires_grad=config.autotune_alpha)
+        self.log_alpha = torch.tensor(math.log(config.initial_alpha), device=self.device,
+                                      requires_grad=config.autotune_alpha)
         self.alpha_optimizer = torch.optim.Adam([self.log_alpha], lr=config.alpha_lr, betas=config.alpha_betas)
 
-        self.replay = ReplayBuffer(config.buffer_size, self.obs_dim, self.act_dim)
+        self.replay = ReplayBuffer(config.buffer_size, self.obs_dim, self.act_dim, self.device)
         if config.observation_scaling == "bounds":
             if observation_low is None or observation_high is None:
                 raise ValueError("observation_scaling=bounds: pass observation_low and observation_high")
@@ -238,10 +263,10 @@ class SAC:
     @torch.inference_mode()
     def policy_action(self, obs: np.ndarray, deterministic: bool) -> np.ndarray:
         """The policy's action in [-1, 1] for one observation (obs_dim,) or a batch (N, obs_dim)."""
-        obs_t = self._normalize(torch.as_tensor(np.asarray(obs, dtype=np.float32)))
+        obs_t = self._normalize(torch.as_tensor(np.asarray(obs, dtype=np.float32), device=self.device))
         if deterministic:
-            return self.actor.deterministic(obs_t).numpy()
-        return self.actor.sample(obs_t, self.generator)[0].numpy()
+            return self.actor.deterministic(obs_t).cpu().numpy()
+        return self.actor.sample(obs_t, self.generator)[0].cpu().numpy()
 
     def predict(self, obs: np.ndarray, deterministic: bool = True) -> np.ndarray:
         """Action in the env's action box for one observation or a batch."""
@@ -250,7 +275,7 @@ class SAC:
     def explore(self, obs: np.ndarray) -> np.ndarray:
         """Training-time action in [-1, 1]: uniform before `learning_starts`, then sampled from pi."""
         if self.num_env_steps < self.config.learning_starts:
-            return (torch.rand(self.act_dim, generator=self.generator) * 2 - 1).numpy()
+            return (torch.rand(self.act_dim, generator=self.generator, device=self.device) * 2 - 1).cpu().numpy()
         return self.policy_action(obs, deterministic=False)
 
     def store(self, obs: np.ndarray, action: np.ndarray, reward: float, next_obs: np.ndarray,
@@ -375,11 +400,12 @@ class SAC:
             "normalizer": self.normalizer.state_dict() if self.normalizer is not None else None,
             "counters": {"env_steps": self.num_env_steps, "updates": self.num_updates,
                          "episodes": self.num_episodes},
-            "rng": {"agent": self.generator.get_state(), "torch": torch.get_rng_state()},
+            "rng": {"agent": self.generator.get_state(), "agent_device": self.device.type,
+                    "torch": torch.get_rng_state()},
         }
         if include_replay:
             state["replay"] = self.replay.state_dict()
-        return state
+        return _to_cpu(state) if self.device.type != "cpu" else state
 
     def save(self, path: str | Path, include_replay: bool = True, extra: Optional[dict[str, Any]] = None) -> None:
         """Write a checkpoint atomically (a reader never sees a half-written file); `extra`: the
@@ -407,15 +433,15 @@ class SAC:
         _atomic_save(self.policy_state(), Path(path))
 
     @classmethod
-    def load(cls, path: str | Path) -> "SAC":
-        """Rebuild an agent from `save` (everything) or `save_policy` (acting only)."""
+    def load(cls, path: str | Path, device: str | torch.device = "cpu") -> "SAC":
+        """Rebuild an agent from `save` (everything) or `save_policy` (acting only) on `device`."""
         state = read_checkpoint(path)
         values = SACConfig.upgrade(state["config"])
         config = SACConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in values.items()})
         if config.observation_scaling == "bounds":  # the map comes from the saved normaliser state
             config = dataclasses.replace(config, observation_scaling="frozen")
         agent = cls(state["obs_dim"], state["action_low"].numpy(), state["action_high"].numpy(),
-                    config, seed=state["seed"])
+                    config, seed=state["seed"], device=device)
         agent.config = dataclasses.replace(agent.config, observation_scaling=values.get("observation_scaling", "running"))
         agent.load_state_dict(state)
         return agent
@@ -435,10 +461,24 @@ class SAC:
         counters = state["counters"]
         self.num_env_steps, self.num_updates = counters["env_steps"], counters["updates"]
         self.num_episodes = counters["episodes"]
-        self.generator.set_state(state["rng"]["agent"])
+        if state["rng"].get("agent_device", "cpu") == self.device.type:
+            self.generator.set_state(state["rng"]["agent"])
+        else:  # CPU and CUDA generators have different states: a new, still reproducible stream
+            self.generator.manual_seed(int(np.random.SeedSequence([self.seed, self.num_updates]).generate_state(1)[0]))
         torch.set_rng_state(state["rng"]["torch"])
         if "replay" in state:
             self.replay.load_state_dict(state["replay"])
+
+
+def _to_cpu(value: Any) -> Any:
+    """Copy every tensor of a nested state (dicts, lists, tuples) to the CPU."""
+    if isinstance(value, torch.Tensor):
+        return value.detach().cpu()
+    if isinstance(value, dict):
+        return {k: _to_cpu(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return type(value)(_to_cpu(v) for v in value)
+    return value
 
 
 def _atomic_save(state: dict[str, Any], path: Path) -> None:

@@ -52,9 +52,11 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
+from dlo_perception.vision import init_taichi, select_taichi_arch
+
 from .config import ConfigError, RunConfig, check_env_options, load_config, save_config
 from .evaluate import OUTCOMES, OUTCOMES_AUTHORS, blanked_columns, evaluate_agent, make_vec_env_for
-from .sac import SAC, StepResult
+from .sac import SAC, StepResult, resolve_device
 
 EVAL_COLUMNS = ("step", "tested_without", "episodes", "eval_seed", *OUTCOMES, *OUTCOMES_AUTHORS,
                 "episode_reward", "time_at_end", "how_far", "train_episodes", "wall_time_s",
@@ -122,6 +124,8 @@ class Trainer:
         out_dir.mkdir(parents=True, exist_ok=True)
         save_config(config, out_dir / CONFIG_FILE)
         self.threads = set_threads(config.train.num_threads)
+        self.device = resolve_device(config.train.device)
+        select_taichi_arch(config.train.sim_arch)
 
         env_module = importlib.import_module(config.env_module)
         self.env = env_module.make_env(modalities=config.modalities, seed=config.seed, **config.env_options)
@@ -129,7 +133,7 @@ class Trainer:
         self.best: Optional[dict[str, Any]] = None
         self.best_policy_state: Optional[dict[str, Any]] = None
         if resume:
-            self.agent = SAC.load(checkpoint)
+            self.agent = SAC.load(checkpoint, device=self.device)
             extra = SAC.extra_state(checkpoint)
             self.best, self.best_policy_state = extra.get("best"), extra.get("best_policy")
             if self.best is not None:
@@ -138,7 +142,7 @@ class Trainer:
             space = self.env.action_space
             self.agent = SAC(self.env.observation_space.shape[0], space.low, space.high, config.sac,
                              seed=config.seed, observation_low=self.env.observation_space.low,
-                             observation_high=self.env.observation_space.high)
+                             observation_high=self.env.observation_space.high, device=self.device)
         self.log = EvalLog(out_dir / EVAL_FILE, self.agent.num_env_steps if resume else None)
         self.tested = [("", [])] + [(m, blanked_columns(config.modalities, [m]))
                                     for m in config.train.eval_without]
@@ -249,6 +253,17 @@ class Trainer:
         return summary
 
 
+def check_devices(config: RunConfig) -> None:
+    """ConfigError (one line) when train.device or train.sim_arch names hardware this machine lacks;
+    starts Taichi on the asked backend (it falls back to the CPU silently otherwise)."""
+    try:
+        resolve_device(config.train.device)
+        select_taichi_arch(config.train.sim_arch)
+        init_taichi()
+    except ValueError as error:
+        raise ConfigError(str(error)) from None
+
+
 def train(config: RunConfig, out_dir: str | Path, resume: bool = False) -> dict[str, Any]:
     """Train (or resume) a run in `out_dir`; returns the done.json summary."""
     return Trainer(config, Path(out_dir), resume).run()
@@ -292,6 +307,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     try:
         config = resolve_config(args)
         check_env_options(config)
+        check_devices(config)
         summary = train(config, args.out, resume=args.resume)
     except (ConfigError, FileExistsError, FileNotFoundError) as error:
         print(f"dlo-train: error: {error}", file=sys.stderr)

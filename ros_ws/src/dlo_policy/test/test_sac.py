@@ -212,3 +212,45 @@ def test_diagnostics_leave_the_training_stream_untouched():
     assert health["alpha"] == pytest.approx(probed.alpha) and np.isfinite(health["entropy"])
     for p, q in zip(probed.actor.parameters(), plain.actor.parameters()):
         assert torch.equal(p, q)
+
+
+def _tensors(value):
+    if isinstance(value, torch.Tensor):
+        yield value
+    elif isinstance(value, dict):
+        for v in value.values():
+            yield from _tensors(v)
+    elif isinstance(value, (list, tuple)):
+        for v in value:
+            yield from _tensors(v)
+
+
+@pytest.mark.skipif(torch.cuda.is_available(), reason="a CUDA device is present")
+def test_device_names_resolve_and_cuda_without_a_gpu_is_a_clear_error():
+    from dlo_policy.sac import resolve_device
+    assert resolve_device("auto") == torch.device("cpu") and resolve_device("cpu") == torch.device("cpu")
+    with pytest.raises(ValueError, match="sees no CUDA device"):
+        resolve_device("cuda")
+    with pytest.raises(ValueError, match="expected auto, cpu or cuda"):
+        resolve_device("tpu")
+
+
+def test_checkpoints_hold_cpu_tensors_and_load_onto_a_named_device(tmp_path):
+    agent = SAC(9, -np.ones(3), np.ones(3), SACConfig(**SMALL), seed=0, device="cpu")
+    agent.save(tmp_path / "a.pt")
+    state = torch.load(tmp_path / "a.pt", weights_only=True)
+    assert all(t.device.type == "cpu" for t in _tensors(state)) and state["rng"]["agent_device"] == "cpu"
+    loaded = SAC.load(tmp_path / "a.pt", device="auto")
+    assert all(p.device == loaded.device for p in loaded.actor.parameters())
+    assert loaded.replay.obs.device == loaded.device and loaded.generator.device == loaded.device
+
+
+def test_a_checkpoint_from_another_device_gets_a_reproducible_fresh_generator(tmp_path):
+    agent = filled_agent()
+    agent.save(tmp_path / "a.pt")
+    state = torch.load(tmp_path / "a.pt", weights_only=True)
+    state["rng"]["agent"] = torch.zeros(16, dtype=torch.uint8)  # a CUDA (Philox) generator state
+    state["rng"]["agent_device"] = "cuda"
+    torch.save(state, tmp_path / "b.pt")
+    first, second = SAC.load(tmp_path / "b.pt"), SAC.load(tmp_path / "b.pt")
+    assert first.update() == second.update()

@@ -240,3 +240,20 @@ def test_bad_env_options_are_one_line_and_write_nothing(override, message, tmp_p
     err = capsys.readouterr().err
     assert message in err and len(err.strip().splitlines()) == 1
     assert not run.exists()
+
+
+@pytest.mark.skipif(torch.cuda.is_available(), reason="a CUDA device is present")
+@pytest.mark.parametrize("override, message", [
+    ("train.device=cuda", "sees no CUDA device"),
+    ("train.sim_arch=cuda", "Taichi found no CUDA device"),
+    ("train.device=tpu", "train.device: must be auto, cpu or cuda"),
+])
+def test_gpu_settings_without_a_gpu_exit_2_with_one_line(override, message, tmp_path):
+    run = tmp_path / "run"
+    env = {k: v for k, v in os.environ.items() if k != "DLO_TI_ARCH"}
+    result = subprocess.run([sys.executable, "-m", "dlo_policy.train", "--out", str(run), "--steps", "10",
+                             "--no-progress", override], capture_output=True, text=True, env=env, timeout=300)
+    assert result.returncode == 2
+    errors = [line for line in result.stderr.splitlines() if not line.startswith("[Taichi]")]
+    assert len(errors) == 1 and message in errors[0], result.stderr
+    assert not run.exists()
