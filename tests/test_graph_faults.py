@@ -1,5 +1,7 @@
-"""Faults and modes of the graph: bad commands, real-time rate and command timeout, a policy node
-killed and restarted mid-episode, missing perception, malformed parameters."""
+"""Faults and modes of the graph: bad, foreign and stale commands (step-locked and real-time), real-time
+rate and command timeout, a policy node killed and restarted mid-episode, missing perception, a second
+simulator on the same domain, a recorder that lacks a topic, perception nodes interrupted mid-stream,
+malformed parameters."""
 
 import os
 import pathlib
@@ -12,7 +14,7 @@ import pytest
 import rclpy
 from rosgraph_msgs.msg import Clock
 
-from dlo_msgs.msg import GripperCommand, GripperState, TaskState
+from dlo_msgs.msg import GripperCommand, GripperState, TactilePose, TaskState, VisualPose
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 ROS2RUN = str(ROOT / "scripts" / "ros2run")
@@ -41,8 +43,10 @@ class Probe:
     def __init__(self):
         rclpy.init()
         self.node = rclpy.create_node("fault_probe")
-        self.states, self.tasks, self.clock = [], [], []
+        self.states, self.tasks, self.clock, self.tactile, self.vision = [], [], [], [], []
         self.node.create_subscription(GripperState, "/dlo/gripper/state", self.states.append, 100)
+        self.node.create_subscription(TactilePose, "/dlo/tactile/pose", self.tactile.append, 100)
+        self.node.create_subscription(VisualPose, "/dlo/vision/pose", self.vision.append, 100)
         self.node.create_subscription(TaskState, "/dlo/task/state", self.tasks.append, 100)
         self.node.create_subscription(Clock, "/clock", lambda m: self.clock.append((time.monotonic(), m)), 100)
         self.cmd = self.node.create_publisher(GripperCommand, "/dlo/gripper/cmd", 10)
@@ -58,8 +62,9 @@ class Probe:
     def spin_for(self, seconds):
         self.spin_until(lambda: False, seconds)
 
-    def send(self, state, vx, vy, closure):
-        msg = GripperCommand(vx=vx, vy=vy, closure=closure, episode=state.episode, step=state.step)
+    def send(self, state, vx, vy, closure, episode=None, step=None):
+        msg = GripperCommand(vx=vx, vy=vy, closure=closure, episode=state.episode if episode is None else episode,
+                             step=state.step if step is None else step)
         msg.header = state.header
         self.cmd.publish(msg)
 
@@ -86,14 +91,28 @@ def test_bad_commands_are_rejected_and_the_gripper_holds(probe, tmp_path):
             assert probe.spin_until(lambda: probe.states[-1].step == state.step + 1, 20)
             after = probe.states[-1]
             assert (after.x, after.y, after.closure) == pytest.approx((state.x, state.y, state.closure), abs=1e-6)
+        # step-locked: a command for an old step, a future step or another episode does not advance the sim
+        state = probe.states[-1]
+        for episode, step in ((state.episode, state.step - 1), (state.episode, state.step + 1), (999, 99999),
+                              (state.episode + 1, state.step)):
+            probe.send(state, 0.25, 0.0, 0.6, episode=episode, step=step)
+        probe.spin_for(1.5)  # (a republished state keeps its step)
+        assert probe.states[-1].step == state.step and probe.states[-1].episode == state.episode
+        assert (probe.states[-1].x, probe.states[-1].closure) == pytest.approx((state.x, state.closure), abs=1e-9)
+        probe.send(state, 0.25, 0.0, 0.6)  # the answer to the current step does
+        assert probe.spin_until(lambda: probe.states[-1].step == state.step + 1, 20)
     finally:
         stop(sim)
     text = (tmp_path / "sim.log").read_text()
-    assert text.count("rejected command") == 3 and "Traceback" not in text
+    assert text.count("rejected command") == 7 and "Traceback" not in text, text
+    for cause in ("non-finite", "speed out of range", "closure out of range", "not the current step",
+                  "ahead of the current step", "for episode 999", f"for episode {state.episode + 1}"):
+        assert cause in text, cause
 
 
-def test_real_time_mode_holds_its_rate_and_stops_on_stale_commands(probe):
-    sim = start("dlo_sim", "sim_node", "mode:=real_time", "command_timeout:=0.3", "publish_markers:=false")
+def test_real_time_mode_holds_its_rate_and_stops_on_stale_commands(probe, tmp_path):
+    sim = start("dlo_sim", "sim_node", "mode:=real_time", "command_timeout:=0.3", "publish_markers:=false",
+                "horizon:=1000", log=open(tmp_path / "sim.log", "w"))  # one episode for the whole test
     try:
         assert probe.spin_until(lambda: len(probe.clock) > 5, 120)
         probe.clock.clear()
@@ -101,18 +120,38 @@ def test_real_time_mode_holds_its_rate_and_stops_on_stale_commands(probe):
         (w0, c0), (w1, c1) = probe.clock[0], probe.clock[-1]
         sim_seconds = (c1.clock.sec - c0.clock.sec) + (c1.clock.nanosec - c0.clock.nanosec) / 1e9
         assert 0.6 < sim_seconds / (w1 - w0) < 1.4  # simulated time advances at the wall-clock rate
-        start_x = probe.states[-1].x
-        deadline = time.monotonic() + 1.0
-        while time.monotonic() < deadline:  # a live controller: drive +x
-            probe.send(probe.states[-1], 0.25, 0.0, 0.6)  # sliding grip (a firm one stalls on the taut cable)
-            probe.spin_for(0.05)
-        assert probe.states[-1].x > start_x + 0.02
-        probe.spin_for(0.6)  # commands stop: after the timeout the gripper stands still
-        x_after_timeout = probe.states[-1].x
+        start_x, episode = probe.states[-1].x, probe.states[-1].episode
+        answered = 0
+        while answered < 3:  # a live controller answers 3 states (not further: at the cable's end the episode ends)
+            state = probe.states[-1]
+            # sliding grip (a firm one stalls on the taut cable; at 0.6 the stopped gripper loses the cable)
+            probe.send(state, 0.1, 0.0, 0.7)
+            answered += 1
+            assert probe.spin_until(lambda: probe.states[-1].step > state.step, 10)
+        probe.spin_for(0.6)  # commands stop: after the timeout the gripper stands still, in the same episode
+        x_after_timeout, closure = probe.states[-1].x, probe.states[-1].closure
+        assert x_after_timeout > start_x + 0.02  # it did follow the live commands
         probe.spin_for(1.0)
         assert probe.states[-1].x == pytest.approx(x_after_timeout, abs=1e-6)
+        assert probe.states[-1].closure == pytest.approx(closure, abs=1e-6) and probe.states[-1].episode == episode
+        # commands for another episode, for a far future step or for a step older than command_timeout
+        # (0.3 s = 3.75 steps) are not obeyed: the gripper keeps standing still
+        for stamp in ((999, 99999), (episode, None), (episode, 10**6)):
+            deadline = time.monotonic() + 1.0
+            while time.monotonic() < deadline:
+                state = probe.states[-1]
+                step = state.step - 6 if stamp[1] is None else stamp[1]
+                probe.send(state, 0.25, 0.0, 0.7, episode=stamp[0], step=step)
+                probe.spin_for(0.01)
+            assert probe.states[-1].x == pytest.approx(x_after_timeout, abs=1e-6), stamp
+            assert probe.states[-1].episode == episode
     finally:
         stop(sim)
+    text = (tmp_path / "sim.log").read_text()
+    for cause in ("for episode 999", "old (current step", "ahead of the current step"):
+        lines = [line for line in text.splitlines() if "rejected command" in line and cause in line]
+        assert 1 <= len(lines) <= 3, (cause, lines)  # ~100 rejections in 1 s: one or two lines, counted
+    assert "such commands in" in text and "Traceback" not in text
 
 
 def test_policy_restart_mid_episode_resumes_the_graph(probe, tmp_path):
@@ -165,3 +204,53 @@ def test_malformed_parameters_give_a_clear_message(pkg, exe, param, expected):
     output = result.stdout + result.stderr
     assert result.returncode == 2, output
     assert expected in output and "Traceback" not in output
+
+
+def test_a_second_simulator_started_by_hand_refuses_in_one_line(probe, tmp_path):
+    first = start("dlo_sim", "sim_node", "min_subscribers:=99", "publish_markers:=false",
+                  log=open(tmp_path / "first.log", "w"))  # waits for subscribers forever: it only sits there
+    second = None
+    try:
+        assert probe.spin_until(lambda: "alone on ROS_DOMAIN_ID" in (tmp_path / "first.log").read_text(), 120)
+        second = subprocess.run([ROS2RUN, "dlo_sim", "sim_node", "--ros-args", "-p", "publish_markers:=false"],
+                                capture_output=True, text=True, timeout=180)
+        lines = [line for line in (second.stdout + second.stderr).splitlines()
+                 if "another" in line and "ROS_DOMAIN_ID" in line]
+        assert second.returncode == 3 and len(lines) == 1, second.stdout + second.stderr
+        assert "Traceback" not in second.stdout + second.stderr
+        assert first.poll() is None  # the first one goes on
+        assert not probe.tasks  # and nobody ran an episode meanwhile
+    finally:
+        stop(first)
+
+
+def test_the_sim_names_the_topics_a_recorder_lacks(probe, tmp_path):
+    """A recorder that does not subscribe to every topic must not leave the sim waiting silently."""
+    sim_log = tmp_path / "sim.log"
+    recorder = start("dlo_tools", "recorder_node", f"output:={tmp_path / 'bag'}", "namespace:=/dlo/camera")
+    sim = start("dlo_sim", "sim_node", "wait_for_recorder:=recorder", "publish_markers:=false", log=open(sim_log, "w"))
+    try:
+        assert probe.spin_until(lambda: "waiting for the recorder 'recorder' to subscribe to" in sim_log.read_text(), 120)
+        waiting = next(line for line in sim_log.read_text().splitlines() if "waiting for the recorder" in line)
+        for topic in ("/dlo/gripper/state", "/dlo/task/state", "/dlo/rope/particles"):
+            assert topic in waiting
+        assert "/dlo/camera/image" not in waiting  # that one it records
+        assert not probe.tasks  # the sim has not started
+    finally:
+        stop(sim, recorder)
+
+
+def test_perception_nodes_stop_cleanly_on_sigint_mid_stream(probe, tmp_path):
+    sim = start("dlo_sim", "sim_node", "mode:=real_time", "rate_factor:=4.0", "publish_markers:=false")
+    logs = {name: tmp_path / f"{name}.log" for name in ("tactile", "vision")}
+    nodes = {name: start("dlo_perception", f"{name}_node", log=open(log, "w")) for name, log in logs.items()}
+    try:
+        assert probe.spin_until(lambda: len(probe.tactile) > 5 and len(probe.vision) > 5, 180)
+        for node in nodes.values():  # interrupted while processing frames (50 a second)
+            node.send_signal(signal.SIGINT)
+        for name, node in nodes.items():
+            assert node.wait(timeout=60) == 0, logs[name].read_text()
+            text = logs[name].read_text()
+            assert "Traceback" not in text and "RCLError" not in text, text
+    finally:
+        stop(*nodes.values(), sim)

@@ -110,5 +110,5 @@ class RejectionLog:
         count, text, first = self._pending.pop(cause)
         self._last[cause] = now
         if count == 1:
-            return f"rejected command {text}"
-        return f"rejected command {text} ({count} such commands in {max(now - first, 0.0):.1f} s)"
+            return f"rejected command: {text}"
+        return f"rejected command: {text} ({count} such commands in {max(now - first, 0.0):.1f} s)"

@@ -113,7 +113,8 @@ class SimNode(Node):
         self.create_service(ResetEpisode, "/dlo/sim/reset", self.on_reset_service)
         self.instance = {"host": socket.gethostname(), "pid": os.getpid(), "started_ns": time.time_ns()}
         self.pub_instance = self.create_publisher(String, INSTANCE_TOPIC, latched)
-        self.create_subscription(String, INSTANCE_TOPIC, self.on_instance, latched)
+        self.create_subscription(String, INSTANCE_TOPIC, self.on_instance,  # several publishers: more than 1 deep
+                                 QoSProfile(depth=10, durability=DurabilityPolicy.TRANSIENT_LOCAL))
 
         # Another simulator or driver on this DDS domain would mix two graphs: look before building (slow) and
         # publishing anything (discovery runs meanwhile); looked at again until the first episode starts.
@@ -193,7 +194,7 @@ class SimNode(Node):
         try:
             action = command_to_action(msg.vx, msg.vy, msg.closure)
         except CommandError as error:
-            self.reject(error.cause, f": {error}; the gripper holds")
+            self.reject(error.cause, f"{error}; the gripper holds")
             action = hold_action(self.task.state.gripper[0, 3])
         if self.p["mode"] == "real_time":
             self.command = (action, time.monotonic())

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import sys
 from collections.abc import Callable
 
@@ -23,7 +24,7 @@ def run_node(make_node: Callable[[], "rclpy.node.Node"], args=None, *, interrupt
     """
     rclpy.init(args=args)
     node = None
-    name = "node"
+    name = os.path.basename(sys.argv[0]) or "node"  # the executable, until the node has its name
     rc = 0
     try:
         node = make_node()
