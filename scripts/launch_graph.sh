@@ -146,9 +146,12 @@ fi
 # ---- processes -----------------------------------------------------------------------------
 pids=() names=()
 declare -A status=()
+# A node gets SIGINT (and closes cleanly) if this script dies without stopping it (e.g. SIGKILL).
+ORPHAN=()
+if command -v setpriv >/dev/null 2>&1 && setpriv --pdeathsig INT true 2>/dev/null; then ORPHAN=(setpriv --pdeathsig INT --); fi
 start() {  # start <name> <pkg> <exe> [ros args...]
   local name="$1"; shift
-  "${RUN[@]}" "$@" > "$logs/$name.log" 2>&1 &
+  ${ORPHAN[@]+"${ORPHAN[@]}"} "${RUN[@]}" "$@" > "$logs/$name.log" 2>&1 &
   pids+=("$!") names+=("$name")
   echo "[launch] $name (pid $!) -> $logs/$name.log"
 }

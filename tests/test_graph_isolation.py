@@ -220,3 +220,22 @@ def test_the_sim_interrupted_alone_is_a_failed_run(tmp_path, launches):
     os.kill(sim, signal.SIGINT)
     assert run.wait() == EXIT_NODE_FAILED, run.out
     assert re.search(r"sim exited early \(status 130: interrupted by SIGINT, [12] of 3 episodes done\)", run.out), run.out
+
+
+def test_a_killed_launcher_leaves_no_node_running_and_a_closed_bag(tmp_path, launches):
+    """SIGKILL to launch_graph.sh itself (a test timeout, a crashed terminal): its nodes get SIGINT."""
+    bag = tmp_path / "bag"
+    run = launches(tmp_path, "run", "--policy", "tactile_reactive", "--episodes", 0, "--seed", 5, "--record", bag)
+    pids = [run.pid_of(node) for node in ("sim", "recorder", "tactile", "vision", "policy")]
+    run.wait_episodes(1)
+    run.p.send_signal(signal.SIGKILL)  # the launcher only, not its process group
+    run.p.wait()
+    deadline = time.monotonic() + 60
+    alive = pids
+    while alive and time.monotonic() < deadline:
+        time.sleep(0.5)
+        alive = [pid for pid in pids if os.path.exists(f"/proc/{pid}") and
+                 open(f"/proc/{pid}/stat").read().split()[2] != "Z"]
+    assert not alive, alive
+    assert (bag / "metadata.yaml").is_file()  # the recorder was stopped, not killed: complete bag
+    assert read_run(bag)
