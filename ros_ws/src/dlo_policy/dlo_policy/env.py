@@ -64,6 +64,11 @@ def check_options(options) -> None:
             raise ValueError(f"{name}: expected an integer >= {low}, got {value!r}")
 
 
+# The gripper's height as the simulator stores (float32) and publishes it: the vision node computes
+# O_V at the published gripper z, so the same value here keeps graph and env bit-identical.
+VISION_PLANE_Z = float(np.float32(GRIPPER_HEIGHT))
+
+
 class CableFollowingVecEnv(VectorEnv):
     """N cable-following environments in one batched simulator (gymnasium 1.x VectorEnv)."""
 
@@ -149,7 +154,7 @@ class CableFollowingVecEnv(VectorEnv):
             tactile = tactile_pose(snapshot.positions, snapshot.held, gripper[:, :2], gripper[:, 3],
                                    sigma=self.tactile_sigma, rng=self.noise_rng)
         if self._uses("V"):
-            visual = visual_pose(snapshot.image, self.sim.camera, gripper[:, :2], GRIPPER_HEIGHT)
+            visual = visual_pose(snapshot.image, self.sim.camera, gripper[:, :2], VISION_PLANE_Z)
         observation = build_observation(self.modalities, gripper[:, [0, 1, 3]], tactile, visual, without=self.without)
         return observation, state
 

@@ -153,7 +153,10 @@ class RopeKernels:
                 d = self.x[e, i] - anchor
                 reach = self.taut_reach(i)
                 if (d + dg).norm() > reach:
-                    r = d / ti.max(d.norm(), 1e-9)
+                    # the gripper moves in the horizontal plane only (DESIGN.md section 2): remove the
+                    # part of dg along the horizontal direction away from the fixed end, never add z
+                    r = ti.Vector([d.x, d.y, 0.0])
+                    r /= ti.max(r.norm(), 1e-9)
                     outward = dg.dot(r)
                     if outward > 0.0:
                         dg -= outward * r

@@ -60,3 +60,19 @@ def test_a_firm_grip_on_a_taut_cable_stops_the_gripper():
     (held0, _, g0), (held1, _, g1) = trace[0], trace[-1]
     assert np.linalg.norm(g1 - g0) < 0.01
     assert abs(held1.mean() - held0.mean()) <= 1.0
+
+
+@pytest.mark.parametrize("closure, command, lead_in", [(1.0, (1.0, 0.0), 4), (1.0, (0.3, 1.0), 4),
+                                                       (1.0, (1.0, 0.0), 0), (0.95, (0.7, -0.7), 8)])
+def test_a_stalled_gripper_stays_at_its_height(closure, command, lead_in):
+    """The gripper moves in the horizontal plane only (DESIGN.md section 2): the stall removes the
+    horizontal part of the motion away from the fixed end and never lifts or lowers the gripper
+    (before: up to 4 mm up within an episode, which also made vision differ between graph and env)."""
+    sim = RopeSim(1)
+    sim.reset(np.array([3]))
+    height = sim.gripper_state()[0, 2]
+    for _ in range(lead_in):
+        sim.step(np.array([[1.0, 0.0, 0.4]], np.float32))
+    for _ in range(30):
+        sim.step(np.array([[command[0], command[1], 2.0 * closure - 1.0]], np.float32))
+        assert sim.gripper_state()[0, 2] == height
