@@ -1,0 +1,133 @@
+"""The Taichi kernel's own copies of the physics rules, checked against their definitions (issue 14):
+
+- the grip law: the inverse mass and carried fraction the kernel gives the particles between the
+  fingers equal ``dlo_sim.grip`` for closures across [0, 1]; every other particle keeps w_nom and is
+  not carried; the pinned particle 0 is kinematic;
+- the held rule (DESIGN.md section 9) at its boundaries: the extent along the finger includes the
+  capsule's rounded ends (|dy| <= half-length + radius), the distance to the lower finger's axis,
+  and "above the lower finger";
+- finite grip: a firm grip on a taut cable stalls the gripper, a sliding grip slides along it, and
+  a gripped cable is not stretched.
+
+One simulator serves every test (each new one recompiles the kernels), so a kernel mutant costs one
+compilation in scripts/mutation_check.sh.
+"""
+
+import numpy as np
+import pytest
+
+from dlo_sim import RopeSim
+from dlo_sim.config import (FINGER_AXIS_OFFSET, FINGER_HALF_LENGTH, FINGER_RADIUS, NOMINAL_INVERSE_MASS, P_MAX,
+                            PARTICLE_RADIUS, REST_SPACING)
+from dlo_sim.grip import carried_fraction, inverse_mass
+
+HELD_DISTANCE = PARTICLE_RADIUS + FINGER_RADIUS + REST_SPACING  # DESIGN.md section 9
+F32 = np.float32
+
+
+@pytest.fixture(scope="module")
+def sim():
+    return RopeSim(1)
+
+
+def closure_action(c, dx=0.0, dy=0.0):
+    return np.array([[dx, dy, 2.0 * c - 1.0]], np.float32)
+
+
+@pytest.mark.parametrize("seed", [0, 5])
+def test_kernel_grip_fields_equal_the_grip_law(sim, seed):
+    sim.reset(np.array([seed]))
+    n = int(sim.num_particles[0])
+    closures = [0.0, 0.2, 0.5, 0.55, 0.6, 0.7, 0.75, 0.8, 0.85, 0.89, 0.9, 0.95, 1.0, 0.3]
+    held_seen = 0
+    for c in closures:
+        held = sim.held_mask()[0, :n]  # the held set at the start of the step: what update_grip uses
+        sim.step_physics(closure_action(c), 1)
+        c_kernel = float(sim.gripper_state()[0, 3])
+        assert c_kernel == pytest.approx(c, abs=1e-6)
+        w = sim._k.w.to_numpy()[0, :n]
+        carry = sim._k.carry.to_numpy()[0, :n]
+        expected_w = np.where(held, inverse_mass(c_kernel, NOMINAL_INVERSE_MASS), NOMINAL_INVERSE_MASS)
+        expected_carry = np.where(held, carried_fraction(c_kernel), 0.0)
+        expected_w[0] = expected_carry[0] = 0.0  # the fixed end is pinned
+        np.testing.assert_allclose(w, expected_w, atol=2e-6, err_msg=f"inverse mass at c = {c}")
+        np.testing.assert_allclose(carry, expected_carry, atol=2e-6, err_msg=f"carried fraction at c = {c}")
+        held_seen += int(held[1:].sum())
+    assert held_seen > 0  # the law was applied to particles between the fingers, not only to the pin
+
+
+def place(sim, probes):
+    """Particle i + 1 at gripper + probes[i] (dx, dy, dz with dz from the lower finger's axis), every other
+    particle far from the gripper; returns the held mask of the probes (no physics step in between)."""
+    g = sim.gripper_state()[0, :3].astype(np.float64)
+    positions = np.zeros((1, P_MAX, 3), np.float32)
+    positions[0, :, 0] = 0.25
+    positions[0, :, 1] = 0.2 + 0.005 * np.arange(P_MAX)
+    positions[0, :, 2] = 0.02
+    axis_z = F32(F32(g[2]) - F32(FINGER_AXIS_OFFSET))  # as the kernel computes it, in float32
+    for i, (dx, dy, dz) in enumerate(probes):
+        positions[0, i + 1] = (F32(g[0]) + F32(dx), F32(g[1]) + F32(dy), axis_z + F32(dz) if dz else axis_z)
+    sim.set_positions(positions)
+    return sim.held_mask()[0, 1:len(probes) + 1].tolist()
+
+
+def test_held_rule_extent_along_the_finger_includes_the_rounded_ends(sim):
+    sim.reset(np.array([1]))
+    extent = FINGER_HALF_LENGTH + FINGER_RADIUS
+    up = 0.002  # well above the lower finger's axis, well within the held distance
+    probes = [(0.0, 0.0, up), (0.0, FINGER_HALF_LENGTH + 0.5 * FINGER_RADIUS, up),
+              (0.0, -(FINGER_HALF_LENGTH + 0.5 * FINGER_RADIUS), up), (0.0, extent - 1e-4, up),
+              (0.0, -(extent - 1e-4), up), (0.0, extent + 1e-4, up), (0.0, -(extent + 1e-4), up)]
+    assert place(sim, probes) == [True, True, True, True, True, False, False]
+
+
+def test_held_rule_boundaries_are_inclusive_along_the_finger_and_strict_above_the_axis(sim):
+    sim.reset(np.array([1]))
+    assert float(sim.gripper_state()[0, 1]) == 0.0  # the gripper starts on y = 0: exact float32 boundaries
+    extent = float(F32(FINGER_HALF_LENGTH + FINGER_RADIUS))
+    # exactly at the end of the extent: held; exactly at the height of the lower finger's axis: not held
+    assert place(sim, [(0.0, extent, 0.002), (0.0, -extent, 0.002), (0.0, 0.0, None), (0.001, 0.0, None),
+                       (0.0, 0.0, 1e-5), (0.0, 0.0, -1e-5)]) == [True, True, False, False, True, False]
+
+
+def test_held_rule_distance_from_the_lower_finger_axis(sim):
+    sim.reset(np.array([1]))
+    d = HELD_DISTANCE
+    s = np.sqrt(0.5)
+    probes = [(0.0, 0.0, d - 1e-4), (0.0, 0.0, d + 1e-4), (d - 1e-4, 0.0, 1e-3), (-(d - 1e-4), 0.0, 1e-3),
+              ((d + 1e-4), 0.0, 1e-3), (-(d + 1e-4), 0.0, 1e-3), (s * (d - 1e-4), 0.0, s * (d - 1e-4)),
+              (s * (d + 1e-4), 0.0, s * (d + 1e-4))]
+    assert place(sim, probes) == [True, False, True, True, False, False, True, False]
+
+
+def pull(sim, seed, closure, actions, command=(1.0, 0.0), lead_in=0):
+    """As test_grip_stretch.pull, on the shared simulator: (held indices, positions, gripper x-y) per action."""
+    sim.reset(np.array([seed]))
+    n = int(sim.num_particles[0])
+    for _ in range(lead_in):
+        sim.step(closure_action(0.7, 1.0, 0.0))
+    trace = []
+    for _ in range(actions):
+        sim.step(closure_action(closure, *command))
+        trace.append((np.flatnonzero(sim.held_mask()[0]), sim.positions()[0][:n], sim.gripper_state()[0, :2].copy()))
+    return trace
+
+
+def test_a_firm_grip_on_a_taut_cable_stalls_the_gripper(sim):
+    trace = pull(sim, 3, 1.0, actions=12, lead_in=4)
+    (held0, _, g0), (held1, _, g1) = trace[0], trace[-1]
+    assert len(held0) and len(held1)
+    assert np.linalg.norm(g1 - g0) < 0.01  # 0.24 m commanded
+    assert abs(held1.mean() - held0.mean()) <= 1.0
+
+
+def test_a_sliding_grip_on_a_taut_cable_slides_and_nothing_stretches(sim):
+    trace = pull(sim, 3, 0.85, actions=10)
+    farthest = [held.max() for held, _, _ in trace if len(held)]
+    assert farthest[-1] >= farthest[0] + 20
+    for held, x, _ in trace:
+        segments = np.linalg.norm(np.diff(x, axis=0), axis=1) / REST_SPACING
+        assert segments.max() <= 1.5
+        if len(held):
+            far = held.max()
+            assert np.linalg.norm(x[far] - x[0]) <= 1.05 * far * REST_SPACING
