@@ -1,0 +1,112 @@
+"""tactile_node in-process (no graph; issue 14): one noise draw per control step.
+
+A step the sim republishes (same stamp: nobody answered it) gets the SAME tactile reading, noise
+included; the next step gets a new draw; the reading carries the input's stamp; the generator is
+seeded by the ``seed`` parameter; ``noise:=none`` is the exact line fit of dlo_perception.tactile.
+"""
+
+import os
+import random
+
+import numpy as np
+import pytest
+
+rclpy = pytest.importorskip("rclpy")
+from dlo_msgs.msg import GripperState  # noqa: E402
+
+from dlo_perception import tactile_node as tactile_node_module  # noqa: E402
+from dlo_perception.cloud import particle_cloud  # noqa: E402
+from dlo_perception.tactile import tactile_pose  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def context():
+    os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    context = rclpy.Context()
+    rclpy.init(context=context, domain_id=random.Random(os.getpid() + 1).randint(201, 230))
+    yield context
+    rclpy.shutdown(context=context)
+
+
+class Published(list):
+    def publish(self, msg):
+        self.append(msg)
+
+
+@pytest.fixture
+def make_node(context, monkeypatch):
+    nodes = []
+
+    def make(**parameters):
+        declare = tactile_node_module.declare_parameters
+        monkeypatch.setattr(tactile_node_module, "declare_parameters",
+                            lambda n, specs: {**declare(n, specs), **parameters})
+        init = rclpy.node.Node.__init__
+        monkeypatch.setattr(rclpy.node.Node, "__init__",
+                            lambda self, *a, **k: init(self, *a, **{"context": context, **k}))
+        node = tactile_node_module.TactileNode()
+        monkeypatch.setattr(rclpy.node.Node, "__init__", init)
+        node.publisher = Published()
+        nodes.append(node)
+        return node
+
+    yield make
+    for node in nodes:
+        node.destroy_node()
+
+
+POSITIONS = np.array([[-0.25, 0.0, 0.1], [0.0, -0.001, 0.085], [0.004, 0.0005, 0.085], [0.008, 0.002, 0.085],
+                      [0.05, 0.01, 0.02]], np.float32)
+HELD = np.array([False, True, True, True, False])
+
+
+def feed(node, step, closure=0.0, gripper_xy=(0.002, 0.0005)):
+    """One control step's particles and gripper state, stamped step * 0.08 s."""
+    sec, nanosec = divmod(step * 80_000_000, 1_000_000_000)
+    cloud = particle_cloud(POSITIONS, HELD)
+    state = GripperState(x=gripper_xy[0], y=gripper_xy[1], z=0.1, closure=closure, episode=0, step=step)
+    for msg in (cloud, state):
+        msg.header.stamp.sec, msg.header.stamp.nanosec = sec, nanosec
+        msg.header.frame_id = "world"
+    node.on_input("particles", cloud)
+    node.on_input("gripper", state)
+    return sec, nanosec
+
+
+def reading(msg):
+    return (msg.angle, msg.y, msg.contact, msg.contact_count)
+
+
+def test_a_republished_step_gets_the_same_noisy_reading(make_node):
+    node = make_node(noise="full", seed=3)
+    stamp = feed(node, 5)
+    feed(node, 5)  # the sim republished step 5
+    feed(node, 6)
+    first, again, next_step = node.publisher
+    assert reading(again) == reading(first)
+    assert (again.header.stamp.sec, again.header.stamp.nanosec) == stamp
+    assert (next_step.angle, next_step.y) != (first.angle, first.y)  # a new step: a new draw
+    exact = tactile_pose(POSITIONS[:, :2], HELD, (0.002, 0.0005), 0.0)
+    assert (first.angle, first.y) != pytest.approx((exact.angle, exact.y), abs=1e-6)  # the noise is there
+    assert first.contact and first.contact_count == 3
+
+
+def test_the_noise_generator_follows_the_seed(make_node):
+    a, b, c = make_node(noise="full", seed=3), make_node(noise="full", seed=3), make_node(noise="full", seed=4)
+    for node in (a, b, c):
+        feed(node, 1)
+    assert reading(a.publisher[0]) == reading(b.publisher[0]) != reading(c.publisher[0])
+
+
+def test_no_noise_is_the_exact_line_fit_and_a_closed_gripper_has_none(make_node):
+    exact = tactile_pose(POSITIONS[:, :2], HELD, (0.002, 0.0005), 0.0)
+    quiet = make_node(noise="none")
+    feed(quiet, 2)
+    assert (quiet.publisher[0].angle, quiet.publisher[0].y) == pytest.approx((exact.angle, exact.y), abs=1e-9)
+    closed = make_node(noise="full", seed=1)
+    feed(closed, 2, closure=1.0)  # noise scales with 1 - c_G
+    assert (closed.publisher[0].angle, closed.publisher[0].y) == pytest.approx((exact.angle, exact.y), abs=1e-9)
+    custom = make_node(noise="custom", sigma_theta=0.0, sigma_y=0.001, seed=1)
+    feed(custom, 2)
+    assert custom.publisher[0].angle == pytest.approx(exact.angle, abs=1e-9)
+    assert custom.publisher[0].y != pytest.approx(exact.y, abs=1e-7)
