@@ -71,10 +71,28 @@ def test_every_message_has_a_header_and_documented_fields():
             assert lines[i - 1].startswith("#"), f"{path.name}: '{field}' has no comment"
 
 
-def test_reset_service_types_exist():
-    request = ResetEpisode.Request(seed=5)
-    response = ResetEpisode.Response(success=True, message="ok", episode=1, seed=5)
-    assert request.seed == 5 and response.success
+def test_reset_service_contract():
+    """/dlo/sim/reset (dlo_msgs/srv/ResetEpisode): a signed seed (< 0 = the node's own sequence), and
+    the new episode's counter and seed in the answer; documented, and both halves survive CDR. (The
+    sim node's answers: ros_ws/src/dlo_sim/test/test_sim_node_commands.py.)"""
+    from ament_index_python.packages import get_package_share_directory
+    import pathlib
+
+    assert ResetEpisode.Request.get_fields_and_field_types() == {"seed": "int64"}
+    assert ResetEpisode.Response.get_fields_and_field_types() == {
+        "success": "boolean", "message": "string", "episode": "uint32", "seed": "uint64"}
+    assert ResetEpisode.Request().seed == 0
+    for value in (-1, 2**40 + 7):  # "use your own sequence" and a seed beyond 32 bits both fit
+        request = deserialize_message(serialize_message(ResetEpisode.Request(seed=value)), ResetEpisode.Request)
+        assert request.seed == value
+    response = ResetEpisode.Response(success=True, message="episode 4 started with seed 12", episode=4, seed=2**40 + 7)
+    back = deserialize_message(serialize_message(response), ResetEpisode.Response)
+    assert (back.success, back.message, back.episode, back.seed) == (True, "episode 4 started with seed 12", 4,
+                                                                     2**40 + 7)
+    text = (pathlib.Path(get_package_share_directory("dlo_msgs")) / "srv" / "ResetEpisode.srv").read_text()
+    request_text, response_text = text.split("---")
+    assert "seed < 0" in request_text and "int64 seed" in request_text
+    assert "uint32 episode" in response_text and "uint64 seed" in response_text
 
 
 PUBLISHER = textwrap.dedent("""

@@ -1,0 +1,228 @@
+"""The sim node's command handling, in-process (no graph, no spinning; issue 14):
+
+- step_locked: only the answer to the current episode and step advances the simulation; an old, a
+  future or another episode's command does not (and the gripper stays where it is);
+- real_time: the last command acts while it is younger than ``command_timeout``; an older one stops
+  the gripper and holds its closure while the episode stays the same (not a restart after a drop);
+- the speed limit through the node: 0.25 m/s is executed, 0.2501 m/s on either axis (or a closure
+  outside [0, 1], or NaN) makes the gripper hold.
+
+The node is built once (the simulator compiles its kernels); every test starts a fresh episode.
+Each action the node executes is recorded by wrapping its TaskSim's ``step``; time is a fake
+monotonic clock.
+"""
+
+import math
+import os
+import random
+import time
+
+import numpy as np
+import pytest
+
+rclpy = pytest.importorskip("rclpy")
+from dlo_msgs.msg import GripperCommand  # noqa: E402
+
+from dlo_sim import sim_node as sim_node_module  # noqa: E402
+from dlo_sim.command import MAX_SPEED  # noqa: E402
+
+RATE_FACTOR = 2.0  # wall seconds per step: 0.04 (so a command's age is not the 0.08 s default)
+COMMAND_TIMEOUT = 0.5
+PARAMETERS = {"publish_markers": False, "camera_resolution": 32, "rate_factor": RATE_FACTOR,
+              "command_timeout": COMMAND_TIMEOUT, "step_timeout": 30.0, "episodes": 0}
+
+
+@pytest.fixture(scope="module")
+def node():
+    os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    context = rclpy.Context()
+    rclpy.init(context=context, domain_id=random.Random(os.getpid()).randint(201, 230))
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(sim_node_module, "DISCOVERY_GRACE", 0.0)
+        declare = sim_node_module.declare_parameters
+        patch.setattr(sim_node_module, "declare_parameters", lambda n, specs: {**declare(n, specs), **PARAMETERS})
+        patch.setattr(rclpy.node.Node, "__init__", _in_context(rclpy.node.Node.__init__, context))
+        sim = sim_node_module.SimNode()
+    yield sim
+    sim.destroy_node()
+    rclpy.shutdown(context=context)
+
+
+def _in_context(init, context):
+    def wrapped(self, *args, **kwargs):
+        kwargs.setdefault("context", context)
+        return init(self, *args, **kwargs)
+    return wrapped
+
+
+class FakeClock:
+    """The node's ``time`` module with a monotonic clock the test moves."""
+
+    def __init__(self):
+        self.now = 1000.0
+
+    def monotonic(self):
+        return self.now
+
+    def __getattr__(self, name):
+        return getattr(time, name)
+
+
+@pytest.fixture
+def clock(monkeypatch):
+    fake = FakeClock()
+    monkeypatch.setattr(sim_node_module, "time", fake)
+    return fake
+
+
+@pytest.fixture
+def executed(node, monkeypatch):
+    """The actions the simulator executes, in order (node.task.step wrapped)."""
+    actions = []
+    step = node.task.step
+
+    def recording(batch):
+        actions.append(np.array(batch[0], dtype=np.float64))
+        return step(batch)
+    monkeypatch.setattr(node.task, "step", recording)
+    return actions
+
+
+def start(node, mode, seed):
+    node.p["mode"] = mode
+    node.started = True
+    node.start_episode(seed)
+    return node.episode
+
+
+def command(node, vx=0.05, vy=0.0, closure=0.7, episode=None, step=None):
+    return GripperCommand(vx=float(vx), vy=float(vy), closure=float(closure),
+                          episode=node.episode if episode is None else episode,
+                          step=node.step_index if step is None else step)
+
+
+def gripper(node):
+    return node.task.state.gripper[0].astype(np.float64).copy()  # x, y, z, closure
+
+
+def test_step_locked_obeys_only_the_answer_to_the_current_step(node, clock, executed):
+    episode = start(node, "step_locked", seed=0)
+    node.on_command(command(node, vx=0.05))  # answers step 0
+    assert node.step_index == 1 and len(executed) == 1
+    assert executed[0] == pytest.approx([0.05 / MAX_SPEED, 0.0, 0.4])
+    moved = gripper(node)
+    rejected_before = sum(node.rejections.total.values())
+    for stale in (command(node, step=0), command(node, step=2), command(node, episode=episode + 1),
+                  command(node, episode=episode + 7, step=1)):
+        node.on_command(stale)
+        assert node.step_index == 1 and node.episode == episode and len(executed) == 1
+        np.testing.assert_array_equal(gripper(node), moved)
+    assert sum(node.rejections.total.values()) == rejected_before + 4
+    node.on_command(command(node, vx=-0.05))  # the current step again: obeyed
+    assert node.step_index == 2 and executed[-1][0] == pytest.approx(-0.2)
+
+
+def test_nothing_is_obeyed_before_the_start(node, clock, executed):
+    start(node, "step_locked", seed=0)
+    node.started = False
+    try:
+        node.on_command(command(node))
+        assert node.step_index == 0 and executed == []
+    finally:
+        node.started = True
+
+
+def test_the_answer_to_the_previous_episodes_final_state_is_ignored_quietly(node, clock, executed):
+    start(node, "step_locked", seed=1)
+    node.on_command(command(node))
+    final = (node.episode, node.step_index)
+    node.finish_episode()  # the next episode starts
+    assert node.episode == final[0] + 1 and node.step_index == 0
+    rejected = dict(node.rejections.total)
+    node.on_command(command(node, episode=final[0], step=final[1]))
+    assert node.rejections.total == rejected and len(executed) == 1 and node.step_index == 0
+    node.on_command(command(node, episode=final[0], step=final[1] - 1))  # any other old command: rejected
+    assert sum(node.rejections.total.values()) == sum(rejected.values()) + 1 and len(executed) == 1
+
+
+@pytest.mark.parametrize("vx, vy", [(0.25, 0.0), (-0.25, 0.0), (0.0, 0.25), (0.0, -0.25), (0.25, -0.25)])
+def test_the_speed_limit_itself_is_executed(node, clock, executed, vx, vy):
+    start(node, "step_locked", seed=2)
+    node.on_command(command(node, vx=vx, vy=vy, closure=0.6))
+    assert executed[-1] == pytest.approx([vx / 0.25, vy / 0.25, 0.2], abs=1e-6)
+
+
+@pytest.mark.parametrize("vx, vy, closure", [(0.2501, 0.0, 0.6), (-0.2501, 0.0, 0.6), (0.0, 0.2501, 0.6),
+                                             (0.0, -0.2501, 0.6), (2.5, 0.0, 0.6), (math.nan, 0.0, 0.6),
+                                             (0.0, 0.0, 1.0001), (0.0, 0.0, -0.0001)])
+def test_an_invalid_command_makes_the_gripper_hold(node, clock, executed, vx, vy, closure):
+    start(node, "step_locked", seed=2)
+    node.on_command(command(node, vx=0.05, closure=0.8))  # a valid step first: closure 0.8
+    before = gripper(node)
+    node.on_command(command(node, vx=vx, vy=vy, closure=closure))
+    assert executed[-1] == pytest.approx([0.0, 0.0, 2.0 * before[3] - 1.0], abs=1e-6)  # stand still, keep c
+    after = gripper(node)
+    np.testing.assert_array_equal(after[:2], before[:2])
+    assert after[3] == pytest.approx(before[3], abs=1e-6)
+
+
+def test_real_time_without_a_command_stands_still_and_open(node, clock, executed):
+    start(node, "real_time", seed=4)
+    node.on_real_time_tick()
+    assert executed[-1] == pytest.approx([0.0, 0.0, -1.0])
+
+
+def test_real_time_acts_on_a_fresh_command_and_stops_on_a_stale_one(node, clock, executed):
+    episode = start(node, "real_time", seed=4)
+    node.on_command(command(node, vx=0.05, closure=0.7))  # received at t = 1000.0
+    clock.now += COMMAND_TIMEOUT  # exactly command_timeout old: still obeyed
+    node.on_real_time_tick()
+    assert executed[-1] == pytest.approx([0.2, 0.0, 0.4])
+    moving = gripper(node)
+    clock.now += 0.01  # now older than command_timeout
+    node.on_real_time_tick()
+    node.on_real_time_tick()
+    assert executed[-1] == pytest.approx([0.0, 0.0, 2.0 * moving[3] - 1.0], abs=1e-6)
+    assert executed[-2] == pytest.approx(executed[-1])
+    stopped = gripper(node)
+    np.testing.assert_array_equal(stopped[:2], moving[:2])  # the gripper stopped ...
+    assert stopped[3] == pytest.approx(0.7, abs=1e-6)  # ... holding its closure ...
+    assert node.episode == episode and node.step_index == 3  # ... in the same episode, which went on
+    node.on_command(command(node, vx=-0.05, closure=0.7))  # a new command: moves again
+    node.on_real_time_tick()
+    assert executed[-1] == pytest.approx([-0.2, 0.0, 0.4])
+
+
+def test_real_time_obeys_recent_steps_only(node, clock, executed):
+    episode = start(node, "real_time", seed=4)
+    node.on_command(command(node, vx=0.0, closure=0.8))  # the clock stands still: this command stays fresh
+    for _ in range(20):
+        node.on_real_time_tick()
+    assert node.step_index == 20 and node.episode == episode
+    period = 0.08 / RATE_FACTOR  # 12 steps = 0.48 s old: obeyed; 13 steps = 0.52 s: stale
+    assert node.period_wall == pytest.approx(period)
+    node.on_command(command(node, vx=0.05, step=20 - 12))
+    assert node.command is not None and node.command[0][0] == pytest.approx(0.2)
+    node.on_command(command(node, vx=-0.05, step=20 - 13))
+    node.on_command(command(node, vx=-0.1, step=21))  # a step that does not exist yet
+    node.on_command(command(node, vx=-0.1, episode=node.episode + 1))
+    node.on_real_time_tick()
+    assert executed[-1] == pytest.approx([0.2, 0.0, 0.4])  # only the recent one acted
+
+
+def test_the_reset_service_starts_the_asked_episode(node, clock, executed):
+    from dlo_msgs.srv import ResetEpisode
+
+    start(node, "step_locked", seed=0)
+    node.on_command(command(node))
+    node.on_command(command(node))
+    old = (node.episode, node.step_index)
+    response = node.on_reset_service(ResetEpisode.Request(seed=12), ResetEpisode.Response())
+    assert (response.success, response.episode, response.seed) == (True, old[0] + 1, 12)
+    assert (node.episode, node.episode_seed, node.step_index) == (old[0] + 1, 12, 0)
+    assert node.task.sim.params["seed"][0] == 12
+    rejected = dict(node.rejections.total)
+    node.on_command(command(node, episode=old[0], step=old[1]))  # the old episode's last answer: quietly ignored
+    assert node.rejections.total == rejected and node.step_index == 0
+    response = node.on_reset_service(ResetEpisode.Request(seed=-1), ResetEpisode.Response())  # the node's sequence
+    assert response.seed == node.p["seed"] + old[0] + 2 == node.episode_seed and response.episode == old[0] + 2
