@@ -1,7 +1,11 @@
-"""Workspace-level fixtures: an isolated ROS 2 domain per test session."""
+"""Workspace-level fixtures: an isolated ROS 2 domain per test session, and graph launches that
+never outlive their test."""
 
 import os
 import random
+import signal
+import subprocess
+import time
 
 import pytest
 
@@ -12,3 +16,56 @@ def isolated_ros_domain():
     os.environ.setdefault("ROS_DOMAIN_ID", str(random.Random(os.getpid()).randint(100, 200)))
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     yield os.environ["ROS_DOMAIN_ID"]
+
+
+def kill_process_group(pid: int, grace: float = 30.0) -> None:
+    """SIGINT the process group ``pid`` leads (a launcher stops its graph and closes its bag), then
+    SIGKILL whatever is left of it after ``grace`` seconds. Nothing of the group survives this."""
+    try:
+        os.killpg(pid, signal.SIGINT)
+    except ProcessLookupError:
+        return
+    deadline = time.monotonic() + grace
+    while time.monotonic() < deadline:
+        try:
+            os.killpg(pid, 0)
+        except ProcessLookupError:
+            return
+        time.sleep(0.2)
+    try:
+        os.killpg(pid, signal.SIGKILL)
+    except ProcessLookupError:
+        pass
+
+
+def run_in_own_group(cmd, *, timeout: float, **popen) -> subprocess.CompletedProcess:
+    """``subprocess.run`` for a command that starts other processes (scripts/launch_graph.sh): it
+    runs in its own process group; on timeout the whole group is stopped (SIGINT, then SIGKILL), not
+    just the script, and the timeout is raised; after it returns, no process of the group is left."""
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True,
+                            **popen)
+    try:
+        out, err = proc.communicate(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        kill_process_group(proc.pid)
+        out, err = proc.communicate()
+        raise subprocess.TimeoutExpired(cmd, timeout, out, err) from None
+    finally:
+        kill_process_group(proc.pid, grace=10.0)  # nodes the launcher may have left behind
+    return subprocess.CompletedProcess(cmd, proc.returncode, out, err)
+
+
+@pytest.fixture(scope="session")
+def launch_in_own_group():
+    """The ``run_in_own_group`` function, for tests and module fixtures that launch graphs."""
+    return run_in_own_group
+
+
+@pytest.fixture
+def own_groups():
+    """Register the pid of a child started with ``start_new_session=True``: at teardown its whole
+    process group is stopped (SIGINT, SIGKILL after 30 s), whatever the test did or failed to do."""
+    pids = []
+    yield pids.append
+    for pid in pids:
+        kill_process_group(pid)

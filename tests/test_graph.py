@@ -24,21 +24,38 @@ EPISODES = 2
 
 
 @pytest.fixture(scope="module")
-def recorded_run(tmp_path_factory):
+def recorded_run(tmp_path_factory, launch_in_own_group):
     base = tmp_path_factory.mktemp("graph")
     bag, logs = base / "bag", base / "logs"
-    result = subprocess.run(
+    # its own process group: on a timeout every node is stopped with the launcher (none outlives the test)
+    result = launch_in_own_group(
         ["bash", str(ROOT / "scripts" / "launch_graph.sh"), "--policy", "tactile_reactive", "--episodes",
          str(EPISODES), "--seed", str(SEED), "--record", str(bag), "--logs", str(logs)],
-        capture_output=True, text=True, timeout=600, env={**os.environ, "DLO_USE_ROS2RUN": "1"})
+        timeout=600, env={**os.environ, "DLO_USE_ROS2RUN": "1"})
     assert result.returncode == 0, result.stdout + result.stderr
     live = [json.loads(line) for line in (logs / "outcomes.jsonl").read_text().splitlines()]
     return {"bag": bag, "logs": logs, "stdout": result.stdout, "live": live, "run": read_run(bag)}
 
 
 def test_launch_prints_the_outcome_table(recorded_run):
-    assert "hold_the_end" in recorded_run["stdout"] and "drop_before" in recorded_run["stdout"]
-    assert len(recorded_run["live"]) == EPISODES
+    """The printed table is the run's: one line per finished episode with its seed, both outcomes and
+    numbers as the sim logged them, and per outcome the count of episodes under each rule."""
+    live, out = recorded_run["live"], recorded_run["stdout"]
+    assert len(live) == EPISODES
+    assert [e["episode"] for e in live] == list(range(EPISODES))
+    assert [e["seed"] for e in live] == [SEED + k for k in range(EPISODES)]
+    for e in live:
+        line = (f"{e['episode']:>7} {e['seed']:>6}  {e['outcome']:<20} {e['outcome_authors']:<20} "
+                f"{e['episode_return']:>8.3f} {e['time_at_end']:>11} {e['how_far']:>8}")
+        assert line in out.splitlines(), f"no line {line!r} in:\n{out}"
+    rows = {line.split()[0]: line.split()[1:] for line in out.splitlines()
+            if line.split() and line.split()[0] in ("hold_the_end", "stop_before", "reach_end_but_drop", "drop_before")}
+    assert len(rows) == 4, out
+    for name, cells in rows.items():
+        paper = sum(e["outcome"] == name for e in live)
+        authors = sum(e["outcome_authors"] == name for e in live)
+        assert (cells[0], cells[2]) == (f"{paper}/{EPISODES}", f"{authors}/{EPISODES}"), (name, cells)
+    assert sum(int(cells[0].split("/")[0]) for cells in rows.values()) == EPISODES
 
 
 def test_bag_has_every_topic_for_every_step(recorded_run):
@@ -97,7 +114,7 @@ def test_bag_analysis_equals_live_outcomes(recorded_run, tmp_path):
     assert len(list((tmp_path / "plots").glob("episode_*.png"))) == EPISODES
 
 
-def test_playback_reruns_perception_on_recorded_images(recorded_run):
+def test_playback_reruns_perception_on_recorded_images(recorded_run, own_groups):
     """Replay the recorded images and gripper states into a fresh vision node: same visual poses."""
     import rclpy
 
@@ -107,7 +124,8 @@ def test_playback_reruns_perception_on_recorded_images(recorded_run):
     recorded = {stamp_to_ns(m.header.stamp): m for e in recorded_run["run"].values() for m in e["vision"].values()}
     ros2run = str(ROOT / "scripts" / "ros2run")
     vision = subprocess.Popen([ros2run, "dlo_perception", "vision_node", "--ros-args", "-r", "/dlo/vision/pose:=/replay/vision"],
-                              stdout=subprocess.DEVNULL, stderr=subprocess.STDOUT)
+                              stdout=subprocess.DEVNULL, stderr=subprocess.STDOUT, start_new_session=True)
+    own_groups(vision.pid)
     rclpy.init()
     try:
         node = rclpy.create_node("replay_probe")
@@ -120,7 +138,9 @@ def test_playback_reruns_perception_on_recorded_images(recorded_run):
         topics = "['/dlo/camera/image', '/dlo/camera/camera_info', '/dlo/gripper/state']"
         playback = subprocess.Popen([ros2run, "dlo_tools", "playback_node", "--ros-args", "-p", f"bag:={recorded_run['bag']}",
                                      "-p", "rate:=2.0", "-p", f"topics:={topics}", "-p", "wait_for_subscribers:=1",
-                                     "-p", "wait_timeout:=60.0"], stdout=subprocess.DEVNULL, stderr=subprocess.STDOUT)
+                                     "-p", "wait_timeout:=60.0"], stdout=subprocess.DEVNULL, stderr=subprocess.STDOUT,
+                                    start_new_session=True)
+        own_groups(playback.pid)
         deadline = time.monotonic() + 180
         while playback.poll() is None and time.monotonic() < deadline:
             rclpy.spin_once(node, timeout_sec=0.1)

@@ -2,7 +2,6 @@
 
 import pathlib
 import re
-import signal
 import subprocess
 
 import numpy as np
@@ -13,19 +12,15 @@ ROOT = pathlib.Path(__file__).resolve().parents[1]
 ROS2RUN = str(ROOT / "scripts" / "ros2run")
 
 
-def test_perception_and_policy_follow_a_mock_robot_cable():
-    nodes = [subprocess.Popen([ROS2RUN, "dlo_perception", "tactile_node"], stdout=subprocess.DEVNULL, stderr=subprocess.STDOUT),
-             subprocess.Popen([ROS2RUN, "dlo_perception", "vision_node"], stdout=subprocess.DEVNULL, stderr=subprocess.STDOUT),
-             subprocess.Popen([ROS2RUN, "dlo_policy", "policy_node", "--ros-args", "-p", "policy:=tactile_reactive"],
-                              stdout=subprocess.DEVNULL, stderr=subprocess.STDOUT)]
-    try:
-        driver = subprocess.run([ROS2RUN, "dlo_tools", "mock_driver_node", "--ros-args", "-p", "steps:=40"],
-                                capture_output=True, text=True, timeout=300)
-    finally:
-        for node in nodes:
-            node.send_signal(signal.SIGINT)
-        for node in nodes:
-            node.wait(timeout=30)
+def test_perception_and_policy_follow_a_mock_robot_cable(own_groups):
+    quiet = dict(stdout=subprocess.DEVNULL, stderr=subprocess.STDOUT, start_new_session=True)
+    nodes = [subprocess.Popen([ROS2RUN, "dlo_perception", "tactile_node"], **quiet),
+             subprocess.Popen([ROS2RUN, "dlo_perception", "vision_node"], **quiet),
+             subprocess.Popen([ROS2RUN, "dlo_policy", "policy_node", "--ros-args", "-p", "policy:=tactile_reactive"], **quiet)]
+    for node in nodes:
+        own_groups(node.pid)  # stopped at teardown (SIGINT, then SIGKILL), even if this test fails
+    driver = subprocess.run([ROS2RUN, "dlo_tools", "mock_driver_node", "--ros-args", "-p", "steps:=40"],
+                            capture_output=True, text=True, timeout=300)
     assert driver.returncode == 0, driver.stdout + driver.stderr
     x, y = map(float, re.search(r"done at x = (\S+) m, y = (\S+) m", driver.stdout + driver.stderr).groups())
     cable = mock_cable(0.2, 0.02)
