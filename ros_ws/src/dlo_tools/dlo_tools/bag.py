@@ -139,6 +139,15 @@ def type_hash(typestore: Typestore, msgtype: str) -> str:
     return typestore.hash_rihs01(msgtype)
 
 
+def message_definition(typestore: Typestore, msgtype: str) -> tuple[str, str]:
+    """(ros2msg definition, RIHS01 hash) of ``msgtype``: the full text with every nested type
+    after a ``MSG: pkg/msg/Name`` separator, as ``ros2 bag record`` writes it. The one source of
+    the schema text of the recorder's bags and of the Foxglove bridge's channels."""
+    rihs01 = type_hash(typestore, msgtype)
+    msgdef, _ = typestore.generate_msgdef(msgtype, ros_version=2)
+    return msgdef, rihs01
+
+
 # ---- QoS ------------------------------------------------------------------------------------
 
 def _enum_value(value: Any) -> int:
@@ -341,8 +350,7 @@ class BagWriter:
                 raise BagError(f"topic '{topic}' is already recorded as '{spec.msgtype}', "
                                f"not '{msgtype}'")
             return spec
-        rihs01 = type_hash(self.typestore, msgtype)
-        msgdef, _ = self.typestore.generate_msgdef(msgtype, ros_version=2)
+        msgdef, rihs01 = message_definition(self.typestore, msgtype)
         spec = TopicSpec(topic, msgtype, list(qos), rihs01, msgdef)
         self.topics[topic] = spec
         if self._mcap is not None:
