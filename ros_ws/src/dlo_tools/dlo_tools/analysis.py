@@ -1,13 +1,16 @@
 """Bag analysis: recompute each episode's outcome and metrics from a recorded run, and plot it.
 
-    dlo-analyze BAG [--plots DIR] [--json FILE]
+    dlo-analyze BAG [--plots DIR] [--json FILE] [--video DIR [--video-format gif]]
 
 The per-step task inputs (held particle indices, n_c, L_c) recorded on ``/dlo/task/state`` are
 fed through the same ``dlo_sim.task.EpisodeTracker`` the sim node and the gym environment use,
 so the recomputed outcomes (paper-text rule, and the authors'-code rule from the recorded
 ``held_indices_authors``) must equal the recorded ones (a mismatch is reported and exits 1).
 Plots (PNG, one per episode): the gripper path over the cable at the start and the end seen from
-the top, and closure and the distilled tactile/visual poses over time.
+the top (fixed end and first step at the end marked), and over the control steps one axis per
+unit: closure, angles [rad], offsets [mm], commanded velocities [m/s], reward; spans where nothing
+changes are shaded. Videos (``--video``, :mod:`dlo_tools.video`): one MP4 (or GIF) per episode,
+top camera + side view + signal strip, one frame per control step, real time by default.
 """
 
 from __future__ import annotations
@@ -30,12 +33,17 @@ TOPICS = {"/dlo/task/state": "task", "/dlo/gripper/state": "gripper", "/dlo/grip
           "/dlo/tactile/pose": "tactile", "/dlo/vision/pose": "vision", "/dlo/rope/particles": "particles"}
 
 
-def read_run(path) -> dict:
-    """{episode: {stream: {step or stamp: message}}} from a bag; republished steps count once."""
+def read_run(path, extra: dict[str, str] | None = None) -> dict:
+    """{episode: {stream: {step or stamp: message}}} from a bag; republished steps count once.
+
+    ``extra``: more {topic: stream name} to read, matched to steps by stamp (e.g. the camera images
+    for videos: ``{"/dlo/camera/image": "image"}``).
+    """
+    topics = {**TOPICS, **(extra or {})}
     episodes = defaultdict(lambda: defaultdict(dict))
     stamp_episode_step = {}
-    for item in read_messages(path, topics=list(TOPICS)):
-        stream, msg = TOPICS[item.topic], item.msg
+    for item in read_messages(path, topics=list(topics)):
+        stream, msg = topics[item.topic], item.msg
         stamp = stamp_to_ns(msg.header.stamp)
         if stream in ("task", "gripper", "command"):
             episodes[msg.episode][stream][msg.step] = msg
@@ -84,45 +92,123 @@ def recompute_episode(task_states: dict) -> dict:
     return summary
 
 
-def plot_episode(episode: int, streams: dict, path: Path) -> None:
-    """One PNG: top view (cable at start and end, gripper path) and signals over the steps."""
-    import matplotlib
+def episode_title(episode: int, summary: dict | None) -> str:
+    """'episode E · seed S · return R' / 'outcome: X (paper rule) · Y (authors' rule)'."""
+    summary = summary or {}
+    head = f"episode {episode}  ·  seed {summary.get('seed', '?')}"
+    if "episode_return" in summary:
+        head += f"  ·  return {summary['episode_return']:.2f}"
+    if summary.get("complete", True) and "outcome" in summary:
+        tail = f"outcome: {summary['outcome']} (paper rule)  ·  {summary['outcome_authors']} (authors' rule)"
+    else:
+        tail = "unfinished in the bag: no outcome"
+    return head + "\n" + tail
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
 
-    fig, (top, signals) = plt.subplots(1, 2, figsize=(11, 4.2))
+def plot_episode(episode: int, streams: dict, path: Path, summary: dict | None = None) -> None:
+    """One PNG: top view (cable at start and end, gripper path, fixed end, where the end was first
+    reached) and, over the control steps, one axis per unit: closure [-], held particle index,
+    angles [rad], offsets [mm], commanded velocity [m/s], reward [-]; legends outside the data."""
+    from matplotlib.figure import Figure
+
+    from dlo_tools.episode_series import episode_series, still_spans
+
+    s = episode_series(episode, streams)
+    steps = s.steps
+    fig = Figure(figsize=(12.0, 13.5), dpi=90)
+    fig.suptitle(episode_title(episode, summary), fontsize=13)
+    grid = fig.add_gridspec(7, 1, height_ratios=[2.2, 1, 1, 1, 1, 1, 1], hspace=0.22,
+                            left=0.08, right=0.8, top=0.93, bottom=0.05)
+    # top view
+    top = fig.add_subplot(grid[0])
     particles = streams.get("particles", {})
+    fixed = None
     for step, style, label in ((min(particles, default=None), "-", "cable at start"),
                                (max(particles, default=None), "--", "cable at end")):
         if step is not None:
-            xyz, held = unpack_particles(particles[step])
+            xyz, _held = unpack_particles(particles[step])
             top.plot(xyz[:, 0], xyz[:, 1], style, color="tab:orange", lw=2, label=f"{label} (step {step})")
-    gripper = streams.get("gripper", {})
-    steps = sorted(gripper)
-    if steps:
-        path_xy = np.array([[gripper[s].x, gripper[s].y] for s in steps])
-        top.plot(path_xy[:, 0], path_xy[:, 1], ".-", color="tab:blue", ms=3, label="gripper path")
-    top.set(xlabel="x [m]", ylabel="y [m]", title=f"episode {episode}: top view", aspect="equal")
-    top.legend(fontsize=8)
-    series = {"closure c_G": [gripper[s].closure for s in steps]}
-    tactile, vision = streams.get("tactile", {}), streams.get("vision", {})
-    series["theta_T [rad]"] = [tactile[s].angle if s in tactile else np.nan for s in steps]
-    series["y_T [cm]"] = [100 * tactile[s].y if s in tactile else np.nan for s in steps]
-    series["q_V"] = [vision[s].confidence if s in vision else np.nan for s in steps]
-    series["theta_V [rad]"] = [vision[s].angle if s in vision else np.nan for s in steps]
-    for label, values in series.items():
-        signals.plot(steps, values, label=label, lw=1.2)
-    signals.set(xlabel="control step", title="closure and distilled poses")
-    signals.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
+            fixed = xyz[0] if fixed is None else fixed
+    if len(steps):
+        top.plot(s["x"], s["y"], ".-", color="tab:blue", ms=3, lw=1, label="gripper path")
+        top.plot(s["x"][:1], s["y"][:1], "^", color="tab:blue", ms=8, label=f"gripper at step {steps[0]}")
+    if fixed is not None:
+        top.plot([fixed[0]], [fixed[1]], "s", color="k", ms=8, label="fixed end (particle 0)")
+    for mark, marker, color, rule in ((s.first_at_end, "*", "tab:green", "paper rule"),
+                                      (s.first_at_end_authors, "D", "tab:purple", "authors' rule")):
+        if mark is not None:
+            i = int(np.searchsorted(steps, mark))
+            top.plot([s["x"][i]], [s["y"][i]], marker, color=color, ms=11, ls="none",
+                     label=f"gripper when first at the end,\n{rule} (step {mark})")
+    top.set(xlabel="x [m]", ylabel="y [m]", title="top view (world frame)", aspect="equal")
+    top.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False, borderaxespad=0)
+
+    # signals over the control steps: one axis per unit
+    held_end = s["num_particles"] - 10
+    axes_spec = [
+        ("closure [-]", [("c_G measured", s["closure"], {}), ("c_G commanded", s["cmd_closure"], {"ls": "--"}),
+                         ("q_V vision confidence", s["q_V"], {"alpha": 0.8})]),
+        ("held particle\nindex [-]", [("largest held", s["max_held_index"], {}),
+                                       ("mean held (paper)", s["mean_held_index"], {"alpha": 0.8}),
+                                       ("mean held (authors)", s["mean_held_index_authors"], {"ls": ":"}),
+                                       ("end: n_c - 10", held_end, {"color": "k", "lw": 0.8, "ls": "--"})]),
+        ("angle [rad]", [("θ_T tactile", s["theta_T"], {}), ("θ_V vision", s["theta_V"], {})]),
+        ("offset [mm]", [("y_T tactile", s["y_T_mm"], {}), ("y_V vision", s["y_V_mm"], {})]),
+        ("command\n[m/s]", [("v_x", s["cmd_vx"], {}), ("v_y", s["cmd_vy"], {})]),
+        ("reward [-]", [("reward per step", s["reward"], {"drawstyle": "steps-mid"})]),
+    ]
+    spans = still_spans(s)
+    axes = []
+    for row, (label, lines) in enumerate(axes_spec):
+        ax = fig.add_subplot(grid[row + 1], sharex=axes[0] if axes else None)
+        for name, values, style in lines:
+            if np.isfinite(values).any():
+                ax.plot(steps, values, label=name, **{"lw": 1.2, **style})
+        ax.set_ylabel(label, fontsize=9)
+        ax.tick_params(labelsize=8)
+        for mark, color in ((s.first_at_end, "tab:green"), (s.first_at_end_authors, "tab:purple")):
+            if mark is not None:
+                ax.axvline(mark, color=color, ls=":", lw=1.2)
+        for a, b in spans:
+            ax.axvspan(a, b, color="0.85", zorder=0)
+        if ax.get_legend_handles_labels()[0]:
+            ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False, borderaxespad=0)
+        if row < len(axes_spec) - 1:
+            ax.tick_params(labelbottom=False)
+        axes.append(ax)
+    axes[0].set_title("signals over the episode (dotted: first step at the end, green = paper rule, "
+                      "purple = authors' rule; grey: gripper still)", fontsize=9)
+    for a, b in spans:
+        axes[0].annotate(f"gripper still (no motion, constant closure): steps {a}-{b}", xy=((a + b) / 2, 0.5),
+                         xycoords=("data", "axes fraction"), ha="center", va="center", fontsize=8,
+                         color="0.3", bbox={"boxstyle": "round", "fc": "white", "ec": "0.7", "alpha": 0.8})
+    axes[-1].set_xlabel("control step (0.08 s each)")
+    if len(steps):
+        axes[-1].set_xlim(steps[0], max(steps[-1], steps[0] + 1))
+    fig.savefig(path, dpi=90, bbox_inches="tight")
 
 
-def analyse(path, plots: Path | None = None) -> list:
-    """Per-episode recomputed summaries of a bag (optionally writing one plot per episode)."""
-    run = read_run(path)
+def write_videos(run: dict, summaries: dict, out: Path, *, fmt: str = "mp4", policy: str | None = None,
+                 speed: float = 1.0, width: int | None = None) -> list[dict]:
+    """One video per episode of ``run`` into ``out`` (``episode_NNNN.mp4`` / ``.gif``)."""
+    from dlo_tools.video import render_episode_video
+
+    out.mkdir(parents=True, exist_ok=True)
+    written = []
+    for episode, streams in run.items():
+        if "task" not in streams:
+            continue
+        item = render_episode_video(episode, streams, summaries.get(episode, {}),
+                                    out / f"episode_{episode:04d}.{fmt}", fmt=fmt, policy=policy,
+                                    speed=speed, width=width)
+        written.append({"episode": int(episode), **item})
+    return written
+
+
+def analyse(path, plots: Path | None = None, video: dict | None = None) -> list:
+    """Per-episode recomputed summaries of a bag (optionally writing one plot and one video per
+    episode; ``video``: keyword arguments of :func:`write_videos`, ``out`` included)."""
+    run = read_run(path, extra={"/dlo/camera/image": "image"} if video else None)
     summaries = []
     for episode, streams in run.items():
         if "task" not in streams:
@@ -131,7 +217,11 @@ def analyse(path, plots: Path | None = None) -> list:
         summaries.append(summary)
         if plots is not None:
             plots.mkdir(parents=True, exist_ok=True)
-            plot_episode(episode, streams, plots / f"episode_{episode:04d}.png")
+            plot_episode(episode, streams, plots / f"episode_{episode:04d}.png", summary)
+    if video:
+        by_episode = {s["episode"]: s for s in summaries}
+        for item in write_videos(run, by_episode, **video):
+            by_episode[item["episode"]]["video"] = item["path"]
     return summaries
 
 
@@ -141,11 +231,33 @@ def main(argv=None) -> int:
     parser.add_argument("bag", help="rosbag2 directory (MCAP) written by recorder_node")
     parser.add_argument("--plots", type=Path, help="write one PNG per episode into this directory")
     parser.add_argument("--json", type=Path, help="write the per-episode summaries to this JSON file")
+    parser.add_argument("--video", type=Path, metavar="DIR",
+                        help="write one video per episode into this directory (episode_NNNN.mp4): top camera, "
+                             "side view, closure/poses/reward strip; one frame per control step")
+    parser.add_argument("--video-format", choices=("mp4", "gif"), default="mp4",
+                        help="mp4 (H.264, default) or gif")
+    parser.add_argument("--video-speed", type=float, default=1.0,
+                        help="playback speed: 1.0 = real time (12.5 frames/s, default), 2.0 = twice as fast")
+    parser.add_argument("--video-width", type=int, default=None,
+                        help="frame width in pixels (height = 3/4); default 960 (mp4), 480 (gif)")
+    parser.add_argument("--policy", default=None,
+                        help="policy name for the video titles (bags do not record it), e.g. 'sac (shipped)'")
     args = parser.parse_args(argv)
+    if args.video_speed <= 0:
+        parser.error("--video-speed must be > 0")
+    if args.video_width is not None and args.video_width < 160:
+        parser.error("--video-width must be >= 160 pixels")
+    video = None
+    if args.video:
+        video = {"out": args.video, "fmt": args.video_format, "policy": args.policy,
+                 "speed": args.video_speed, "width": args.video_width}
     try:
-        summaries = analyse(args.bag, args.plots)
+        summaries = analyse(args.bag, args.plots, video)
     except (BagError, ValueError, FileNotFoundError) as error:
         print(f"dlo-analyze: {error}", file=sys.stderr)
+        return 2
+    except RuntimeError as error:  # dlo_tools.video.VideoError: the encoder failed
+        print(f"dlo-analyze: video: {error}", file=sys.stderr)
         return 2
     complete = [s for s in summaries if s["complete"]]
     print(outcome_table(complete))
@@ -162,6 +274,8 @@ def main(argv=None) -> int:
         args.json.write_text(json.dumps(summaries, indent=1) + "\n")
     if args.plots:
         print(f"plots: {args.plots}/episode_*.png")
+    if args.video:
+        print(f"videos: {args.video}/episode_*.{args.video_format}")
     return 1 if mismatched else 0
 
 
