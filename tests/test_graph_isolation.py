@@ -239,3 +239,10 @@ def test_a_killed_launcher_leaves_no_node_running_and_a_closed_bag(tmp_path, lau
     assert not alive, alive
     assert (bag / "metadata.yaml").is_file()  # the recorder was stopped, not killed: complete bag
     assert read_run(bag)
+
+
+def test_a_node_rejecting_its_parameters_stops_the_graph_with_exit_2(tmp_path, launches):
+    run = launches(tmp_path, "run", "--policy", "magic", "--episodes", 1)
+    assert run.wait() == 2, run.out
+    assert "policy exited early (status 2); the end of its log:" in run.out
+    assert "parameter 'policy'" in run.out  # the node's own one-line reason, shown by the launcher
