@@ -11,10 +11,26 @@ Groups (paper, Results):
     sensitivity  tactile noise none / partial / full with K (All) and without K (T+V), against no
                  tactile input (V+K, V); "none" is the env's default, so it reuses All and T+V
 Runs are started seed by seed (all configurations of the first seed, then of the second, ...).
-Each run trains into OUT/<label>/seed<k> (see dlo-train). A run whose directory has done.json is
-skipped; one with a checkpoint resumes from it; so an interrupted grid continues where it stopped.
-Runs go to local processes (`--jobs` x `--threads` <= cores: oversubscription costs ~4x) or, with
-`--ray-address`, to an existing Ray cluster (`pip install ray`; OUT must be shared storage).
+A run whose directory has done.json is skipped, so re-running the command (or adding `--resume`,
+which says the same) continues an interrupted grid.
+
+Local (default): each run trains in a fresh process into OUT/<label>/seed<k> (see dlo-train),
+`--jobs` at a time (`--jobs` x `--threads` <= cores: oversubscription costs ~4x); a run with a
+checkpoint there resumes from it.
+
+Ray (`--ray-address HOST:PORT`, or `auto` on a cluster node): each run is a Ray task reserving
+`--threads` CPUs on some node of an existing cluster. It trains in a temporary directory on that
+node, sends its result files back (config.yaml, eval.csv, done.json, best.json, test*.json,
+policy.pt, best_policy.pt, train.log; not checkpoint.pt with its replay buffer) and the driver
+writes them under OUT: no shared storage. A run whose worker or node is lost is started again from
+its first step on another worker, at most `--retries` times; the report at the end names the
+retried runs. A partial local run (checkpoint under OUT) also starts from its first step there.
+Every node needs this code and its Python environment (`source scripts/env.sh`; README, Cluster).
+
+Each finished run's done.json records where and how long it ran: "node" (the Ray node id, or
+"local"), "host", "duration_s" (wall seconds of the execution that finished it: set-up,
+training, evaluations, held-out test) and "attempts". A progress bar over runs (done / running /
+failed / retried, ETA from the runs finished so far) goes to stderr (`--no-progress`: none).
 
 `--dry-run` lists the runs and estimates the wall time from a short calibration measured now, on
 this machine, under its current load: `CALIBRATION_STEPS` SAC steps (env step + one gradient
@@ -26,20 +42,32 @@ from __future__ import annotations
 
 import argparse
 import concurrent.futures
+import concurrent.futures.process
+import contextlib
 import csv
 import importlib
+import json
+import logging
 import math
 import multiprocessing
 import os
 import re
+import socket
 import sys
+import tempfile
+import time
 import traceback
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Optional, Sequence
+from typing import Any, Iterator, Optional, Sequence
+
+from tqdm import tqdm
 
 from .config import ConfigError, RunConfig, check_env_options, load_config
-from .train import CHECKPOINT_FILE, DONE_FILE, EVAL_FILE, available_cores, set_threads, train
+from .train import (BEST_FILE, BEST_POLICY_FILE, CHECKPOINT_FILE, CONFIG_FILE, DONE_FILE, EVAL_FILE, POLICY_FILE,
+                    available_cores, set_threads, train)
+
+LOG_FILE = "train.log"
 
 GROUPS = ("single", "pairs", "ablation", "sensitivity")
 TACTILE_NOISE_LEVELS = ("partial", "full")
@@ -118,6 +146,33 @@ def run_status(run_dir: Path) -> str:
     return "partial" if (run_dir / CHECKPOINT_FILE).exists() else "todo"
 
 
+class GridError(Exception):
+    """A user-facing problem that stops the grid before or while dispatching (one line, exit 2)."""
+
+
+@contextlib.contextmanager
+def output_to(path: Path) -> Iterator[None]:
+    """This process's stdout and stderr (file descriptors 1 and 2, so native libraries' output too)
+    appended to `path` for the duration, then restored."""
+    sys.stdout.flush()
+    sys.stderr.flush()
+    saved = os.dup(1), os.dup(2)
+    try:
+        with path.open("a") as log:
+            os.dup2(log.fileno(), 1)
+            os.dup2(log.fileno(), 2)
+            try:
+                yield
+            finally:
+                sys.stdout.flush()
+                sys.stderr.flush()
+                os.dup2(saved[0], 1)
+                os.dup2(saved[1], 2)
+    finally:
+        os.close(saved[0])
+        os.close(saved[1])
+
+
 def run_one(config_data: dict[str, Any], run_dir: str) -> dict[str, Any]:
     """Train one run in this process (resuming it if it has a checkpoint); output to train.log."""
     path = Path(run_dir)
@@ -125,31 +180,112 @@ def run_one(config_data: dict[str, Any], run_dir: str) -> dict[str, Any]:
     resume = (path / CHECKPOINT_FILE).exists()
     if not resume:
         (path / EVAL_FILE).unlink(missing_ok=True)  # evaluations of a run stopped before its first checkpoint
-    with (path / "train.log").open("a") as log:
-        os.dup2(log.fileno(), sys.stdout.fileno())
-        os.dup2(log.fileno(), sys.stderr.fileno())
+    with output_to(path / LOG_FILE):
         return train(RunConfig.from_dict(config_data), path, resume=resume)
 
 
-def _run_one_reporting(config_data: dict[str, Any], run_dir: str) -> tuple[str, Optional[str]]:
+def stamp_done(run_dir: Path, node: str, duration_s: float, attempts: int) -> None:
+    """Add where and how long the run ran to its done.json."""
+    path = run_dir / DONE_FILE
+    summary = json.loads(path.read_text())
+    summary.update(node=node, host=socket.gethostname(), duration_s=round(duration_s, 2), attempts=attempts)
+    path.write_text(json.dumps(summary, indent=2) + "\n")
+
+
+@dataclass(eq=False)
+class Task:
+    """One run to execute, and what happened to it."""
+
+    run_dir: Path
+    config: dict[str, Any]
+    attempts: int = 0
+    node: Optional[str] = None  # where the current (or last) attempt runs
+    lost: list[str] = field(default_factory=list)  # why earlier attempts were lost (Ray)
+    error: Optional[str] = None  # why the run failed (traceback); None: finished or not yet
+
+    @property
+    def failed(self) -> bool:
+        return self.error is not None
+
+
+class GridProgress:
+    """A progress bar over the grid's runs (stderr) and the per-run lines (stdout)."""
+
+    def __init__(self, total: int, enabled: bool):
+        self.total, self.finished, self.failed, self.retried, self.running = total, 0, 0, 0, 0
+        # a terminal gets a live bar; a log file a line per change of the counts, else every 60 s
+        self.bar = tqdm(total=total, desc="runs", unit="run", disable=not enabled, file=sys.stderr,
+                        dynamic_ncols=True, mininterval=1.0 if sys.stderr.isatty() else 60.0, smoothing=0.0,
+                        postfix=self.counts())
+        self.shown = self.counts()
+
+    def counts(self) -> str:
+        return (f"done={self.finished - self.failed} running={self.running} failed={self.failed} "
+                f"retried={self.retried}")
+
+    def refresh(self, running: Optional[int] = None) -> None:
+        """Show the counts now if they changed; else only the clock moves (at tqdm's pace)."""
+        if running is not None:
+            self.running = running
+        if self.counts() != self.shown:
+            self.shown = self.counts()
+            self.bar.set_postfix_str(self.shown, refresh=True)
+        else:
+            self.bar.update(0)
+
+    def log(self, line: str) -> None:
+        self.bar.write(line, file=sys.stdout)
+        sys.stdout.flush()
+
+    def done(self, task: Task, where: str = "") -> None:
+        self.finished += 1
+        self.failed += task.failed
+        status = f"FAILED\n{task.error}" if task.failed else "ok"
+        self.log(f"[{self.finished}/{self.total}] {task.run_dir}: {status}{where}")
+        self.shown = self.counts()
+        self.bar.set_postfix_str(self.shown, refresh=False)
+        self.bar.update(1)
+        self.bar.refresh()
+
+    def close(self) -> None:
+        self.bar.set_postfix_str(self.counts(), refresh=True)
+        self.bar.close()
+
+
+LOCAL_NODE = "local"
+
+
+def _run_local_task(config_data: dict[str, Any], run_dir: str) -> tuple[str, Optional[str]]:
+    """In a fresh process: train (or resume) the run in `run_dir`; (run_dir, traceback or None)."""
+    start = time.monotonic()
     try:
         run_one(config_data, run_dir)
+        stamp_done(Path(run_dir), LOCAL_NODE, time.monotonic() - start, attempts=1)
         return run_dir, None
     except Exception:  # noqa: BLE001 (reported by the parent; the other runs go on)
         return run_dir, traceback.format_exc()
 
 
-def run_local(tasks: list[tuple[dict[str, Any], str]], jobs: int) -> list[tuple[str, Optional[str]]]:
-    """Each task in a fresh spawned process, `jobs` at a time."""
+def run_local(tasks: list[Task], jobs: int, progress: GridProgress) -> None:
+    """Each task in a fresh spawned process, `jobs` at a time; sets each task's error."""
     context = multiprocessing.get_context("spawn")
-    results = []
     with concurrent.futures.ProcessPoolExecutor(max_workers=jobs, mp_context=context,
                                                 max_tasks_per_child=1) as pool:
-        futures = [pool.submit(_run_one_reporting, config, run_dir) for config, run_dir in tasks]
+        futures = {pool.submit(_run_local_task, task.config, str(task.run_dir)): task for task in tasks}
+        for task in tasks:
+            task.attempts, task.node = 1, LOCAL_NODE
+        remaining = len(futures)
+        progress.refresh(running=min(jobs, remaining))
         for future in concurrent.futures.as_completed(futures):
-            results.append(future.result())
-            _print_result(*results[-1], done=len(results), total=len(tasks))
-    return results
+            task = futures[future]
+            try:
+                task.error = future.result()[1]
+            except concurrent.futures.process.BrokenProcessPool:
+                task.error = ("its process died (killed, out of memory?) and took the process pool down: "
+                              "run the command again to continue (finished runs are skipped, partial ones resume)")
+            remaining -= 1
+            progress.running = min(jobs, remaining)
+            progress.done(task)
 
 
 def import_ray() -> Any:
@@ -162,18 +298,153 @@ def import_ray() -> Any:
     return ray
 
 
-def run_ray(tasks: list[tuple[dict[str, Any], str]], address: str, threads: int) -> list[tuple[str, Optional[str]]]:
-    """Each task as a Ray task reserving `threads` CPUs on an existing cluster."""
+RESULT_FILES = (CONFIG_FILE, EVAL_FILE, BEST_FILE, BEST_POLICY_FILE, POLICY_FILE, LOG_FILE, DONE_FILE)
+MAX_LOG_BYTES = 1 << 20  # the end of a longer train.log is sent back
+
+
+def result_files(run_dir: Path) -> dict[str, bytes]:
+    """The run's small result files (never checkpoint.pt: it holds the replay buffer)."""
+    names = [*RESULT_FILES[:-1], *sorted(p.name for p in run_dir.glob("test*.json")), DONE_FILE]
+    files = {name: (run_dir / name).read_bytes() for name in names if (run_dir / name).is_file()}
+    if LOG_FILE in files:
+        files[LOG_FILE] = files[LOG_FILE][-MAX_LOG_BYTES:]
+    return files
+
+
+def write_result(run_dir: Path, files: dict[str, bytes], error: Optional[str]) -> None:
+    """A Ray run's files under OUT (done.json last, each file replaced atomically); a failed run
+    leaves only its train.log, with the error at the end."""
+    run_dir.mkdir(parents=True, exist_ok=True)
+    if error is not None:
+        log = files.get(LOG_FILE, b"") + f"\n{error}".encode()
+        files = {LOG_FILE: log}
+    else:
+        # a checkpoint of an earlier local attempt: the run started over on the cluster
+        (run_dir / CHECKPOINT_FILE).unlink(missing_ok=True)
+    for name in sorted(files, key=lambda n: n == DONE_FILE):
+        temporary = run_dir / (name + ".part")
+        temporary.write_bytes(files[name])
+        os.replace(temporary, run_dir / name)
+
+
+def _ray_task(config_data: dict[str, Any], attempt: int) -> Iterator[dict[str, Any]]:
+    """On a Ray worker (a generator: the driver learns when and where the run starts): train the
+    run in a temporary directory of this node, then send its result files back."""
+    import ray  # noqa: PLC0415
+
+    node = ray.get_runtime_context().get_node_id()
+    yield {"started": node}
+    start = time.monotonic()
+    with tempfile.TemporaryDirectory(prefix="dlo-run-") as directory:
+        run_dir = Path(directory)
+        error = None
+        try:
+            run_one(config_data, str(run_dir))
+            stamp_done(run_dir, node, time.monotonic() - start, attempt)
+        except Exception:  # noqa: BLE001 (sent to the driver; the other runs go on)
+            error = traceback.format_exc()
+        yield {"node": node, "error": error, "files": result_files(run_dir)}
+
+
+def connect_ray(address: str) -> Any:
+    """Ray, connected (quietly) to the existing cluster at `address`; GridError (one line) when
+    nothing answers there (checked first: ray.init would wait minutes for an absent head)."""
     ray = import_ray()
-    ray.init(address=address)
-    remote = ray.remote(num_cpus=threads)(_run_one_reporting)
-    pending = [remote.remote(config, run_dir) for config, run_dir in tasks]
-    results = []
-    while pending:
-        finished, pending = ray.wait(pending)
-        results += ray.get(finished)
-        _print_result(*results[-1], done=len(results), total=len(tasks))
-    return results
+    if address != "auto" and "://" not in address:
+        host, _, port = address.rpartition(":")
+        if not host or not port.isdigit():
+            raise GridError(f"--ray-address {address}: expected HOST:PORT of the head node (or auto)")
+        try:
+            socket.create_connection((host.strip("[]"), int(port)), timeout=10).close()
+        except OSError as error:
+            raise GridError(f"--ray-address {address}: no Ray head answers there "
+                            f"({error.strerror or type(error).__name__}); start one with ray start --head") from None
+    try:
+        ray.init(address=address, log_to_driver=False, logging_level=logging.WARNING)
+    except (ConnectionError, RuntimeError, ValueError) as error:
+        first_line = (str(error).strip().splitlines() or [type(error).__name__])[0]
+        raise GridError(f"--ray-address {address}: no Ray cluster to connect to ({first_line})") from None
+    return ray
+
+
+def check_capacity(ray: Any, threads: int, gpus: float = 0.0) -> None:
+    """GridError when no node of the cluster can take a run of `threads` CPUs (and `gpus` GPUs):
+    its task would wait forever."""
+    nodes = [node["Resources"] for node in ray.nodes() if node["Alive"]]
+    if not any(node.get("CPU", 0) >= threads and node.get("GPU", 0) >= gpus for node in nodes):
+        most_cpus = max((node.get("CPU", 0) for node in nodes), default=0)
+        most_gpus = max((node.get("GPU", 0) for node in nodes), default=0)
+        wanted = f"{threads} CPUs" + (f" and {gpus:g} GPU(s)" if gpus else "")
+        raise GridError(f"no node of the Ray cluster has {wanted} for a run (at most {most_cpus:g} CPUs, "
+                        f"{most_gpus:g} GPUs per node): lower --threads / --gpus-per-run, or add bigger nodes")
+
+
+def run_ray(ray: Any, tasks: list[Task], threads: int, retries: int, progress: GridProgress,
+            gpus: float = 0.0) -> None:
+    """Each task as a Ray task reserving `threads` CPUs (and `gpus` GPUs) on the connected cluster;
+    its files come back to the driver. A task whose worker or node is lost is submitted again, at
+    most `retries` times."""
+    try:
+        # max_calls=1: every run in a fresh worker process (torch threads, Taichi, file descriptors);
+        # max_retries=0: lost attempts are resubmitted here, where they are counted and reported
+        resources = {"num_cpus": threads, **({"num_gpus": gpus} if gpus else {})}
+        remote = ray.remote(**resources, max_calls=1, max_retries=0)(_ray_task)
+        pending: dict[Any, Task] = {}
+
+        def submit(task: Task) -> None:
+            task.attempts += 1
+            task.node = None
+            pending[remote.remote(task.config, task.attempts)] = task
+
+        for task in tasks:
+            submit(task)
+        while pending:
+            ready, _ = ray.wait(list(pending), num_returns=1, timeout=1.0)
+            for generator in ready:
+                task = pending.pop(generator)
+                try:
+                    message = ray.get(next(generator))
+                except ray.exceptions.RayTaskError as error:  # raised by the task itself: not retried
+                    task.error = str(error)
+                    progress.done(task)
+                    continue
+                except (ray.exceptions.RayError, StopIteration) as error:  # worker or node lost
+                    reason = type(error).__name__ + (f" on node {task.node[:12]}" if task.node else "")
+                    task.lost.append(reason)
+                    if len(task.lost) > retries:
+                        task.error = f"lost {len(task.lost)} times ({'; '.join(task.lost)}); --retries {retries}"
+                        progress.done(task)
+                    else:
+                        progress.retried += 1
+                        progress.log(f"[retry] {task.run_dir}: attempt {task.attempts} lost ({reason}); "
+                                     f"starting attempt {task.attempts + 1}")
+                        submit(task)
+                    continue
+                if "started" in message:
+                    task.node = message["started"]
+                    progress.log(f"[start] {task.run_dir} on node {task.node[:12]} (attempt {task.attempts})")
+                    pending[generator] = task
+                    continue
+                task.error = message["error"]
+                write_result(task.run_dir, message["files"], task.error)
+                progress.done(task, f" (node {task.node[:12]})")
+            progress.refresh(running=sum(task.node is not None for task in pending.values()))
+    finally:
+        ray.shutdown()
+
+
+def report(tasks: Sequence[Task]) -> list[str]:
+    """The end of the grid: what finished, failed and was retried."""
+    failed = [task for task in tasks if task.failed]
+    lines = [f"grid: {len(tasks)} run(s): {len(tasks) - len(failed)} finished, {len(failed)} failed"]
+    retried = [task for task in tasks if task.lost]
+    if retried:
+        lines.append(f"retried {len(retried)} run(s) after a lost worker or node:")
+        for task in retried:
+            outcome = "failed" if task.failed else f"finished on node {(task.node or '?')[:12]}"
+            lines.append(f"  {task.run_dir}: lost {len(task.lost)}x ({'; '.join(task.lost)}), "
+                         f"{outcome} at attempt {task.attempts}")
+    return lines
 
 
 CALIBRATION_STEPS = 120
@@ -199,7 +470,6 @@ class Calibration:
 def calibrate(config: RunConfig, steps: int = CALIBRATION_STEPS) -> Calibration:
     """Time `steps` SAC steps (each with one update) and one evaluation of `config` in this process."""
     import dataclasses  # noqa: PLC0415
-    import time  # noqa: PLC0415
 
     from .evaluate import evaluate_agent, make_vec_env_for  # noqa: PLC0415
     from .sac import SAC  # noqa: PLC0415
@@ -244,7 +514,7 @@ def makespan(durations: Sequence[float], jobs: int) -> float:
 
 
 def estimate(specs: Sequence[RunSpec], configs: Sequence[RunConfig], statuses: Sequence[str], out: Path,
-             jobs: int) -> str:
+             jobs: int, resume_partial: bool = True) -> str:
     """One paragraph: calibration and the estimated wall time of the runs still to do."""
     todo = [(spec, config) for spec, config, status in zip(specs, configs, statuses) if status != "done"]
     if not todo:
@@ -253,7 +523,8 @@ def estimate(specs: Sequence[RunSpec], configs: Sequence[RunConfig], statuses: S
     probe = max((config for _, config in todo),
                 key=lambda c: ("V" in c.modalities or c.modalities == "All", len(c.modalities)))
     calibration = calibrate(probe)
-    durations = [calibration.run_seconds(config, done_steps(spec.directory(out))) for spec, config in todo]
+    durations = [calibration.run_seconds(config, done_steps(spec.directory(out)) if resume_partial else 0)
+                 for spec, config in todo]
     wall = makespan(durations, jobs)
     return (f"estimate: {len(todo)} runs, {sum(durations) / 3600:.1f} run-hours, wall ~{_duration(wall)} on "
             f"{jobs} job(s) (calibrated now on {probe.modalities}: {1000 * calibration.step_s:.0f} ms per step "
@@ -263,11 +534,6 @@ def estimate(specs: Sequence[RunSpec], configs: Sequence[RunConfig], statuses: S
 
 def _duration(seconds: float) -> str:
     return f"{seconds / 3600:.1f} h" if seconds >= 3600 else f"{seconds / 60:.0f} min"
-
-
-def _print_result(run_dir: str, error: Optional[str], done: int, total: int) -> None:
-    status = "ok" if error is None else f"FAILED\n{error}"
-    print(f"[{done}/{total}] {run_dir}: {status}", flush=True)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -282,9 +548,23 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--first-seed", type=int, default=0, help="seeds are first-seed .. first-seed + seeds - 1")
     parser.add_argument("--steps", type=int, help="env steps per run (default: the config's, 50000)")
     parser.add_argument("--config", type=Path, help="YAML config for every run")
-    parser.add_argument("--threads", type=int, default=1, help="torch threads per run (default 1)")
-    parser.add_argument("--jobs", type=int, help="parallel local runs (default: cores // threads)")
-    parser.add_argument("--ray-address", help="dispatch to this Ray cluster instead (e.g. auto, ray://host:10001)")
+    parser.add_argument("--threads", type=int, default=1, help="torch threads (and Ray CPUs) per run (default 1)")
+    parser.add_argument("--jobs", type=int,
+                        help="parallel local runs (default: cores // threads); with --dry-run: the number of "
+                             "workers the estimate is for (default: as many local runs, or 1 with --ray-address)")
+    parser.add_argument("--ray-address",
+                        help="run on this Ray cluster instead: HOST:PORT of its head (`ray start --head` prints it), "
+                             "or auto on one of its nodes")
+    parser.add_argument("--gpus-per-run", type=float, default=0.0,
+                        help="Ray: GPUs each run reserves (e.g. 1, or 0.25 to share one among 4 runs; default 0). "
+                             "Ray shows a task only the GPUs it reserved, so train.device=auto trains on the CPU "
+                             "without this")
+    parser.add_argument("--retries", type=int, default=2,
+                        help="Ray: times a run whose worker or node was lost is started again (default 2)")
+    parser.add_argument("--resume", action="store_true",
+                        help="continue a grid in --out: finished runs (done.json) are skipped, partial local ones "
+                             "resume from their checkpoint (this is also what happens without the flag)")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar over the runs")
     parser.add_argument("--dry-run", action="store_true",
                         help="list the runs and their status, estimate the wall time (short calibration), run nothing")
     parser.add_argument("overrides", nargs="*", metavar="key=value", help="config overrides for every run")
@@ -293,11 +573,18 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: Optional[Sequence[str]] = None) -> int:
     args = build_parser().parse_args(argv)
+    for name in ("threads", "seeds"):
+        if getattr(args, name) < 1:
+            return _usage_error(f"--{name} must be at least 1")
+    if args.jobs is not None and args.jobs < 1 or args.retries < 0 or args.gpus_per_run < 0:
+        return _usage_error("--jobs must be at least 1, --retries and --gpus-per-run at least 0")
+    if args.gpus_per_run and not args.ray_address:
+        return _usage_error("--gpus-per-run is for --ray-address (local runs use train.device)")
     if args.ray_address:
         import_ray()
     cores = available_cores()
     jobs = args.jobs or max(1, cores // args.threads)
-    if not args.ray_address and jobs * args.threads > cores:
+    if not args.ray_address and not args.dry_run and jobs * args.threads > cores:
         print(f"dlo-experiments: {jobs} jobs x {args.threads} threads > {cores} cores; "
               f"using {max(1, cores // args.threads)} jobs", file=sys.stderr)
         jobs = max(1, cores // args.threads)
@@ -311,28 +598,59 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         for config in configs:
             check_env_options(config)
     except (ConfigError, ValueError) as error:
-        print(f"dlo-experiments: error: {error}", file=sys.stderr)
-        return 2
+        return _usage_error(str(error))
     statuses = [run_status(s.directory(args.out)) for s in specs]
+    restarts = " (starts over on the cluster: its checkpoint stays here)" if args.ray_address else ""
     for spec, status in zip(specs, statuses):
-        print(f"{status:8s} {spec.directory(args.out)}  ({', '.join(spec.groups)})")
-    tasks = [(config.to_dict(), str(spec.directory(args.out)))
+        note = restarts if status == "partial" else ""
+        print(f"{status:8s} {spec.directory(args.out)}  ({', '.join(spec.groups)}){note}")
+    tasks = [Task(spec.directory(args.out), config.to_dict())
              for spec, config, status in zip(specs, configs, statuses) if status != "done"]
     print(f"{len(specs)} runs, {len(specs) - len(tasks)} done, {len(tasks)} to run", flush=True)
     if args.dry_run:
-        print(estimate(specs, configs, statuses, args.out, 1 if args.ray_address else jobs), flush=True)
+        workers = args.jobs or (1 if args.ray_address else jobs)
+        print(estimate(specs, configs, statuses, args.out, workers, resume_partial=not args.ray_address), flush=True)
         return 0
     if not tasks:
         return 0
-    if args.ray_address:
-        results = run_ray(tasks, args.ray_address, args.threads)
-    else:
-        results = run_local(tasks, jobs)
-    failed = [run_dir for run_dir, error in results if error is not None]
+    progress: Optional[GridProgress] = None
+    try:
+        if args.ray_address:
+            ray = connect_ray(args.ray_address)
+            try:
+                check_capacity(ray, args.threads, args.gpus_per_run)
+            except GridError:
+                ray.shutdown()
+                raise
+            progress = GridProgress(len(tasks), enabled=not args.no_progress)
+            run_ray(ray, tasks, args.threads, args.retries, progress, gpus=args.gpus_per_run)
+        else:
+            progress = GridProgress(len(tasks), enabled=not args.no_progress)
+            run_local(tasks, jobs, progress)
+    except GridError as error:
+        if progress is not None:
+            progress.close()
+        return _usage_error(str(error))
+    except KeyboardInterrupt:
+        if progress is not None:
+            progress.close()
+        finished = sum(task.error is None and run_status(task.run_dir) == "done" for task in tasks)
+        print(f"dlo-experiments: interrupted; {finished} of {len(tasks)} run(s) finished: run the same command "
+              "again to continue", file=sys.stderr)
+        return 130
+    progress.close()
+    lines = report(tasks)
+    print("\n".join(lines), flush=True)
+    failed = [str(task.run_dir) for task in tasks if task.failed]
     if failed:
         print(f"{len(failed)} run(s) failed: {', '.join(failed)} (see their train.log)", file=sys.stderr)
         return 1
     return 0
+
+
+def _usage_error(message: str) -> int:
+    print(f"dlo-experiments: error: {message}", file=sys.stderr)
+    return 2
 
 
 if __name__ == "__main__":

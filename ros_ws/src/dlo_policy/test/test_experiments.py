@@ -1,6 +1,8 @@
 """dlo-experiments: the paper's grid, local parallel runs, skipping finished runs, Ray without Ray."""
 import importlib.util
 import json
+import os
+import socket
 import sys
 from pathlib import Path
 
@@ -42,13 +44,18 @@ def test_runner_skips_finished_runs_and_runs_the_rest_in_processes(tmp_path, cap
     argv = ["--out", str(out), "--groups", "single", "--seeds", "1", "--steps", "60", "--jobs", "2",
             "--threads", "1", *TINY]
     assert experiments.main(argv) == 0
-    assert "4 runs, 1 done, 3 to run" in capsys.readouterr().out
+    captured = capsys.readouterr()
+    assert "4 runs, 1 done, 3 to run" in captured.out
+    assert "grid: 3 run(s): 3 finished, 0 failed" in captured.out and "retried" not in captured.out
+    assert "3/3" in captured.err and "done=3 running=0 failed=0" in captured.err  # the progress bar's last state
     assert not (finished / EVAL_FILE).exists()
     for label in ("T", "V", "All"):
         run = out / label / "seed0"
-        assert json.loads((run / DONE_FILE).read_text())["env_steps"] == 60
+        done = json.loads((run / DONE_FILE).read_text())
+        assert done["env_steps"] == 60
+        assert (done["node"], done["attempts"]) == ("local", 1) and done["duration_s"] > 0 and done["host"]
         assert (run / "train.log").exists() and (run / CHECKPOINT_FILE).exists()
-    assert experiments.main(argv) == 0
+    assert experiments.main([*argv, "--resume"]) == 0
     assert "4 runs, 4 done, 0 to run" in capsys.readouterr().out
 
 
@@ -104,4 +111,137 @@ def test_bad_env_option_stops_the_grid_before_any_run(tmp_path, capsys):
             "env_options.tactile_noise=loud"]
     assert experiments.main(argv) == 2
     assert "env_options: tactile_noise" in capsys.readouterr().err
+    assert not (tmp_path / "grid").exists()
+
+
+def test_output_to_redirects_the_file_descriptors_and_restores_them(tmp_path, capfd):
+    log = tmp_path / "train.log"
+    with experiments.output_to(log):
+        os.write(1, b"inside out\n")
+        os.write(2, b"inside err\n")
+    os.write(1, b"after\n")
+    assert log.read_text() == "inside out\ninside err\n"
+    assert capfd.readouterr().out == "after\n"
+
+
+def make_run(run_dir: Path) -> None:
+    run_dir.mkdir(parents=True)
+    for name in ("config.yaml", "eval.csv", "best.json", "test.json", "test_without_T.json", "train.log"):
+        (run_dir / name).write_text(name)
+    for name in ("policy.pt", "best_policy.pt", CHECKPOINT_FILE):
+        (run_dir / name).write_bytes(b"\0" * 10)
+    (run_dir / DONE_FILE).write_text(json.dumps({"env_steps": 60}))
+
+
+def test_a_remote_run_sends_back_its_small_files_and_the_driver_writes_done_json_last(tmp_path, monkeypatch):
+    make_run(tmp_path / "worker")
+    files = experiments.result_files(tmp_path / "worker")
+    assert set(files) == {"config.yaml", "eval.csv", "best.json", "test.json", "test_without_T.json", "train.log",
+                          "policy.pt", "best_policy.pt", DONE_FILE}  # never the checkpoint (replay buffer)
+    target = tmp_path / "out" / "All" / "seed0"
+    target.mkdir(parents=True)
+    (target / CHECKPOINT_FILE).write_bytes(b"an earlier local attempt")
+    written = []
+    real_replace = os.replace
+    monkeypatch.setattr(experiments.os, "replace", lambda a, b: (written.append(Path(b).name), real_replace(a, b)))
+    experiments.write_result(target, files, error=None)
+    assert written[-1] == DONE_FILE and sorted(written) == sorted(files)
+    assert {p.name for p in target.iterdir()} == set(files)  # the stale checkpoint is gone, no .part left
+    assert (target / "test_without_T.json").read_text() == "test_without_T.json"
+
+    failed = tmp_path / "out" / "V" / "seed0"
+    experiments.write_result(failed, files, error="Traceback: boom")
+    assert {p.name for p in failed.iterdir()} == {"train.log"}  # not done: the next grid runs it again
+    assert (failed / "train.log").read_text().endswith("train.log\nTraceback: boom")
+    assert experiments.run_status(failed) == "todo"
+
+
+class FakeRay:
+    """Just what run_ray uses of Ray: remote tasks as generators, wait, get; `plan` says for each
+    run (by seed) how its attempts end: "ok", or "lost" (its node dies mid-run)."""
+
+    class exceptions:  # noqa: N801 (mirrors ray.exceptions)
+        class RayError(Exception):
+            pass
+
+        class RayTaskError(RayError):
+            pass
+
+        class NodeDiedError(RayError):
+            pass
+
+    def __init__(self, plan: dict[int, list[str]]):
+        self.plan, self.submitted = plan, []
+
+    def remote(self, **options):
+        fake = self
+
+        class Remote:
+            @staticmethod
+            def remote(config, attempt):
+                fake.submitted.append((config["seed"], attempt))
+                return fake.generator(config["seed"], fake.plan[config["seed"]][attempt - 1], attempt)
+        assert options == {"num_cpus": 1, "max_calls": 1, "max_retries": 0}
+        return lambda function: Remote
+
+    def generator(self, seed, outcome, attempt):
+        node = f"node{seed}{attempt}" + "0" * 20
+        yield {"started": node}
+        if outcome == "lost":
+            raise self.exceptions.NodeDiedError("the node died")
+        yield {"node": node, "error": None, "files": {DONE_FILE: json.dumps({"node": node}).encode()}}
+
+    def wait(self, pending, num_returns, timeout):
+        return pending[:1], pending[1:]
+
+    def get(self, value):
+        return value
+
+    def shutdown(self):
+        pass
+
+
+def test_ray_runs_lost_with_their_node_are_retried_a_bounded_number_of_times(tmp_path):
+    fake = FakeRay({0: ["ok"], 1: ["lost", "ok"], 2: ["lost", "lost", "lost"]})
+    tasks = [experiments.Task(tmp_path / f"seed{seed}", {"seed": seed}) for seed in range(3)]
+    progress = experiments.GridProgress(len(tasks), enabled=False)
+    experiments.run_ray(fake, tasks, threads=1, retries=2, progress=progress)
+    assert sorted(fake.submitted) == [(0, 1), (1, 1), (1, 2), (2, 1), (2, 2), (2, 3)]
+    ok, retried, failed = tasks
+    assert (ok.error, ok.attempts, ok.lost) == (None, 1, [])
+    assert retried.error is None and retried.attempts == 2 and retried.node.startswith("node12")
+    assert json.loads((tmp_path / "seed1" / DONE_FILE).read_text())["node"] == retried.node
+    assert failed.attempts == 3 and "lost 3 times" in failed.error and "--retries 2" in failed.error
+    assert not (tmp_path / "seed2" / DONE_FILE).exists()
+    assert (progress.finished, progress.failed, progress.retried) == (3, 1, 3)
+    lines = experiments.report(tasks)
+    assert lines[0] == "grid: 3 run(s): 2 finished, 1 failed"
+    assert lines[1] == "retried 2 run(s) after a lost worker or node:"
+    assert lines[2].startswith(f"  {tmp_path / 'seed1'}: lost 1x (NodeDiedError on node node11") and \
+        lines[2].endswith("finished on node node12000000 at attempt 2")
+    assert lines[3].startswith(f"  {tmp_path / 'seed2'}: lost 3x") and lines[3].endswith("failed at attempt 3")
+
+
+def test_usage_mistakes_are_one_line_errors(tmp_path, capsys):
+    base = ["--out", str(tmp_path / "grid"), "--groups", "single", "--labels", "T", "--seeds", "1", *TINY]
+    for extra, message in ((["--threads", "0"], "--threads must be at least 1"),
+                           (["--retries", "-1"], "--retries and --gpus-per-run at least 0"),
+                           (["--gpus-per-run", "1"], "--gpus-per-run is for --ray-address")):
+        assert experiments.main([*base, *extra]) == 2
+        err = capsys.readouterr().err
+        assert message in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "grid").exists()
+
+
+@pytest.mark.skipif(importlib.util.find_spec("ray") is None, reason="Ray is not installed")
+def test_ray_address_where_no_cluster_answers_is_a_one_line_error(tmp_path, capsys):
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]  # closed again: nothing listens there
+    base = ["--out", str(tmp_path / "grid"), "--groups", "single", "--labels", "T", "--seeds", "1", *TINY]
+    for address, message in ((f"127.0.0.1:{port}", "no Ray head answers there"),
+                             ("nonsense", "expected HOST:PORT")):
+        assert experiments.main([*base, "--ray-address", address]) == 2
+        err = capsys.readouterr().err
+        assert message in err and len(err.strip().splitlines()) == 1
     assert not (tmp_path / "grid").exists()
