@@ -21,6 +21,9 @@ usage: scripts/launch_graph.sh [options]
   --train-config YAML  online training: dlo-train config file (SAC hyperparameters)
   --tactile-noise N    tactile sensitivity: none (default), partial or full
   --record DIR         record every /dlo topic to the rosbag2 (MCAP) directory DIR
+  --foxglove [PORT]    live view: also start the Foxglove bridge (dlo_tools foxglove_bridge) on
+                       127.0.0.1:PORT (default 8765; 0 = any free port) and print the URL to open;
+                       layout to import: docs/foxglove/dlo_vitac.json
   --logs DIR           node logs and the outcome file go here (default: a new temp dir)
   --domain-id N        run on ROS_DOMAIN_ID N (default: a free domain of its own, so that two
                        graphs on one machine never see each other; the chosen id is printed)
@@ -40,7 +43,7 @@ EOF
 }
 
 episodes=5 seed=0 mode=step_locked rate=1.0 policy=sac checkpoint="" without="" noise=none record="" logs=""
-train_out="" train_config="" domain="" namespace=""
+train_out="" train_config="" domain="" namespace="" foxglove=""
 while [ $# -gt 0 ]; do
   case "$1" in
     --episodes|--seed|--mode|--rate-factor|--policy|--checkpoint|--without|--tactile-noise|--record|\
@@ -62,6 +65,8 @@ while [ $# -gt 0 ]; do
     --logs) logs="$2"; shift 2 ;;
     --domain-id) domain="$2"; shift 2 ;;
     --namespace) namespace="$2"; shift 2 ;;
+    --foxglove)
+      if [[ "${2:-}" =~ ^[0-9]+$ ]]; then foxglove="$2"; shift 2; else foxglove=8765; shift; fi ;;
     -h|--help) usage; exit 0 ;;
     *) echo "launch_graph: unknown option '$1'" >&2; usage >&2; exit $EXIT_USAGE ;;
   esac
@@ -76,6 +81,9 @@ fi
 namespace="${namespace#/}" namespace="${namespace%/}"
 if [ -n "$namespace" ] && ! [[ "$namespace" =~ ^[A-Za-z][A-Za-z0-9_]*(/[A-Za-z][A-Za-z0-9_]*)*$ ]]; then
   bad "--namespace must be a ROS name like 'robot1' or 'lab/robot1', got '$namespace'"
+fi
+if [ -n "$foxglove" ] && [ "$foxglove" -gt 65535 ]; then
+  bad "--foxglove PORT must be in 0..65535, got '$foxglove'"
 fi
 if [ -n "$record" ] && [ -e "$record" ]; then
   bad "--record $record already exists; choose a new directory"
@@ -195,6 +203,7 @@ interrupted=0
 
 subscribers=3 sim_extra=()
 [ -z "$record" ] || subscribers=4 sim_extra=(-p wait_for_recorder:=recorder)  # the first episode is recorded whole
+[ -z "$foxglove" ] || subscribers=$((subscribers + 1))  # the bridge subscribes to the gripper state too
 # The sim first: it refuses to start next to another simulator on this domain; nothing else of this graph
 # starts before it has looked (no second graph's nodes answering, publishing or recording into the first).
 start sim dlo_sim sim_node --ros-args -p mode:="$mode" -p seed:="$seed" -p episodes:="$episodes" \
@@ -213,6 +222,21 @@ if [ -n "$record" ]; then
   if [ -n "$namespace" ]; then rec_topics=(-p namespace:="$prefix"); else rec_topics=(-p record_clock:=true); fi
   start recorder dlo_tools recorder_node --ros-args -p output:="$record" "${rec_topics[@]}" \
     -p summary_file:="$logs/recorder_summary.json" ${remap[@]+"${remap[@]}"}
+fi
+if [ -n "$foxglove" ]; then
+  start foxglove dlo_tools foxglove_bridge --ros-args -p port:="$foxglove" -p address:=127.0.0.1 \
+    -p topics:="$prefix/dlo,$prefix/clock"
+  for _ in $(seq 1 300); do  # its first lines name the URL (a port in use ends it: reported below)
+    grep -q "Foxglove bridge on ws://" "$logs/foxglove.log" 2>/dev/null && break
+    kill -0 "${pids[-1]}" 2>/dev/null || break
+    sleep 0.1
+  done
+  url="$(grep -m1 -o "open https://[^ ]*" "$logs/foxglove.log" 2>/dev/null | cut -c6- || true)"
+  ws="$(grep -m1 -o "ws://[0-9.]*:[0-9]*" "$logs/foxglove.log" 2>/dev/null || true)"
+  if [ -n "$url" ]; then
+    echo "[launch] Foxglove live view: open $url"
+    echo "[launch]   (Foxglove app: Open connection -> Foxglove WebSocket -> $ws; layout: $ROOT/docs/foxglove/dlo_vitac.json)"
+  fi
 fi
 start tactile dlo_perception tactile_node --ros-args -p noise:="$noise" -p seed:="$seed" ${remap[@]+"${remap[@]}"}
 start vision dlo_perception vision_node --ros-args ${remap[@]+"${remap[@]}"}

@@ -50,7 +50,8 @@ class TactileNode(Node):
                             np.array([gripper.closure]), self.sigma, self.rng)
         out = TactilePose(angle=float(pose.angle[0]), y=float(pose.y[0]), contact=bool(pose.contact[0]),
                           contact_count=int(pose.count[0]))
-        out.header = cloud.header
+        out.header.stamp = cloud.header.stamp
+        out.header.frame_id = "gripper"  # angle and offset are in the gripper frame (DESIGN.md section 2)
         self.last = (stamp, out)
         self.publisher.publish(out)
 

@@ -65,7 +65,8 @@ class VisionNode(Node):
         pose = visual_pose(pixels[None], self.camera, np.array([[gripper.x, gripper.y]]), gripper.z)
         out = VisualPose(visible=bool(pose.visible[0]), confidence=float(pose.confidence[0]),
                          angle=float(pose.angle[0]), y=float(pose.y[0]))
-        out.header = image.header
+        out.header.stamp = image.header.stamp
+        out.header.frame_id = "gripper"  # angle and offset relative to the gripper, in its frame
         self.publisher.publish(out)
 
 

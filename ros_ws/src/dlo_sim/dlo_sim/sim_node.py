@@ -357,6 +357,7 @@ class SimNode(Node):
         for msg in (cloud, state, image, task):
             msg.header.stamp = stamp
             msg.header.frame_id = "world"
+        image.header.frame_id = "top_camera_optical"  # the image and its camera_info share the camera's frame
         self.pub_particles.publish(cloud)
         self.pub_image.publish(image)
         self.pub_task.publish(task)

@@ -70,6 +70,7 @@ class MockDriver(Node):
         self.pub_cloud = self.create_publisher(PointCloud2, "/dlo/rope/particles", 10)
         info_pub = self.create_publisher(CameraInfo, "/dlo/camera/camera_info", latched)
         info = CameraInfo(width=self.camera.width, height=self.camera.height)
+        info.header.frame_id = "top_camera_optical"
         info.k = self.camera.k_matrix.reshape(-1).tolist()
         info_pub.publish(info)
         self.create_subscription(GripperCommand, "/dlo/gripper/cmd", self.on_command, 10)
@@ -98,6 +99,7 @@ class MockDriver(Node):
                              closure=self.closure, episode=0, step=self.step)
         for msg in (cloud, image, state):
             msg.header.stamp, msg.header.frame_id = stamp, "world"
+        image.header.frame_id = "top_camera_optical"  # shared with camera_info
         self.pub_cloud.publish(cloud)
         self.pub_image.publish(image)
         self.pub_state.publish(state)

@@ -5,9 +5,10 @@ it serves, from the advertised ros2msg schemas only.
   graph message type round-trips, late topics are advertised to connected clients, latched topics
   reach late subscribers, clients connect and leave, a client that stops reading neither blocks
   the publisher nor starves a second client, and stop() is bounded;
-- node: the real graph (sim, tactile, vision, policy: few steps) with ``dlo_tools
-  foxglove_bridge``: every /dlo topic + /clock is advertised (also those that appear after the
-  client connected) and decoded; a second client joins mid-run; SIGINT -> exit 0 with counts.
+- node: ``launch_graph.sh --foxglove 0`` (one episode, tactile-reactive policy): the printed URL
+  serves every /dlo topic + /clock (also those that appear after the client connected), decoded
+  from the schemas, with consistent frames; a second client joins mid-run; the graph ends with
+  exit 0 and the bridge's counts; a port in use is one line and exit 3.
 """
 
 from __future__ import annotations
@@ -27,7 +28,7 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # --import-mode=importlib
 
-from dlo_tools_testutil import ROS2RUN  # noqa: E402
+from dlo_tools_testutil import ROS2RUN, Proc  # noqa: E402
 from foxglove_ws_client import FoxgloveTestClient  # noqa: E402
 
 pytest.importorskip("foxglove")
@@ -269,48 +270,57 @@ def test_a_client_that_stops_reading_never_blocks(bridge, typestore):
 
 # ---- the node in a running graph -------------------------------------------------------------
 
-def sim_graph_cmds(steps: int) -> dict[str, list[str]]:
-    run = [str(ROS2RUN)]
-    return {
-        "sim": run + ["dlo_sim", "sim_node", "--ros-args", "-p", "episodes:=1", "-p", f"horizon:={steps}",
-                      "-p", "seed:=3", "-p", "min_subscribers:=4", "-p", "camera_resolution:=64"],
-        "tactile": run + ["dlo_perception", "tactile_node"],
-        "vision": run + ["dlo_perception", "vision_node"],
-        "policy": run + ["dlo_policy", "policy_node", "--ros-args", "-p", "policy:=tactile_reactive"],
-    }
+@pytest.fixture
+def launcher(ros_env):
+    """Start ``launch_graph.sh`` (its own DDS domain); stopped with SIGINT afterwards if still running."""
+    started = []
+
+    def start(*args: str) -> Proc:
+        proc = Proc(["bash", str(ROS2RUN.parent / "launch_graph.sh"), *args],
+                    {**ros_env, "DLO_USE_ROS2RUN": "1"}, "launch")
+        started.append(proc)
+        return proc
+
+    yield start
+    for proc in started:
+        if proc.p.poll() is None:
+            proc.signal(signal.SIGINT)
+            try:
+                proc.wait(timeout=60)
+            except Exception:  # noqa: BLE001
+                proc.kill()
 
 
-def test_bridge_node_serves_every_graph_topic_live(procs, tmp_path):
-    summary = tmp_path / "bridge.json"
-    bridge = procs("bridge", [str(ROS2RUN), "dlo_tools", "foxglove_bridge", "--ros-args", "-p", "port:=0",
-                              "-p", "discovery_period:=0.1", "-p", f"summary_file:={summary}"])
-    line = bridge.wait_line("Foxglove bridge on ws://", timeout=60)
-    url = re.search(r"(ws://127\.0\.0\.1:\d+)", line).group(1)
-    assert "app.foxglove.dev" in line
-    client = FoxgloveTestClient(url).connect()  # before any graph topic exists
+def test_launch_graph_foxglove_serves_every_graph_topic_live(launcher, tmp_path):
+    """``launch_graph.sh --foxglove 0``: the printed URL works; every /dlo topic + /clock is
+    advertised (perception/policy topics appear after the client connected) and decoded from the
+    advertised schemas; frames are consistent; a second client joins mid-run; the bridge stops
+    cleanly with the graph (the launcher's exit 0)."""
+    logs = tmp_path / "logs"
+    launch = launcher("--foxglove", "0", "--episodes", "1", "--seed", "3", "--policy", "tactile_reactive",
+                      "--logs", str(logs))
+    launch.wait_line("Foxglove live view: open https://app.foxglove.dev/", timeout=180)
+    url = re.search(r"(ws://127\.0\.0\.1:\d+)", launch.wait_line("Foxglove WebSocket ->", timeout=10)).group(1)
+    client = FoxgloveTestClient(url).connect()
     second = None
-    graph = []
     try:
-        assert client.channels == {}
-        cmds = sim_graph_cmds(steps=40)
-        for name in ("sim", "tactile", "vision", "policy"):
-            graph.append(procs(name, cmds[name]))
         try:  # the sim builds its Taichi kernels first (minutes on a loaded 2-core machine)
             client.wait(lambda: set(GRAPH_TYPES) <= {c["topic"] for c in client.channels.values()}
-                        or any(p.p.poll() is not None for p in [bridge, *graph]), 480, "every graph topic advertised")
-            assert all(p.p.poll() is None for p in [bridge, *graph]), "a process ended early"
+                        or launch.p.poll() is not None, 480, "every graph topic advertised")
+            assert launch.p.poll() is None, "the launcher ended early"
+            for ch in client.channels.values():
+                assert ch["schemaName"] == GRAPH_TYPES.get(ch["topic"], ch["schemaName"])
+            client.subscribe()
+            client.wait(lambda: set(GRAPH_TYPES) <= client.topics_received(), 240, "a message on every topic")
+            second = FoxgloveTestClient(url).connect()  # joins mid-run
+            second.wait(lambda: {"/dlo/gripper/state", "/dlo/camera/camera_info"}
+                        <= {c["topic"] for c in second.channels.values()}, 30, "advertise")
+            second.subscribe(["/dlo/gripper/state", "/dlo/camera/camera_info"])
+            second.wait(lambda: {"/dlo/gripper/state", "/dlo/camera/camera_info"} <= second.topics_received(), 60,
+                        "state + latched camera_info at the second client")
         except AssertionError as err:
-            raise AssertionError(f"{err}\n" + "\n".join(f"--- {p.name}:\n{p.output()[-1500:]}"
-                                                        for p in [bridge, *graph])) from None
-        for ch in client.channels.values():
-            assert ch["schemaName"] == GRAPH_TYPES.get(ch["topic"], ch["schemaName"])
-        client.subscribe()
-        client.wait(lambda: set(GRAPH_TYPES) <= client.topics_received(), 240, "a message on every topic")
-        second = FoxgloveTestClient(url).connect()  # joins mid-run
-        second.wait(lambda: set(GRAPH_TYPES) <= {c["topic"] for c in second.channels.values()}, 30, "advertise")
-        second.subscribe(["/dlo/gripper/state", "/dlo/camera/camera_info"])
-        second.wait(lambda: {"/dlo/gripper/state", "/dlo/camera/camera_info"} <= second.topics_received(), 60,
-                    "state + latched camera_info at the second client")
+            logs_text = "\n".join(f"--- {f.name}:\n{f.read_text()[-1500:]}" for f in sorted(logs.glob("*.log")))
+            raise AssertionError(f"{err}\n--- launcher:\n{launch.output()[-2000:]}\n{logs_text}") from None
         decoded = {m.topic: client.decode(m) for m in client.messages}  # every message, from the schemas
         for m in second.messages:
             second.decode(m)
@@ -318,17 +328,24 @@ def test_bridge_node_serves_every_graph_topic_live(procs, tmp_path):
         client.close()
         if second is not None:
             second.close()
+    assert launch.wait(timeout=600) == 0, launch.output()
     assert decoded["/dlo/camera/image"].encoding == "mono8"
+    # frames: each message names the frame its values are in (DESIGN.md section 2)
+    assert decoded["/dlo/camera/image"].header.frame_id == decoded["/dlo/camera/camera_info"].header.frame_id \
+        == "top_camera_optical"
+    assert decoded["/dlo/tactile/pose"].header.frame_id == decoded["/dlo/vision/pose"].header.frame_id == "gripper"
+    for topic in ("/dlo/rope/particles", "/dlo/gripper/state", "/dlo/task/state"):
+        assert decoded[topic].header.frame_id == "world", topic
+    assert {m.header.frame_id for m in decoded["/dlo/markers"].markers} == {"world"}
     assert decoded["/dlo/camera/camera_info"].k[0] > 0
     assert decoded["/dlo/task/state"].num_particles >= 30
     assert len(decoded["/dlo/markers"].markers) == 3
     assert decoded["/clock"].clock.sec >= 0
-    bridge.signal(signal.SIGINT)
-    assert bridge.wait(timeout=30) == 0, bridge.output()
-    counts = json.loads(summary.read_text())
-    assert counts["forwarded"] > 0 and counts["clients_connected"] == 2
-    assert set(GRAPH_TYPES) <= set(counts["topics"])
-    assert "Traceback" not in bridge.output()
+    bridge_log = (logs / "foxglove.log").read_text()
+    assert "Traceback" not in bridge_log
+    forwarded = re.findall(r"forwarded (\d+)", bridge_log)
+    assert forwarded and int(forwarded[-1]) > 0, bridge_log[-1500:]
+    assert "client 127.0.0.1" in bridge_log  # connections are logged
 
 
 def test_bridge_node_port_in_use_is_one_line(procs):
@@ -340,3 +357,25 @@ def test_bridge_node_port_in_use_is_one_line(procs):
         assert proc.wait(timeout=60) == 3
     out = proc.output()
     assert "Traceback" not in out and f"127.0.0.1:{port}" in out and "port:=" in out, out
+
+
+def test_layout_ships_and_reads_only_graph_topics():
+    """docs/foxglove/dlo_vitac.json is the generated layout (app export format), every panel of the
+    tree is configured, and every topic it reads is one the graph (and its bags) carry."""
+    from dlo_tools.foxglove_layout import LAYOUT_FILE, build_layout, layout_topics, main
+
+    shipped = Path(__file__).resolve().parents[4] / LAYOUT_FILE
+    assert main(["--check", "--out", str(shipped)]) == 0, "regenerate: python -m dlo_tools.foxglove_layout"
+    layout = json.loads(shipped.read_text(encoding="utf-8"))
+    assert layout == build_layout()
+
+    def leaves(node):
+        return [node] if isinstance(node, str) else leaves(node["first"]) + leaves(node["second"])
+
+    assert sorted(leaves(layout["layout"])) == sorted(layout["configById"])
+    types = {panel.split("!")[0] for panel in layout["configById"]}
+    assert {"3D", "Image", "Plot", "StateTransitions"} <= types
+    assert layout_topics(layout) <= set(GRAPH_TYPES)
+    scene = layout["configById"]["3D!dlo_scene"]
+    assert scene["topics"]["/dlo/rope/particles"]["colorField"] == "held"  # held particles coloured
+    assert "/dlo/markers" in scene["topics"] and scene["followTf"] == "world"
