@@ -270,6 +270,24 @@ def generate(module: str, path: str, functions: list[str] | None) -> list[Mutant
     return mutants
 
 
+def named_mutants(module: str, path: str, entries: list[dict]) -> list[Mutant]:
+    """The configuration's [[named]] bugs of this module: an exact text replaced (it must occur once)."""
+    source = (ROOT / path).read_text()
+    mutants = []
+    for entry in entries:
+        find, replace = entry["find"], entry["replace"]
+        if source.count(find) != 1:
+            raise SystemExit(f"mutation_check: named bug {entry['name']!r}: its text occurs {source.count(find)} "
+                             f"times in {path} (must be once): {find!r}")
+        begin = source.index(find)
+        mutated = source[:begin] + replace + source[begin + len(find):]
+        compile(mutated, path, "exec")
+        line = source.count("\n", 0, begin) + 1
+        mutants.append(Mutant(module, path, entry["name"], line, "named", _short(find), _short(replace), mutated,
+                              key=f"named|{entry['name']}"))
+    return mutants
+
+
 def _col(source: str, starts: list[int], line: int, col: int) -> int:
     """ast column offsets count UTF-8 bytes: convert to characters."""
     text = source[starts[line - 1]:starts[line]]
@@ -421,6 +439,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--list", action="store_true", help="list the mutants and exit")
     parser.add_argument("--fresh", action="store_true", help="ignore earlier verdicts")
     parser.add_argument("--no-fork", action="store_true", help="a new interpreter per mutant (slower)")
+    parser.add_argument("--named-only", action="store_true", help="only the [[named]] bugs (the issue's weaknesses)")
     parser.add_argument("--slow", action="store_true", help="also the modules marked slow = true")
     parser.add_argument("--max", type=int, default=0, help="at most this many mutants per module (0 = all)")
     parser.add_argument("--work", type=Path, default=Path(os.environ.get("DLO_MUTATION_DIR", "/tmp/dlo-mutation")))
@@ -436,7 +455,13 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     equivalent = {(e["module"], e["key"]): e["reason"] for e in config.get("equivalent", [])}
 
-    plan = {m["name"]: generate(m["name"], m["file"], m.get("functions")) for m in modules}
+    named = config.get("named", [])
+    unknown_named = {n["module"] for n in named} - {m["name"] for m in config["module"]}
+    if unknown_named:
+        print(f"mutation_check: [[named]] for unknown module(s) {', '.join(sorted(unknown_named))}", file=sys.stderr)
+        return 2
+    plan = {m["name"]: named_mutants(m["name"], m["file"], [n for n in named if n["module"] == m["name"]])
+            + generate(m["name"], m["file"], m.get("functions")) for m in modules}
     if args.list:
         for m in modules:
             for mutant in plan[m["name"]]:
@@ -477,7 +502,8 @@ def main(argv: list[str] | None = None) -> int:
             results[name] = None
             continue
         limit = max(60.0, 4.0 * base + 30.0)
-        mutants = plan[name][: args.max or None]
+        mutants = plan[name][: args.max or None] if not args.named_only else \
+            [mu for mu in plan[name] if mu.operator == "named"]
         print(f"{name}: {len(mutants)} mutants, baseline {base:.0f} s, limit {limit:.0f} s each", flush=True)
         outcome = []
         try:
@@ -529,6 +555,13 @@ def main(argv: list[str] | None = None) -> int:
         print("\n=== surviving mutants (no test fails) ===")
         for name, mutant in alive:
             print(f"{name}: {mutant.describe()}\n    key = {mutant.key!r}")
+    named_results = [(name, mu, v) for name in results if results[name] for mu, v, _ in results[name]
+                     if mu.operator == "named"]
+    if named_results:
+        print("\n=== named bugs (scripts/mutation.toml [[named]]: the weaknesses of issue 14) ===")
+        for name, mutant, verdict in named_results:
+            print(f"{verdict:<16} {name}: {mutant.function}  ({mutant.path}:{mutant.line})")
+            ok &= verdict.startswith("killed")
     equiv = [s for s in survivors if len(s) == 3]
     if equiv:
         print("\n=== equivalent mutants (listed in scripts/mutation.toml) ===")

@@ -46,6 +46,7 @@ def make_node(context, monkeypatch):
                             lambda self, *a, **k: init(self, *a, **{"context": context, **k}))
         node = tactile_node_module.TactileNode()
         monkeypatch.setattr(rclpy.node.Node, "__init__", init)
+        node.real_publisher = node.publisher
         node.publisher = Published()
         nodes.append(node)
         return node
@@ -110,3 +111,18 @@ def test_no_noise_is_the_exact_line_fit_and_a_closed_gripper_has_none(make_node)
     feed(custom, 2)
     assert custom.publisher[0].angle == pytest.approx(exact.angle, abs=1e-9)
     assert custom.publisher[0].y != pytest.approx(exact.y, abs=1e-7)
+
+
+def test_topics_and_parameter_defaults(make_node):
+    node = make_node()
+    assert node.real_publisher.topic_name == "/dlo/tactile/pose"
+    assert sorted(s.topic_name for s in node.subscriptions) == ["/dlo/gripper/state", "/dlo/rope/particles"]
+    assert {name: node.get_parameter(name).value for name in ("noise", "sigma_theta", "sigma_y", "seed")} == {
+        "noise": "none", "sigma_theta": 0.0, "sigma_y": 0.0, "seed": 0}
+    custom = make_node(noise="custom")  # custom without sigmas: no noise
+    assert custom.sigma == (0.0, 0.0)
+    default_seed = make_node(noise="full")
+    feed(default_seed, 1)
+    seeded = make_node(noise="full", seed=0)
+    feed(seeded, 1)
+    assert reading(default_seed.publisher[0]) == reading(seeded.publisher[0])
