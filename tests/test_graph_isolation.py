@@ -31,7 +31,10 @@ class Launch:
         self.out_path = tmp / f"{name}.out"
         self.out_file = open(self.out_path, "w")
         self.p = subprocess.Popen(["bash", str(LAUNCH), *map(str, args), "--logs", str(self.logs)],
-                                  stdout=self.out_file, stderr=subprocess.STDOUT, env=ENV, start_new_session=True)
+                                  stdout=self.out_file, stderr=subprocess.STDOUT, env=ENV, start_new_session=True,
+                                  # bash cannot trap a signal ignored at its start: a test run started as a
+                                  # background job (SIGINT ignored) must not make Ctrl-C a no-op here
+                                  preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
 
     @property
     def out(self):
