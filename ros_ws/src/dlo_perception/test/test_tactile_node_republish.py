@@ -15,6 +15,8 @@ rclpy = pytest.importorskip("rclpy")
 from dlo_msgs.msg import GripperState  # noqa: E402
 
 from dlo_perception import tactile_node as tactile_node_module  # noqa: E402
+
+DECLARE = tactile_node_module.declare_parameters  # the original: every node gets only its own overrides
 from dlo_perception.cloud import particle_cloud  # noqa: E402
 from dlo_perception.tactile import tactile_pose  # noqa: E402
 
@@ -38,9 +40,8 @@ def make_node(context, monkeypatch):
     nodes = []
 
     def make(**parameters):
-        declare = tactile_node_module.declare_parameters
         monkeypatch.setattr(tactile_node_module, "declare_parameters",
-                            lambda n, specs: {**declare(n, specs), **parameters})
+                            lambda n, specs: {**DECLARE(n, specs), **parameters})
         init = rclpy.node.Node.__init__
         monkeypatch.setattr(rclpy.node.Node, "__init__",
                             lambda self, *a, **k: init(self, *a, **{"context": context, **k}))
@@ -86,6 +87,7 @@ def test_a_republished_step_gets_the_same_noisy_reading(make_node):
     first, again, next_step = node.publisher
     assert reading(again) == reading(first)
     assert (again.header.stamp.sec, again.header.stamp.nanosec) == stamp
+    assert first.header.frame_id == "gripper"  # the line is fitted in the gripper frame
     assert (next_step.angle, next_step.y) != (first.angle, first.y)  # a new step: a new draw
     exact = tactile_pose(POSITIONS[:, :2], HELD, (0.002, 0.0005), 0.0)
     assert (first.angle, first.y) != pytest.approx((exact.angle, exact.y), abs=1e-6)  # the noise is there

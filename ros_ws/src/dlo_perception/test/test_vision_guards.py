@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from dlo_perception.vision import (CONFIDENCE_LENGTH, ENTRY_BAND, OCCLUSION_RADIUS, SEARCH_HALF_WIDTH,
-                                   line_slope, visual_pose_ground_truth)
+                                   TRACK_LENGTH, line_slope, visual_pose_ground_truth)
 
 X_O = OCCLUSION_RADIUS  # occlusion edge for a gripper at the origin
 
@@ -101,6 +101,25 @@ def test_following_stops_at_the_first_step_left_and_beyond_the_track():
     assert pose.angle[0] == pytest.approx(np.arctan(1 / 3))
     assert pose.confidence[1] == 1.0 and pose.angle[1] == pytest.approx(np.pi / 4)
     assert pose.y.tolist() == [0.0, 0.0]
+
+
+def test_a_step_straight_across_is_not_rightward():
+    # the entry's next index lies straight above it: walk the other way, where the cable heads right
+    back = np.array([[X_O + 0.005, 0.001], [X_O + 0.001, 0.0], [X_O + 0.001, 0.010]])
+    pose = truth(back)
+    assert pose.y[0] == 0.0 and pose.confidence[0] == pytest.approx(0.005 / CONFIDENCE_LENGTH)
+    assert pose.angle[0] == pytest.approx(np.arctan(0.25))
+    # walking on, a step straight across ends the strand
+    across = np.array([[X_O + 0.001, 0.0], [X_O + 0.004, 0.0], [X_O + 0.004, 0.003], [X_O + 0.008, 0.003]])
+    assert truth(across).confidence[0] == pytest.approx(0.004 / CONFIDENCE_LENGTH)
+
+
+def test_the_track_length_is_inclusive():
+    gx = next(g for g in np.arange(0.0, 0.01, 0.0001) if (g + X_O + TRACK_LENGTH) - (g + X_O) == TRACK_LENGTH)
+    x_o = gx + X_O
+    cable = np.array([[x_o + 0.001, 0.0], [x_o + TRACK_LENGTH, 0.01], [x_o + TRACK_LENGTH + 0.004, 0.02]])
+    pose = truth(cable, gripper=(gx, 0.0))
+    assert pose.angle[0] == pytest.approx(np.arctan(0.01 / (TRACK_LENGTH - 0.001)))
 
 
 def test_rows_of_a_batch_are_independent():

@@ -208,3 +208,47 @@ def test_observation_layout_and_bounds():
     np.testing.assert_allclose(low, [-0.3, -0.3, 0.0, -np.pi / 2, -0.03, 0.0, 0.0, -np.pi / 2, -0.03], rtol=1e-6)
     np.testing.assert_allclose(high, [0.3, 0.3, 1.0, np.pi / 2, 0.03, 1.0, 1.0, np.pi / 2, 0.03], rtol=1e-6)
     assert observation_bounds("T")[0].dtype == np.float32
+
+
+def test_batched_observation_rows_keep_their_own_values():
+    kinematic = np.array([[0.1, -0.2, 0.7], [0.05, 0.02, 0.9]])
+    tactile = TactilePose(np.array([0.3, -0.1]), np.array([0.004, -0.002]), np.array([True, True]), np.array([3, 4]))
+    visual = VisualPose(np.array([True, False]), np.array([0.5, 0.0]), np.array([-0.2, 0.0]), np.array([0.01, 0.0]))
+    observation = build_observation("All", kinematic, tactile, visual)
+    np.testing.assert_allclose(observation, [[0.1, -0.2, 0.7, 0.3, 0.004, 1.0, 0.5, -0.2, 0.01],
+                                             [0.05, 0.02, 0.9, -0.1, -0.002, 0.0, 0.0, 0.0, 0.0]], rtol=1e-6)
+
+
+def test_replay_stores_every_field_and_samples_with_the_given_generator():
+    from dlo_policy.replay import ReplayBuffer
+
+    replay = ReplayBuffer(8, 2, 3)
+    for i in range(5):
+        replay.add([i, -i], [0.1 * i, 0.2, -0.3], float(i) / 2, [i + 1, -i - 1], i == 3)
+    state = torch.get_rng_state()
+    a = replay.sample(16, torch.Generator().manual_seed(4))
+    b = replay.sample(16, torch.Generator().manual_seed(4))
+    assert torch.equal(torch.get_rng_state(), state)  # the global torch stream is untouched
+    assert torch.equal(a.obs, b.obs) and torch.equal(a.actions, b.actions)
+    index = a.obs[:, 0].long()
+    assert set(index.tolist()) <= set(range(5)) and len(set(index.tolist())) > 1
+    torch.testing.assert_close(a.actions, torch.stack([torch.tensor([0.1 * i, 0.2, -0.3]) for i in index.tolist()]))
+    torch.testing.assert_close(a.rewards, index.float() / 2)
+    torch.testing.assert_close(a.next_obs[:, 0], index.float() + 1)
+    assert a.terminated.tolist() == [float(i == 3) for i in index.tolist()]
+
+
+def test_online_learning_updates_after_learning_starts_and_checkpoints(tmp_path):
+    config = RunConfig(sac=SACConfig(**{**TINY, "learning_starts": 1}))
+    learner = OnlineLearner(config, 9, tmp_path / "online", checkpoint_every=2)
+    obs = lambda v: np.full(9, float(v), np.float32)  # noqa: E731
+    learner.act(obs(0), 0.0, False, False, episode=0, step=0)
+    learner.act(obs(1), 0.1, False, False, episode=0, step=1)  # transition 1: learning_starts not passed yet
+    assert learner.agent.num_updates == 0 and not (tmp_path / "online" / "checkpoint.pt").exists()
+    learner.act(obs(2), 0.1, True, False, episode=0, step=2)  # transition 2: one update, a checkpoint
+    assert learner.agent.num_updates == 1 and (tmp_path / "online" / "checkpoint.pt").exists()
+    assert (tmp_path / "online" / "policy.pt").exists()
+    learner.act(obs(3), 0.1, False, False, episode=0, step=3)  # nothing links across the episode's end
+    assert len(learner.agent.replay) == 2
+    resumed = OnlineLearner(config, 9, tmp_path / "online", checkpoint_every=2)  # continues the saved run
+    assert resumed.agent.num_env_steps == 2 and len(resumed.agent.replay) == 2

@@ -19,6 +19,8 @@ from dlo_msgs.msg import GripperState, TactilePose, TaskState, VisualPose  # noq
 
 from dlo_policy import policy_node as policy_node_module  # noqa: E402
 
+DECLARE = policy_node_module.declare_parameters  # the original: every node gets only its own overrides
+
 K = (0.012, -0.004, 0.7)
 T = (0.3, 0.0042)
 V = (True, 0.5, -0.2, 0.011)
@@ -67,17 +69,24 @@ class RecordingLearner:
 def make_node(context, monkeypatch):
     nodes = []
 
-    def make(policy=None, learner=None, **parameters):
-        declare = policy_node_module.declare_parameters
+    def make(act=None, learner=None, trained_on="All", **parameters):
         monkeypatch.setattr(policy_node_module, "declare_parameters",
-                            lambda n, specs: {**declare(n, specs), **parameters})
-        monkeypatch.setattr(policy_node_module, "load_policy", lambda kind, checkpoint, modalities, seed: (policy, "All"))
-        monkeypatch.setattr(policy_node_module.PolicyNode, "make_learner", staticmethod(lambda p: learner))
+                            lambda n, specs: {**DECLARE(n, specs), **parameters})
+        monkeypatch.setattr(policy_node_module, "load_policy",
+                            lambda kind, checkpoint, modalities, seed: (act, trained_on))
+
+        def make_learner(p):
+            assert learner is not None, "a learner was made without train:=true"
+            return learner
+        monkeypatch.setattr(policy_node_module.PolicyNode, "make_learner", staticmethod(make_learner))
         init = rclpy.node.Node.__init__
         monkeypatch.setattr(rclpy.node.Node, "__init__",
                             lambda self, *a, **k: init(self, *a, **{"context": context, **k}))
-        node = policy_node_module.PolicyNode()
-        monkeypatch.setattr(rclpy.node.Node, "__init__", init)
+        try:
+            node = policy_node_module.PolicyNode()
+        finally:
+            monkeypatch.setattr(rclpy.node.Node, "__init__", init)
+        node.real_publisher = node.publisher
         node.publisher = Published()
         nodes.append(node)
         return node
@@ -114,7 +123,7 @@ def feed(node, step, episode=2, task=None):
 ])
 def test_without_blanks_the_modality_the_policy_sees(make_node, without, inputs, zero):
     policy = RecordingPolicy()
-    node = make_node(policy=policy, without=without)
+    node = make_node(act=policy, without=without)
     assert node.sync.keys == inputs  # an ablated input is not waited for
     feed(node, step=7)
     (seen,) = policy.seen
@@ -127,7 +136,7 @@ def test_without_blanks_the_modality_the_policy_sees(make_node, without, inputs,
 
 def test_the_command_answers_its_step_and_a_republished_step_gets_the_same_one(make_node):
     policy = RecordingPolicy()
-    node = make_node(policy=policy)
+    node = make_node(act=policy)
     feed(node, step=0, episode=4)
     feed(node, step=0, episode=4)  # republished: answered again, the policy is not asked again
     feed(node, step=1, episode=4)
@@ -143,8 +152,8 @@ def test_the_command_answers_its_step_and_a_republished_step_gets_the_same_one(m
 @pytest.mark.parametrize("n_held, dropped", [(3, False), (0, True)])
 def test_online_training_gets_a_terminal_flag_only_for_a_drop(make_node, n_held, dropped):
     learner = RecordingLearner()
-    node = make_node(learner=learner, train=True, policy="sac")
-    assert "task" in node.sync.keys
+    node = make_node(learner=learner, train=True, policy="sac", modalities="T+K")  # trains on its own modalities
+    assert node.sync.keys == ("gripper", "tactile", "task")
     feed(node, step=5, task=TaskState(episode=2, step=5, n_held=3, reward=0.25, done=False))
     feed(node, step=6, task=TaskState(episode=2, step=6, n_held=n_held, reward=-0.5, done=True))
     assert learner.calls == [dict(reward=0.25, done=False, dropped=False, episode=2, step=5),
@@ -152,3 +161,61 @@ def test_online_training_gets_a_terminal_flag_only_for_a_drop(make_node, n_held,
     node.destroy_node()  # saves the online run once
     node.destroyed_by_test = True
     assert learner.saved == 1
+
+
+class Log:
+    def __init__(self):
+        self.errors = []
+
+    def error(self, text, **_):
+        self.errors.append(text)
+
+    def __getattr__(self, name):
+        return lambda *a, **k: None
+
+
+def test_topics_timer_and_parameters(make_node):
+    node = make_node(act=RecordingPolicy())
+    assert node.real_publisher.topic_name == "/dlo/gripper/cmd"
+    assert sorted(s.topic_name for s in node.subscriptions) == ["/dlo/gripper/state", "/dlo/tactile/pose",
+                                                                "/dlo/vision/pose"]
+    assert [t.timer_period_ns for t in node.timers] == [250_000_000]
+    assert {n: node.get_parameter(n).value for n in ("input_timeout", "seed", "checkpoint_every", "without")} == {
+        "input_timeout": 1.0, "seed": 0, "checkpoint_every": 1000, "without": ""}
+    ablated = make_node(act=RecordingPolicy(), without="V")
+    assert sorted(s.topic_name for s in ablated.subscriptions) == ["/dlo/gripper/state", "/dlo/tactile/pose"]
+    oracle = make_node(act=RecordingPolicy(), policy="oracle", trained_on="K")
+    assert oracle.sync.keys == ("gripper", "particles")
+    assert sorted(s.topic_name for s in oracle.subscriptions) == ["/dlo/gripper/state", "/dlo/rope/particles"]
+    learner = make_node(learner=RecordingLearner(), train=True, modalities="K")
+    assert sorted(s.topic_name for s in learner.subscriptions) == ["/dlo/gripper/state", "/dlo/task/state"]
+
+
+@pytest.mark.parametrize("parameters, message", [
+    (dict(policy="neural"), "parameter 'policy'"),
+    (dict(policy="random", train=True), "online training needs policy:=sac"),
+    (dict(without="V", trained_on="T+K"), "cannot ablate"),
+])
+def test_bad_parameters_are_refused(make_node, parameters, message):
+    from dlo_tools.node_util import ParameterError
+
+    with pytest.raises(ParameterError, match=message):
+        make_node(act=RecordingPolicy(), **parameters)
+
+
+def test_an_incomplete_step_names_the_missing_input_once(make_node, monkeypatch):
+    node = make_node(act=RecordingPolicy(), input_timeout=0.5)
+    log = Log()
+    monkeypatch.setattr(node, "get_logger", lambda: log)
+    clock = [100.0]
+    monkeypatch.setattr(policy_node_module, "time", type("Clock", (), {"monotonic": staticmethod(lambda: clock[0])}))
+    feed(node, step=1)  # complete: nothing to report later
+    node.on_input("gripper", stamped(GripperState(episode=2, step=2), 2))
+    node.on_input("vision", stamped(VisualPose(), 2))
+    clock[0] += 0.4
+    node.check_missing_inputs()
+    assert log.errors == []
+    clock[0] += 0.2
+    node.check_missing_inputs()
+    node.check_missing_inputs()
+    assert len(log.errors) == 1 and "no tactile input after 0.5 s" in log.errors[0] and "t=0.16 s" in log.errors[0]

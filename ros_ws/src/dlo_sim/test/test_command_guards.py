@@ -5,7 +5,7 @@ found by scripts/mutation_check.sh)."""
 import numpy as np
 import pytest
 
-from dlo_sim.command import (MAX_SPEED, CommandError, RejectionLog, action_to_command, command_mismatch,
+from dlo_sim.command import (MAX_SPEED, SPEED_TOLERANCE, CommandError, RejectionLog, action_to_command, command_mismatch,
                              command_to_action, hold_action)
 
 
@@ -30,6 +30,9 @@ def test_within_the_rounding_allowance_the_action_is_clipped_to_the_box():
     tiny = 0.5e-6  # below SPEED_TOLERANCE: accepted, and mapped onto the action box's edge exactly
     assert command_to_action(MAX_SPEED + tiny, -(MAX_SPEED + tiny), 1.0).tolist() == [1.0, -1.0, 1.0]
     assert command_to_action(0.0, 0.0, 0.0).tolist() == [0.0, 0.0, -1.0]
+    edge = MAX_SPEED + SPEED_TOLERANCE  # the limit is inclusive up to the allowance itself, on each axis
+    assert command_to_action(edge, -edge, 0.5).tolist() == [1.0, -1.0, 0.0]
+    assert command_to_action(-edge, edge, 0.5).tolist() == [-1.0, 1.0, 0.0]
 
 
 def test_hold_action_keeps_the_closure_and_stands_still():
@@ -58,6 +61,7 @@ def test_mismatch_texts_name_the_steps():
     assert command_mismatch("step_locked", 3, 0, 2, 150, previous_final=(2, 150))[1] == \
         "for the final step of the previous episode 2"
     assert command_mismatch("real_time", 5, 100, 5, 94, period=0.08, command_timeout=0.5) is None  # 0.48 s
+    assert command_mismatch("real_time", 1, 10, 1, 5, period=0.1, command_timeout=0.5) is None  # exactly the timeout
 
 
 def test_rejection_log_summaries_are_due_once_the_interval_passed():

@@ -17,7 +17,8 @@ def test_held_statistics_of_one_particle_and_of_a_batch():
     held = np.zeros((3, 8), bool)
     held[0, 3] = True  # one particle
     held[1, [0, 1]] = True
-    n_h, p_i, max_held = held_statistics(held)
+    with np.errstate(all="raise"):  # no 0/0 for the row holding nothing
+        n_h, p_i, max_held = held_statistics(held)
     assert n_h.tolist() == [1, 2, 0]
     assert p_i.tolist() == [3.0, 0.5, -1.0]
     assert max_held.tolist() == [3, 1, -1]
@@ -103,3 +104,7 @@ def test_a_new_tracker_counts_nothing_held_before_its_first_step():
     tracker = EpisodeTracker(2)
     reward, _, _ = tracker.step([3.0, 3.0], [2, 2], [4, 4], [N_C, N_C], [L_C, L_C], [3.0, 3.0])
     assert reward.tolist() == [0.0, 0.0]
+    assert tracker.how_far().tolist() == [N_C - 1 - 4] * 2  # the cable of the step, not of a reset
+    short = EpisodeTracker(1, horizon=1)  # a 5-particle cable dropped at once: the authors' set never held
+    short.step([-1.0], [0], [-1], [5], [4 * 0.0043], [-1.0])
+    assert short.outcome_authors[0] == task.OUTCOME_DROP_BEFORE

@@ -38,7 +38,7 @@ def context():
     rclpy.shutdown(context=context)
 
 
-def spin_until(executor, condition, timeout=60.0):
+def spin_until(executor, condition, timeout=20.0):
     deadline = time.monotonic() + timeout
     while not condition() and time.monotonic() < deadline:
         executor.spin_once(timeout_sec=0.05)
