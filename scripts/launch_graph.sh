@@ -203,7 +203,6 @@ interrupted=0
 
 subscribers=3 sim_extra=()
 [ -z "$record" ] || subscribers=4 sim_extra=(-p wait_for_recorder:=recorder)  # the first episode is recorded whole
-[ -z "$foxglove" ] || subscribers=$((subscribers + 1))  # the bridge subscribes to the gripper state too
 # The sim first: it refuses to start next to another simulator on this domain; nothing else of this graph
 # starts before it has looked (no second graph's nodes answering, publishing or recording into the first).
 start sim dlo_sim sim_node --ros-args -p mode:="$mode" -p seed:="$seed" -p episodes:="$episodes" \

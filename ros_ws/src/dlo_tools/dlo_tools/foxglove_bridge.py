@@ -140,8 +140,11 @@ class FoxgloveBridge:
         self.latched: dict[str, bytes] = {}  # last message of transient-local topics
         self._latched_topics: set[str] = set()
         self._resend: queue.SimpleQueue[str] = queue.SimpleQueue()
+        self.subscribers: Counter = Counter()  # topic -> client subscriptions now
+        self._changed: queue.SimpleQueue[str] = queue.SimpleQueue()  # topics whose subscribers changed
         self._lock = threading.Lock()
         self._server: Any = None
+        self._bound_port: int | None = None
         self._context: Any = None
         self._handler: _SdkLogHandler | None = None
 
@@ -163,11 +166,12 @@ class FoxgloveBridge:
         except RuntimeError as err:  # FoxgloveError: Failed to bind port: ...
             text = str(err).replace("FoxgloveError: ", "")
             raise OSError(f"cannot serve on {self.address}:{self.requested_port}: {text}") from None
+        self._bound_port = int(self._server.port)
         return self
 
     @property
     def port(self) -> int:
-        return int(self._server.port) if self._server is not None else self.requested_port
+        return self._bound_port if self._bound_port is not None else self.requested_port
 
     @property
     def ws_url(self) -> str:
@@ -256,11 +260,29 @@ class FoxgloveBridge:
     # ---- SDK callbacks (SDK threads) ------------------------------------------------------
     def _on_subscribe(self, client_id: int, channel_id: int, topic: str) -> None:
         self.stats.subscriptions += 1
+        with self._lock:
+            self.subscribers[topic] += 1
+        self._changed.put(topic)
         if topic in self._latched_topics:
             self._resend.put(topic)
 
     def _on_unsubscribe(self, client_id: int, channel_id: int, topic: str) -> None:
-        pass
+        with self._lock:
+            self.subscribers[topic] = max(0, self.subscribers[topic] - 1)
+        self._changed.put(topic)
+
+    def watched(self, topic: str) -> bool:
+        """True while at least one client subscribes to ``topic``."""
+        return self.subscribers.get(topic, 0) > 0
+
+    def changed_topics(self) -> set[str]:
+        """Topics whose client subscriptions changed since the last call (for the owner's thread)."""
+        topics: set[str] = set()
+        while True:
+            try:
+                topics.add(self._changed.get_nowait())
+            except queue.Empty:
+                return topics
 
     def _on_sdk_log(self, level: int, text: str) -> None:
         if m := _REGISTERED.match(text):

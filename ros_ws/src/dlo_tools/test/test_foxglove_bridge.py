@@ -346,6 +346,9 @@ def test_launch_graph_foxglove_serves_every_graph_topic_live(launcher, tmp_path)
     forwarded = re.findall(r"forwarded (\d+)", bridge_log)
     assert forwarded and int(forwarded[-1]) > 0, bridge_log[-1500:]
     assert "client 127.0.0.1" in bridge_log  # connections are logged
+    # lazy: once both clients left, only the transient-local topics stay subscribed
+    topics, subscribed = map(int, re.findall(r"(\d+) topics \((\d+) subscribed\)", bridge_log)[-1])
+    assert topics >= len(GRAPH_TYPES) and subscribed < topics, bridge_log[-1500:]
 
 
 def test_bridge_node_port_in_use_is_one_line(procs):
