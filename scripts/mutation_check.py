@@ -462,6 +462,10 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     plan = {m["name"]: named_mutants(m["name"], m["file"], [n for n in named if n["module"] == m["name"]])
             + generate(m["name"], m["file"], m.get("functions")) for m in modules}
+    for (module, key) in equivalent:
+        if module in plan and key not in {mu.key for mu in plan[module]}:
+            print(f"mutation_check: warning: [[equivalent]] of {module} matches no mutant (stale key?): {key}",
+                  file=sys.stderr)
     if args.list:
         for m in modules:
             for mutant in plan[m["name"]]:

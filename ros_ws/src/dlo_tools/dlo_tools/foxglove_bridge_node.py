@@ -15,8 +15,7 @@ unchanged, with the message definitions the recorder writes into bags
 (:mod:`dlo_tools.foxglove_bridge`). Topics that appear later are advertised to connected
 clients; a topic is subscribed only while a client watches it (``lazy``; transient-local topics
 always), so a bridge nobody watches costs the graph nothing; clients may connect and leave at
-any time; a slow client loses its oldest queued messages instead of slowing the graph; the process runs at a raised nice value (``nice``, 10)
-so that on a busy machine the graph's nodes get the CPU first. At shutdown it logs how many
+any time; a slow client loses its oldest queued messages instead of slowing the graph. At shutdown it logs how many
 messages it received and forwarded per topic (``summary_file``: the same as JSON).
 
 Exit status: 0 after SIGINT/SIGTERM, 2 = bad parameter, 3 = the address/port cannot be bound.
@@ -57,8 +56,9 @@ PARAMETERS = (
     ("reliable", False, "Subscribe reliably to topics whose publishers are reliable. Default false: "
                         "best effort (no acknowledgements for the graph's publishers to process; "
                         "transient-local topics such as camera_info are always reliable)."),
-    ("nice", 10, "Raise this process's nice value by this much at start (0..19): the live view "
-                 "yields the CPU to the graph's nodes on a busy machine."),
+    ("nice", 0, "Raise this process's nice value by this much at start (0..19) to yield the CPU to "
+                "the graph's nodes on a busy machine (measured: no gain in the loop's rate on 2 loaded "
+                "cores, latency to the clients x2)."),
     ("discovery_period", 0.5, "Seconds between topic discovery passes."),
     ("stats_period", 30.0, "Seconds between the bridge's one-line statistics in the log (0 = never)."),
     ("summary_file", "", "If set, write the per-topic counts there as JSON at shutdown."),
