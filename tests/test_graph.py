@@ -163,23 +163,41 @@ def test_playback_reruns_perception_on_recorded_images(recorded_run, own_groups)
 
 
 def test_sigint_mid_run_leaves_a_complete_readable_bag(tmp_path):
+    """Ctrl-C in the middle of an episode (not at a boundary: the test watches the task state and
+    interrupts at step 10 of the second episode): exit 130, a readable bag with the finished
+    episodes and the interrupted one, which analysis reports as unfinished."""
+    import rclpy
+
+    from rclpy.executors import SingleThreadedExecutor
+
+    from dlo_msgs.msg import TaskState
+
     bag = tmp_path / "bag"
+    domain = os.environ["ROS_DOMAIN_ID"]  # this session's own domain, so that the probe below sees the graph
     # SIGINT default in the child even when this test runs in a background job (where it is ignored
     # and a shell could not trap it): what a user's Ctrl-C does in a terminal.
     launch = subprocess.Popen(["bash", str(ROOT / "scripts" / "launch_graph.sh"), "--policy", "tactile_reactive",
-                               "--episodes", "0", "--record", str(bag), "--logs", str(tmp_path / "logs")],
+                               "--episodes", "0", "--domain-id", domain, "--record", str(bag),
+                               "--logs", str(tmp_path / "logs")],
                               stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True,
                               preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
                               env={**os.environ, "DLO_USE_ROS2RUN": "1"})
+    seen = []
+    context = rclpy.Context()
+    rclpy.init(context=context)
     try:
-        outcomes = tmp_path / "logs" / "outcomes.jsonl"
-        deadline = time.monotonic() + 240
-        while time.monotonic() < deadline and not (outcomes.exists() and outcomes.read_text().strip()):
-            time.sleep(0.5)  # run until at least one episode has finished, then interrupt mid-episode
-        time.sleep(1.0)
+        node = rclpy.create_node("sigint_probe", context=context)
+        node.create_subscription(TaskState, "/dlo/task/state", lambda m: seen.append((m.episode, m.step)), 100)
+        executor = SingleThreadedExecutor(context=context)
+        executor.add_node(node)
+        deadline = time.monotonic() + 300
+        while time.monotonic() < deadline and launch.poll() is None and not any(e >= 1 and k >= 10 for e, k in seen):
+            executor.spin_once(timeout_sec=0.1)
+        assert any(e >= 1 and k >= 10 for e, k in seen), f"the graph never reached episode 1, step 10: {seen[-3:]}"
         launch.send_signal(signal.SIGINT)
         out, _ = launch.communicate(timeout=120)
     finally:
+        rclpy.shutdown(context=context)
         if launch.poll() is None:  # never leave a graph running into the next tests
             os.killpg(launch.pid, signal.SIGKILL)
             launch.wait()
