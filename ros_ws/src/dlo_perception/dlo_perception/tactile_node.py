@@ -10,7 +10,7 @@ from dlo_msgs.msg import GripperState, TactilePose
 from dlo_perception.cloud import unpack_particles
 from dlo_perception.sync import StampSync, stamp_to_ns
 from dlo_perception.tactile import TACTILE_NOISE, noise_sigma, tactile_pose
-from dlo_tools.node_util import ParameterError, declare_parameters
+from dlo_common.node_util import ParameterError, declare_parameters
 
 
 class TactileNode(Node):
@@ -57,7 +57,7 @@ class TactileNode(Node):
 
 
 def main(args=None):
-    from dlo_tools.node_main import run_node
+    from dlo_common.node_main import run_node
 
     return run_node(TactileNode, args)
 

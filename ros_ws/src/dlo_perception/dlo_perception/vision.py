@@ -20,9 +20,13 @@ import os
 from dataclasses import dataclass
 
 import numpy as np
-import taichi as ti
 
-from dlo_perception.camera import TopCamera
+# No "[Taichi] version ..." banner on stdout when taichi is imported: it would precede a
+# command's --help text or its one-line error (ENABLE_TAICHI_HEADER_PRINT=1 brings it back).
+os.environ.setdefault("ENABLE_TAICHI_HEADER_PRINT", "0")
+import taichi as ti  # noqa: E402
+
+from dlo_perception.camera import TopCamera  # noqa: E402
 
 IMAGE_CABLE = 255  # pixel value of the cable in the rendered top view
 IMAGE_GRIPPER = 128  # pixel value of the gripper

@@ -15,7 +15,7 @@ from dlo_msgs.msg import GripperState, VisualPose
 from dlo_perception.camera import TopCamera
 from dlo_perception.sync import StampSync, stamp_to_ns
 from dlo_perception.vision import visual_pose
-from dlo_tools.node_util import ParameterError, declare_parameters
+from dlo_common.node_util import ParameterError, declare_parameters
 
 DEFAULT_CAMERA = TopCamera.covering_workspace()
 
@@ -71,7 +71,7 @@ class VisionNode(Node):
 
 
 def main(args=None):
-    from dlo_tools.node_main import run_node
+    from dlo_common.node_main import run_node
 
     return run_node(VisionNode, args)
 

@@ -27,7 +27,7 @@ from dlo_perception.tactile import TactilePose as Tactile
 from dlo_perception.vision import VisualPose as Visual
 from dlo_policy.observation import build_observation, parse_modalities
 from dlo_sim.command import action_to_command
-from dlo_tools.node_util import ParameterError, declare_parameters
+from dlo_common.node_util import ParameterError, declare_parameters
 
 POLICIES = ("sac", "tactile_reactive", "oracle", "random")
 SHIPPED_POLICY = "policies/all/policy.pt"
@@ -221,7 +221,7 @@ class PolicyNode(Node):
 
 
 def main(args=None):
-    from dlo_tools.node_main import run_node
+    from dlo_common.node_main import run_node
 
     return run_node(PolicyNode, args)
 

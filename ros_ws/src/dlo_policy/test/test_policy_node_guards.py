@@ -197,7 +197,7 @@ def test_topics_timer_and_parameters(make_node):
     (dict(without="V", trained_on="T+K"), "cannot ablate"),
 ])
 def test_bad_parameters_are_refused(make_node, parameters, message):
-    from dlo_tools.node_util import ParameterError
+    from dlo_common.node_util import ParameterError
 
     with pytest.raises(ParameterError, match=message):
         make_node(act=RecordingPolicy(), **parameters)

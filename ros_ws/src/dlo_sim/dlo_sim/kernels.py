@@ -6,9 +6,12 @@ runs serially (Gauss-Seidel), so an environment's result does not depend on the 
 Per-environment arrays are padded to ``P_MAX`` particles; loops stop at ``n[e]``.
 """
 
+import os
 
-import taichi as ti
-from dlo_perception.vision import init_taichi
+os.environ.setdefault("ENABLE_TAICHI_HEADER_PRINT", "0")  # no "[Taichi] version" banner before --help/errors
+import taichi as ti  # noqa: E402
+
+from dlo_perception.vision import init_taichi  # noqa: E402
 
 from .config import (DT, FINGER_AXIS_OFFSET, FINGER_CLEARANCE, FINGER_HALF_LENGTH, FINGER_RADIUS, FIXED_END, GRAVITY,
                      GRIPPER_HEIGHT, GRIPPER_START_BEHIND, IMAGE_CABLE, IMAGE_GRIPPER,

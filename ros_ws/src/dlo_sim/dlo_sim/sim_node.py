@@ -46,7 +46,7 @@ from dlo_sim.command import CommandError, RejectionLog, command_mismatch, comman
 from dlo_sim.config import DT, FINGER_CLEARANCE, FINGER_HALF_LENGTH, FINGER_RADIUS, SUBSTEPS_PER_ACTION
 from dlo_sim.episode import TaskSim
 from dlo_sim.task import HORIZON, OUTCOME_NAMES
-from dlo_tools.node_util import NodeStartError, ParameterError, declare_parameters, require_bounds
+from dlo_common.node_util import NodeStartError, ParameterError, declare_parameters, require_bounds
 
 CONTROL_PERIOD_NS = int(round(DT * SUBSTEPS_PER_ACTION * 1e9))  # 0.08 s of simulation time per action
 MODES = ("step_locked", "real_time")
@@ -395,7 +395,7 @@ class SimNode(Node):
 
 
 def main(args=None):
-    from dlo_tools.node_main import run_node
+    from dlo_common.node_main import run_node
 
     return run_node(SimNode, args, interrupted_rc=130)
 

@@ -39,7 +39,7 @@ from rosbags.interfaces import QosDurability, QosReliability
 from .bag import BagError, qos_from_profile, subscription_qos
 from .foxglove_bridge import (DEFAULT_ADDRESS, DEFAULT_CLIENT_BACKLOG, DEFAULT_PORT, DEFAULT_TOPICS,
                               FoxgloveBridge, topic_matches)
-from .node_util import NodeStartError, ParameterError, declare_parameters, require_bounds
+from dlo_common.node_util import NodeStartError, ParameterError, declare_parameters, require_bounds
 from .playback import import_message_class
 
 PARAMETERS = (
@@ -215,7 +215,7 @@ class FoxgloveBridgeNode(Node):
 
 
 def main(args=None):
-    from dlo_tools.node_main import run_node
+    from dlo_common.node_main import run_node
 
     return run_node(FoxgloveBridgeNode, args)
 

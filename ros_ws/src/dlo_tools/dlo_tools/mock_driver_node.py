@@ -22,7 +22,7 @@ from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 from dlo_msgs.msg import GripperCommand, GripperState
 from dlo_perception.camera import TopCamera
 from dlo_perception.cloud import particle_cloud
-from dlo_tools.node_util import ParameterError, declare_parameters
+from dlo_common.node_util import ParameterError, declare_parameters
 
 CONTROL_PERIOD_NS = 80_000_000  # one command per 0.08 s of driver time
 FINGER_REACH = 0.0125 + 0.0043  # m, a point this close to the gripper centre (in x-y) is in contact
@@ -106,7 +106,7 @@ class MockDriver(Node):
 
 
 def main(args=None):
-    from dlo_tools.node_main import run_node
+    from dlo_common.node_main import run_node
 
     return run_node(MockDriver, args)
 

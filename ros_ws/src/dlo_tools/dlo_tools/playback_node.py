@@ -21,7 +21,7 @@ from rclpy.signals import SignalHandlerOptions
 from rosbags.interfaces import QosDurability, QosReliability
 
 from .bag import BagError, bag_info, read_messages
-from .node_util import ParameterError, ShutdownRequest, declare_parameters, require_bounds
+from dlo_common.node_util import ParameterError, ShutdownRequest, declare_parameters, require_bounds
 from .playback import Pacer, import_message_class, playback_qos
 
 PARAMETERS = (

@@ -30,7 +30,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from rclpy.signals import SignalHandlerOptions
 
 from .bag import BagError, BagWriteError, qos_from_profile, subscription_qos
-from .node_util import ParameterError, ShutdownRequest, declare_parameters, require_bounds
+from dlo_common.node_util import ParameterError, ShutdownRequest, declare_parameters, require_bounds
 from .playback import import_message_class
 from .recording import TASK_TOPIC, Recorder, RecordSummary, default_output, topic_selected
 

@@ -1,4 +1,4 @@
-"""Small helpers shared by the dlo_tools nodes: checked parameters and shutdown signals."""
+"""Small helpers shared by the dlo nodes: checked parameters, start errors and shutdown signals."""
 
 from __future__ import annotations
 
@@ -9,58 +9,29 @@ from typing import Any
 
 from rcl_interfaces.msg import ParameterDescriptor
 
+from dlo_common.params import Param, ParameterError, as_params, check_value
 
-class ParameterError(ValueError):
-    """A parameter has a wrong type or value (the message names it and what is expected)."""
+__all__ = ["NodeStartError", "Param", "ParameterError", "ShutdownRequest", "declare_parameters", "require_bounds"]
 
 
 class NodeStartError(RuntimeError):
     """A node refuses to start or go on (e.g. another simulator already publishes its topics)."""
 
 
-def _coerce(name: str, value: Any, default: Any) -> Any:
-    """Coerce a parameter value to the type of its default, or raise ParameterError."""
-    def bad(expected: str) -> ParameterError:
-        return ParameterError(f"parameter '{name}': expected {expected}, got {value!r} "
-                              f"({type(value).__name__})")
-
-    if isinstance(default, bool):
-        if isinstance(value, bool):
-            return value
-        raise bad("a bool (true/false)")
-    if isinstance(default, int):
-        if isinstance(value, int) and not isinstance(value, bool):
-            return value
-        raise bad("an integer")
-    if isinstance(default, float):
-        if isinstance(value, (int, float)) and not isinstance(value, bool):
-            return float(value)
-        raise bad("a number")
-    if isinstance(default, str):
-        if isinstance(value, (str, int, float)) and not isinstance(value, bool):
-            return str(value)
-        raise bad("a string")
-    if isinstance(default, (list, tuple)):
-        if isinstance(value, str):  # one topic, or a comma-separated list
-            return [v.strip() for v in value.split(",") if v.strip()]
-        if isinstance(value, (list, tuple)) and all(isinstance(v, str) for v in value):
-            return list(value)
-        raise bad("a list of strings, e.g. \"['/dlo/a', '/dlo/b']\"")
-    return value
-
-
-def declare_parameters(node: Any, specs: Sequence[tuple[str, Any, str]]) -> dict[str, Any]:
-    """Declare ``(name, default, description)`` parameters and return their checked values.
+def declare_parameters(node: Any, specs: Sequence[Param | tuple[str, Any, str]]) -> dict[str, Any]:
+    """Declare the parameters ``specs`` (:class:`Param` records or ``(name, default, description)``
+    tuples) on ``node`` and return their checked values by name.
 
     Parameters are declared with ``dynamic_typing`` so that e.g. ``rate:=2`` (an integer) is
-    accepted for a float parameter; any value that cannot be read as the default's type raises
-    :class:`ParameterError` with a clear message instead of a traceback.
+    accepted for a float parameter; a value that cannot be read as the default's type, or is outside
+    the parameter's range, raises :class:`ParameterError` with a clear message instead of a traceback.
     """
     values: dict[str, Any] = {}
-    for name, default, description in specs:
-        descriptor = ParameterDescriptor(description=description, dynamic_typing=True)
-        param = node.declare_parameter(name, default, descriptor)
-        values[name] = _coerce(name, param.value, default)
+    for param in as_params(specs):
+        descriptor = ParameterDescriptor(description=param.description, dynamic_typing=True,
+                                         additional_constraints=param.range_text)
+        declared = node.declare_parameter(param.name, param.default, descriptor)
+        values[param.name] = check_value(param, declared.value)
     return values
 
 

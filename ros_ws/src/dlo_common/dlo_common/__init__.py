@@ -1,0 +1,8 @@
+"""dlo_common: what every dlo-vitac node shares (the lowest dlo_* package; imports no other).
+
+- :mod:`dlo_common.params`: the parameter declaration record :class:`Param` and what is rendered
+  from it (``--help`` text, a ROS 2 parameters YAML, a Markdown table); no ROS imports.
+- :mod:`dlo_common.node_util`: declaring checked parameters on an rclpy node, start errors,
+  signal handling.
+- :mod:`dlo_common.node_main`: the shared ``main()`` body (``--help``, init, spin, shutdown, exit codes).
+"""

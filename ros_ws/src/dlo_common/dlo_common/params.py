@@ -1,0 +1,225 @@
+"""Node parameter declarations and what is rendered from them (no ROS imports).
+
+A node module lists its parameters once, as a module-level ``PARAMETERS`` sequence of
+:class:`Param` records (or plain ``(name, default, description)`` tuples). From that one list come:
+
+- the checks when the node starts (:func:`check_value`, called by
+  ``dlo_common.node_util.declare_parameters``): type of the default, range, choices;
+- the node's ``--help`` text (:func:`help_text`);
+- its parameters file ``config/<executable>.yaml`` (:func:`params_yaml`, ROS 2 ``--params-file``
+  format, each description as a comment);
+- the parameter tables of the docs (:func:`markdown_table`).
+
+Units are part of each description (e.g. ``[s]``, ``[m]``).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import textwrap
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+USAGE = "ros2run {package} {executable} [--ros-args (-p NAME:=VALUE | --params-file FILE) ...]"
+
+
+class ParameterError(ValueError):
+    """A parameter has a wrong type or value (the message names it and what is expected)."""
+
+
+@dataclass(frozen=True)
+class Param:
+    """One declared node parameter: its default fixes its type.
+
+    Optional range: ``at_least`` (value >= bound), ``above`` (value > bound), ``at_most``
+    (value <= bound), ``choices`` (value is one of these strings).
+    """
+
+    name: str
+    default: Any
+    description: str
+    at_least: float | None = None
+    above: float | None = None
+    at_most: float | None = None
+    choices: tuple[str, ...] = ()
+
+    @property
+    def type_name(self) -> str:
+        """The ROS 2 parameter type of the default: bool, integer, double, string, string_array."""
+        default = self.default
+        if isinstance(default, bool):
+            return "bool"
+        if isinstance(default, int):
+            return "integer"
+        if isinstance(default, float):
+            return "double"
+        if isinstance(default, (list, tuple)):
+            return "string_array"
+        return "string"
+
+    @property
+    def range_text(self) -> str:
+        """The range in words, e.g. ``>= 1``, ``0..19``, ``> 0``, ``step_locked | real_time``; '' if none."""
+        if self.choices:
+            return " | ".join(self.choices)
+        if self.at_least is not None and self.at_most is not None:
+            return f"{_number(self.at_least)}..{_number(self.at_most)}"
+        parts = []
+        if self.at_least is not None:
+            parts.append(f">= {_number(self.at_least)}")
+        if self.above is not None:
+            parts.append(f"> {_number(self.above)}")
+        if self.at_most is not None:
+            parts.append(f"<= {_number(self.at_most)}")
+        return ", ".join(parts)
+
+
+def _number(value: float) -> str:
+    return str(int(value)) if float(value).is_integer() else repr(float(value))
+
+
+def as_param(spec: Param | Sequence[Any]) -> Param:
+    """A :class:`Param` from a Param or a ``(name, default, description)`` tuple."""
+    return spec if isinstance(spec, Param) else Param(*spec)
+
+
+def as_params(specs: Iterable[Param | Sequence[Any]]) -> list[Param]:
+    return [as_param(spec) for spec in specs]
+
+
+def coerce(param: Param, value: Any) -> Any:
+    """``value`` read as the type of ``param.default``, or :class:`ParameterError` naming the parameter."""
+    name, default = param.name, param.default
+
+    def bad(expected: str) -> ParameterError:
+        return ParameterError(f"parameter '{name}': expected {expected}, got {value!r} "
+                              f"({type(value).__name__})")
+
+    if isinstance(default, bool):
+        if isinstance(value, bool):
+            return value
+        raise bad("a bool (true/false)")
+    if isinstance(default, int):
+        if isinstance(value, int) and not isinstance(value, bool):
+            return value
+        raise bad("an integer")
+    if isinstance(default, float):
+        if isinstance(value, (int, float)) and not isinstance(value, bool):
+            return float(value)
+        raise bad("a number")
+    if isinstance(default, str):
+        if isinstance(value, (str, int, float)) and not isinstance(value, bool):
+            return str(value)
+        raise bad("a string")
+    if isinstance(default, (list, tuple)):
+        if isinstance(value, str):  # one topic, or a comma-separated list
+            return [v.strip() for v in value.split(",") if v.strip()]
+        if isinstance(value, (list, tuple)) and all(isinstance(v, str) for v in value):
+            return list(value)
+        raise bad("a list of strings, e.g. \"['/dlo/a', '/dlo/b']\"")
+    return value
+
+
+def check_value(param: Param, value: Any) -> Any:
+    """:func:`coerce`, then the range: the checked value, or :class:`ParameterError` in one line."""
+    value = coerce(param, value)
+    name = param.name
+    if param.choices and value not in param.choices:
+        raise ParameterError(f"parameter '{name}': expected one of {tuple(param.choices)}, got {value!r}")
+    if isinstance(value, (int, float)) and not isinstance(value, bool):
+        if math.isnan(value):
+            raise ParameterError(f"parameter '{name}': must be a number, got nan")
+        if param.at_least is not None and param.at_most is not None:
+            if not param.at_least <= value <= param.at_most:
+                raise ParameterError(f"parameter '{name}': must be in {param.range_text}, got {value}")
+        elif param.at_least is not None and value < param.at_least:
+            raise ParameterError(f"parameter '{name}': must be >= {_number(param.at_least)}, got {value}")
+        elif param.at_most is not None and value > param.at_most:
+            raise ParameterError(f"parameter '{name}': must be <= {_number(param.at_most)}, got {value}")
+        if param.above is not None and not value > param.above:
+            raise ParameterError(f"parameter '{name}': must be > {_number(param.above)}, got {value}")
+    return value
+
+
+def format_default(value: Any) -> str:
+    """A default as written on the command line / in YAML: ``true``, ``0.5``, ``"/dlo"``, ``["a", "b"]``."""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, float):
+        return repr(value)
+    if isinstance(value, int):
+        return str(value)
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(json.dumps(str(v)) for v in value) + "]"
+    return json.dumps(str(value))
+
+
+def help_requested(argv: Sequence[str]) -> bool:
+    """True when ``-h`` or ``--help`` comes before ``--ros-args`` (the node's own arguments)."""
+    own = list(argv)[: list(argv).index("--ros-args")] if "--ros-args" in argv else list(argv)
+    return "-h" in own or "--help" in own
+
+
+def unexpected_arguments(argv: Sequence[str]) -> list[str]:
+    """Arguments before ``--ros-args`` that are not ``-h``/``--help`` (a node takes none)."""
+    own = list(argv)[: list(argv).index("--ros-args")] if "--ros-args" in argv else list(argv)
+    return [a for a in own if a not in ("-h", "--help")]
+
+
+def help_text(package: str, executable: str, parameters: Iterable[Param | Sequence[Any]],
+              summary: str = "", width: int = 100) -> str:
+    """The ``--help`` text of a node executable: usage line, what it does, every parameter."""
+    params = as_params(parameters)
+    lines = ["usage: " + USAGE.format(package=package, executable=executable),
+             f"       (with a ROS 2 install: ros2 run {package} {executable} ...)", ""]
+    summary = (summary or "").strip()
+    if summary:
+        lines += [textwrap.fill(" ".join(summary.split()), width), ""]
+    lines.append(f"parameters (a params file with every default: share/{package}/config/{executable}.yaml):")
+    if not params:
+        lines.append("  (none)")
+    for p in params:
+        head = f"  {p.name} ({p.type_name}, default {format_default(p.default)}"
+        head += f", range {p.range_text})" if p.range_text else ")"
+        lines.append(head)
+        lines += textwrap.wrap(" ".join(p.description.split()), width, initial_indent=" " * 6,
+                               subsequent_indent=" " * 6)
+    lines += ["", "Set one with '--ros-args -p NAME:=VALUE', several with '--ros-args --params-file FILE'.",
+              "Exit codes: 0 done or stopped by a signal, 2 bad parameter, 3 refused to start."]
+    return "\n".join(lines) + "\n"
+
+
+def params_yaml(parameters: Iterable[Param | Sequence[Any]], header: str = "") -> str:
+    """A ROS 2 parameters file (``--ros-args --params-file``) setting every parameter to its default.
+
+    ``/**`` applies it to any node name. Each parameter is preceded by its description, type and
+    range as comments. A list parameter whose default is empty is written commented out (a ROS 2
+    parameters file cannot hold an empty array).
+    """
+    lines = [f"# {line}".rstrip() for line in header.strip().splitlines()] if header.strip() else []
+    lines += ["/**:", "  ros__parameters:"]
+    for p in as_params(parameters):
+        note = p.type_name + (f", range {p.range_text}" if p.range_text else "")
+        for text in textwrap.wrap(" ".join(p.description.split()) + f" ({note})", 92):
+            lines.append(f"    # {text}")
+        entry = f"{p.name}: {format_default(p.default)}"
+        if isinstance(p.default, (list, tuple)) and not p.default:
+            lines.append(f"    # {entry}  (empty list: the default; a params file cannot hold an empty array)")
+        else:
+            lines.append(f"    {entry}")
+    return "\n".join(lines) + "\n"
+
+
+def markdown_table(parameters: Iterable[Param | Sequence[Any]]) -> str:
+    """The parameters as a Markdown table: name | type | default | range | description."""
+    def cell(text: str) -> str:
+        return " ".join(str(text).split()).replace("|", "\\|")
+
+    rows = ["| name | type | default | range | description |", "|---|---|---|---|---|"]
+    for p in as_params(parameters):
+        rng = f"`{cell(p.range_text)}`" if p.range_text else ""
+        rows.append(f"| `{p.name}` | {p.type_name} | `{cell(format_default(p.default))}` | {rng} | "
+                    f"{cell(p.description)} |")
+    return "\n".join(rows) + "\n"
