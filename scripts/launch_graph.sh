@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Start the whole dlo-vitac graph (sim, tactile, vision, policy [, recorder]) as separate processes
-# on a DDS domain of its own, wait until the sim has run its episodes (or Ctrl-C), stop every
-# process it started, print the outcome table; fail loudly (exit codes in --help) when a node dies
+# on a DDS domain of its own, wait until the sim has run its episodes (or Ctrl-C) while printing one
+# line per finished episode and a periodic status line (dlo_tools.graph_monitor), stop every
+# process it started, print the outcome table headed by what produced it; fail loudly (exit codes in --help) when a node dies
 # or the recording fails. Uses `ros2 run` on a real ROS 2 install, scripts/ros2run with the wheels.
 set -euo pipefail
 
@@ -25,11 +26,19 @@ usage: scripts/launch_graph.sh [options]
                        127.0.0.1:PORT (default 8765; 0 = any free port) and print the URL to open;
                        layout to import: docs/foxglove/dlo_vitac.json
   --logs DIR           node logs and the outcome file go here (default: a new temp dir)
+  --status-period S    seconds between status lines while the graph runs (default 10; 0 = none)
   --domain-id N        run on ROS_DOMAIN_ID N (default: a free domain of its own, so that two
                        graphs on one machine never see each other; the chosen id is printed)
   --namespace NS       put every topic of the graph under /NS (/NS/dlo/..., /NS/clock): several
                        graphs can then share a domain deliberately (with --domain-id)
   -h, --help           this help
+
+output (stdout): the chosen domain and each node's pid and log; while the graph runs one line per
+finished episode ("[launch] episode 1/5 (seed 0): hold_the_end, authors' rule hold_the_end; return
+4.321, 97 steps, 0 particles from the end") and every S s a status line ("[launch] status: 11.8
+steps/s (sim time x0.94), 1/5 episodes done, nodes alive 4/4; policy: no tactile input"); at the end
+a header naming the policy, checkpoint, ablation, tactile noise, mode and seeds, then the outcome
+table (both outcome rules).
 
 exit status:
   0    every episode ran (and the bag, with --record, is complete)
@@ -43,11 +52,11 @@ EOF
 }
 
 episodes=5 seed=0 mode=step_locked rate=1.0 policy=sac checkpoint="" without="" noise=none record="" logs=""
-train_out="" train_config="" domain="" namespace="" foxglove=""
+train_out="" train_config="" domain="" namespace="" foxglove="" status_period=10
 while [ $# -gt 0 ]; do
   case "$1" in
     --episodes|--seed|--mode|--rate-factor|--policy|--checkpoint|--without|--tactile-noise|--record|\
-    --train-out|--train-config|--logs|--domain-id|--namespace)
+    --train-out|--train-config|--logs|--domain-id|--namespace|--status-period)
       [ $# -ge 2 ] || { echo "launch_graph: $1 needs a value" >&2; usage >&2; exit $EXIT_USAGE; } ;;
   esac
   case "$1" in
@@ -65,6 +74,7 @@ while [ $# -gt 0 ]; do
     --logs) logs="$2"; shift 2 ;;
     --domain-id) domain="$2"; shift 2 ;;
     --namespace) namespace="$2"; shift 2 ;;
+    --status-period) status_period="$2"; shift 2 ;;
     --foxglove)
       if [[ "${2:-}" =~ ^[0-9]+$ ]]; then foxglove="$2"; shift 2; else foxglove=8765; shift; fi ;;
     -h|--help) usage; exit 0 ;;
@@ -75,6 +85,7 @@ bad() { echo "launch_graph: $*" >&2; exit $EXIT_USAGE; }
 [[ "$episodes" =~ ^[0-9]+$ ]] || bad "--episodes must be a number >= 0, got '$episodes'"
 [[ "$seed" =~ ^[0-9]+$ ]] || bad "--seed must be a number >= 0, got '$seed'"
 case "$mode" in step_locked|real_time) ;; *) bad "--mode must be step_locked or real_time" ;; esac
+[[ "$status_period" =~ ^[0-9]+([.][0-9]+)?$ ]] || bad "--status-period must be a number of seconds >= 0, got '$status_period'"
 if [ -n "$domain" ]; then
   [[ "$domain" =~ ^[0-9]+$ ]] && [ "$domain" -le 232 ] || bad "--domain-id must be a number in 0..232, got '$domain'"
 fi
@@ -95,6 +106,8 @@ else
   [ -n "${DLO_ROOT:-}" ] || { set +u; source "$ROOT/scripts/env.sh"; set -u; }
   RUN=("$ROOT/scripts/ros2run")
 fi
+PY="$(command -v python || command -v python3)"
+monitor_pid=""
 logs="${logs:-$(mktemp -d -t dlo-graph-XXXXXX)}"
 mkdir -p "$logs"
 outcomes="$logs/outcomes.jsonl"
@@ -245,6 +258,11 @@ policy_args=(-p policy:="$policy")
 [ -n "$train_out" ] && policy_args+=(-p train:=true -p train_out:="$train_out" -p seed:="$seed")
 [ -n "$train_config" ] && policy_args+=(-p train_config:="$train_config")
 start policy dlo_policy policy_node --ros-args "${policy_args[@]}" ${remap[@]+"${remap[@]}"}
+# finished episodes and a status line while the graph runs (not a node of the graph: its end fails nothing)
+monitor_args=(--logs "$logs" --episodes "$episodes" --status-period "$status_period" --clock-topic "$prefix/clock")
+for i in "${!pids[@]}"; do monitor_args+=(--node "${names[$i]}=${pids[$i]}"); done
+${ORPHAN[@]+"${ORPHAN[@]}"} "$PY" -m dlo_tools.graph_monitor "$outcomes" "${monitor_args[@]}" &
+monitor_pid=$!
 fi
 
 # ---- watch ---------------------------------------------------------------------------------
@@ -263,6 +281,12 @@ while kill -0 "$sim_pid" 2>/dev/null && [ "$interrupted" = 0 ] && [ -z "$failed_
 done
 kill -0 "$sim_pid" 2>/dev/null || reap "$sim_index"  # (a sim still running is stopped and reaped by stop_all)
 [ "$interrupted" = 1 ] || stop_all
+if [ -n "$monitor_pid" ]; then  # it prints the episodes that finished meanwhile, then ends
+  kill -TERM "$monitor_pid" 2>/dev/null || true
+  for _ in $(seq 1 50); do kill -0 "$monitor_pid" 2>/dev/null || break; sleep 0.1; done
+  kill -KILL "$monitor_pid" 2>/dev/null || true
+  wait "$monitor_pid" 2>/dev/null
+fi
 
 done_episodes=0
 [ -f "$outcomes" ] && done_episodes=$(grep -c . "$outcomes")
@@ -295,7 +319,9 @@ else
   fi
 fi
 
-python -m dlo_tools.outcome_table "$outcomes" || true
+policy_line="$(grep -m1 -o "policy [a-z_]* on [^;]*" "$logs/policy.log" 2>/dev/null || true)"
+"$PY" -m dlo_tools.outcome_table "$outcomes" --policy "$policy" --checkpoint "$checkpoint" --without "$without" \
+  --noise "$noise" --mode "$mode" --train-out "$train_out" --policy-line "$policy_line" || true
 if [ -n "$record" ]; then
   rst="${status[recorder]:-}"
   cause="$(recorder_failure)"
