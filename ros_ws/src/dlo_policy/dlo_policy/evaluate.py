@@ -4,7 +4,8 @@
 checkpoint (or shipped policy) written by `dlo-train`, runs N episodes with seeds S .. S+N-1 in a
 vector env built from the run's saved config, prints the outcome table and optionally writes JSON.
 `--without X` blanks modality X's observation entries (zeros) before the policy sees them: the
-paper's ablation of an agent trained with all inputs.
+paper's ablation of an agent trained with all inputs. A progress bar over the episodes goes to stderr
+when it is a terminal (`--progress` forces it, `--quiet` turns it off); stdout carries only the table.
 """
 from __future__ import annotations
 
@@ -15,10 +16,11 @@ import math
 import sys
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any, Optional, Sequence
+from typing import Any, Callable, Optional, Sequence
 
 import numpy as np
 import torch
+from tqdm import tqdm
 
 from .config import RunConfig, load_config
 from .observation import MODALITY_ORDER, MODALITY_SIZES, parse_modalities
@@ -71,13 +73,14 @@ def blanked_columns(modalities: str, without: Sequence[str]) -> list[int]:
 
 
 def evaluate_agent(agent: SAC, vec_env: Any, first_seed: int, episodes: int,
-                   blank: Sequence[int] = ()) -> EvalResult:
+                   blank: Sequence[int] = (), progress: Optional[Callable[[int], Any]] = None) -> EvalResult:
     """One deterministic episode per seed first_seed .. first_seed + episodes - 1.
 
     Runs `vec_env.num_envs` episodes at a time: `reset(seed=s)` starts env i on seed s + i (the
     gymnasium and dlo_policy.env convention). `blank`: observation columns zeroed before acting.
     Outcomes come from the `info` of each env's first episode end (`outcome`, `outcome_authors`,
-    `time_at_end`, `how_far`); later episodes of an env (auto-reset) are ignored.
+    `time_at_end`, `how_far`); later episodes of an env (auto-reset) are ignored. `progress(n)` is called
+    with the number of counted episodes that just ended (e.g. a progress bar's update).
     """
     n_envs = vec_env.num_envs
     rewards: list[float] = []
@@ -93,9 +96,12 @@ def evaluate_agent(agent: SAC, vec_env: Any, first_seed: int, episodes: int,
             obs[:, blank] = 0.0
             obs, reward, terminated, truncated, infos = vec_env.step(agent.predict(obs, deterministic=True))
             returns += np.where(finished, 0.0, reward)
-            for i in np.flatnonzero((terminated | truncated) & ~finished):
+            ended = np.flatnonzero((terminated | truncated) & ~finished)
+            for i in ended:
                 batch_ends[i] = _episode_end_info(infos, i)
             finished |= terminated | truncated
+            if progress is not None and (ended < wanted).any():
+                progress(int((ended < wanted).sum()))
         rewards += returns[:wanted].tolist()
         ends += batch_ends[:wanted]
     fractions = {**_fractions(ends, "outcome", ""), **_fractions(ends, "outcome_authors", AUTHORS_SUFFIX)}
@@ -168,6 +174,10 @@ def build_parser() -> argparse.ArgumentParser:
                         help="blank this modality's observations (repeatable)")
     parser.add_argument("--num-envs", type=int, default=10, help="environments stepped together (default 10)")
     parser.add_argument("--threads", type=int, default=0, help="torch threads (default: all cores)")
+    shown = parser.add_mutually_exclusive_group()
+    shown.add_argument("--progress", action="store_true",
+                       help="show the progress bar (stderr) even when stderr is not a terminal")
+    shown.add_argument("--quiet", action="store_true", help="no progress bar")
     return parser
 
 
@@ -186,8 +196,11 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         print(f"dlo-evaluate: error: {error}", file=sys.stderr)
         return 2
     vec_env = make_vec_env_for(config, min(args.num_envs, args.episodes), seed=args.seed)
+    hidden = args.quiet or not (args.progress or sys.stderr.isatty())
     try:
-        result = evaluate_agent(agent, vec_env, args.seed, args.episodes, blank)
+        with tqdm(total=args.episodes, desc="dlo-evaluate", unit="episode", file=sys.stderr, disable=hidden,
+                  dynamic_ncols=True) as bar:
+            result = evaluate_agent(agent, vec_env, args.seed, args.episodes, blank, progress=bar.update)
     finally:
         vec_env.close()
     title = f"{config.name}, seeds {args.seed}..{args.seed + args.episodes - 1}"
