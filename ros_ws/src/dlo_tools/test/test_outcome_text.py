@@ -1,0 +1,113 @@
+"""The launcher's texts without a graph (issue 12 item 5): the streamed episode line, the run header,
+health notes read from node logs, the status line, and graph_monitor following a growing outcomes file
+(episodes printed as they are appended, the rest on SIGTERM)."""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+
+from dlo_tools.outcome_table import (episode_line, episode_row, health_notes, main, outcome_table, run_header,
+                                     seed_ranges, status_line)
+
+EPISODE = {"episode": 3, "seed": 13, "outcome": "hold_the_end", "outcome_authors": "stop_before",
+           "episode_return": 4.25, "episode_length": 97, "time_at_end": 12, "how_far": 1}
+
+
+def test_episode_line_names_seed_both_outcomes_return_and_steps():
+    line = episode_line(EPISODE, done=4, total=10)
+    assert line == ("episode 3 (seed 13; 4/10 done): hold_the_end, authors' rule stop_before; return 4.250, "
+                    "97 steps, 1 particles from the end")
+    assert "4/unlimited done" in episode_line(EPISODE, done=4)
+    assert episode_row(EPISODE) in outcome_table([EPISODE]).splitlines()  # the table's row: same function
+
+
+def test_run_header_names_policy_checkpoint_ablation_noise_mode_and_seeds():
+    episodes = [dict(EPISODE, seed=s) for s in (5, 6, 7, 9)]
+    header = run_header(episodes, "sac", "runs/x/policy.pt", "T", "partial", "real_time",
+                        policy_line="policy sac on T+K+V without T")
+    assert header.startswith("run: policy sac observing T+K+V (checkpoint runs/x/policy.pt)")
+    for part in ("ablation: without T", "tactile noise: partial", "mode real_time", "seeds 5..7, 9 (4 episodes)"):
+        assert part in header, (part, header)
+    shipped = run_header(episodes[:1], "sac")
+    assert "the shipped All policy" in shipped and "ablation: none" in shipped and "(1 episode)" in shipped
+    assert "no checkpoint" in run_header(episodes, "tactile_reactive")
+    assert "learning online into runs/o" in run_header(episodes, "sac", train_out="runs/o")
+    assert seed_ranges([]) == "none" and seed_ranges([2, 1, 3, 3]) == "1..3"
+
+
+def test_main_prints_the_header_above_the_unchanged_table(tmp_path, capsys):
+    path = tmp_path / "outcomes.jsonl"
+    path.write_text(json.dumps(EPISODE) + "\n")
+    assert main([str(path)]) == 0
+    plain = capsys.readouterr().out
+    assert main([str(path), "--policy", "random", "--without", "V", "--noise", "full"]) == 0
+    headed = capsys.readouterr().out
+    assert headed.splitlines()[0].startswith("run: policy random") and headed.endswith(plain)
+    assert main([str(tmp_path / "missing.jsonl")]) == 1
+    assert "no finished episodes" in capsys.readouterr().err
+
+
+def test_health_notes_name_missing_inputs_waits_and_warnings():
+    lines = ["[INFO] [1.0] [policy_node]: policy sac on T+K+V; inputs ['gripper', 'tactile']",
+             "[ERROR] [2.0] [policy_node]: step at t=0.08 s: no tactile input after 1.0 s (is that node running?)",
+             "[ERROR] [3.0] [policy_node]: step at t=0.16 s: no tactile, vision input after 1.0 s (is ...)",
+             "[INFO] [4.0] [sim_node]: waiting for 3 subscribers of /dlo/gripper/state (have 1)",
+             "[WARN] [5.0] [sim_node]: no command for 3 s: is a policy running? (the gripper stands still)"]
+    assert health_notes("policy", lines) == [
+        "policy: waiting for 3 subscribers of /dlo/gripper/state (have 1)",
+        "policy: no tactile or vision input",
+        "policy: 1 warning (last: no command for 3 s: is a policy running? (the gripper stands still))"]
+    assert health_notes("vision", ["[INFO] [1.0] [vision_node]: fine"]) == []
+
+
+def test_status_line_rate_episodes_nodes_and_notes():
+    line = status_line(12.46, 0.99, 2, 5, {"sim": True, "policy": False}, ["policy: no gripper input"])
+    assert line == ("12.5 steps/s (sim time x0.99), 2/5 episodes done, nodes alive 1/2 (dead: policy); "
+                    "policy: no gripper input")
+    assert status_line(None, None, 0, 0, {"sim": True}, []) == \
+        "steps/s ?, 0 episodes done, nodes alive 1/1; no warnings"
+
+
+def test_graph_monitor_streams_appended_episodes_and_status(tmp_path):
+    outcomes, logs = tmp_path / "outcomes.jsonl", tmp_path / "logs"
+    logs.mkdir()
+    (logs / "policy.log").write_text("")
+    monitor = subprocess.Popen(
+        [sys.executable, "-m", "dlo_tools.graph_monitor", str(outcomes), "--logs", str(logs), "--no-ros",
+         "--episodes", "3", "--status-period", "0.3", "--node", f"policy={os.getpid()}"],
+        stdout=subprocess.PIPE, text=True)
+    try:
+        def next_line_with(text):
+            while True:
+                line = monitor.stdout.readline()
+                assert line, "the monitor ended early"
+                if text in line:
+                    return line
+        status = next_line_with("status:")
+        assert "0/3 episodes done, nodes alive 1/1; no warnings" in status
+        with open(logs / "policy.log", "a") as log:
+            log.write("[ERROR] [2.0] [policy_node]: step at t=0.08 s: no gripper input after 1.0 s (x)\n")
+        assert "policy: no gripper input" in next_line_with("policy:")
+        with open(outcomes, "a") as f:
+            f.write(json.dumps(dict(EPISODE, episode=0)) + "\n")
+        first = next_line_with("episode 0")  # printed while the monitor still runs
+        assert first.startswith("[launch] episode 0 (seed 13; 1/3 done)") and monitor.poll() is None
+        with open(outcomes, "a") as f:
+            f.write(json.dumps(dict(EPISODE, episode=1)) + "\n")
+            f.write(json.dumps(dict(EPISODE, episode=2))[:20])  # a line still being written
+        time.sleep(0.5)
+        with open(outcomes, "a") as f:
+            f.write(json.dumps(dict(EPISODE, episode=2))[20:] + "\n")
+        monitor.send_signal(signal.SIGTERM)
+        rest, _ = monitor.communicate(timeout=30)
+    finally:
+        if monitor.poll() is None:
+            monitor.kill()
+            monitor.wait()
+    assert monitor.returncode == 0
+    lines = [line for line in rest.splitlines() if "] episode" in line]
+    assert any("episode 2 (seed 13; 3/3 done)" in line for line in lines), rest
+    assert "unreadable" not in rest
