@@ -1,0 +1,538 @@
+"""dlo-driver-check: does the driver running on this ROS domain fit the graph's topic contract?
+
+    dlo-driver-check [--namespace NS] [--timeout S] [--duration S] [--rate HZ] [--command-timeout S]
+                     [--speed M/S] [--workspace M] [--skip RULE ...]
+
+It acts as the policy would: it answers every ``/dlo/gripper/state`` with a ``/dlo/gripper/cmd``
+stamped with that state's episode and step, following a fixed schedule of phases (hold still,
+close, open, move +x / +y / -y, go silent, drive to the workspace corner, send invalid commands),
+records what the driver publishes and judges it rule by rule (DESIGN.md section 6; the driver
+guide docs/WRITE_YOUR_DRIVER.md). Every rule prints one line ``PASS``/``FAIL``/``SKIP``, its name
+and the measured numbers:
+
+- ``rate``: the state arrives at the control rate (``--rate``, 12.5 Hz = one per 0.08 s, within
+  20 %) while the driver is commanded to hold still;
+- ``stamps``: header stamps strictly increase; the step counter goes +1 per state within an
+  episode, and a new episode starts at step 0;
+- ``camera``: ``/dlo/camera/image`` arrives with every state and ``camera_info`` (latched) exists
+  and matches it (width, height, frame_id, data size), with a valid pinhole K;
+- ``obey``: valid commands are executed: velocity direction within 15 deg and speed within 20 %
+  (measured from consecutive states: displacement / stamp difference), closure within 0.05;
+- ``invalid``: non-finite (NaN) and out-of-range (speed > 0.25 m/s, closure > 1) commands are
+  rejected: the gripper does not move (< 0.5 mm per step) and keeps its closure;
+- ``stale``: when commands stop, the gripper stops within ``--command-timeout`` (+ two control
+  periods for the pipeline) and the driver keeps publishing its state (real-time timing);
+- ``workspace``: every reported gripper position lies in ``|x|, |y| <= --workspace`` (+ 1 mm),
+  also while commanded at full speed towards the corner (+x, +y);
+- ``touch``: a tactile source exists: ``/dlo/rope/particles`` with a ``held`` field, or
+  ``/dlo/tactile/pose``.
+
+The rules are plain functions of a :class:`Recording` (no rclpy: testable without ROS); the node
+that makes the recording is :func:`record`. Exit status: 0 every rule passed (or was skipped),
+1 a rule failed or no driver answered within ``--timeout``, 2 bad usage. The whole check takes
+about ``--duration`` + 11 s.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import sys
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from dlo_sim.command import MAX_SPEED
+from dlo_sim.config import DT, SUBSTEPS_PER_ACTION, WORKSPACE_HALF_WIDTH
+
+RULES = ("rate", "stamps", "camera", "obey", "invalid", "stale", "workspace", "touch")
+CONTROL_RATE = 1.0 / (DT * SUBSTEPS_PER_ACTION)  # Hz, one command per 0.08 s
+RATE_TOLERANCE = 0.2  # relative
+SPEED_TOLERANCE = 0.2  # relative
+ANGLE_TOLERANCE = 15.0  # deg
+CLOSURE_TOLERANCE = 0.05
+STILL = 0.0005  # m per step: the gripper counts as not moving below this
+WORKSPACE_SLACK = 0.001  # m
+PIPELINE_SLACK = 0.1  # s of delivery on top of two control periods for the stale stop
+ENCODING_BYTES = {"mono8": 1, "8UC1": 1, "mono16": 2, "16UC1": 2, "rgb8": 3, "bgr8": 3, "8UC3": 3,
+                  "rgba8": 4, "bgra8": 4, "32FC1": 4}
+
+
+@dataclass(frozen=True)
+class Settings:
+    """What the driver is expected to do (the defaults are the sim's numbers)."""
+
+    rate: float = CONTROL_RATE  # Hz
+    command_timeout: float = 0.5  # s
+    workspace: float = WORKSPACE_HALF_WIDTH  # m, half width of the square workspace
+    duration: float = 2.0  # s of holding still (rate, stamps, camera, touch)
+    speed: float = 0.1  # m/s of the valid motion commands
+    skip: tuple = ()
+
+
+@dataclass(frozen=True)
+class Phase:
+    """``duration`` s of one command (vx, vy, closure), or of silence (``command`` None).
+
+    ``kind``: 'idle', 'closure', 'move', 'silent' (stale check), 'workspace', 'invalid', 'lead'
+    (a valid moving command just before an invalid one or the silence).
+    """
+
+    name: str
+    kind: str
+    duration: float
+    command: tuple | None
+
+
+def schedule(s: Settings) -> list[Phase]:
+    """The phases of one check, in order."""
+    v, fast = s.speed, MAX_SPEED
+    corner_time = 2.0 * s.workspace / fast + 0.3  # from anywhere in the workspace to the corner
+    return [
+        Phase("idle", "idle", s.duration, (0.0, 0.0, 0.0)),
+        Phase("close", "closure", 0.6, (0.0, 0.0, 1.0)),
+        Phase("open", "closure", 0.6, (0.0, 0.0, 0.0)),
+        Phase("+x", "move", 0.8, (v, 0.0, 0.0)),
+        Phase("+y", "move", 0.8, (0.0, v, 0.0)),
+        Phase("-y", "move", 0.8, (0.0, -v, 0.0)),
+        Phase("lead-stale", "lead", 0.4, (v, 0.0, 0.0)),
+        Phase("silent", "silent", s.command_timeout + 1.0, None),
+        Phase("corner", "workspace", corner_time, (fast, fast, 0.0)),
+        Phase("lead-nan", "lead", 0.4, (-v, -v, 0.0)),
+        Phase("nan", "invalid", 0.6, (math.nan, 0.0, 0.0)),
+        Phase("lead-speed", "lead", 0.4, (-v, -v, 0.0)),
+        Phase("speed", "invalid", 0.6, (-3.0 * fast, 0.0, 0.0)),
+        Phase("lead-closure", "lead", 0.4, (-v, -v, 0.0)),
+        Phase("closure", "invalid", 0.6, (0.0, 0.0, 1.5)),
+    ]
+
+
+@dataclass
+class StateSample:
+    """One received gripper state: wall arrival time [s], header stamp [s], counters, pose [m]."""
+
+    wall: float
+    stamp: float
+    episode: int
+    step: int
+    x: float
+    y: float
+    closure: float
+
+
+@dataclass
+class ImageSample:
+    width: int
+    height: int
+    encoding: str
+    step: int
+    size: int
+    frame_id: str
+
+
+@dataclass
+class InfoSample:
+    width: int
+    height: int
+    k: tuple
+    frame_id: str
+
+
+@dataclass
+class Recording:
+    """What the checker saw. ``answered``: (episode, step) -> name of the phase whose command
+    answered that state; ``phases``: (name, wall start, wall end); ``last_command_wall``: wall
+    time of the last command sent before the silence."""
+
+    states: list = field(default_factory=list)
+    images: list = field(default_factory=list)
+    infos: list = field(default_factory=list)
+    answered: dict = field(default_factory=dict)
+    phases: list = field(default_factory=list)
+    cloud_fields: list = field(default_factory=list)  # field names of each particle cloud received
+    tactile: int = 0
+    last_command_wall: float | None = None
+
+
+@dataclass(frozen=True)
+class Result:
+    rule: str
+    status: str  # PASS, FAIL, SKIP
+    reason: str
+
+    @property
+    def passed(self) -> bool:
+        return self.status != "FAIL"
+
+
+# ---------------------------------------------------------------------------------------- helpers
+def phase_window(rec: Recording, name: str) -> tuple[float, float] | None:
+    for n, start, end in rec.phases:
+        if n == name:
+            return start, end
+    return None
+
+
+def steps_in(rec: Recording, names) -> list[tuple[StateSample, StateSample]]:
+    """Consecutive state pairs (k, k+1) of one episode that certainly ran under a command of one
+    of the phases ``names``: the commands answering k and k-1 both came from that phase (the
+    driver may act on either, depending on when the command arrived)."""
+    names = {names} if isinstance(names, str) else set(names)
+    pairs = []
+    for a, b in zip(rec.states, rec.states[1:]):
+        if b.episode != a.episode or b.step != a.step + 1:
+            continue
+        now, before = rec.answered.get((a.episode, a.step)), rec.answered.get((a.episode, a.step - 1))
+        if now in names and before == now:
+            pairs.append((a, b))
+    return pairs
+
+
+def typical_period(rec: Recording) -> float:
+    """Median stamp difference of consecutive states [s] (the driver's own period)."""
+    dt = [b.stamp - a.stamp for a, b in zip(rec.states, rec.states[1:]) if b.stamp > a.stamp]
+    return float(np.median(dt)) if dt else 1.0 / CONTROL_RATE
+
+
+def moved(a: StateSample, b: StateSample) -> float:
+    return math.hypot(b.x - a.x, b.y - a.y)
+
+
+def finite(s: StateSample) -> bool:
+    return all(math.isfinite(v) for v in (s.x, s.y, s.closure))
+
+
+# ---------------------------------------------------------------------------------------- rules
+def check_rate(rec: Recording, s: Settings) -> Result:
+    window = phase_window(rec, "idle")
+    idle = [x for x in rec.states if window and window[0] <= x.wall <= window[1]]
+    if len(idle) < 3:
+        return Result("rate", "FAIL", f"{len(idle)} states in {s.duration:g} s of holding still "
+                                      f"(expected about {s.rate * s.duration:.0f}): is the driver real-time?")
+    # the period between consecutive steps of one episode, over the whole check (robust to a burst of
+    # queued states at the start and to the extra state an episode reset adds)
+    gaps = [b.wall - a.wall for a, b in zip(rec.states, rec.states[1:]) if b.episode == a.episode and b.step == a.step + 1]
+    stamp_gaps = [b.stamp - a.stamp for a, b in zip(rec.states, rec.states[1:])
+                  if b.episode == a.episode and b.step == a.step + 1]
+    if len(gaps) < 3:
+        return Result("rate", "FAIL", f"{len(gaps)} consecutive steps in {len(rec.states)} states")
+    rate, stamp_rate = 1.0 / max(float(np.median(gaps)), 1e-9), 1.0 / max(float(np.median(stamp_gaps)), 1e-9)
+    ok = abs(rate - s.rate) <= RATE_TOLERANCE * s.rate
+    return Result("rate", "PASS" if ok else "FAIL",
+                  f"{rate:.2f} Hz ({stamp_rate:.2f} Hz by stamps; median of {len(gaps)} steps), "
+                  f"expected {s.rate:g} Hz +-{RATE_TOLERANCE:.0%}")
+
+
+def check_stamps(rec: Recording, s: Settings) -> Result:
+    if len(rec.states) < 2:
+        return Result("stamps", "FAIL", f"only {len(rec.states)} state(s) received")
+    back = jumps = bad_episode = episodes = 0
+    first_bad = ""
+    for a, b in zip(rec.states, rec.states[1:]):
+        if not b.stamp > a.stamp:
+            back += 1
+            first_bad = first_bad or f"stamp {b.stamp:.3f} s after {a.stamp:.3f} s"
+        if b.episode == a.episode:
+            if b.step != a.step + 1:
+                jumps += 1
+                first_bad = first_bad or f"step {a.step} -> {b.step} in episode {a.episode}"
+        elif b.episode > a.episode and b.step == 0:
+            episodes += 1
+        else:
+            bad_episode += 1
+            first_bad = first_bad or f"episode {a.episode} step {a.step} -> episode {b.episode} step {b.step}"
+    n = len(rec.states)
+    if back or jumps or bad_episode:
+        return Result("stamps", "FAIL", f"{back} non-increasing stamp(s), {jumps} step jump(s), {bad_episode} bad "
+                                        f"episode change(s) in {n} states; first: {first_bad}")
+    return Result("stamps", "PASS", f"{n} states: stamps strictly increasing, step +1 each "
+                                    f"({episodes} new episode(s) from step 0)")
+
+
+def check_camera(rec: Recording, s: Settings) -> Result:
+    if not rec.infos:
+        return Result("camera", "FAIL", f"no camera_info ({len(rec.images)} images): publish it latched "
+                                        "(transient local) in the image's frame")
+    info = rec.infos[-1]
+    k = np.asarray(info.k, dtype=float).reshape(-1)
+    problems = []
+    if info.width <= 0 or info.height <= 0:
+        problems.append(f"camera_info size {info.width}x{info.height}")
+    if k.size != 9 or not np.all(np.isfinite(k)) or k[0] <= 0 or k[4] <= 0 or not 0 < k[2] < info.width \
+            or not 0 < k[5] < info.height or abs(k[8] - 1.0) > 1e-9:
+        problems.append(f"K {k.round(2).tolist()} is not a pinhole matrix with fx, fy > 0 and the centre in the image")
+    if not info.frame_id:
+        problems.append("camera_info has no frame_id")
+    if len(rec.images) < 0.5 * max(len(rec.states), 1):
+        problems.append(f"{len(rec.images)} images for {len(rec.states)} states")
+    for im in rec.images:
+        if (im.width, im.height) != (info.width, info.height):
+            problems.append(f"image {im.width}x{im.height} but camera_info {info.width}x{info.height}")
+            break
+        if im.frame_id != info.frame_id:
+            problems.append(f"image frame '{im.frame_id}' but camera_info frame '{info.frame_id}'")
+            break
+        bpp = ENCODING_BYTES.get(im.encoding, 1)
+        if im.step < im.width * bpp or im.size != im.step * im.height:
+            problems.append(f"image data {im.size} bytes for {im.height} rows of step {im.step} "
+                            f"({im.encoding}, width {im.width})")
+            break
+    if problems:
+        return Result("camera", "FAIL", "; ".join(problems))
+    return Result("camera", "PASS", f"{len(rec.images)} images for {len(rec.states)} states, {info.width}x{info.height} "
+                                    f"in '{info.frame_id}', fx {k[0]:.1f} fy {k[4]:.1f} px")
+
+
+def check_obey(rec: Recording, s: Settings) -> Result:
+    period = typical_period(rec)
+    parts, problems = [], []
+    for phase in schedule(s):
+        if phase.kind == "move":
+            pairs = [(a, b) for a, b in steps_in(rec, phase.name) if 0.5 * period <= b.stamp - a.stamp <= 2 * period]
+            if len(pairs) < 2:
+                problems.append(f"{phase.name}: {len(pairs)} usable step(s) (episodes reset or states missing)")
+                continue
+            v = np.median([[(b.x - a.x) / (b.stamp - a.stamp), (b.y - a.y) / (b.stamp - a.stamp)] for a, b in pairs],
+                          axis=0)
+            want = np.asarray(phase.command[:2])
+            speed, target = float(np.linalg.norm(v)), float(np.linalg.norm(want))
+            angle = math.degrees(math.acos(np.clip(v @ want / max(speed * target, 1e-12), -1, 1))) if speed > 0 else 180.0
+            text = f"{phase.name} {speed:.3f} m/s at {angle:.0f} deg"
+            parts.append(text)
+            if abs(speed - target) > SPEED_TOLERANCE * target or angle > ANGLE_TOLERANCE:
+                problems.append(f"{text} (commanded {target:g} m/s)")
+        elif phase.kind == "closure":
+            pairs = steps_in(rec, phase.name)
+            if not pairs:
+                problems.append(f"{phase.name}: no state under the command")
+                continue
+            got, want = pairs[-1][1].closure, phase.command[2]
+            parts.append(f"closure {got:.2f}")
+            if not abs(got - want) <= CLOSURE_TOLERANCE:
+                problems.append(f"closure {got:.2f} after commanding {want:g} for {phase.duration:g} s")
+    if problems:
+        return Result("obey", "FAIL", "; ".join(problems))
+    return Result("obey", "PASS", ", ".join(parts) + f" (commanded {s.speed:g} m/s; closure 1, 0)")
+
+
+def check_invalid(rec: Recording, s: Settings) -> Result:
+    parts, problems = [], []
+    for phase in schedule(s):
+        if phase.kind != "invalid":
+            continue
+        pairs = steps_in(rec, phase.name)
+        bad = [b for a, b in pairs if not finite(b)]
+        if bad:
+            problems.append(f"{phase.name}: state became non-finite (x = {bad[0].x}, closure = {bad[0].closure})")
+            continue
+        if len(pairs) < 2:
+            problems.append(f"{phase.name}: {len(pairs)} usable step(s)")
+            continue
+        step = max(moved(a, b) for a, b in pairs)
+        closure = max(abs(b.closure - a.closure) for a, b in pairs)
+        text = f"{phase.name} {step * 1000:.2f} mm/step, closure {closure:+.3f}"
+        parts.append(text)
+        if step > STILL or closure > 0.02:
+            problems.append(f"{text}: not rejected (commanded {phase.command})")
+    if problems:
+        return Result("invalid", "FAIL", "; ".join(problems))
+    return Result("invalid", "PASS", "gripper held (largest step, closure change): " + ", ".join(parts))
+
+
+def check_stale(rec: Recording, s: Settings) -> Result:
+    window = phase_window(rec, "silent")
+    if window is None or rec.last_command_wall is None:
+        return Result("stale", "FAIL", "the silent phase did not run")
+    t0, end = rec.last_command_wall, window[1]
+    period = 1.0 / s.rate
+    before = [(a, b) for a, b in zip(rec.states, rec.states[1:]) if a.episode == b.episode and b.step == a.step + 1
+              and window[0] - 0.4 <= b.wall <= t0 + 0.5 * period]
+    if not any(moved(a, b) > STILL for a, b in before):
+        return Result("stale", "FAIL", "the gripper did not move under the last command before the silence "
+                                       "(cannot see it stop)")
+    after = [(a, b) for a, b in zip(rec.states, rec.states[1:]) if t0 < b.wall <= end]
+    limit = s.command_timeout + 2 * max(period, typical_period(rec)) + PIPELINE_SLACK
+    late = [b for a, b in after if b.wall > t0 + limit]
+    if len(late) < 2:
+        return Result("stale", "FAIL", f"{len(late)} states between {limit:.2f} s and {end - t0:.2f} s after the last "
+                                       "command: a real-time driver keeps publishing its state")
+    moving = [b.wall for a, b in after if moved(a, b) > STILL]
+    stop = (max(moving) - t0) if moving else 0.0
+    if stop > limit:
+        return Result("stale", "FAIL", f"still moving {stop:.2f} s after the last command "
+                                       f"(command_timeout {s.command_timeout:g} s, allowed {limit:.2f} s)")
+    return Result("stale", "PASS", f"stopped {stop:.2f} s after the last command (command_timeout "
+                                   f"{s.command_timeout:g} s, allowed {limit:.2f} s)")
+
+
+def check_workspace(rec: Recording, s: Settings) -> Result:
+    states = [x for x in rec.states if finite(x)]
+    if not states:
+        return Result("workspace", "FAIL", "no finite gripper state")
+    worst = max(states, key=lambda x: max(abs(x.x), abs(x.y)))
+    reach = max(abs(worst.x), abs(worst.y))
+    if reach > s.workspace + WORKSPACE_SLACK:
+        return Result("workspace", "FAIL", f"gripper at x = {worst.x:.3f} m, y = {worst.y:.3f} m (step {worst.step}), "
+                                           f"outside |x|, |y| <= {s.workspace:g} m")
+    window = phase_window(rec, "corner")
+    corner = [x for x in states if window and window[0] <= x.wall <= window[1]]
+    where = ""
+    if corner:
+        last = corner[-1]
+        at = max(last.x, last.y) >= s.workspace - 0.002
+        where = (f"; driven to the corner it stopped at the boundary (x = {last.x:.3f}, y = {last.y:.3f} m)" if at else
+                 f"; driven to the corner it ended at x = {last.x:.3f}, y = {last.y:.3f} m, short of the boundary")
+    return Result("workspace", "PASS", f"all {len(states)} states inside |x|, |y| <= {s.workspace:g} m "
+                                       f"(largest {reach:.3f} m){where}")
+
+
+def check_touch(rec: Recording, s: Settings) -> Result:
+    with_held = sum(1 for names in rec.cloud_fields if "held" in names)
+    if with_held:
+        return Result("touch", "PASS", f"{with_held} particle clouds with a 'held' field")
+    if rec.tactile:
+        return Result("touch", "PASS", f"{rec.tactile} tactile poses")
+    extra = f" ({len(rec.cloud_fields)} clouds without a 'held' field)" if rec.cloud_fields else ""
+    return Result("touch", "FAIL", "no tactile source: neither /dlo/rope/particles with a 'held' field nor "
+                                   f"/dlo/tactile/pose{extra}")
+
+
+CHECKS = {"rate": check_rate, "stamps": check_stamps, "camera": check_camera, "obey": check_obey,
+          "invalid": check_invalid, "stale": check_stale, "workspace": check_workspace, "touch": check_touch}
+
+
+def evaluate(rec: Recording, s: Settings) -> list[Result]:
+    """One Result per rule, in RULES order (skipped rules as SKIP)."""
+    return [Result(rule, "SKIP", "skipped (--skip)") if rule in s.skip else CHECKS[rule](rec, s) for rule in RULES]
+
+
+def format_results(results: list[Result]) -> str:
+    return "\n".join(f"{r.status} {r.rule:<9} {r.reason}" for r in results)
+
+
+# ---------------------------------------------------------------------------------------- ROS part
+def record(s: Settings, namespace: str, timeout: float, log=print) -> Recording | None:
+    """Run the schedule against the driver on the current ROS domain; None when no state arrives
+    within ``timeout`` s."""
+    import rclpy
+    from rclpy.qos import DurabilityPolicy, QoSProfile
+    from sensor_msgs.msg import CameraInfo, Image, PointCloud2
+
+    from dlo_msgs.msg import GripperCommand, GripperState, TactilePose
+
+    prefix = "/" + namespace.strip("/") if namespace.strip("/") else ""
+    rec = Recording()
+    phases = schedule(s)
+    current = {"index": -1}
+
+    rclpy.init(args=[])
+    node = rclpy.create_node("dlo_driver_check")
+    try:
+        pub = node.create_publisher(GripperCommand, f"{prefix}/dlo/gripper/cmd", 10)
+
+        def on_state(msg):
+            sample = StateSample(time.monotonic(), msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec,
+                                 int(msg.episode), int(msg.step), float(msg.x), float(msg.y), float(msg.closure))
+            rec.states.append(sample)
+            i = current["index"]
+            if i < 0 or i >= len(phases) or phases[i].command is None:
+                return
+            vx, vy, closure = phases[i].command
+            cmd = GripperCommand(vx=float(vx), vy=float(vy), closure=float(closure), episode=msg.episode, step=msg.step)
+            cmd.header = msg.header
+            pub.publish(cmd)
+            rec.answered[(sample.episode, sample.step)] = phases[i].name
+            rec.last_command_wall = time.monotonic()
+
+        def on_image(msg):
+            rec.images.append(ImageSample(int(msg.width), int(msg.height), msg.encoding, int(msg.step), len(msg.data),
+                                          msg.header.frame_id))
+
+        def on_info(msg):
+            rec.infos.append(InfoSample(int(msg.width), int(msg.height), tuple(msg.k), msg.header.frame_id))
+
+        latched = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        node.create_subscription(GripperState, f"{prefix}/dlo/gripper/state", on_state, 10)
+        node.create_subscription(Image, f"{prefix}/dlo/camera/image", on_image, 10)
+        node.create_subscription(CameraInfo, f"{prefix}/dlo/camera/camera_info", on_info, latched)
+        node.create_subscription(PointCloud2, f"{prefix}/dlo/rope/particles",
+                                 lambda m: rec.cloud_fields.append([f.name for f in m.fields]), 10)
+
+        def on_tactile(_msg):
+            rec.tactile += 1
+
+        node.create_subscription(TactilePose, f"{prefix}/dlo/tactile/pose", on_tactile, 10)
+
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline and (not rec.states or pub.get_subscription_count() == 0):
+            rclpy.spin_once(node, timeout_sec=0.05)
+        if not rec.states:
+            return None
+        log(f"driver found: {len(node.get_publishers_info_by_topic(f'{prefix}/dlo/gripper/state'))} publisher(s) of "
+            f"{prefix}/dlo/gripper/state; checking for about {sum(p.duration for p in phases):.0f} s")
+        rec.states.clear()
+        silent_from = None
+        for i, phase in enumerate(phases):
+            current["index"] = i
+            start = time.monotonic()
+            end = start + phase.duration
+            while time.monotonic() < end:
+                rclpy.spin_once(node, timeout_sec=0.01)
+            rec.phases.append((phase.name, start, time.monotonic()))
+            if phase.kind == "lead" and phases[i + 1].kind == "silent":
+                silent_from = rec.last_command_wall
+        current["index"] = len(phases)
+        end = time.monotonic() + 0.2
+        while time.monotonic() < end:
+            rclpy.spin_once(node, timeout_sec=0.01)
+        rec.last_command_wall = silent_from
+        return rec
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(
+        prog="dlo-driver-check",
+        description="Check the driver (or sim node in real_time mode) running on this ROS domain against the "
+                    "topic contract, rule by rule: " + ", ".join(RULES) + ". It sends commands to "
+                    "/dlo/gripper/cmd (the gripper moves about 0.6 m): nothing else may command the driver meanwhile.",
+        epilog="Exit status: 0 every rule passed, 1 a rule failed or no driver answered, 2 bad usage.")
+    parser.add_argument("--namespace", default="", help="topics under /NS/dlo/... (as launch_graph.sh --namespace)")
+    parser.add_argument("--timeout", type=float, default=10.0, help="s to wait for the driver's first state (10)")
+    parser.add_argument("--duration", type=float, default=2.0, help="s of holding still for rate/camera/touch (2)")
+    parser.add_argument("--rate", type=float, default=CONTROL_RATE, help=f"expected control rate [Hz] ({CONTROL_RATE:g})")
+    parser.add_argument("--command-timeout", type=float, default=0.5,
+                        help="the driver's command_timeout [s]: a stale command must stop the gripper (0.5)")
+    parser.add_argument("--speed", type=float, default=0.1, help="speed of the test motions [m/s] (0.1)")
+    parser.add_argument("--workspace", type=float, default=WORKSPACE_HALF_WIDTH,
+                        help=f"half width of the square workspace [m] ({WORKSPACE_HALF_WIDTH:g})")
+    parser.add_argument("--skip", action="append", default=[], choices=RULES, metavar="RULE",
+                        help=f"do not judge this rule (repeatable): one of {', '.join(RULES)}")
+    args = parser.parse_args(argv)
+    for name in ("timeout", "duration", "rate", "command_timeout", "speed", "workspace"):
+        if not getattr(args, name) > 0:
+            parser.error(f"--{name.replace('_', '-')} must be > 0, got {getattr(args, name)}")
+    if args.speed > MAX_SPEED:
+        parser.error(f"--speed must be <= {MAX_SPEED:g} m/s (the command limit)")
+    settings = Settings(rate=args.rate, command_timeout=args.command_timeout, workspace=args.workspace,
+                        duration=args.duration, speed=args.speed, skip=tuple(args.skip))
+    rec = record(settings, args.namespace, args.timeout)
+    if rec is None:
+        topic = ("/" + args.namespace.strip("/") if args.namespace.strip("/") else "") + "/dlo/gripper/state"
+        print(f"dlo-driver-check: no driver: nothing published {topic} within {args.timeout:g} s on "
+              f"ROS_DOMAIN_ID={os.environ.get('ROS_DOMAIN_ID') or '0'} (is the driver running, on this domain "
+              "and namespace, in real_time mode?)", file=sys.stderr)
+        return 1
+    results = evaluate(rec, settings)
+    print(format_results(results))
+    failed = [r.rule for r in results if not r.passed]
+    print(f"{len(results) - len(failed)}/{len(results)} rules passed" + (f"; failed: {', '.join(failed)}" if failed else ""))
+    return 1 if failed else 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,88 @@
+"""Test-only drivers that break one rule of the driver contract each (for test_driver_check.py).
+
+    python dlo_tools_broken_driver.py FAULT [--ros-args ...]
+
+FAULT is one of FAULTS: the reference mock driver (dlo_tools.mock_driver_node) with one defect.
+"""
+
+from __future__ import annotations
+
+import sys
+
+import numpy as np
+
+from dlo_tools import mock_driver_node
+from dlo_tools.mock_driver_node import MockDriver
+
+# fault -> the dlo-driver-check rule it must fail (and no other)
+FAULTS = {
+    "ignores_stale": "stale",  # keeps executing the last command forever
+    "accepts_invalid": "invalid",  # executes NaN and out-of-range commands unchecked
+    "leaves_workspace": "workspace",  # no workspace limits
+    "stamps_back": "stamps",  # every 5th state's stamp goes 1 s back
+    "no_camera_info": "camera",  # never publishes camera_info
+    "no_touch": "touch",  # no particle cloud, no tactile pose
+    "wrong_rate": "rate",  # 20 Hz instead of 12.5 Hz
+    "disobeys": "obey",  # moves at half the commanded speed
+}
+
+
+def broken_driver(fault: str):
+    class BrokenDriver(MockDriver):
+        def __init__(self):
+            super().__init__()
+            self.states_published = 0
+            if fault == "no_camera_info":  # the latched message goes with its publisher
+                self.destroy_publisher(self.pub_info)
+            if fault == "no_touch":
+                self.destroy_publisher(self.pub_cloud)
+                self.pub_cloud = _Null()
+
+        def on_command(self, msg):
+            if fault == "accepts_invalid" and int(msg.episode) == self.episode:
+                self.command = (msg.vx, msg.vy, msg.closure, mock_driver_node.time.monotonic())
+                return
+            super().on_command(msg)
+            if fault == "ignores_stale" and self.command is not None:
+                self.command = (*self.command[:3], float("inf"))  # never stale
+
+        def move(self, vx, vy, closure, dt):
+            if fault == "disobeys":
+                vx, vy = 0.5 * vx, 0.5 * vy
+            if fault == "leaves_workspace":
+                self.gripper = self.gripper + dt * np.array([vx, vy])
+                self.closure = float(closure)
+                return
+            super().move(vx, vy, closure, dt)
+
+        def state_stamp(self):
+            stamp = super().state_stamp()
+            if fault == "stamps_back":
+                self.states_published += 1
+                if self.states_published % 5 == 0:
+                    stamp.sec -= 1
+            return stamp
+
+    return BrokenDriver
+
+
+class _Null:
+    def publish(self, _msg):
+        pass
+
+
+def main() -> int:
+    if len(sys.argv) < 2 or sys.argv[1] not in FAULTS:
+        print(f"usage: {sys.argv[0]} FAULT [--ros-args ...], FAULT one of {sorted(FAULTS)}", file=sys.stderr)
+        return 2
+    fault = sys.argv.pop(1)
+    args = list(sys.argv)
+    if fault == "wrong_rate":
+        args += ["--ros-args", "-p", "rate:=20.0"]
+    from dlo_common.node_main import run_node
+
+    return run_node(broken_driver(fault), args)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,132 @@
+"""dlo-driver-check against the real sim node (real_time), the reference mock driver, and drivers
+that break one rule each (dlo_tools_broken_driver.py); the rules on synthetic recordings (no ROS)."""
+
+from __future__ import annotations
+
+import math
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # --import-mode=importlib
+
+from dlo_tools_broken_driver import FAULTS  # noqa: E402
+from dlo_tools_testutil import ROS2RUN  # noqa: E402
+
+from dlo_tools.driver_check import (RULES, Recording, Settings, StateSample, evaluate,  # noqa: E402
+                                    check_stale, check_workspace, schedule)
+
+HERE = Path(__file__).resolve().parent
+CHECK = [sys.executable, "-m", "dlo_tools.driver_check"]
+TOPICS = ("/dlo/gripper/state", "/dlo/gripper/cmd", "/dlo/camera/image", "/dlo/camera/camera_info",
+          "/dlo/rope/particles", "/dlo/sim/reset")
+
+
+def verdicts(output: str) -> dict[str, str]:
+    """{rule: PASS/FAIL/SKIP} from the checker's lines."""
+    found = dict((rule, status) for status, rule in re.findall(r"^(PASS|FAIL|SKIP) (\w+) ", output, re.M))
+    assert set(found) == set(RULES), output
+    return found
+
+
+def run_check(env, *args, timeout=120) -> subprocess.CompletedProcess:
+    return subprocess.run([*CHECK, *args], env=env, capture_output=True, text=True, timeout=timeout)
+
+
+# ------------------------------------------------------------------------------------ with ROS
+def test_mock_driver_passes_every_rule_in_a_namespace(procs, ros_env):
+    remap = [arg for t in TOPICS for arg in ("-r", f"{t}:=/robot1{t}")]
+    driver = procs("mock", [str(ROS2RUN), "dlo_tools", "mock_driver_node", "--ros-args", *remap])
+    driver.wait_line("real_time driver at 12.5 Hz", timeout=60)
+    result = run_check(ros_env, "--namespace", "robot1", "--timeout", "20")
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert set(verdicts(result.stdout).values()) == {"PASS"}
+    assert "stopped at the boundary" in result.stdout  # it really was driven to the workspace corner
+    out = driver.output()
+    for cause in ("non-finite", "speed out of range", "closure out of range", "command timed out"):
+        assert cause in out, out  # each rejection / the stale stop was logged
+
+
+def test_sim_node_in_real_time_passes_every_rule(procs, ros_env):
+    sim = procs("sim", [str(ROS2RUN), "dlo_sim", "sim_node", "--ros-args", "-p", "mode:=real_time"])
+    sim.wait_line("real_time simulation", timeout=180)
+    result = run_check(ros_env, "--timeout", "60")
+    assert result.returncode == 0, result.stdout + result.stderr + sim.output()[-3000:]
+    assert set(verdicts(result.stdout).values()) == {"PASS"}
+
+
+@pytest.mark.parametrize("fault", sorted(FAULTS))
+def test_a_broken_driver_fails_exactly_its_rule(procs, ros_env, fault):
+    driver = procs(fault, [sys.executable, str(HERE / "dlo_tools_broken_driver.py"), fault])
+    driver.wait_line("real_time driver at", timeout=60)
+    result = run_check(ros_env, "--timeout", "20", "--duration", "1")
+    assert result.returncode == 1, result.stdout + result.stderr
+    failed = {rule for rule, status in verdicts(result.stdout).items() if status == "FAIL"}
+    assert failed == {FAULTS[fault]}, result.stdout
+    assert f"failed: {FAULTS[fault]}" in result.stdout
+
+
+def test_no_driver_is_one_clear_line_and_bad_usage_exits_2(ros_env):
+    result = run_check(ros_env, "--timeout", "1")
+    assert result.returncode == 1
+    assert result.stderr.strip().count("\n") == 0 and "no driver: nothing published /dlo/gripper/state" in result.stderr
+    assert "Traceback" not in result.stderr
+    bad = run_check(ros_env, "--skip", "nonsense")
+    assert bad.returncode == 2 and "invalid choice" in bad.stderr
+    bad = run_check(ros_env, "--speed", "1.0")
+    assert bad.returncode == 2 and "--speed must be <= 0.25" in bad.stderr
+    helped = subprocess.run([str(ROS2RUN), "dlo_tools", "dlo-driver-check", "--help"], env=ros_env,
+                            capture_output=True, text=True, timeout=60)
+    assert helped.returncode == 0 and "--command-timeout" in helped.stdout and "Exit status" in helped.stdout
+
+
+# ------------------------------------------------------------------------------------ without ROS
+def ideal_recording(s: Settings, fault: str = "") -> Recording:
+    """What a perfect 12.5 Hz driver shows the checker (``fault``: 'late_stop', 'outside')."""
+    rec, t, x, y, closure, step, last_valid = Recording(), 0.0, -0.25, 0.0, 0.0, 0, None
+    period = 1.0 / s.rate
+    command = None
+    for phase in schedule(s):
+        start = t
+        while t < start + phase.duration - 1e-9:
+            if command is not None and (t - last_valid <= s.command_timeout or fault == "late_stop"):
+                vx, vy, c = command
+                if all(math.isfinite(v) for v in command) and abs(vx) <= 0.25 and abs(vy) <= 0.25 and 0 <= c <= 1:
+                    x, y, closure = x + vx * period, y + vy * period, c
+                    if fault != "outside":
+                        x, y = min(max(x, -s.workspace), s.workspace), min(max(y, -s.workspace), s.workspace)
+            rec.states.append(StateSample(t, t, 0, step, x, y, closure))
+            if phase.command is not None:
+                rec.answered[(0, step)] = phase.name
+                rec.last_command_wall = t
+                cmd = phase.command
+                valid = all(math.isfinite(v) for v in cmd) and abs(cmd[0]) <= 0.25 and 0 <= cmd[2] <= 1
+                command = cmd if valid else (0.0, 0.0, closure)
+                last_valid = t
+            step += 1
+            t += period
+        rec.phases.append((phase.name, start, t))
+        if phase.name == "lead-stale":
+            silent_from = rec.last_command_wall
+    rec.last_command_wall = silent_from
+    rec.images = []
+    return rec
+
+
+def test_the_rules_on_synthetic_recordings():
+    s = Settings()
+    rec = ideal_recording(s)
+    results = {r.rule: r for r in evaluate(rec, s)}
+    for rule in ("rate", "stamps", "obey", "invalid", "stale", "workspace"):
+        assert results[rule].status == "PASS", results[rule]
+    assert results["camera"].status == "FAIL" and "no camera_info" in results["camera"].reason
+    assert results["touch"].status == "FAIL"
+    late = check_stale(ideal_recording(s, "late_stop"), s)
+    assert late.status == "FAIL" and "still moving" in late.reason
+    outside = check_workspace(ideal_recording(s, "outside"), s)
+    assert outside.status == "FAIL" and "outside" in outside.reason
+    skipped = {r.rule: r.status for r in evaluate(rec, Settings(skip=("camera", "touch")))}
+    assert skipped["camera"] == skipped["touch"] == "SKIP"
