@@ -69,9 +69,9 @@ fi
 
 # ---- 4. build the workspace ---------------------------------------------------------------
 # Rebuild when a package's build inputs change (interfaces, manifests, setup files, shipped
-# policies). Python sources need no rebuild: env.sh puts them on PYTHONPATH ahead of the install tree.
+# policies, parameters files). Python sources need no rebuild: env.sh puts them on PYTHONPATH ahead of the install tree.
 src_hash=$(cd "$WS/src" && find . -type f \( -name '*.msg' -o -name '*.srv' -o -name 'CMakeLists.txt' \
-  -o -name 'package.xml' -o -name 'setup.py' -o -name 'setup.cfg' -o -path '*/policies/*' \) | sort | xargs sha256sum | sha256sum | cut -c1-16)
+  -o -name 'package.xml' -o -name 'setup.py' -o -name 'setup.cfg' -o -path '*/policies/*' -o -path '*/config/*' \) | sort | xargs sha256sum | sha256sum | cut -c1-16)
 if [ "$(cat "$STAMPS/workspace" 2>/dev/null)" != "$src_hash" ] || [ ! -d "$WS/install/dlo_msgs/lib" ]; then
   say "building ros_ws with colcon (log: ros_ws/log/latest_build)"
   (

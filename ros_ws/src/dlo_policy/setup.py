@@ -11,7 +11,8 @@ setup(
     data_files=[
         ("share/ament_index/resource_index/packages", ["resource/" + package_name]),
         ("share/" + package_name, ["package.xml"]),
-        ("share/" + package_name + "/config", ["config/sac_default.yaml"]),
+        # the SAC defaults and the policy node's parameters file (scripts/gen_node_configs.py)
+        ("share/" + package_name + "/config", ["config/sac_default.yaml", "config/policy_node.yaml"]),
         # the shipped All-modalities policy (actor + run config), used by policy_node by default
         ("share/" + package_name + "/policies/all", sorted(glob("policies/all/*"))),
     ],

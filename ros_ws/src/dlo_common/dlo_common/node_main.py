@@ -14,6 +14,7 @@ from dlo_common.params import Param, help_requested, help_text, unexpected_argum
 
 EXIT_BAD_PARAMETER = 2
 EXIT_REFUSED = 3
+EXIT_CODES = "0 done or stopped by a signal, 2 bad parameter, 3 refused to start"
 
 
 def executable_name() -> str:
@@ -23,7 +24,7 @@ def executable_name() -> str:
 
 
 def handle_help(package: str, parameters: Sequence[Param | tuple], summary: str = "",
-                args: Sequence[str] | None = None) -> int | None:
+                args: Sequence[str] | None = None, exit_codes: str = EXIT_CODES) -> int | None:
     """Answer ``-h``/``--help`` (print the parameters, return 0) or a stray argument before
     ``--ros-args`` (one line, return 2); None when the node should start.
 
@@ -33,7 +34,7 @@ def handle_help(package: str, parameters: Sequence[Param | tuple], summary: str 
     argv = list(sys.argv[1:] if args is None else args)
     executable = executable_name()
     if help_requested(argv):
-        sys.stdout.write(help_text(package, executable, parameters, summary))
+        sys.stdout.write(help_text(package, executable, parameters, summary, exit_codes))
         sys.stdout.flush()
         return 0
     stray = unexpected_arguments(argv) if args is None else []  # explicit args may start with a program name
@@ -56,8 +57,12 @@ def run_node(make_node: Callable[[], "rclpy.node.Node"], args=None, *, interrupt
     callback runs or while the node is being built.
     """
     if parameters is not None:
-        package = getattr(make_node, "__module__", "dlo").split(".")[0]
-        answered = handle_help(package, parameters, summary, args)
+        module = getattr(make_node, "__module__", "dlo")
+        if module == "__main__":  # python -m dlo_sim.sim_node
+            module = getattr(sys.modules["__main__"].__spec__, "name", "dlo")
+        package = module.split(".")[0]
+        exit_codes = EXIT_CODES.replace("signal", "signal" if interrupted_rc == 0 else f"signal ({interrupted_rc})")
+        answered = handle_help(package, parameters, summary, args, exit_codes)
         if answered is not None:
             return answered
     rclpy.init(args=args)

@@ -15,6 +15,7 @@ Units are part of each description (e.g. ``[s]``, ``[m]``).
 
 from __future__ import annotations
 
+import inspect
 import json
 import math
 import textwrap
@@ -169,14 +170,15 @@ def unexpected_arguments(argv: Sequence[str]) -> list[str]:
 
 
 def help_text(package: str, executable: str, parameters: Iterable[Param | Sequence[Any]],
-              summary: str = "", width: int = 100) -> str:
-    """The ``--help`` text of a node executable: usage line, what it does, every parameter."""
+              summary: str = "", exit_codes: str = "", width: int = 100) -> str:
+    """The ``--help`` text of a node executable: usage line, what it does (the first paragraph of
+    ``summary``), every parameter with type, default, range and description, exit codes."""
     params = as_params(parameters)
     lines = ["usage: " + USAGE.format(package=package, executable=executable),
              f"       (with a ROS 2 install: ros2 run {package} {executable} ...)", ""]
-    summary = (summary or "").strip()
+    summary = inspect.cleandoc(summary or "").split("\n\n")[0]  # the first paragraph of the module docstring
     if summary:
-        lines += [textwrap.fill(" ".join(summary.split()), width), ""]
+        lines += [textwrap.fill(" ".join(summary.replace("``", "`").split()), width), ""]
     lines.append(f"parameters (a params file with every default: share/{package}/config/{executable}.yaml):")
     if not params:
         lines.append("  (none)")
@@ -186,24 +188,25 @@ def help_text(package: str, executable: str, parameters: Iterable[Param | Sequen
         lines.append(head)
         lines += textwrap.wrap(" ".join(p.description.split()), width, initial_indent=" " * 6,
                                subsequent_indent=" " * 6)
-    lines += ["", "Set one with '--ros-args -p NAME:=VALUE', several with '--ros-args --params-file FILE'.",
-              "Exit codes: 0 done or stopped by a signal, 2 bad parameter, 3 refused to start."]
+    lines += ["", "Set one with '--ros-args -p NAME:=VALUE', several with '--ros-args --params-file FILE'."]
+    if exit_codes:
+        lines.append(f"Exit codes: {exit_codes}.")
     return "\n".join(lines) + "\n"
 
 
 def params_yaml(parameters: Iterable[Param | Sequence[Any]], header: str = "") -> str:
     """A ROS 2 parameters file (``--ros-args --params-file``) setting every parameter to its default.
 
-    ``/**`` applies it to any node name. Each parameter is preceded by its description, type and
-    range as comments. A list parameter whose default is empty is written commented out (a ROS 2
+    ``/**`` applies it to any node name. Each parameter is preceded by its description, then its
+    type and range, as comments. A list parameter whose default is empty is written commented out (a ROS 2
     parameters file cannot hold an empty array).
     """
     lines = [f"# {line}".rstrip() for line in header.strip().splitlines()] if header.strip() else []
     lines += ["/**:", "  ros__parameters:"]
     for p in as_params(parameters):
-        note = p.type_name + (f", range {p.range_text}" if p.range_text else "")
-        for text in textwrap.wrap(" ".join(p.description.split()) + f" ({note})", 92):
+        for text in textwrap.wrap(" ".join(p.description.split()), 92):
             lines.append(f"    # {text}")
+        lines.append(f"    # type {p.type_name}" + (f", range {p.range_text}" if p.range_text else ""))
         entry = f"{p.name}: {format_default(p.default)}"
         if isinstance(p.default, (list, tuple)) and not p.default:
             lines.append(f"    # {entry}  (empty list: the default; a params file cannot hold an empty array)")

@@ -11,6 +11,15 @@ from dlo_perception.cloud import unpack_particles
 from dlo_perception.sync import StampSync, stamp_to_ns
 from dlo_perception.tactile import TACTILE_NOISE, noise_sigma, tactile_pose
 from dlo_common.node_util import ParameterError, declare_parameters
+from dlo_common.params import Param
+
+PARAMETERS = (
+    Param("noise", "none", f"tactile sensitivity preset {sorted(TACTILE_NOISE)} or 'custom'",
+          choices=(*sorted(TACTILE_NOISE), "custom")),
+    Param("sigma_theta", 0.0, "noise std of theta_T at an open gripper [rad] (noise = custom)", at_least=0.0),
+    Param("sigma_y", 0.0, "noise std of y_T at an open gripper [m] (noise = custom)", at_least=0.0),
+    Param("seed", 0, "seed of the noise generator", at_least=0),
+)
 
 
 class TactileNode(Node):
@@ -18,12 +27,7 @@ class TactileNode(Node):
 
     def __init__(self):
         super().__init__("tactile_node")
-        p = declare_parameters(self, [
-            ("noise", "none", f"tactile sensitivity preset {sorted(TACTILE_NOISE)} or 'custom'"),
-            ("sigma_theta", 0.0, "noise std of theta_T at an open gripper [rad] (noise = custom)"),
-            ("sigma_y", 0.0, "noise std of y_T at an open gripper [m] (noise = custom)"),
-            ("seed", 0, "seed of the noise generator"),
-        ])
+        p = declare_parameters(self, PARAMETERS)
         try:
             self.sigma = noise_sigma((p["sigma_theta"], p["sigma_y"]) if p["noise"] == "custom" else p["noise"])
         except ValueError as error:
@@ -59,7 +63,7 @@ class TactileNode(Node):
 def main(args=None):
     from dlo_common.node_main import run_node
 
-    return run_node(TactileNode, args)
+    return run_node(TactileNode, args, parameters=PARAMETERS, summary=__doc__)
 
 
 if __name__ == "__main__":

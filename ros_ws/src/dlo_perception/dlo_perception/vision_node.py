@@ -18,6 +18,10 @@ from dlo_perception.vision import visual_pose
 from dlo_common.node_util import ParameterError, declare_parameters
 
 DEFAULT_CAMERA = TopCamera.covering_workspace()
+PARAMETERS = (
+    ("camera_position", [str(c) for c in DEFAULT_CAMERA.position],
+     "camera centre in the world frame [m] as 'x,y,z' (looks down -z)"),
+)
 
 
 class VisionNode(Node):
@@ -25,10 +29,7 @@ class VisionNode(Node):
 
     def __init__(self):
         super().__init__("vision_node")
-        p = declare_parameters(self, [
-            ("camera_position", [str(c) for c in DEFAULT_CAMERA.position],
-             "camera centre in the world frame [m] as 'x,y,z' (looks down -z)"),
-        ])
+        p = declare_parameters(self, PARAMETERS)
         try:
             self.camera_position = tuple(float(c) for c in p["camera_position"])
             assert len(self.camera_position) == 3
@@ -73,7 +74,7 @@ class VisionNode(Node):
 def main(args=None):
     from dlo_common.node_main import run_node
 
-    return run_node(VisionNode, args)
+    return run_node(VisionNode, args, parameters=PARAMETERS, summary=__doc__)
 
 
 if __name__ == "__main__":

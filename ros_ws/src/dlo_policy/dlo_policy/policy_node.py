@@ -20,6 +20,8 @@ from rclpy.node import Node
 
 from sensor_msgs.msg import PointCloud2
 
+from dlo_common.node_util import ParameterError, declare_parameters
+from dlo_common.params import Param
 from dlo_msgs.msg import GripperCommand, GripperState, TactilePose, TaskState, VisualPose
 from dlo_perception.cloud import unpack_particles
 from dlo_perception.sync import StampSync, stamp_to_ns
@@ -27,9 +29,21 @@ from dlo_perception.tactile import TactilePose as Tactile
 from dlo_perception.vision import VisualPose as Visual
 from dlo_policy.observation import build_observation, parse_modalities
 from dlo_sim.command import action_to_command
-from dlo_common.node_util import ParameterError, declare_parameters
 
 POLICIES = ("sac", "tactile_reactive", "oracle", "random")
+PARAMETERS = (
+    Param("policy", "sac", f"controller, one of {POLICIES}", choices=POLICIES),
+    Param("checkpoint", "", "dlo-train policy.pt / checkpoint.pt (empty = the shipped All policy)"),
+    Param("modalities", "All", "observation modalities for policy=random (sac uses its training config)"),
+    Param("without", "", "test-time ablation: zero these modalities, e.g. 'T' or 'V'"),
+    Param("input_timeout", 1.0, "report an error when a step's inputs are incomplete after this long [s]",
+          above=0.0),
+    Param("seed", 0, "seed of the random policy and of online training", at_least=0),
+    Param("train", False, "learn online from the graph (policy sac): SAC from scratch or from train_out"),
+    Param("train_out", "runs/online", "run directory of online training (config, checkpoint.pt, policy.pt)"),
+    Param("checkpoint_every", 1000, "online training: control steps between checkpoints", at_least=1),
+    Param("train_config", "", "online training: a dlo-train YAML config (SAC hyperparameters); empty = defaults"),
+)
 SHIPPED_POLICY = "policies/all/policy.pt"
 
 
@@ -105,20 +119,7 @@ class PolicyNode(Node):
 
     def __init__(self):
         super().__init__("policy_node")
-        p = declare_parameters(self, [
-            ("policy", "sac", f"controller, one of {POLICIES}"),
-            ("checkpoint", "", "dlo-train policy.pt / checkpoint.pt (empty = the shipped All policy)"),
-            ("modalities", "All", "observation modalities for policy=random (sac uses its training config)"),
-            ("without", "", "test-time ablation: zero these modalities, e.g. 'T' or 'V'"),
-            ("input_timeout", 1.0, "report an error when a step's inputs are incomplete after this long [s]"),
-            ("seed", 0, "seed of the random policy and of online training"),
-            ("train", False, "learn online from the graph (policy sac): SAC from scratch or from train_out"),
-            ("train_out", "runs/online", "run directory of online training (config, checkpoint.pt, policy.pt)"),
-            ("checkpoint_every", 1000, "online training: control steps between checkpoints"),
-            ("train_config", "", "online training: a dlo-train YAML config (SAC hyperparameters); empty = defaults"),
-        ])
-        if p["policy"] not in POLICIES:
-            raise ParameterError(f"parameter 'policy': expected one of {POLICIES}, got {p['policy']!r}")
+        p = declare_parameters(self, PARAMETERS)
         if p["train"] and p["policy"] != "sac":
             raise ParameterError("parameter 'train': online training needs policy:=sac")
         try:
@@ -223,7 +224,7 @@ class PolicyNode(Node):
 def main(args=None):
     from dlo_common.node_main import run_node
 
-    return run_node(PolicyNode, args)
+    return run_node(PolicyNode, args, parameters=PARAMETERS, summary=__doc__)
 
 
 if __name__ == "__main__":

@@ -46,10 +46,28 @@ from dlo_sim.command import CommandError, RejectionLog, command_mismatch, comman
 from dlo_sim.config import DT, FINGER_CLEARANCE, FINGER_HALF_LENGTH, FINGER_RADIUS, SUBSTEPS_PER_ACTION
 from dlo_sim.episode import TaskSim
 from dlo_sim.task import HORIZON, OUTCOME_NAMES
-from dlo_common.node_util import NodeStartError, ParameterError, declare_parameters, require_bounds
+from dlo_common.node_util import NodeStartError, declare_parameters
+from dlo_common.params import Param
 
 CONTROL_PERIOD_NS = int(round(DT * SUBSTEPS_PER_ACTION * 1e9))  # 0.08 s of simulation time per action
 MODES = ("step_locked", "real_time")
+PARAMETERS = (
+    Param("mode", "step_locked", f"clock mode, one of {MODES}", choices=MODES),
+    Param("seed", 0, "episode k is randomised with seed + k", at_least=0),
+    Param("episodes", 0, "episodes to run before the node exits (0 = forever)", at_least=0),
+    Param("horizon", HORIZON, "control steps per episode", at_least=1),
+    Param("rate_factor", 1.0, "real_time mode: simulation speed relative to wall time", above=0.0),
+    Param("command_timeout", 0.5, "real_time mode: a command older than this [s] stops the gripper", above=0.0),
+    Param("step_timeout", 1.0, "step_locked mode: republish the state after this long [s] without a command",
+          above=0.0),
+    Param("min_subscribers", 0, "wait until /dlo/gripper/state has this many subscribers before the first episode",
+          at_least=0),
+    Param("wait_for_recorder", "", "name of a recorder node that must subscribe to every published /dlo topic "
+                                   "before the first episode (empty = do not wait)"),
+    Param("camera_resolution", 128, "top-view image width = height [px]", at_least=8),
+    Param("publish_markers", True, "publish /dlo/markers for RViz/Foxglove"),
+    Param("summary_file", "", "write the per-episode outcomes as JSON lines here (empty = off)"),
+)
 DISCOVERY_GRACE = 1.0  # s: look for another simulator on the domain this long before building the simulation
 INSTANCE_TOPIC = "/dlo/sim/instance"  # latched: who runs here since when (the later of two simulators leaves)
 WAIT_REPORT_PERIOD = 5.0  # s between "waiting for ..." lines
@@ -64,25 +82,7 @@ class SimNode(Node):
 
     def __init__(self):
         super().__init__("sim_node")
-        p = declare_parameters(self, [
-            ("mode", "step_locked", f"clock mode, one of {MODES}"),
-            ("seed", 0, "episode k is randomised with seed + k"),
-            ("episodes", 0, "episodes to run before the node exits (0 = forever)"),
-            ("horizon", HORIZON, "control steps per episode"),
-            ("rate_factor", 1.0, "real_time mode: simulation speed relative to wall time"),
-            ("command_timeout", 0.5, "real_time mode: a command older than this [s] stops the gripper"),
-            ("step_timeout", 1.0, "step_locked mode: republish the state after this long [s] without a command"),
-            ("min_subscribers", 0, "wait until /dlo/gripper/state has this many subscribers before the first episode"),
-            ("wait_for_recorder", "", "name of a recorder node that must subscribe to every published /dlo topic "
-                                      "before the first episode (empty = do not wait)"),
-            ("camera_resolution", 128, "top-view image width = height [px]"),
-            ("publish_markers", True, "publish /dlo/markers for RViz/Foxglove"),
-            ("summary_file", "", "write the per-episode outcomes as JSON lines here (empty = off)"),
-        ])
-        if p["mode"] not in MODES:
-            raise ParameterError(f"parameter 'mode': expected one of {MODES}, got {p['mode']!r}")
-        require_bounds(p, at_least={"episodes": 0, "horizon": 1, "camera_resolution": 8, "seed": 0, "min_subscribers": 0},
-                       above={"rate_factor": 0, "command_timeout": 0, "step_timeout": 0})
+        p = declare_parameters(self, PARAMETERS)
         self.p = p
         self.episode = 0
         self.episode_seed = p["seed"]
@@ -397,7 +397,7 @@ class SimNode(Node):
 def main(args=None):
     from dlo_common.node_main import run_node
 
-    return run_node(SimNode, args, interrupted_rc=130)
+    return run_node(SimNode, args, interrupted_rc=130, parameters=PARAMETERS, summary=__doc__)
 
 
 if __name__ == "__main__":

@@ -36,31 +36,35 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rosbags.interfaces import QosDurability, QosReliability
 
+from dlo_common.node_util import NodeStartError, ParameterError, declare_parameters
+from dlo_common.params import Param
+
 from .bag import BagError, qos_from_profile, subscription_qos
 from .foxglove_bridge import (DEFAULT_ADDRESS, DEFAULT_CLIENT_BACKLOG, DEFAULT_PORT, DEFAULT_TOPICS,
                               FoxgloveBridge, topic_matches)
-from dlo_common.node_util import NodeStartError, ParameterError, declare_parameters, require_bounds
 from .playback import import_message_class
 
 PARAMETERS = (
-    ("port", DEFAULT_PORT, "TCP port of the WebSocket server (0 = any free port; the log names it)."),
+    Param("port", DEFAULT_PORT, "TCP port of the WebSocket server (0 = any free port; the log names it).",
+          at_least=0, at_most=65535),
     ("address", DEFAULT_ADDRESS, "Address to bind: 127.0.0.1 (this machine only, default) or "
                                  "0.0.0.0 (every interface: anyone on the network can connect)."),
     ("topics", list(DEFAULT_TOPICS), "Topics to serve: names or namespaces (a namespace serves every "
                                      "topic under it)."),
-    ("client_backlog", DEFAULT_CLIENT_BACKLOG, "Messages queued per client; a client that falls "
-                                               "further behind loses its oldest queued messages."),
-    ("queue_depth", 100, "Subscription history depth (KEEP_LAST) per topic."),
+    Param("client_backlog", DEFAULT_CLIENT_BACKLOG, "Messages queued per client; a client that falls "
+                                                    "further behind loses its oldest queued messages.", at_least=1),
+    Param("queue_depth", 100, "Subscription history depth (KEEP_LAST) per topic.", at_least=1),
     ("lazy", True, "Subscribe to a topic only while a client subscribes to it (transient-local topics "
                    "always): a bridge nobody watches costs the graph nothing."),
     ("reliable", False, "Subscribe reliably to topics whose publishers are reliable. Default false: "
                         "best effort (no acknowledgements for the graph's publishers to process; "
                         "transient-local topics such as camera_info are always reliable)."),
-    ("nice", 0, "Raise this process's nice value by this much at start (0..19) to yield the CPU to "
-                "the graph's nodes on a busy machine (measured: no gain in the loop's rate on 2 loaded "
-                "cores, latency to the clients x2)."),
-    ("discovery_period", 0.5, "Seconds between topic discovery passes."),
-    ("stats_period", 30.0, "Seconds between the bridge's one-line statistics in the log (0 = never)."),
+    Param("nice", 0, "Raise this process's nice value by this much at start (0..19) to yield the CPU to "
+                     "the graph's nodes on a busy machine (measured: no gain in the loop's rate on 2 loaded "
+                     "cores, latency to the clients x2).", at_least=0, at_most=19),
+    Param("discovery_period", 0.5, "Seconds between topic discovery passes.", above=0.0),
+    Param("stats_period", 30.0, "Seconds between the bridge's one-line statistics in the log (0 = never).",
+          at_least=0.0),
     ("summary_file", "", "If set, write the per-topic counts there as JSON at shutdown."),
 )
 
@@ -71,17 +75,11 @@ class FoxgloveBridgeNode(Node):
     def __init__(self) -> None:
         super().__init__("foxglove_bridge")
         p = declare_parameters(self, PARAMETERS)
-        require_bounds(p, at_least={"client_backlog": 1, "queue_depth": 1, "stats_period": 0, "nice": 0},
-                       above={"discovery_period": 0})
-        if p["nice"] > 19:
-            raise ParameterError(f"parameter 'nice': must be in 0..19, got {p['nice']}")
         if p["nice"]:
             os.nice(p["nice"])
         self.reliable = p["reliable"]
         self.lazy = p["lazy"]
         self._qos: dict[str, tuple] = {}  # advertised topic -> (message class, QoS, latched)
-        if not 0 <= p["port"] <= 65535:
-            raise ParameterError(f"parameter 'port': must be in 0..65535, got {p['port']}")
         self.patterns = [t for t in p["topics"] if t.strip()]
         if not self.patterns:
             raise ParameterError("parameter 'topics': give at least one topic or namespace, e.g. '/dlo'")
@@ -217,7 +215,7 @@ class FoxgloveBridgeNode(Node):
 def main(args=None):
     from dlo_common.node_main import run_node
 
-    return run_node(FoxgloveBridgeNode, args)
+    return run_node(FoxgloveBridgeNode, args, parameters=PARAMETERS, summary=__doc__)
 
 
 if __name__ == "__main__":

@@ -20,23 +20,28 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from rclpy.signals import SignalHandlerOptions
 from rosbags.interfaces import QosDurability, QosReliability
 
+from dlo_common.node_main import handle_help
+from dlo_common.node_util import ParameterError, ShutdownRequest, declare_parameters
+from dlo_common.params import Param
+
 from .bag import BagError, bag_info, read_messages
-from dlo_common.node_util import ParameterError, ShutdownRequest, declare_parameters, require_bounds
 from .playback import Pacer, import_message_class, playback_qos
 
 PARAMETERS = (
     ("bag", "", "Bag directory to play (a rosbag2 bag, or a directory of rolled parts). Required."),
-    ("rate", 1.0, "Rate factor: 1.0 = recorded speed, 2.0 = twice as fast, 0 = as fast as possible."),
+    Param("rate", 1.0, "Rate factor: 1.0 = recorded speed, 2.0 = twice as fast, 0 = as fast as possible.",
+          at_least=0.0),
     ("topics", [], "Topics to play (string list); empty = every topic of the bag."),
     ("loop", False, "Play the bag again and again until stopped."),
     ("wait_for_subscribers", 0, "Before playing, wait until every publisher has at least this many "
                                 "matched subscriptions (0 = do not wait)."),
     ("wait_timeout", 10.0, "Give up waiting for subscribers after this many seconds (then play)."),
-    ("queue_depth", 1000, "Publisher history depth for volatile topics."),
+    Param("queue_depth", 1000, "Publisher history depth for volatile topics.", at_least=1),
     ("linger", 2.0, "After the last message, wait up to this many seconds for reliable "
                     "subscribers to acknowledge it."),
 )
 
+EXIT_CODES = "0 played (also when stopped by a signal), 2 bad parameter or unreadable bag"
 
 class PlaybackNode(Node):
     """Thin node: publishers for the bag's topics, paced by :class:`dlo_tools.playback.Pacer`."""
@@ -46,9 +51,6 @@ class PlaybackNode(Node):
         p = declare_parameters(self, PARAMETERS)
         if not p["bag"]:
             raise ParameterError("parameter 'bag' is required: -p bag:=<bag directory>")
-        if p["rate"] < 0:
-            raise ParameterError(f"parameter 'rate': must be >= 0 (1.0 = recorded speed), got {p['rate']}")
-        require_bounds(p, at_least={"queue_depth": 1})
         self.bag = p["bag"]
         self.pacer = Pacer(p["rate"])
         self.loop = p["loop"]
@@ -128,6 +130,9 @@ class PlaybackNode(Node):
 
 
 def main(args: list[str] | None = None) -> int:
+    answered = handle_help("dlo_tools", PARAMETERS, __doc__, args, EXIT_CODES)
+    if answered is not None:
+        return answered
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     stop = ShutdownRequest().install()
     node = None

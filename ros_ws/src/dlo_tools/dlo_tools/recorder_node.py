@@ -29,8 +29,11 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 
+from dlo_common.node_main import handle_help
+from dlo_common.node_util import ParameterError, ShutdownRequest, declare_parameters
+from dlo_common.params import Param
+
 from .bag import BagError, BagWriteError, qos_from_profile, subscription_qos
-from dlo_common.node_util import ParameterError, ShutdownRequest, declare_parameters, require_bounds
 from .playback import import_message_class
 from .recording import TASK_TOPIC, Recorder, RecordSummary, default_output, topic_selected
 
@@ -40,21 +43,22 @@ PARAMETERS = (
     ("namespace", "/dlo", "Record every topic in this namespace ('/' = all topics)."),
     ("record_clock", False, "Also record /clock."),
     ("extra_topics", [], "Further topics to record (string list)."),
-    ("split_episodes", 0, "0: one bag per run. N > 0: 'output' becomes a directory of bags, a new "
-                          "one every N episodes (by the episode of task_topic)."),
+    Param("split_episodes", 0, "0: one bag per run. N > 0: 'output' becomes a directory of bags, a new "
+                               "one every N episodes (by the episode of task_topic).", at_least=0),
     ("task_topic", TASK_TOPIC, "dlo_msgs/TaskState topic that marks episodes for split_episodes."),
-    ("discovery_period", 0.25, "Seconds between topic discovery passes."),
-    ("queue_depth", 1000, "Subscription history depth (KEEP_LAST) per topic."),
+    Param("discovery_period", 0.25, "Seconds between topic discovery passes.", above=0.0),
+    Param("queue_depth", 1000, "Subscription history depth (KEEP_LAST) per topic.", at_least=1),
     ("summary_file", "", "If set, write the received/written/dropped counts there as JSON at "
                          "shutdown."),
-    ("drain_timeout", 2.0, "On shutdown, keep taking already-delivered messages for at most this "
-                           "many seconds (stops earlier once nothing arrives for 0.2 s)."),
-    ("flush_period", 0.5, "Seconds between writes of what was received to disk (a killed "
-                          "recorder loses at most this much)."),
+    Param("drain_timeout", 2.0, "On shutdown, keep taking already-delivered messages for at most this "
+                                "many seconds (stops earlier once nothing arrives for 0.2 s).", at_least=0.0),
+    Param("flush_period", 0.5, "Seconds between writes of what was received to disk (a killed "
+                               "recorder loses at most this much).", above=0.0),
     ("fsync", True, "fsync the bag on every flush (survives a power loss, not only a kill)."),
 )
 
 EXIT_DROPPED, EXIT_BAD_PARAMETER, EXIT_RECORDING_FAILED = 1, 2, 3
+EXIT_CODES = "0 complete bag (also after a signal), 1 messages were dropped, 2 bad parameter or output, 3 recording failed"
 
 
 class RecorderNode(Node):
@@ -64,8 +68,6 @@ class RecorderNode(Node):
         super().__init__("recorder")
         self.stop = stop
         p = declare_parameters(self, PARAMETERS)
-        require_bounds(p, at_least={"queue_depth": 1, "split_episodes": 0, "drain_timeout": 0},
-                       above={"discovery_period": 0, "flush_period": 0})
         self.namespace = p["namespace"] or "/"
         self.record_clock = p["record_clock"]
         self.extra_topics = [t for t in p["extra_topics"] if t]
@@ -207,6 +209,9 @@ class RecorderNode(Node):
 
 
 def main(args: list[str] | None = None) -> int:
+    answered = handle_help("dlo_tools", PARAMETERS, __doc__, args, EXIT_CODES)
+    if answered is not None:
+        return answered
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     stop = ShutdownRequest().install()
     node = None

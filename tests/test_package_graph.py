@@ -1,0 +1,175 @@
+"""The ROS 2 package graph of ros_ws/src is clean: every dlo_* import is declared, the graph is a DAG.
+
+For each package, the ``dlo_*`` packages its modules import (any ``import``/``from`` statement,
+also inside functions; read with ``ast``, nothing is imported) must be declared in its
+``package.xml`` as ``<depend>`` or ``<exec_depend>`` (``<test_depend>`` also counts for its
+``test/`` files), and the declared dependencies between the workspace's packages must form a DAG,
+so that colcon and rosdep can order a real install. The checker is run on scratch trees too, to
+show that it catches an undeclared import and a cycle.
+"""
+
+from __future__ import annotations
+
+import ast
+import pathlib
+import re
+import xml.etree.ElementTree as ET
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+SRC = ROOT / "ros_ws" / "src"
+
+RUN_TAGS = ("depend", "exec_depend", "build_export_depend")
+ALL_TAGS = RUN_TAGS + ("build_depend", "test_depend", "buildtool_depend")
+
+
+def manifest(package_dir: pathlib.Path) -> tuple[str, dict[str, set[str]]]:
+    """(name, {tag: dependency names}) of a package.xml."""
+    root = ET.parse(package_dir / "package.xml").getroot()
+    deps = {tag: {e.text.strip() for e in root.findall(tag) if e.text} for tag in ALL_TAGS}
+    return root.findtext("name").strip(), deps
+
+
+def imported_packages(path: pathlib.Path) -> set[str]:
+    """Top-level names of the absolute imports in one Python file."""
+    names = set()
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.Import):
+            names.update(alias.name.split(".")[0] for alias in node.names)
+        elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+            names.add(node.module.split(".")[0])
+    return names
+
+
+def packages(src: pathlib.Path) -> dict[str, tuple[pathlib.Path, dict[str, set[str]]]]:
+    found = {}
+    for xml in sorted(src.glob("*/package.xml")):
+        name, deps = manifest(xml.parent)
+        found[name] = (xml.parent, deps)
+    return found
+
+
+def undeclared_imports(src: pathlib.Path) -> list[str]:
+    """One line per import of a dlo_* package that the importing package does not declare."""
+    pkgs = packages(src)
+    problems = []
+    for name, (directory, deps) in pkgs.items():
+        run = set().union(*(deps[t] for t in RUN_TAGS))
+        for path in sorted(directory.rglob("*.py")):
+            rel = path.relative_to(directory)
+            if rel.parts[0] in ("build", "install", "log") or "__pycache__" in rel.parts:
+                continue
+            allowed = run | deps["test_depend"] if rel.parts[0] == "test" else run
+            for imported in sorted(imported_packages(path)):
+                if not imported.startswith("dlo_") or imported == name:
+                    continue
+                if (path.parent / f"{imported}.py").exists():  # a helper module next to it (test/dlo_tools_testutil.py)
+                    continue
+                if imported not in pkgs:
+                    problems.append(f"{name}/{rel}: imports {imported}, which is no package of {src}")
+                elif imported not in allowed:
+                    tag = "<test_depend> or <exec_depend>" if rel.parts[0] == "test" else "<exec_depend>"
+                    problems.append(f"{name}/{rel}: imports {imported}, not declared in {name}/package.xml "
+                                    f"(add {tag}{imported}</...>)")
+    return problems
+
+
+def dependency_cycle(src: pathlib.Path) -> list[str]:
+    """A cycle of declared dependencies between the workspace's packages ([] if the graph is a DAG)."""
+    pkgs = packages(src)
+    graph = {name: sorted(set().union(*deps.values()) & set(pkgs)) for name, (_, deps) in pkgs.items()}
+    state: dict[str, int] = {}  # 1 = on the current path, 2 = done
+    path: list[str] = []
+
+    def visit(node: str) -> list[str]:
+        state[node] = 1
+        path.append(node)
+        for nxt in graph[node]:
+            if state.get(nxt) == 1:
+                return path[path.index(nxt):] + [nxt]
+            if nxt not in state:
+                cycle = visit(nxt)
+                if cycle:
+                    return cycle
+        path.pop()
+        state[node] = 2
+        return []
+
+    for node in sorted(graph):
+        if node not in state:
+            cycle = visit(node)
+            if cycle:
+                return cycle
+    return []
+
+
+def test_every_dlo_import_is_declared():
+    assert undeclared_imports(SRC) == []
+
+
+def test_declared_dependencies_form_a_dag():
+    assert dependency_cycle(SRC) == [], " -> ".join(dependency_cycle(SRC))
+
+
+def test_node_helpers_live_in_the_base_package():
+    """dlo_common depends on no other dlo_* package and no package depends on dlo_tools (the leaf)."""
+    pkgs = packages(SRC)
+    assert "dlo_common" in pkgs
+    base_deps = set().union(*pkgs["dlo_common"][1].values())
+    assert not {d for d in base_deps if d.startswith("dlo_")}
+    for name, (_, deps) in pkgs.items():
+        assert "dlo_tools" not in set().union(*deps.values()), f"{name} depends on dlo_tools"
+    assert (SRC / "dlo_common" / "dlo_common" / "node_main.py").exists()
+    assert not (SRC / "dlo_tools" / "dlo_tools" / "node_main.py").exists()
+
+
+def test_every_python_package_is_on_the_environment():
+    """scripts/env.sh.in puts every ament_python package's sources and install prefix on the paths."""
+    env = (ROOT / "scripts" / "env.sh.in").read_text()
+    for name, (directory, _) in packages(SRC).items():
+        loops = re.findall(r"for _p in ([\w ]+); do", env)
+        assert loops and all(name in loop.split() for loop in loops), f"{name} missing in a loop of env.sh.in"
+        if (directory / "setup.py").exists():
+            assert f"$_dlo_root/ros_ws/src/{name}:" in env or f"$_dlo_root/ros_ws/src/{name}\"" in env, name
+
+
+def _package(src: pathlib.Path, name: str, depends: list[str], module_source: str = "") -> None:
+    directory = src / name
+    (directory / name).mkdir(parents=True)
+    deps = "".join(f"  <exec_depend>{d}</exec_depend>\n" for d in depends)
+    (directory / "package.xml").write_text(f'<?xml version="1.0"?>\n<package format="3">\n  <name>{name}</name>\n'
+                                           f'{deps}</package>\n')
+    (directory / name / "__init__.py").write_text(module_source)
+
+
+def test_checker_finds_an_undeclared_import_and_a_cycle(tmp_path):
+    """The old tree's faults, in a scratch copy: dlo_tools imports dlo_sim without declaring it,
+    and dlo_sim depends on dlo_tools for its node helpers while dlo_tools needs dlo_sim."""
+    src = tmp_path / "src"
+    _package(src, "dlo_common", [])
+    _package(src, "dlo_sim", ["dlo_common"], "def main():\n    from dlo_common.node_main import run_node\n")
+    _package(src, "dlo_tools", ["dlo_common"], "from dlo_sim.task import OUTCOME_NAMES\n")
+    assert undeclared_imports(src) == [
+        "dlo_tools/dlo_tools/__init__.py: imports dlo_sim, not declared in dlo_tools/package.xml "
+        "(add <exec_depend>dlo_sim</...>)"]
+    assert dependency_cycle(src) == []
+
+    (src / "dlo_tools" / "package.xml").write_text((src / "dlo_tools" / "package.xml").read_text().replace(
+        "</package>", "  <exec_depend>dlo_sim</exec_depend>\n</package>"))
+    assert undeclared_imports(src) == []
+    (src / "dlo_sim" / "package.xml").write_text((src / "dlo_sim" / "package.xml").read_text().replace(
+        "</package>", "  <exec_depend>dlo_tools</exec_depend>\n</package>"))
+    assert dependency_cycle(src) in (["dlo_sim", "dlo_tools", "dlo_sim"], ["dlo_tools", "dlo_sim", "dlo_tools"])
+
+
+def test_checker_on_a_copy_of_the_tree_with_an_undeclared_import(tmp_path):
+    """Copy the real manifests and one real module, add an import the manifest lacks: reported."""
+    src = tmp_path / "src"
+    for name in packages(SRC):
+        (src / name).mkdir(parents=True)
+        (src / name / "package.xml").write_text((SRC / name / "package.xml").read_text())
+    module = src / "dlo_perception" / "dlo_perception" / "tactile_node.py"
+    module.parent.mkdir()
+    module.write_text((SRC / "dlo_perception" / "dlo_perception" / "tactile_node.py").read_text()
+                      + "\n\ndef _late():\n    from dlo_tools.node_main import run_node  # noqa\n")
+    problems = undeclared_imports(src)
+    assert len(problems) == 1 and "imports dlo_tools, not declared in dlo_perception/package.xml" in problems[0]
