@@ -15,11 +15,13 @@ import numpy as np
 import pytest
 
 rclpy = pytest.importorskip("rclpy")
+from dlo_common.params import as_params, check_value  # noqa: E402
 from dlo_msgs.msg import GripperState, TactilePose, TaskState, VisualPose  # noqa: E402
 
 from dlo_policy import policy_node as policy_node_module  # noqa: E402
 
 DECLARE = policy_node_module.declare_parameters  # the original: every node gets only its own overrides
+SPECS = {param.name: param for param in as_params(policy_node_module.PARAMETERS)}
 
 K = (0.012, -0.004, 0.7)
 T = (0.3, 0.0042)
@@ -70,8 +72,9 @@ def make_node(context, monkeypatch):
     nodes = []
 
     def make(act=None, learner=None, trained_on="All", **parameters):
+        checked = {name: check_value(SPECS[name], value) for name, value in parameters.items()}  # range, choices
         monkeypatch.setattr(policy_node_module, "declare_parameters",
-                            lambda n, specs: {**DECLARE(n, specs), **parameters})
+                            lambda n, specs: {**DECLARE(n, specs), **checked})
         monkeypatch.setattr(policy_node_module, "load_policy",
                             lambda kind, checkpoint, modalities, seed: (act, trained_on))
 
