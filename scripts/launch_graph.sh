@@ -211,7 +211,17 @@ stop_all() {
     reap "$i"
   done
 }
-trap 'echo "[launch] interrupted: stopping the graph"; stop_all; interrupted=1' INT TERM
+# The monitor stops first: it prints the episodes that finished meanwhile and no status line about nodes
+# being stopped.
+stop_monitor() {
+  [ -n "$monitor_pid" ] || return 0
+  kill -TERM "$monitor_pid" 2>/dev/null || true
+  for _ in $(seq 1 50); do kill -0 "$monitor_pid" 2>/dev/null || break; sleep 0.1; done
+  kill -KILL "$monitor_pid" 2>/dev/null || true
+  wait "$monitor_pid" 2>/dev/null || true
+  monitor_pid=""
+}
+trap 'echo "[launch] interrupted: stopping the graph"; stop_monitor; stop_all; interrupted=1' INT TERM
 interrupted=0
 
 subscribers=3 sim_extra=()
@@ -280,13 +290,7 @@ while kill -0 "$sim_pid" 2>/dev/null && [ "$interrupted" = 0 ] && [ -z "$failed_
   [ -n "$failed_node" ] || sleep 0.2
 done
 kill -0 "$sim_pid" 2>/dev/null || reap "$sim_index"  # (a sim still running is stopped and reaped by stop_all)
-[ "$interrupted" = 1 ] || stop_all
-if [ -n "$monitor_pid" ]; then  # it prints the episodes that finished meanwhile, then ends
-  kill -TERM "$monitor_pid" 2>/dev/null || true
-  for _ in $(seq 1 50); do kill -0 "$monitor_pid" 2>/dev/null || break; sleep 0.1; done
-  kill -KILL "$monitor_pid" 2>/dev/null || true
-  wait "$monitor_pid" 2>/dev/null
-fi
+[ "$interrupted" = 1 ] || { stop_monitor; stop_all; }
 
 done_episodes=0
 [ -f "$outcomes" ] && done_episodes=$(grep -c . "$outcomes")

@@ -1,7 +1,7 @@
 """What a running graph does, for scripts/launch_graph.sh: one line per finished episode as the sim
 appends it to the outcomes file, and every ``--status-period`` seconds one status line on the graph's
 health (control steps per second counted on ``/clock``, episodes done, node processes alive, missing
-inputs and warnings from the nodes' logs). Formatting: dlo_tools.outcome_table. Stops on
+inputs and warnings from the nodes' logs) until all ``--episodes`` are done. Formatting: dlo_tools.outcome_table. Stops on
 SIGINT/SIGTERM after printing the episodes that finished meanwhile.
 
     python -m dlo_tools.graph_monitor OUTCOMES.jsonl --logs DIR --node sim=PID --node policy=PID ...
@@ -134,7 +134,8 @@ def main(argv=None) -> int:
                 time.sleep(0.2)
             report_episodes()
             now = time.monotonic()
-            if args.status_period > 0 and now - last_status >= args.status_period:
+            finished = args.episodes and done >= args.episodes  # the sim exits: nothing more to report
+            if args.status_period > 0 and now - last_status >= args.status_period and not finished:
                 rate = factor = None
                 if counter is not None:
                     rate = (counter.steps - last_steps) / (now - last_status)
