@@ -16,8 +16,10 @@ most once a second per cause, with a count.
 
 It starts only when it is the only publisher of its topics (another simulator or driver on the
 same DDS domain would mix two graphs: it exits with a one-line reason), at least
-``min_subscribers`` subscribe to the gripper state, and ``wait_for_recorder`` subscribes to every
-published /dlo topic (the topics it still lacks are named while it waits). Exit status: 0 after
+``min_subscribers`` subscribe to the gripper state, ``wait_for_recorder`` subscribes to every
+published /dlo topic (the topics it still lacks are named while it waits) and, in real_time, a node
+publishes ``/dlo/gripper/cmd`` (warned once a second until one does; later, once a second while no
+command arrives: "no command for N s"). Exit status: 0 after
 ``episodes`` episodes, 130 when interrupted (SIGINT/SIGTERM), 2 bad parameter, 3 refused to start.
 """
 
@@ -71,6 +73,7 @@ PARAMETERS = (
 DISCOVERY_GRACE = 1.0  # s: look for another simulator on the domain this long before building the simulation
 INSTANCE_TOPIC = "/dlo/sim/instance"  # latched: who runs here since when (the later of two simulators leaves)
 WAIT_REPORT_PERIOD = 5.0  # s between "waiting for ..." lines
+NO_COMMAND_WARNING = 1.0  # s: real_time warns this often while no command (or no command publisher) is there
 
 
 def to_time(ns: int) -> Time:
@@ -109,7 +112,8 @@ class SimNode(Node):
         self.pub_info = self.create_publisher(CameraInfo, "/dlo/camera/camera_info", latched)
         self.pub_task = self.create_publisher(TaskState, "/dlo/task/state", qos)
         self.pub_markers = self.create_publisher(MarkerArray, "/dlo/markers", qos) if p["publish_markers"] else None
-        self.create_subscription(GripperCommand, "/dlo/gripper/cmd", self.on_command, qos)
+        self.sub_command = self.create_subscription(GripperCommand, "/dlo/gripper/cmd", self.on_command, qos)
+        self.last_command_wall = None  # real_time: when the last command arrived (or the episode clock started)
         self.create_service(ResetEpisode, "/dlo/sim/reset", self.on_reset_service)
         self.instance = {"host": socket.gethostname(), "pid": os.getpid(), "started_ns": time.time_ns()}
         self.pub_instance = self.create_publisher(String, INSTANCE_TOPIC, latched)
@@ -181,6 +185,7 @@ class SimNode(Node):
         if not self.started:
             self.get_logger().debug(f"ignoring command for episode {msg.episode} step {msg.step}: not started")
             return
+        self.last_command_wall = time.monotonic()
         mismatch = command_mismatch(self.p["mode"], self.episode, self.step_index, int(msg.episode), int(msg.step),
                                     period=self.period_wall, command_timeout=self.p["command_timeout"],
                                     previous_final=self.previous_final)
@@ -205,8 +210,13 @@ class SimNode(Node):
         if not self.started:
             return
         closure = self.task.state.gripper[0, 3]
-        if self.command is None or time.monotonic() - self.command[1] > self.p["command_timeout"]:
-            if self.command is not None:
+        now = time.monotonic()
+        self.last_command_wall = self.last_command_wall or now
+        if self.command is None or now - self.command[1] > self.p["command_timeout"]:
+            if now - self.last_command_wall >= NO_COMMAND_WARNING:
+                self.get_logger().warning(f"no command for {now - self.last_command_wall:.0f} s: is a policy running? "
+                                          "(the gripper stands still)", throttle_duration_sec=NO_COMMAND_WARNING)
+            elif self.command is not None:
                 self.get_logger().warning("command timed out: the gripper stops and holds",
                                           throttle_duration_sec=2.0)
             action = hold_action(closure)
@@ -234,7 +244,7 @@ class SimNode(Node):
                 self.get_logger().info(f"waiting for {self.p['min_subscribers']} subscribers of "
                                        f"{self.pub_gripper.topic_name} (have {subscribers})",
                                        throttle_duration_sec=WAIT_REPORT_PERIOD)
-            elif self.recorder_ready():
+            elif self.recorder_ready() and self.command_source_ready():
                 self.started = True
                 self.start_episode(self.p["seed"])
             return
@@ -309,6 +319,17 @@ class SimNode(Node):
                 + ("" if known else f" (no node '{recorder}' in the graph: is it running?)"),
                 throttle_duration_sec=WAIT_REPORT_PERIOD)
         return not missing
+
+    def command_source_ready(self) -> bool:
+        """real_time: True once a node publishes commands, so that the episode clock does not run before a
+        policy or driver is there (a warning once a second meanwhile); step_locked waits for commands anyway."""
+        topic = self.sub_command.topic_name
+        if self.p["mode"] != "real_time" or self.count_publishers(topic) > 0:
+            return True
+        self.get_logger().warning(f"no publisher of {topic} for {time.monotonic() - self.created_wall:.0f} s: is a "
+                                  "policy running? (the real-time episode starts when one appears)",
+                                  throttle_duration_sec=NO_COMMAND_WARNING)
+        return False
 
     def on_reset_service(self, request, response):
         seed = int(request.seed) if request.seed >= 0 else self.p["seed"] + self.episode + 1
