@@ -1,0 +1,109 @@
+"""Records what every rclpy node of a process declares, for scripts/gen_interfaces.py.
+
+Active only when ``DLO_INTERFACES_DUMP`` names a directory (the generator puts this directory first
+on PYTHONPATH of the graph it launches, so Python imports it at start-up as ``sitecustomize``).
+It wraps ``rclpy.node.Node`` methods and appends one JSON line per node, publisher,
+subscription, service, client, timer and declared parameter to ``$DLO_INTERFACES_DUMP/<pid>.jsonl``:
+the QoS exactly as the code requested it (depth and history, which DDS discovery does not
+report), the resolved topic names (after remapping), timer periods [s] and parameter defaults.
+It never changes what a method does or returns, and never raises.
+"""
+
+import os
+
+_DUMP = os.environ.get("DLO_INTERFACES_DUMP")
+
+
+def _install(dump_dir: str) -> None:
+    import functools
+    import json
+    import sys
+
+    import rclpy.node
+    import rclpy.qos
+
+    path = os.path.join(dump_dir, f"{os.getpid()}.jsonl")
+
+    def exe() -> str:
+        """The executable (or ``python -m`` module) of this process; read late: runpy sets argv[0] after start-up."""
+        name = os.path.basename(sys.argv[0]) if sys.argv and sys.argv[0] else "python"
+        return name[:-3] if name.endswith(".py") else name
+
+    def write(record: dict) -> None:
+        try:
+            with open(path, "a") as f:
+                f.write(json.dumps(record, default=str) + "\n")
+        except OSError:
+            pass
+
+    def type_name(cls) -> str:
+        module = cls.__module__.split(".")  # e.g. sensor_msgs.msg._image
+        return f"{module[0]}/{module[1]}/{cls.__name__}"
+
+    def qos_record(qos) -> dict:
+        if isinstance(qos, int):
+            qos = rclpy.qos.QoSProfile(depth=qos)
+        return {"history": qos.history.name.lower(), "depth": int(qos.depth),
+                "reliability": qos.reliability.name.lower(), "durability": qos.durability.name.lower()}
+
+    def node_of(node) -> dict:
+        return {"node": node.get_name(), "namespace": node.get_namespace(), "exe": exe(), "pid": os.getpid()}
+
+    Node = rclpy.node.Node
+    original = {name: getattr(Node, name) for name in (
+        "__init__", "create_publisher", "create_subscription", "create_service", "create_client",
+        "create_timer", "declare_parameter")}
+
+    def wrap(name, record):
+        method = original[name]
+
+        @functools.wraps(method)
+        def wrapper(self, *args, **kwargs):
+            result = method(self, *args, **kwargs)
+            try:
+                entry = record(self, result, *args, **kwargs)
+                if entry is not None:
+                    write({**node_of(self), **entry})
+            except Exception:  # noqa: BLE001 - the hook never breaks a node
+                pass
+            return result
+        setattr(Node, name, wrapper)
+
+    def on_init(self, result, *args, **kwargs):
+        return {"kind": "node"}
+
+    def on_publisher(self, pub, msg_type, topic, qos_profile=10, **kwargs):
+        return {"kind": "publisher", "topic": pub.topic_name, "type": type_name(msg_type), **qos_record(qos_profile)}
+
+    def on_subscription(self, sub, msg_type, topic, callback, qos_profile=10, **kwargs):
+        return {"kind": "subscription", "topic": sub.topic_name, "type": type_name(msg_type),
+                **qos_record(qos_profile)}
+
+    def on_service(self, service, srv_type, srv_name, callback, **kwargs):
+        return {"kind": "service", "name": service.service_name, "type": type_name(srv_type)}
+
+    def on_client(self, client, srv_type, srv_name, **kwargs):
+        return {"kind": "client", "name": getattr(client, "service_name", srv_name), "type": type_name(srv_type)}
+
+    def on_timer(self, timer, period, callback, *args, **kwargs):
+        return {"kind": "timer", "period_s": timer.timer_period_ns / 1e9,
+                "callback": getattr(callback, "__name__", type(callback).__name__)}
+
+    def on_parameter(self, param, name, value=None, descriptor=None, *args, **kwargs):
+        return {"kind": "parameter", "name": name, "default": value, "value": param.value,
+                "description": getattr(descriptor, "description", "") or ""}
+
+    wrap("__init__", on_init)
+    wrap("create_publisher", on_publisher)
+    wrap("create_subscription", on_subscription)
+    wrap("create_service", on_service)
+    wrap("create_client", on_client)
+    wrap("create_timer", on_timer)
+    wrap("declare_parameter", on_parameter)
+
+
+if _DUMP:
+    try:
+        _install(_DUMP)
+    except Exception:  # noqa: BLE001 - without rclpy (or on any error) the process runs unhooked
+        pass
