@@ -79,14 +79,16 @@ def semantics() -> dict:
             units=f"x, y [m] in the workspace [{-w}, {w}]; z [m] gripper height (sim: {GRIPPER_HEIGHT}, constant; "
                   "vision_node converts pixels to metres at this height); closure c_G [-] in [0, 1]; "
                   f"episode (0-based); step 0..{HORIZON} within the episode",
-            driver="**must publish**, once per control step, last of the step's messages (perception and policy "
-                   "react to it); step counts up by 1 per executed command"),
+            driver="**must publish**, once per control step, after the step's image (perception and policy react "
+                   "to the state); `step` +1 per control step (per executed command in step_locked, per tick in "
+                   "real_time), `episode` +1 per reset"),
         "/dlo/gripper/cmd": dict(
             rate="step",
             units=f"vx, vy [m/s] with |vx|, |vy| <= {MAX_SPEED:g} (= {MAX_SPEED * 0.01:g} m per 0.01 s); closure "
                   "[-] in [0, 1]; episode, step = those of the state it answers; header = that state's header",
-            driver="**must obey**: execute for one control step; reject non-finite or out-of-range values "
-                   "(warn, hold); stop when no fresh command arrives within command_timeout"),
+            driver="**must obey**: apply it from the next control step on until the next command; reject (warn, "
+                   "hold) non-finite or out-of-range values and commands for another episode or a stale step; stop "
+                   "and hold the closure when the last command is older than command_timeout"),
         "/dlo/camera/image": dict(
             rate="step",
             units=f"mono8 segmentation, {cam.width} x {cam.height} px: {IMAGE_CABLE} cable, {IMAGE_GRIPPER} gripper, "
@@ -597,14 +599,17 @@ def render(model: dict, sem: dict, params: list, definitions: list) -> str:
         "Within a step the simulator publishes `/clock`, particles, image, task state and markers, and the "
         "gripper state **last**: perception and the policy react to the state once its step is complete. "
         "Perception outputs and the command carry the state's stamp; the command also echoes its episode and step.\n")
+    sim = sim_defaults()
     add("- **step_locked** (`mode:=step_locked`, default): the simulator advances one step when the command "
         "answering the current step (same episode and step) arrives; deterministic, as fast as the graph answers. "
-        "A step nobody answers within `step_timeout` is republished with the same stamp (perception and policy "
-        "answer it again, unchanged); at start-up the first state is republished every 0.25 s until answered.")
-    add(f"- **real_time** (`mode:=real_time`): a timer advances one step every {period:g} s / `rate_factor` of wall "
-        "time with the last accepted command; a command for another episode, or for a step older than "
-        "`command_timeout`, is rejected; when the last command is older than `command_timeout` the gripper "
-        "stops and holds its closure. This is how a real robot driver runs.")
+        f"A step nobody answers within `step_timeout` (default {sim.get('step_timeout')} s) is republished with the "
+        "same stamp (perception and policy answer it again, unchanged); at start-up the first state is republished "
+        "every 0.25 s until answered.")
+    add(f"- **real_time** (`mode:=real_time`): a timer advances one step every {period:g} s / `rate_factor` "
+        f"(default {sim.get('rate_factor')}) of wall time with the last accepted command; a command for another "
+        "episode, or for a step older than `command_timeout` (default "
+        f"{sim.get('command_timeout')} s), is rejected; when the last command is older than `command_timeout` the "
+        "gripper stops and holds its closure. This is how a real robot driver runs.")
     add("- In both modes a non-finite or out-of-range command is rejected with a warning (at most one line a "
         "second per cause) and the gripper holds.\n")
     add("Timers of the running graph (period [s], callback):\n")
@@ -655,6 +660,14 @@ def render(model: dict, sem: dict, params: list, definitions: list) -> str:
         add(f"- {line}")
     add("")
     return "\n".join(out)
+
+
+def sim_defaults() -> dict:
+    """name -> default of the sim node's declared parameters."""
+    from dlo_common.params import as_params
+    from dlo_sim.sim_node import PARAMETERS
+
+    return {p.name: p.default for p in as_params(PARAMETERS)}
 
 
 def anchor(title: str) -> str:
@@ -708,6 +721,10 @@ def deviations(model: dict) -> list[str]:
     if missing:
         lines.append("Topics DESIGN.md section 6 lists that the running graph lacks: "
                      + ", ".join(f"`{t}`" for t in missing) + ".")
+    headerless = sorted(t for t, v in topics.items() if t.startswith("/dlo/") and v.get("frame_id") is None)
+    if headerless:
+        lines.append("DESIGN.md section 6: \"every message has a `std_msgs/Header`\"; these have none: "
+                     + ", ".join(f"`{t}` (`{topics[t]['type']}`)" for t in headerless) + ".")
     if model["services"]:
         lines.append("DESIGN.md section 6 names no services; the graph serves "
                      + ", ".join(f"`{name}`" for name, _, _ in model["services"]) + ".")
@@ -741,6 +758,10 @@ def diff_summary(old: str, new: str, limit: int = 40) -> str:
 
 def generate(snapshot: dict, log=print) -> str:
     sem = semantics()
+    measured = rate_classes(snapshot)
+    states = snapshot.get("samples", {}).get("/dlo/gripper/state", {}).get("count", 0)
+    for topic, s in sorted(snapshot.get("samples", {}).items()):
+        log(f"[gen_interfaces] {topic}: {s.get('count', 0)} messages for {states} states ({measured.get(topic)})")
     for line in check_rates(snapshot, sem):
         log(f"[gen_interfaces] warning: rate {line}")
     for topic in sorted(set(snapshot.get("samples", {})) - set(sem)):
