@@ -19,7 +19,8 @@ def test_perception_and_policy_follow_a_mock_robot_cable(own_groups):
              subprocess.Popen([ROS2RUN, "dlo_policy", "policy_node", "--ros-args", "-p", "policy:=tactile_reactive"], **quiet)]
     for node in nodes:
         own_groups(node.pid)  # stopped at teardown (SIGINT, then SIGKILL), even if this test fails
-    driver = subprocess.run([ROS2RUN, "dlo_tools", "mock_driver_node", "--ros-args", "-p", "steps:=40"],
+    driver = subprocess.run([ROS2RUN, "dlo_tools", "mock_driver_node", "--ros-args", "-p", "steps:=40",
+                             "-p", "mode:=step_locked"],  # one answered state = one step: 40 steps of the policy
                             capture_output=True, text=True, timeout=300)
     assert driver.returncode == 0, driver.stdout + driver.stderr
     x, y = map(float, re.search(r"done at x = (\S+) m, y = (\S+) m", driver.stdout + driver.stderr).groups())

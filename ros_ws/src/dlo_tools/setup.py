@@ -28,6 +28,7 @@ setup(
             "dlo-bag-recover = dlo_tools.recover:main",
             "dlo-analyze = dlo_tools.analysis:main",
             "mock_driver_node = dlo_tools.mock_driver_node:main",
+            "dlo-driver-check = dlo_tools.driver_check:main",
             "foxglove_bridge = dlo_tools.foxglove_bridge_node:main",
         ],
     },

@@ -11,6 +11,10 @@ the top (fixed end and first step at the end marked), and over the control steps
 unit: closure, angles [rad], offsets [mm], commanded velocities [m/s], reward; spans where nothing
 changes are shaded. Videos (``--video``, :mod:`dlo_tools.video`): one MP4 (or GIF) per episode,
 top camera + side view + signal strip, one frame per control step, real time by default.
+
+A bag without ``/dlo/task/state`` (recorded from a robot driver, not the sim) has no outcomes: it
+says so in one line and exits 3. Exit status: 0 analysed, 1 a recomputed outcome differs from the
+recorded one, 2 unreadable bag or bad option, 3 no task state.
 """
 
 from __future__ import annotations
@@ -29,6 +33,7 @@ from dlo_sim.task import OUTCOME_NAMES, EpisodeTracker
 from dlo_tools.bag import BagError, read_messages
 from dlo_tools.outcome_table import outcome_table
 
+EXIT_NO_TASK_STATE = 3
 TOPICS = {"/dlo/task/state": "task", "/dlo/gripper/state": "gripper", "/dlo/gripper/cmd": "command",
           "/dlo/tactile/pose": "tactile", "/dlo/vision/pose": "vision", "/dlo/rope/particles": "particles"}
 
@@ -205,10 +210,20 @@ def write_videos(run: dict, summaries: dict, out: Path, *, fmt: str = "mp4", pol
     return written
 
 
+class NoTaskState(ValueError):
+    """The bag has no ``/dlo/task/state`` (a driver's bag: only the sim publishes the task state)."""
+
+    def __init__(self, path, gripper_states: int = 0) -> None:
+        super().__init__(f"{path} has no /dlo/task/state: a driver bag ({gripper_states} gripper states); outcomes "
+                         "need the task state (the sim publishes it)")
+
+
 def analyse(path, plots: Path | None = None, video: dict | None = None) -> list:
     """Per-episode recomputed summaries of a bag (optionally writing one plot and one video per
     episode; ``video``: keyword arguments of :func:`write_videos`, ``out`` included)."""
     run = read_run(path, extra={"/dlo/camera/image": "image"} if video else None)
+    if not any("task" in streams for streams in run.values()):
+        raise NoTaskState(path, sum(len(streams.get("gripper", {})) for streams in run.values()))
     summaries = []
     for episode, streams in run.items():
         if "task" not in streams:
@@ -227,7 +242,10 @@ def analyse(path, plots: Path | None = None, video: dict | None = None) -> list:
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description="Recompute outcomes and metrics of a recorded dlo-vitac run "
-                                                 "with the shared task module, and plot its episodes.")
+                                                 "with the shared task module, and plot its episodes.",
+                                     epilog="Exit status: 0 analysed, 1 a recomputed outcome differs from the "
+                                            "recorded one, 2 unreadable bag or bad option, 3 the bag has no "
+                                            "/dlo/task/state (a driver bag: no outcomes to compute).")
     parser.add_argument("bag", help="rosbag2 directory (MCAP) written by recorder_node")
     parser.add_argument("--plots", type=Path, help="write one PNG per episode into this directory")
     parser.add_argument("--json", type=Path, help="write the per-episode summaries to this JSON file")
@@ -253,6 +271,9 @@ def main(argv=None) -> int:
                  "speed": args.video_speed, "width": args.video_width}
     try:
         summaries = analyse(args.bag, args.plots, video)
+    except NoTaskState as error:
+        print(f"dlo-analyze: {error}", file=sys.stderr)
+        return EXIT_NO_TASK_STATE
     except (BagError, ValueError, FileNotFoundError) as error:
         print(f"dlo-analyze: {error}", file=sys.stderr)
         return 2

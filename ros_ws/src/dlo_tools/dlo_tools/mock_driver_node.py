@@ -1,17 +1,39 @@
-"""mock_driver_node: a kinematic stand-in for a real robot driver (not the simulator).
+"""mock_driver_node: the reference driver skeleton for a real robot (a kinematic stand-in, not the simulator).
 
-It shows what a driver must do for the rest of the graph to run unchanged (README, "Swap for a
-real robot"): publish ``/dlo/gripper/state`` and the top camera's ``/dlo/camera/image`` +
-``camera_info``, a tactile source (here ``/dlo/rope/particles`` with the contact points between
-the fingers flagged, which the tactile node turns into ``/dlo/tactile/pose``; a real sensor driver
-may publish ``/dlo/tactile/pose`` itself), and obey ``/dlo/gripper/cmd``.
+Copy this file to write the driver of a real gripper (guide: docs/WRITE_YOUR_DRIVER.md); the places
+to change are marked ``# ROBOT:``. It does what the rest of the graph relies on (DESIGN.md section 6;
+``dlo-driver-check`` verifies it rule by rule):
 
-The "cable" is a fixed curve on the gripper's plane, the gripper integrates the commanded
-velocity and takes the commanded closure at once, and the image is drawn with plain numpy. It
-is step-locked like the sim: one command per published state.
+- publishes, once per control period (``rate``, 12.5 Hz = 0.08 s), ``/dlo/gripper/state``
+  (x, y, z [m] in frame ``world``, closure [0, 1], episode, step +1 per state), the top camera's
+  ``/dlo/camera/image`` (frame ``top_camera_optical``) with a latched ``/dlo/camera/camera_info``
+  (same frame and size), and a tactile source: here ``/dlo/rope/particles`` with the contact points
+  between the fingers flagged ``held`` (the tactile node turns them into ``/dlo/tactile/pose``; a
+  real tactile sensor's driver publishes ``/dlo/tactile/pose`` itself). All messages of one state
+  carry the same stamp: the time the state was measured;
+- obeys ``/dlo/gripper/cmd`` (vx, vy [m/s], |v| <= 0.25; closure [0, 1]) when it answers the
+  current episode and a step not older than ``command_timeout`` (``dlo_sim.command``, the sim's rules);
+- rejects invalid commands (NaN/inf, speed or closure out of range): the gripper stops and holds
+  its closure, with a warning at most once a second per cause (with the count);
+- stops the gripper (and holds the closure) when the last command is older than ``command_timeout``;
+- keeps the gripper inside the workspace |x|, |y| <= 0.3 m (``dlo_sim.config.WORKSPACE_HALF_WIDTH``):
+  commanded beyond it, it stops at the boundary;
+- serves ``/dlo/sim/reset`` (dlo_msgs/srv/ResetEpisode, the sim's name, so the same clients work):
+  back to the start pose, next episode from step 0.
+
+Modes: ``real_time`` (default, what a robot does: a timer at ``rate`` moves the gripper with the
+latest valid command over the measured time since the last tick) or ``step_locked`` (a state is
+answered before the next one: one command = one step of 1/``rate`` s, the state republished every
+0.25 s until answered; for replaying the sim's deterministic graph with a kinematic stand-in).
+
+The mock "cable" is a fixed S-curve at the gripper's height starting at the sim's fixed end, the
+image is drawn with numpy. It exits after ``steps`` states (0 = run until stopped), printing where
+the gripper ended.
 """
 
 from __future__ import annotations
+
+import time
 
 import numpy as np
 from builtin_interfaces.msg import Time
@@ -19,96 +41,234 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 
+from dlo_common.node_util import declare_parameters
+from dlo_common.params import Param
 from dlo_msgs.msg import GripperCommand, GripperState
+from dlo_msgs.srv import ResetEpisode
 from dlo_perception.camera import TopCamera
 from dlo_perception.cloud import particle_cloud
-from dlo_common.node_util import ParameterError, declare_parameters
+from dlo_sim.command import CommandError, RejectionLog, command_mismatch, command_to_action
+from dlo_sim.config import (DT, FINGER_RADIUS, FIXED_END, GRIPPER_HEIGHT, GRIPPER_START_BEHIND, REST_SPACING,
+                            SUBSTEPS_PER_ACTION, WORKSPACE_HALF_WIDTH)
 
-CONTROL_PERIOD_NS = 80_000_000  # one command per 0.08 s of driver time
-FINGER_REACH = 0.0125 + 0.0043  # m, a point this close to the gripper centre (in x-y) is in contact
+MODES = ("real_time", "step_locked")
+CONTROL_RATE = 1.0 / (DT * SUBSTEPS_PER_ACTION)  # Hz: one command per 0.08 s, like the sim
+FINGER_REACH = FINGER_RADIUS + REST_SPACING  # m, a point this close to the gripper centre (in x-y) is in contact
 CABLE_RADIUS = 0.008  # m, drawn width
+START_CLOSURE = 0.7  # closure at the start of an episode (sliding grip)
+REPUBLISH_PERIOD = 0.25  # s, step_locked: republish an unanswered state this often
+
+PARAMETERS = (
+    Param("mode", "real_time", "real_time: a timer at 'rate' moves the gripper with the latest command; "
+                               "step_locked: one answered state = one step", choices=MODES),
+    Param("rate", CONTROL_RATE, "control rate [Hz]: one state per 1/rate s", above=0.0),
+    Param("command_timeout", 0.5, "a command older than this [s] stops the gripper and holds the closure "
+                                  "(real_time), or is rejected as stale", above=0.0),
+    Param("steps", 0, "control steps before the driver exits (0 = run until stopped)", at_least=0),
+    Param("cable_length", 0.2, "length of the mock cable [m]", at_least=0.05, at_most=0.5),
+    Param("amplitude", 0.02, "lateral amplitude of the mock cable's S-curve [m]", at_least=0.0, at_most=0.1),
+    Param("camera_resolution", 128, "top-view image width = height [px]", at_least=8),
+)
 
 
-def mock_cable(length: float, amplitude: float, spacing: float = 0.0043, height: float = 0.1) -> np.ndarray:
-    """(P, 3) points of a gentle S-curve starting at the fixed end (-0.25, 0, height) along +x [m]."""
-    x = -0.25 + np.arange(0.0, length, spacing)
-    y = amplitude * np.sin(2 * np.pi * (x + 0.25) / max(length, 1e-6))
+def mock_cable(length: float, amplitude: float, spacing: float = REST_SPACING, height: float = GRIPPER_HEIGHT) -> np.ndarray:
+    """(P, 3) points of a gentle S-curve starting at the sim's fixed end (-0.25, 0, height) along +x [m]."""
+    x = FIXED_END[0] + np.arange(0.0, length, spacing)
+    y = amplitude * np.sin(2 * np.pi * (x - FIXED_END[0]) / max(length, 1e-6))
     return np.stack([x, y, np.full_like(x, height)], axis=1)
 
 
-def draw_cable(points: np.ndarray, camera: TopCamera, gripper_xy) -> np.ndarray:
-    """Top-view segmentation image (255 cable, 128 gripper) of the points, like a segmented camera frame."""
+def draw_cable(points: np.ndarray, camera: TopCamera) -> np.ndarray:
+    """Top-view segmentation image (255 = cable) of the points, like a segmented camera frame."""
     v, u = np.mgrid[0:camera.height, 0:camera.width]
-    centres = np.stack([u + 0.5, v + 0.5], axis=-1)
-    world = camera.pixel_to_world(centres, points[0, 2])
-    image = np.zeros((camera.height, camera.width), np.uint8)
+    world = camera.pixel_to_world(np.stack([u + 0.5, v + 0.5], axis=-1), points[0, 2])
     near = np.min(np.linalg.norm(world[:, :, None, :] - points[None, None, :, :2], axis=-1), axis=2)
-    image[near <= CABLE_RADIUS] = 255
-    image[np.linalg.norm(world - np.asarray(gripper_xy), axis=-1) <= 0.0125] = 128
-    return image
+    return np.where(near <= CABLE_RADIUS, 255, 0).astype(np.uint8)
+
+
+def camera_info_msg(camera: TopCamera, frame_id: str) -> CameraInfo:
+    """An undistorted pinhole CameraInfo of ``camera`` (K, R = I, P = [K | 0])."""
+    info = CameraInfo(width=camera.width, height=camera.height, distortion_model="plumb_bob")
+    info.header.frame_id = frame_id
+    info.k = camera.k_matrix.reshape(-1).tolist()
+    info.d = [0.0] * 5
+    info.r = np.eye(3).reshape(-1).tolist()
+    info.p = np.hstack([camera.k_matrix, np.zeros((3, 1))]).reshape(-1).tolist()
+    return info
 
 
 class MockDriver(Node):
-    """Kinematic gripper over a fixed cable; obeys commands one step at a time."""
+    """Kinematic gripper over a fixed cable, with the timing, checks and limits of a real driver."""
 
     def __init__(self):
         super().__init__("mock_driver")
-        p = declare_parameters(self, [
-            ("cable_length", 0.2, "length of the mock cable [m]"),
-            ("amplitude", 0.02, "lateral amplitude of its S-curve [m]"),
-            ("steps", 100, "control steps before the driver exits"),
-        ])
-        if not 0.05 <= p["cable_length"] <= 0.5 or p["steps"] < 1:
-            raise ParameterError(f"cable_length must be in [0.05, 0.5] m and steps >= 1, got {p}")
+        p = declare_parameters(self, PARAMETERS)
+        self.mode, self.period, self.timeout, self.max_steps = p["mode"], 1.0 / p["rate"], p["command_timeout"], p["steps"]
         self.cable = mock_cable(p["cable_length"], p["amplitude"])
-        self.camera = TopCamera.covering_workspace(128)
-        self.gripper = np.array([self.cable[0, 0] + 0.005, self.cable[0, 1]])
-        self.closure, self.step, self.max_steps, self.stamp_ns = 0.7, 0, p["steps"], CONTROL_PERIOD_NS
-        latched = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
-        self.pub_state = self.create_publisher(GripperState, "/dlo/gripper/state", 10)
-        self.pub_image = self.create_publisher(Image, "/dlo/camera/image", 10)
-        self.pub_cloud = self.create_publisher(PointCloud2, "/dlo/rope/particles", 10)
-        info_pub = self.create_publisher(CameraInfo, "/dlo/camera/camera_info", latched)
-        info = CameraInfo(width=self.camera.width, height=self.camera.height)
-        info.header.frame_id = "top_camera_optical"
-        info.k = self.camera.k_matrix.reshape(-1).tolist()
-        info_pub.publish(info)
-        self.create_subscription(GripperCommand, "/dlo/gripper/cmd", self.on_command, 10)
-        self.create_timer(0.25, self.publish_state)  # (re)publish until the step is answered
+        self.camera = TopCamera.covering_workspace(p["camera_resolution"])
+        self.cable_image = draw_cable(self.cable, self.camera)  # the mock cable does not move: drawn once
+        self.episode, self.step, self.steps_done = 0, 0, 0
+        self.previous_final = None  # (episode, step) of the last state of the previous episode
+        self.command = None  # (vx, vy, closure, monotonic time received) of the latest valid command
+        self.timed_out = False
+        self.rejections = RejectionLog(interval=1.0)
+        self.stamp_ns = 0  # step_locked: driver time advances one period per step
+        self.last_tick = None
+        self.last_publish = time.monotonic()
+        self.move_to_start()
 
-    def on_command(self, msg):
-        if msg.step != self.step or not np.isfinite([msg.vx, msg.vy, msg.closure]).all():
+        latched = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        self.pub_cloud = self.create_publisher(PointCloud2, "/dlo/rope/particles", 10)
+        self.pub_image = self.create_publisher(Image, "/dlo/camera/image", 10)
+        self.pub_info = self.create_publisher(CameraInfo, "/dlo/camera/camera_info", latched)
+        self.pub_state = self.create_publisher(GripperState, "/dlo/gripper/state", 10)
+        self.pub_info.publish(camera_info_msg(self.camera, "top_camera_optical"))
+        self.create_subscription(GripperCommand, "/dlo/gripper/cmd", self.on_command, 10)
+        self.create_service(ResetEpisode, "/dlo/sim/reset", self.on_reset)
+        if self.mode == "real_time":
+            self.create_timer(self.period, self.on_tick)
+        self.create_timer(0.05, self.on_watchdog)
+        self.get_logger().info(f"{self.mode} driver at {p['rate']:g} Hz, command_timeout {self.timeout:g} s, "
+                               f"workspace |x|, |y| <= {WORKSPACE_HALF_WIDTH} m")
+        if self.mode == "step_locked":
+            self.publish_state()
+
+    # ------------------------------------------------------------------ the robot
+    def move_to_start(self):
+        # ROBOT: replace this with your hardware call: move to the start pose (behind the cable's fixed end) and
+        # set the start closure; block until it is there.
+        self.gripper = np.array([FIXED_END[0] - GRIPPER_START_BEHIND, FIXED_END[1]])
+        self.closure = START_CLOSURE
+
+    def move(self, vx: float, vy: float, closure: float, dt: float):
+        """Move with velocity (vx, vy) [m/s] for ``dt`` s and set the closure, inside the workspace."""
+        # ROBOT: replace this with your hardware call: send the velocity and the closure to the controller (and
+        # enforce the workspace there too). Here: integrate, and stop at the workspace boundary.
+        self.gripper = np.clip(self.gripper + dt * np.array([vx, vy]), -WORKSPACE_HALF_WIDTH, WORKSPACE_HALF_WIDTH)
+        self.closure = float(closure)
+
+    def read_sensors(self):
+        """The measured gripper (x, y, z) [m], closure, top-view image (H, W) uint8, contact points (P, 3) + flags."""
+        # ROBOT: replace this with your hardware calls: the measured pose and closure, the camera frame (segmented:
+        # 255 = cable, 128 = gripper), and the cable points the tactile sensor touches (or publish
+        # /dlo/tactile/pose from your tactile driver and drop the particle cloud).
+        image = self.cable_image.copy()
+        v, u = np.mgrid[0:self.camera.height, 0:self.camera.width]
+        world = self.camera.pixel_to_world(np.stack([u + 0.5, v + 0.5], axis=-1), GRIPPER_HEIGHT)
+        image[np.linalg.norm(world - self.gripper, axis=-1) <= FINGER_RADIUS] = 128
+        contact = np.linalg.norm(self.cable[:, :2] - self.gripper, axis=1) <= FINGER_REACH
+        return (float(self.gripper[0]), float(self.gripper[1]), GRIPPER_HEIGHT), self.closure, image, self.cable, contact
+
+    def state_stamp(self) -> Time:
+        """The stamp of the state being published: when it was measured."""
+        if self.mode == "step_locked":  # driver time: one period per step, like the sim's simulation time
+            return Time(sec=self.stamp_ns // 1_000_000_000, nanosec=self.stamp_ns % 1_000_000_000)
+        # ROBOT: the time your sensors measured the state (the controller's timestamp), in ROS time
+        return self.get_clock().now().to_msg()
+
+    # ------------------------------------------------------------------ commands
+    def on_command(self, msg: GripperCommand):
+        mismatch = command_mismatch(self.mode, self.episode, self.step, int(msg.episode), int(msg.step),
+                                    period=self.period, command_timeout=self.timeout,
+                                    previous_final=self.previous_final)
+        if mismatch is not None:
+            cause, text = mismatch
+            if cause != "previous episode":  # an answer to the previous episode's final state is expected
+                self.reject(cause, f"{text}: ignored")
             return
-        self.gripper += 0.08 * np.clip([msg.vx, msg.vy], -0.25, 0.25)
-        self.closure = float(np.clip(msg.closure, 0.0, 1.0))
+        try:
+            command_to_action(msg.vx, msg.vy, msg.closure)  # the sim's checks: finite, |v| <= 0.25 m/s, closure in [0, 1]
+            vx, vy, closure = float(msg.vx), float(msg.vy), float(msg.closure)
+        except CommandError as error:
+            self.reject(error.cause, f"{error}; the gripper holds")
+            vx, vy, closure = 0.0, 0.0, self.closure
+        if self.mode == "step_locked":
+            self.move(vx, vy, closure, self.period)
+            self.advance()
+        else:
+            self.command = (vx, vy, closure, time.monotonic())
+            self.timed_out = False
+
+    def reject(self, cause: str, text: str):
+        """A warning at most once a second per cause, with the count of rejections since."""
+        line = self.rejections.note(cause, text, time.monotonic())
+        if line is not None:
+            self.get_logger().warning(line)
+
+    def on_tick(self):
+        """real_time: every period, move with the latest valid command (or stop when it is stale), then publish."""
+        now = time.monotonic()
+        if self.last_tick is not None:
+            dt = min(now - self.last_tick, 2 * self.period)  # the measured time since the last state
+            if self.command is None or now - self.command[3] > self.timeout:
+                if self.command is not None and not self.timed_out:
+                    self.get_logger().warning(f"command timed out (older than {self.timeout:g} s): the gripper "
+                                              "stops and holds its closure")
+                    self.timed_out = True
+                self.move(0.0, 0.0, self.closure, dt)
+            else:
+                self.move(*self.command[:3], dt)
+            self.step += 1
+            self.publish_state()
+            self.check_done()
+        else:
+            self.publish_state()
+        self.last_tick = now
+
+    def advance(self):
+        """step_locked: one step done."""
         self.step += 1
-        self.stamp_ns += CONTROL_PERIOD_NS
-        if self.step >= self.max_steps:
+        self.stamp_ns += int(round(self.period * 1e9))
+        self.publish_state()
+        self.check_done()
+
+    def check_done(self):
+        self.steps_done += 1
+        if self.max_steps and self.steps_done >= self.max_steps:
             self.get_logger().info(f"mock driver done at x = {self.gripper[0]:.3f} m, y = {self.gripper[1]:.4f} m")
             raise SystemExit(0)
-        self.publish_state()
 
+    def on_watchdog(self):
+        for line in self.rejections.due(time.monotonic()):
+            self.get_logger().warning(line)
+        if self.mode == "step_locked" and time.monotonic() - self.last_publish > REPUBLISH_PERIOD:
+            self.publish_state()  # nobody answered: (re)publish until the step is answered
+
+    def on_reset(self, request, response):
+        self.previous_final = (self.episode, self.step)
+        self.episode += 1
+        self.step = 0
+        self.command = None
+        self.move_to_start()
+        seed = int(request.seed) if request.seed >= 0 else self.episode
+        response.success, response.message = True, f"episode {self.episode} started at the start pose"
+        response.episode, response.seed = self.episode, seed
+        if self.mode == "step_locked":
+            self.stamp_ns += int(round(self.period * 1e9))
+            self.publish_state()
+        return response
+
+    # ------------------------------------------------------------------ outputs
     def publish_state(self):
-        stamp = Time(sec=self.stamp_ns // 1_000_000_000, nanosec=self.stamp_ns % 1_000_000_000)
-        contact = np.linalg.norm(self.cable[:, :2] - self.gripper, axis=1) <= FINGER_REACH
-        cloud = particle_cloud(self.cable, contact)
-        pixels = draw_cable(self.cable, self.camera, self.gripper)
+        (x, y, z), closure, pixels, points, contact = self.read_sensors()
+        stamp = self.state_stamp()
+        cloud = particle_cloud(points, contact)
         image = Image(height=pixels.shape[0], width=pixels.shape[1], encoding="mono8", step=pixels.shape[1],
                       data=pixels.tobytes())
-        state = GripperState(x=float(self.gripper[0]), y=float(self.gripper[1]), z=float(self.cable[0, 2]),
-                             closure=self.closure, episode=0, step=self.step)
+        state = GripperState(x=x, y=y, z=z, closure=closure, episode=self.episode, step=self.step)
         for msg in (cloud, image, state):
             msg.header.stamp, msg.header.frame_id = stamp, "world"
         image.header.frame_id = "top_camera_optical"  # shared with camera_info
         self.pub_cloud.publish(cloud)
         self.pub_image.publish(image)
-        self.pub_state.publish(state)
+        self.pub_state.publish(state)  # last: perception and policy react to the complete set
+        self.last_publish = time.monotonic()
 
 
 def main(args=None):
     from dlo_common.node_main import run_node
 
-    return run_node(MockDriver, args)
+    return run_node(MockDriver, args, parameters=PARAMETERS, summary=__doc__)
 
 
 if __name__ == "__main__":

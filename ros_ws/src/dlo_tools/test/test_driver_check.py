@@ -130,3 +130,21 @@ def test_the_rules_on_synthetic_recordings():
     assert outside.status == "FAIL" and "outside" in outside.reason
     skipped = {r.rule: r.status for r in evaluate(rec, Settings(skip=("camera", "touch")))}
     assert skipped["camera"] == skipped["touch"] == "SKIP"
+
+
+def test_analyze_of_a_driver_bag_says_it_has_no_task_state(tmp_path, capsys):
+    from rclpy.serialization import serialize_message
+
+    from dlo_msgs.msg import GripperState
+    from dlo_tools import analysis
+    from dlo_tools.bag import BagWriter
+
+    bag = tmp_path / "driver_bag"
+    with BagWriter(bag) as writer:  # what the recorder writes next to a driver: no /dlo/task/state
+        writer.add_topic("/dlo/gripper/state", "dlo_msgs/msg/GripperState")
+        for i in range(5):
+            writer.write("/dlo/gripper/state", serialize_message(GripperState(x=0.01 * i, step=i)), 1_000 + i)
+    assert analysis.main([str(bag)]) == analysis.EXIT_NO_TASK_STATE == 3
+    out, err = capsys.readouterr()
+    assert out == ""  # no empty outcome table
+    assert err.count("\n") == 1 and "has no /dlo/task/state: a driver bag (5 gripper states)" in err
