@@ -1,8 +1,8 @@
 """What a running graph does, for scripts/launch_graph.sh: one line per finished episode as the sim
 appends it to the outcomes file, and every ``--status-period`` seconds one status line on the graph's
 health (control steps per second counted on ``/clock``, episodes done, node processes alive, missing
-inputs and warnings from the nodes' logs) until all ``--episodes`` are done. Formatting: dlo_tools.outcome_table. Stops on
-SIGINT/SIGTERM after printing the episodes that finished meanwhile.
+inputs and warnings from the nodes' logs) until all ``--episodes`` are done. Formatting:
+dlo_tools.outcome_table. Stops on SIGINT/SIGTERM after printing the episodes that finished meanwhile.
 
     python -m dlo_tools.graph_monitor OUTCOMES.jsonl --logs DIR --node sim=PID --node policy=PID ...
 

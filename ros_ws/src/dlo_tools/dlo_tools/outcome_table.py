@@ -80,8 +80,9 @@ def run_header(episodes, policy: str = "", checkpoint: str = "", without: str = 
         source = "no checkpoint"
     ablation = f"ablation: without {without} (zeroed)" if without else "ablation: none"
     seeds = seed_ranges(e["seed"] for e in episodes)
+    count = f"{len(episodes)} episode{'' if len(episodes) == 1 else 's'}"
     return (f"run: {described} ({source}); {ablation}; tactile noise: {noise or 'none'}"
-            + (f"; mode {mode}" if mode else "") + f"; seeds {seeds} ({len(episodes)} episode{'' if len(episodes) == 1 else 's'})")
+            + (f"; mode {mode}" if mode else "") + f"; seeds {seeds} ({count})")
 
 
 # ---------------------------------------------------------------- node health from the logs
