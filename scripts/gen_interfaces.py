@@ -75,7 +75,7 @@ def semantics() -> dict:
             driver="not needed: no node runs with use_sim_time; a driver stamps with its own clock",
             sim_only=True),
         "/dlo/gripper/state": dict(
-            rate="step",
+            rate="step", role="publishes",
             units=f"x, y [m] in the workspace [{-w}, {w}]; z [m] gripper height (sim: {GRIPPER_HEIGHT}, constant; "
                   "vision_node converts pixels to metres at this height); closure c_G [-] in [0, 1]; "
                   f"episode (0-based); step 0..{HORIZON} within the episode",
@@ -83,33 +83,33 @@ def semantics() -> dict:
                    "to the state); `step` +1 per control step (per executed command in step_locked, per tick in "
                    "real_time), `episode` +1 per reset"),
         "/dlo/gripper/cmd": dict(
-            rate="step",
+            rate="step", role="subscribes (as `sim_node` does)",
             units=f"vx, vy [m/s] with |vx|, |vy| <= {MAX_SPEED:g} (= {MAX_SPEED * 0.01:g} m per 0.01 s); closure "
                   "[-] in [0, 1]; episode, step = those of the state it answers; header = that state's header",
             driver="**must obey**: apply it from the next control step on until the next command; reject (warn, "
                    "hold) non-finite or out-of-range values and commands for another episode or a stale step; stop "
                    "and hold the closure when the last command is older than command_timeout"),
         "/dlo/camera/image": dict(
-            rate="step",
+            rate="step", role="publishes (or publishes `/dlo/vision/pose`)",
             units=f"mono8 segmentation, {cam.width} x {cam.height} px: {IMAGE_CABLE} cable, {IMAGE_GRIPPER} gripper, "
                   f"{IMAGE_BACKGROUND} background; top view (column u ~ world +x, row v ~ world -y)",
             driver="**must publish** (a segmented top-camera frame with the state's stamp), or publish "
                    "/dlo/vision/pose itself and not run vision_node"),
         "/dlo/camera/camera_info": dict(
-            rate="latched",
+            rate="latched", role="publishes",
             units=f"K [px] of the top camera; sim: {cam.width} x {cam.height}, fx = fy = {cam.fx:g}, "
                   f"cx = cy = {cam.cx:g}, camera at {cam.position} m looking down -z (the position is vision_node's "
                   "camera_position parameter, CameraInfo has no pose)",
             driver="**must publish**, transient-local (latched), frame_id = the image's"),
         "/dlo/rope/particles": dict(
-            rate="step",
+            rate="step", role="publishes contact points, **or** `/dlo/tactile/pose`",
             units=f"points in index order (0 = fixed end at {FIXED_END} m): x, y, z [m] world; held 1.0 = between "
                   "the fingers, else 0.0",
             driver="ground truth in the sim; a driver may publish the tactile sensor's contact points here "
                    "(held = 1 for points in contact) for tactile_node, or publish /dlo/tactile/pose itself",
             sim_only=True),
         "/dlo/tactile/pose": dict(
-            rate="step",
+            rate="step", role="publishes, **or** `/dlo/rope/particles` contact points",
             units=f"angle theta_T [rad] in (-pi/2, pi/2]; y y_T [m], |y_T| <= {Y_LIMIT}; contact (>= 2 points "
                   "between the fingers; false: angle = y = 0); contact_count",
             driver="from tactile_node (particles), or from a tactile sensor driver directly (same stamp as the state)"),
@@ -493,11 +493,30 @@ def render(model: dict, sem: dict, params: list, definitions: list) -> str:
         "step it belongs to, so nodes match one step's messages exactly by stamp.\n")
 
     add("## Contents\n")
-    for title in ("Topics", "Topic details: units, ranges, QoS of every endpoint", "Services", "Frames",
+    for title in ("A driver's interface", "Topics", "Topic details: units, ranges, QoS of every endpoint", "Services", "Frames",
                   "Timing", "What the simulator publishes that a robot cannot", "Message definitions",
                   "Node parameters", "Known deviations from DESIGN.md"):
         add(f"- [{title}](#{anchor(title)})")
     add("")
+
+    add("## A driver's interface\n")
+    add("What a real robot driver that replaces `sim_node` publishes and subscribes, with the QoS the graph uses "
+        "on that topic (a driver should offer the same: reliable and volatile match every subscriber here; "
+        "camera_info must be transient-local so a late vision node gets it). Details and units below.\n")
+    add("| topic | the driver | type | rate | QoS | frame_id |")
+    add("|---|---|---|---|---|---|")
+    for topic in order:
+        role = sem.get(topic, {}).get("role")
+        if role:
+            t = topics[topic]
+            ends = t["subscribers"] if role.startswith("subscribes") else t["publishers"]
+            mine = [e for e in ends if e["node"] in ("sim_node", "tactile_node")] or ends
+            qos = "; ".join(sorted({qos_text(e) for e in mine})) or "—"
+            add(f"| `{topic}` | {role} | `{t['type']}` | {sem[topic]['rate']} | {qos} | {frame_text(t)} |")
+    add("")
+    add("Service (optional): `/dlo/sim/reset` (`dlo_msgs/srv/ResetEpisode`) to start an episode on request. "
+        "Step-by-step guide and a template: [WRITE_YOUR_DRIVER.md](WRITE_YOUR_DRIVER.md); conformance: "
+        "`dlo-driver-check`.\n")
 
     add("## Topics\n")
     add(f"Rates: **step** = one message per control step: {rate:g} Hz (one step = {period:g} s of simulation) "
