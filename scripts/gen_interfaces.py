@@ -533,6 +533,10 @@ def render(model: dict, sem: dict, params: list, definitions: list) -> str:
         qos = "; ".join(sorted({qos_text(e) for e in t["publishers"]})) or "—"
         add(f"| `{topic}` | `{t['type']}` | {pubs} | {subs} | {s.get('rate', '?')} | {qos} | {frame_text(t)} |")
     add("")
+    add("The data flow (without `recorder`, which subscribes to every topic, and the launcher's monitor):\n")
+    add("```mermaid")
+    add(mermaid_graph(topics, order))
+    add("```\n")
     add("Nodes (executable → node name): " + ", ".join(
         f"`{exe}` → `{name}`" for name, exe in sorted(model["nodes"].items())) + ". `recorder` runs only with "
         "`--record`; the Foxglove bridge (`--foxglove`) subscribes to a topic only while a client watches it and "
@@ -679,6 +683,24 @@ def render(model: dict, sem: dict, params: list, definitions: list) -> str:
         add(f"- {line}")
     add("")
     return "\n".join(out)
+
+
+def mermaid_graph(topics: dict, order: list) -> str:
+    """A Mermaid flowchart: nodes (rounded) -> topics (boxes) -> nodes, from the live endpoints."""
+    hidden = {"recorder", "launch_monitor", PROBE_NODE}
+    lines = ["flowchart LR"]
+    names = sorted({e["node"] for t in topics.values() for k in ("publishers", "subscribers") for e in t[k]} - hidden)
+    for name in names:
+        lines.append(f"  {name}([{name}])")
+    for i, topic in enumerate(order):
+        t = topics[topic]
+        pubs = [e["node"] for e in t["publishers"] if e["node"] not in hidden]
+        subs = [e["node"] for e in t["subscribers"] if e["node"] not in hidden and e["node"] not in pubs]
+        if not pubs or not subs:
+            continue
+        lines.append(f'  t{i}["{topic}"]')
+        lines += [f"  {p} --> t{i}" for p in pubs] + [f"  t{i} --> {n}" for n in subs]
+    return "\n".join(lines)
 
 
 def sim_defaults() -> dict:

@@ -81,7 +81,8 @@ def test_committed_doc_is_current_with_the_live_graph():
                    "`/dlo/sim/reset` | `dlo_msgs/srv/ResetEpisode` | `sim_node`",
                    "| `/dlo/camera/camera_info` | `sensor_msgs/msg/CameraInfo` | `sim_node` |"):
         assert needle in text
-    assert "rate_factor` | double | `1.0` | `> 0`" in text  # a parameter table row (dlo_common.params)
+    assert "| `rate_factor` | double |" in text  # a parameter table row (dlo_common.params.markdown_table)
+    assert "  sim_node --> t" in text and "--> policy_node" in text  # the Mermaid data flow
 
 
 def test_check_passes_on_the_same_snapshot_and_fails_with_a_diff_when_the_graph_changes(tmp_path):
