@@ -64,6 +64,8 @@ def test_help_lists_every_parameter_and_starts_nothing(package, executable, modu
         assert f"\n  {param.name} ({param.type_name}, default " in out, param.name
         if param.range_text:
             assert f"range {param.range_text})" in out, param.name
+    listed = re.search(r"a params file with every default: (\S+)\):", out).group(1)  # the installed one
+    assert listed.endswith(f"share/{package}/config/{executable}.yaml") and pathlib.Path(listed).is_file(), listed
     assert "[Taichi]" not in out + result.stderr  # no banner before the text
     assert result.stderr == ""  # no node started: no log lines
     assert list(tmp_path.iterdir()) == []  # no bag, no summary, nothing

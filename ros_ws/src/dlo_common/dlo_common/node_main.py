@@ -23,6 +23,16 @@ def executable_name() -> str:
     return name[:-3] if name.endswith(".py") else name
 
 
+def installed_params_file(package: str, executable: str) -> str:
+    """The installed ``share/<package>/config/<executable>.yaml`` (first prefix of AMENT_PREFIX_PATH
+    that has it, as ``ros2 run`` finds packages), or '' when it is not installed."""
+    for prefix in os.environ.get("AMENT_PREFIX_PATH", "").split(os.pathsep):
+        path = os.path.join(prefix, "share", package, "config", f"{executable}.yaml")
+        if prefix and os.path.isfile(path):
+            return path
+    return ""
+
+
 def handle_help(package: str, parameters: Sequence[Param | tuple], summary: str = "",
                 args: Sequence[str] | None = None, exit_codes: str = EXIT_CODES) -> int | None:
     """Answer ``-h``/``--help`` (print the parameters, return 0) or a stray argument before
@@ -34,7 +44,8 @@ def handle_help(package: str, parameters: Sequence[Param | tuple], summary: str 
     argv = list(sys.argv[1:] if args is None else args)
     executable = executable_name()
     if help_requested(argv):
-        sys.stdout.write(help_text(package, executable, parameters, summary, exit_codes))
+        sys.stdout.write(help_text(package, executable, parameters, summary, exit_codes,
+                                   installed_params_file(package, executable)))
         sys.stdout.flush()
         return 0
     stray = unexpected_arguments(argv) if args is None else []  # explicit args may start with a program name

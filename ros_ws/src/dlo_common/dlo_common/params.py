@@ -170,16 +170,18 @@ def unexpected_arguments(argv: Sequence[str]) -> list[str]:
 
 
 def help_text(package: str, executable: str, parameters: Iterable[Param | Sequence[Any]],
-              summary: str = "", exit_codes: str = "", width: int = 100) -> str:
+              summary: str = "", exit_codes: str = "", params_file: str = "", width: int = 100) -> str:
     """The ``--help`` text of a node executable: usage line, what it does (the first paragraph of
-    ``summary``), every parameter with type, default, range and description, exit codes."""
+    ``summary``), every parameter with type, default, range and description, exit codes.
+    ``params_file``: where the installed parameters file is (default: its path under the prefix)."""
     params = as_params(parameters)
     lines = ["usage: " + USAGE.format(package=package, executable=executable),
              f"       (with a ROS 2 install: ros2 run {package} {executable} ...)", ""]
     summary = inspect.cleandoc(summary or "").split("\n\n")[0]  # the first paragraph of the module docstring
     if summary:
         lines += [textwrap.fill(" ".join(summary.replace("``", "`").split()), width), ""]
-    lines.append(f"parameters (a params file with every default: share/{package}/config/{executable}.yaml):")
+    params_file = params_file or f"share/{package}/config/{executable}.yaml"
+    lines.append(f"parameters (a params file with every default: {params_file}):")
     if not params:
         lines.append("  (none)")
     for p in params:
