@@ -29,7 +29,8 @@ and the measured numbers:
 
 The rules are plain functions of a :class:`Recording` (no rclpy: testable without ROS); the node
 that makes the recording is :func:`record`. Exit status: 0 every rule passed (or was skipped),
-1 a rule failed or no driver answered within ``--timeout``, 2 bad usage. The whole check takes
+1 a rule failed, no driver answered within ``--timeout`` or another node commands the driver,
+2 bad usage, 130 interrupted. The whole check takes
 about ``--duration`` + 11 s.
 """
 
@@ -413,6 +414,24 @@ def format_results(results: list[Result]) -> str:
 
 
 # ---------------------------------------------------------------------------------------- ROS part
+class CheckError(RuntimeError):
+    """The check cannot run (one line for the user)."""
+
+
+def check_alone(node, topic: str) -> None:
+    """Raise CheckError when another node publishes the command topic (a policy would mix its commands in)."""
+    import rclpy
+
+    named_by = time.monotonic() + 2.0  # endpoints are discovered before their nodes' names
+    while node.count_publishers(topic) > 1:
+        infos = [i for i in node.get_publishers_info_by_topic(topic) if i.node_name != node.get_name()]
+        others = [f"{i.node_namespace.rstrip('/')}/{i.node_name}" for i in infos]
+        if not any("_UNKNOWN_" in name for name in others) or time.monotonic() > named_by:
+            raise CheckError(f"another node commands the driver ({', '.join(others) or 'unknown'} publishes {topic}): "
+                             "stop it (the policy) before the check")
+        rclpy.spin_once(node, timeout_sec=0.05)
+
+
 def record(s: Settings, namespace: str, timeout: float, log=print) -> Recording | None:
     """Run the schedule against the driver on the current ROS domain; None when no state arrives
     within ``timeout`` s."""
@@ -427,7 +446,9 @@ def record(s: Settings, namespace: str, timeout: float, log=print) -> Recording 
     phases = schedule(s)
     current = {"index": -1}
 
-    rclpy.init(args=[])
+    from rclpy.signals import SignalHandlerOptions
+
+    rclpy.init(args=[], signal_handler_options=SignalHandlerOptions.NO)  # Ctrl-C: KeyboardInterrupt, one line
     node = rclpy.create_node("dlo_driver_check")
     try:
         pub = node.create_publisher(GripperCommand, f"{prefix}/dlo/gripper/cmd", 10)
@@ -470,6 +491,7 @@ def record(s: Settings, namespace: str, timeout: float, log=print) -> Recording 
             rclpy.spin_once(node, timeout_sec=0.05)
         if not rec.states:
             return None
+        check_alone(node, pub.topic_name)
         log(f"driver found: {len(node.get_publishers_info_by_topic(f'{prefix}/dlo/gripper/state'))} publisher(s) of "
             f"{prefix}/dlo/gripper/state; checking for about {sum(p.duration for p in phases):.0f} s")
         rec.states.clear()
@@ -481,6 +503,7 @@ def record(s: Settings, namespace: str, timeout: float, log=print) -> Recording 
             while time.monotonic() < end:
                 rclpy.spin_once(node, timeout_sec=0.01)
             rec.phases.append((phase.name, start, time.monotonic()))
+            check_alone(node, pub.topic_name)
             if phase.kind == "lead" and phases[i + 1].kind == "silent":
                 silent_from = rec.last_command_wall
         current["index"] = len(phases)
@@ -500,7 +523,8 @@ def main(argv=None) -> int:
         description="Check the driver (or sim node in real_time mode) running on this ROS domain against the "
                     "topic contract, rule by rule: " + ", ".join(RULES) + ". It sends commands to "
                     "/dlo/gripper/cmd (the gripper moves about 0.6 m): nothing else may command the driver meanwhile.",
-        epilog="Exit status: 0 every rule passed, 1 a rule failed or no driver answered, 2 bad usage.")
+        epilog="Exit status: 0 every rule passed, 1 a rule failed, no driver answered or another node commands "
+               "the driver, 2 bad usage, 130 interrupted.")
     parser.add_argument("--namespace", default="", help="topics under /NS/dlo/... (as launch_graph.sh --namespace)")
     parser.add_argument("--timeout", type=float, default=10.0, help="s to wait for the driver's first state (10)")
     parser.add_argument("--duration", type=float, default=2.0, help="s of holding still for rate/camera/touch (2)")
@@ -520,7 +544,14 @@ def main(argv=None) -> int:
         parser.error(f"--speed must be <= {MAX_SPEED:g} m/s (the command limit)")
     settings = Settings(rate=args.rate, command_timeout=args.command_timeout, workspace=args.workspace,
                         duration=args.duration, speed=args.speed, skip=tuple(args.skip))
-    rec = record(settings, args.namespace, args.timeout)
+    try:
+        rec = record(settings, args.namespace, args.timeout)
+    except CheckError as error:
+        print(f"dlo-driver-check: {error}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print("dlo-driver-check: interrupted", file=sys.stderr)
+        return 130
     if rec is None:
         topic = ("/" + args.namespace.strip("/") if args.namespace.strip("/") else "") + "/dlo/gripper/state"
         print(f"dlo-driver-check: no driver: nothing published {topic} within {args.timeout:g} s on "

@@ -69,6 +69,26 @@ def test_a_broken_driver_fails_exactly_its_rule(procs, ros_env, fault):
     assert f"failed: {FAULTS[fault]}" in result.stdout
 
 
+FAKE_POLICY = """
+import rclpy
+from dlo_msgs.msg import GripperCommand
+rclpy.init()
+node = rclpy.create_node("fake_policy")
+node.create_publisher(GripperCommand, "/dlo/gripper/cmd", 10)
+print("publishing", flush=True)
+rclpy.spin(node)
+"""
+
+
+def test_the_check_refuses_while_another_node_commands_the_driver(procs, ros_env):
+    driver = procs("mock", [str(ROS2RUN), "dlo_tools", "mock_driver_node"])
+    procs("policy", [sys.executable, "-c", FAKE_POLICY]).wait_line("publishing", timeout=60)
+    driver.wait_line("real_time driver at", timeout=60)
+    result = run_check(ros_env, "--timeout", "20")
+    assert result.returncode == 1 and "PASS" not in result.stdout, result.stdout + result.stderr
+    assert "another node commands the driver (/fake_policy publishes /dlo/gripper/cmd)" in result.stderr
+
+
 def test_no_driver_is_one_clear_line_and_bad_usage_exits_2(ros_env):
     result = run_check(ros_env, "--timeout", "1")
     assert result.returncode == 1
