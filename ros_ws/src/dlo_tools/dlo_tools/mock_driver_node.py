@@ -245,7 +245,9 @@ class MockDriver(Node):
         response.episode, response.seed = self.episode, seed
         if self.mode == "step_locked":
             self.stamp_ns += int(round(self.period * 1e9))
-            self.publish_state()
+        else:
+            self.last_tick = time.monotonic()  # the next tick moves from here
+        self.publish_state()  # step 0 of the new episode, like the sim
         return response
 
     # ------------------------------------------------------------------ outputs

@@ -3,6 +3,7 @@ that break one rule each (dlo_tools_broken_driver.py); the rules on synthetic re
 
 from __future__ import annotations
 
+import json
 import math
 import re
 import subprocess
@@ -87,6 +88,52 @@ def test_the_check_refuses_while_another_node_commands_the_driver(procs, ros_env
     result = run_check(ros_env, "--timeout", "20")
     assert result.returncode == 1 and "PASS" not in result.stdout, result.stdout + result.stderr
     assert "another node commands the driver (/fake_policy publishes /dlo/gripper/cmd)" in result.stderr
+
+
+RESET_CLIENT = """
+import json, time
+import rclpy
+from dlo_msgs.msg import GripperCommand, GripperState
+from dlo_msgs.srv import ResetEpisode
+rclpy.init()
+node = rclpy.create_node("reset_client")
+pub = node.create_publisher(GripperCommand, "/dlo/gripper/cmd", 10)
+states = []
+def on_state(msg):
+    states.append((msg.episode, msg.step, msg.x))
+    if msg.episode == 0:
+        pub.publish(GripperCommand(vx=0.2, vy=0.0, closure=0.7, episode=msg.episode, step=msg.step))
+node.create_subscription(GripperState, "/dlo/gripper/state", on_state, 10)
+client = node.create_client(ResetEpisode, "/dlo/sim/reset")
+client.wait_for_service(timeout_sec=30)
+end = time.monotonic() + 1.0
+while time.monotonic() < end or len(states) < 5:
+    rclpy.spin_once(node, timeout_sec=0.05)
+moved_x = states[-1][2]
+future = client.call_async(ResetEpisode.Request(seed=7))
+rclpy.spin_until_future_complete(node, future, timeout_sec=10)
+while not any(s[0] == 1 for s in states):
+    rclpy.spin_once(node, timeout_sec=0.05)
+first = next(s for s in states if s[0] == 1)
+r = future.result()
+print(json.dumps({"moved_x": moved_x, "first": first, "episode": r.episode, "seed": r.seed, "ok": r.success}))
+"""
+
+
+def test_mock_driver_reset_service_starts_the_next_episode_at_the_start_pose(procs, ros_env):
+    from dlo_sim.config import FIXED_END, GRIPPER_START_BEHIND
+
+    driver = procs("mock", [str(ROS2RUN), "dlo_tools", "mock_driver_node"])
+    driver.wait_line("real_time driver at", timeout=60)
+    client = subprocess.run([sys.executable, "-c", RESET_CLIENT], env=ros_env, capture_output=True, text=True,
+                            timeout=120)
+    assert client.returncode == 0, client.stdout + client.stderr
+    result = json.loads(client.stdout.strip().splitlines()[-1])
+    start = FIXED_END[0] - GRIPPER_START_BEHIND
+    assert result["moved_x"] > start + 0.05  # the commands moved it ...
+    assert result["ok"] and result["episode"] == 1 and result["seed"] == 7
+    episode, step, x = result["first"]
+    assert (episode, step) == (1, 0) and x == pytest.approx(start)  # ... and the reset brought it back
 
 
 def test_no_driver_is_one_clear_line_and_bad_usage_exits_2(ros_env):
