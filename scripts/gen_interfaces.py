@@ -337,7 +337,8 @@ def build_model(snapshot: dict) -> dict:
     records = snapshot["records"]
     nodes = {}
     for r in records:
-        nodes.setdefault(r["node"], r["exe"])
+        if r["kind"] == "node":
+            nodes.setdefault(r["node"], r["exe"])
     topics: dict[str, dict] = {}
     for r in records:
         if r["kind"] not in ("publisher", "subscription") or r["topic"] in INFRASTRUCTURE_TOPICS:
@@ -365,6 +366,11 @@ def build_model(snapshot: dict) -> dict:
                       and r["name"].rsplit("/", 1)[-1] not in PARAMETER_SERVICES})
     timers = sorted({(r["node"], round(r["period_s"], 6), r["callback"]) for r in records if r["kind"] == "timer"})
     use_sim_time = {r["node"]: r["value"] for r in records if r["kind"] == "parameter" and r["name"] == "use_sim_time"}
+    sim_pids = {r["pid"] for r in records if r["kind"] == "node" and r["node"] == "sim_node"}
+    sequence = [r["topic"] for r in sorted((r for r in records if r["kind"] == "publish" and r["pid"] in sim_pids),
+                                           key=lambda r: r["seq"])]
+    clocks = [i for i, topic in enumerate(sequence) if topic == "/clock"]
+    step_order = sequence[clocks[1]:clocks[2]] if len(clocks) >= 3 else []
     samples = snapshot.get("samples", {})
     state_stamps = samples.get("/dlo/gripper/state", {}).get("stamps", [])
     step_ns = None
@@ -379,6 +385,7 @@ def build_model(snapshot: dict) -> dict:
                 t[key] = s[key]
         t["stamp"] = stamp_rule(topic, s.get("stamps", []), state_stamps)
     return {"nodes": nodes, "topics": topics, "services": services, "clients": clients, "timers": timers,
+            "step_order": step_order,
             "use_sim_time": use_sim_time, "step_ns": step_ns}
 
 
@@ -619,9 +626,12 @@ def render(model: dict, sem: dict, params: list, definitions: list) -> str:
     step_text = f"{step_ns / 1e9:g} s" if step_ns else "?"
     add(f"One control step = {SUBSTEPS_PER_ACTION} simulation steps of {DT} s = {period:g} s; the state's stamp "
         f"advances by {step_text} per step (observed), continuing across episodes; an episode has {HORIZON} steps. "
-        "Within a step the simulator publishes `/clock`, particles, image, task state and markers, and the "
-        "gripper state **last**: perception and the policy react to the state once its step is complete. "
-        "Perception outputs and the command carry the state's stamp; the command also echoes its episode and step.\n")
+        "Within a step the simulator publishes, in this order (observed): "
+        + (" → ".join(f"`{t}`" for t in model["step_order"]) or "?")
+        + (": the gripper state **last**, so perception and the policy react to a complete step. "
+           if model["step_order"][-1:] == ["/dlo/gripper/state"] else ". ")
+        + "Perception outputs and the command carry the state's stamp; the command also echoes its episode and "
+        "step.\n")
     sim = sim_defaults()
     add("- **step_locked** (`mode:=step_locked`, default): the simulator advances one step when the command "
         "answering the current step (same episode and step) arrives; deterministic, as fast as the graph answers. "

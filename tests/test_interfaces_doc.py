@@ -53,6 +53,9 @@ def synthetic_snapshot(states=20):
         endpoint("subscription", "policy_node", "/dlo/tactile/pose", "dlo_msgs/msg/TactilePose"),
         endpoint("publisher", "policy_node", "/dlo/gripper/cmd", "dlo_msgs/msg/GripperCommand"),
     ]
+    for step in range(3):  # the sim's publish calls: clock, camera_info once, then the state last
+        for topic in ["/clock"] + ["/dlo/camera/camera_info"] * (step == 0) + ["/dlo/gripper/state"]:
+            records.append({"kind": "publish", "pid": 1, "seq": len(records), "topic": topic})
     samples = {
         "/dlo/gripper/state": {"count": states, "stamps": stamps, "frame_id": "world"},
         "/dlo/camera/camera_info": {"count": 1, "stamps": [0], "frame_id": "top_camera_optical",
@@ -99,6 +102,7 @@ def test_check_passes_on_the_same_snapshot_and_fails_with_a_diff_when_the_graph_
     assert "| `/dlo/sim/reset` | `dlo_msgs/srv/ResetEpisode` | `sim_node` |" in text
     assert "| `sim_node` | 0.08 | `on_real_time_tick` |" in text
     assert "advances by 0.08 s per step (observed)" in text
+    assert "in this order (observed): `/clock` → `/dlo/gripper/state`: the gripper state **last**" in text
     assert "**stamp**: = the step's state stamp" in text and "**stamp**: 0 (unset)" in text
     assert "`use_sim_time` is false for every node" in text
     assert "### `dlo_msgs/msg/GripperCommand`" in text and "float64 vx" in text  # message definitions
@@ -154,6 +158,8 @@ def test_hook_records_what_a_node_declares(tmp_path):
         "n.create_publisher(String, 'chatter', QoSProfile(depth=7, durability=DurabilityPolicy.TRANSIENT_LOCAL))\n"
         "n.create_subscription(String, '/heard', lambda m: None, 3)\n"
         "n.create_timer(0.125, lambda: None)\n"
+        "p = n.create_publisher(String, 'said', 1)\n"
+        "p.publish(String(data='a')); p.publish(String(data='b'))\n"
         "n.declare_parameter('speed', 0.5)\n"
         "n.destroy_node(); rclpy.shutdown()\n")
     env = dict(os.environ, PYTHONPATH=f"{gen_interfaces.HOOK_DIR}{os.pathsep}{os.environ.get('PYTHONPATH', '')}",
@@ -163,13 +169,15 @@ def test_hook_records_what_a_node_declares(tmp_path):
     records = [json.loads(line) for f in tmp_path.glob("*.jsonl") for line in f.read_text().splitlines()]
     by_kind = {}
     for r in records:
-        assert r["node"] == "hooked"
+        assert r.get("node", "hooked") == "hooked"
         by_kind.setdefault(r["kind"], []).append(r)
     pub = [r for r in by_kind["publisher"] if r["topic"] == "/chatter"]
     assert pub == [{**pub[0], "type": "std_msgs/msg/String", "history": "keep_last", "depth": 7,
                     "durability": "transient_local", "reliability": "reliable"}]
     assert [(r["topic"], r["depth"]) for r in by_kind["subscription"]] == [("/heard", 3)]
     assert [r["period_s"] for r in by_kind["timer"]] == [0.125]
+    said = [r["seq"] for r in by_kind["publish"] if r["topic"] == "/said"]
+    assert len(said) == 2 and said[0] < said[1]  # in order (the declared parameter's event came first)
     assert {"name": "speed", "default": 0.5, "value": 0.5} .items() <= [
         r for r in by_kind["parameter"] if r["name"] == "speed"][0].items()
 

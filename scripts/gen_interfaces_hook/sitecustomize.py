@@ -3,7 +3,8 @@
 Active only when ``DLO_INTERFACES_DUMP`` names a directory (the generator puts this directory first
 on PYTHONPATH of the graph it launches, so Python imports it at start-up as ``sitecustomize``).
 It wraps ``rclpy.node.Node`` methods and appends one JSON line per node, publisher,
-subscription, service, client, timer and declared parameter to ``$DLO_INTERFACES_DUMP/<pid>.jsonl``:
+subscription, service, client, timer and declared parameter, and the topics of its first
+``PUBLISHES_RECORDED`` publish calls (their order), to ``$DLO_INTERFACES_DUMP/<pid>.jsonl``:
 the QoS exactly as the code requested it (depth and history, which DDS discovery does not
 report), the resolved topic names (after remapping), timer periods [s] and parameter defaults.
 It never changes what a method does or returns, and never raises.
@@ -12,6 +13,7 @@ It never changes what a method does or returns, and never raises.
 import os
 
 _DUMP = os.environ.get("DLO_INTERFACES_DUMP")
+PUBLISHES_RECORDED = 60
 
 
 def _install(dump_dir: str) -> None:
@@ -20,6 +22,7 @@ def _install(dump_dir: str) -> None:
     import sys
 
     import rclpy.node
+    import rclpy.publisher
     import rclpy.qos
 
     path = os.path.join(dump_dir, f"{os.getpid()}.jsonl")
@@ -92,6 +95,17 @@ def _install(dump_dir: str) -> None:
     def on_parameter(self, param, name, value=None, descriptor=None, *args, **kwargs):
         return {"kind": "parameter", "name": name, "default": value, "value": param.value,
                 "description": getattr(descriptor, "description", "") or ""}
+
+    publish = rclpy.publisher.Publisher.publish
+    published = [0]
+
+    @functools.wraps(publish)
+    def publish_wrapper(self, msg):
+        if published[0] < PUBLISHES_RECORDED:  # the order of a process's first publishes (a few control steps)
+            published[0] += 1
+            write({"kind": "publish", "pid": os.getpid(), "seq": published[0], "topic": self.topic_name})
+        return publish(self, msg)
+    rclpy.publisher.Publisher.publish = publish_wrapper
 
     wrap("__init__", on_init)
     wrap("create_publisher", on_publisher)
