@@ -776,6 +776,14 @@ def deviations(model: dict) -> list[str]:
     if headerless:
         lines.append("DESIGN.md section 6: \"every message has a `std_msgs/Header`\"; these have none: "
                      + ", ".join(f"`{t}` (`{topics[t]['type']}`)" for t in headerless) + ".")
+    own = sorted(t for t, v in topics.items() if v.get("stamp") == "own")
+    if own:
+        lines.append("DESIGN.md section 6: outputs \"carry the stamp of the input they were computed from\"; these "
+                     "carry stamps that are not a state's: " + ", ".join(f"`{t}`" for t in own) + ".")
+    unframed = sorted(t for t, v in topics.items() if v.get("frame_id") == "")
+    if unframed:
+        lines.append("DESIGN.md section 6: \"every message's `frame_id` names the frame its values are in\"; empty "
+                     "in: " + ", ".join(f"`{t}`" for t in unframed) + ".")
     if model["services"]:
         lines.append("DESIGN.md section 6 names no services; the graph serves "
                      + ", ".join(f"`{name}`" for name, _, _ in model["services"]) + ".")

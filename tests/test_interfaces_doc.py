@@ -131,6 +131,10 @@ def test_a_new_subscriber_or_frame_makes_the_doc_stale():
     stamp = copy.deepcopy(base)
     stamp["samples"]["/dlo/tactile/pose"]["stamps"] = [s + 1 for s in stamp["samples"]["/dlo/tactile/pose"]["stamps"]]
     assert "**stamp**: own" in render(stamp)
+    assert "carry stamps that are not a state's: `/dlo/tactile/pose`" in render(stamp)  # a known deviation
+    unframed = copy.deepcopy(base)
+    unframed["samples"]["/dlo/gripper/cmd"]["frame_id"] = ""
+    assert "empty in: `/dlo/gripper/cmd`" in render(unframed)
 
 
 def test_rates_are_checked_against_the_declared_class_not_written():
