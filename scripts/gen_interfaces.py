@@ -190,10 +190,11 @@ def capture(domain: int, window: float, timeout: float, workdir: Path, log=print
     cmd = [str(ROOT / "scripts" / "launch_graph.sh"), "--episodes", "1", "--mode", "real_time",
            "--domain-id", str(domain), "--logs", str(workdir / "logs"), "--record", str(workdir / "bag")]
     import rclpy
+    from rclpy.signals import SignalHandlerOptions
 
     os.environ["ROS_DOMAIN_ID"] = str(domain)
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-    rclpy.init()
+    rclpy.init(signal_handler_options=SignalHandlerOptions.NO)  # Ctrl-C: KeyboardInterrupt, the graph is stopped
     node = rclpy.create_node(PROBE_NODE)
     try:
         time.sleep(1.5)  # discovery: another graph on this domain would mix into the doc
@@ -831,7 +832,7 @@ def generate(snapshot: dict, log=print) -> str:
 def parse_args(argv=None):
     parser = argparse.ArgumentParser(
         prog="gen_interfaces.py", description=__doc__.split("\n\n")[0],
-        epilog="Exit status: 0 written (or current with --check), 1 stale (--check), 2 error.")
+        epilog="Exit status: 0 written (or current with --check), 1 stale (--check), 2 error, 130 interrupted.")
     parser.add_argument("--check", action="store_true",
                         help="regenerate in memory and compare with the committed file; exit 1 with a diff if stale")
     parser.add_argument("--output", type=Path, default=DOC, help=f"file to write or check (default {DOC.relative_to(ROOT)})")
@@ -870,6 +871,13 @@ def main(argv=None) -> int:
             tail = (workdir / "launch.log").read_text()[-2000:] if (workdir / "launch.log").exists() else ""
             print(f"gen_interfaces: {error} (logs: {workdir})\n{tail}", file=sys.stderr)
             return EXIT_ERROR
+        except KeyboardInterrupt:
+            print("gen_interfaces: interrupted; the graph was stopped, nothing written", file=sys.stderr)
+            if not args.keep:
+                import shutil
+
+                shutil.rmtree(workdir, ignore_errors=True)
+            return 130
         finally:
             if args.keep:
                 log(f"[gen_interfaces] logs and bag kept in {workdir}")
