@@ -276,7 +276,11 @@ def observe(node, proc: subprocess.Popen, window: float, timeout: float) -> tupl
             "publishers": [endpoint_info(i) for i in node.get_publishers_info_by_topic(topic)],
             "subscribers": [endpoint_info(i) for i in node.get_subscriptions_info_by_topic(topic)
                             if i.node_name != PROBE_NODE]}
-    return {topic: summarise(topic, entry) for topic, entry in samples.items()}, wire
+    observed = time.monotonic() - started if started is not None else 0.0
+    summary = {topic: summarise(topic, entry) for topic, entry in samples.items()}
+    for entry in summary.values():
+        entry["observed_s"] = observed
+    return summary, wire
 
 
 def endpoint_info(info) -> dict:
@@ -824,6 +828,13 @@ def generate(snapshot: dict, log=print) -> str:
         log(f"[gen_interfaces] {topic}: {s.get('count', 0)} messages for {states} states ({measured.get(topic)})")
     for line in check_rates(snapshot, sem):
         log(f"[gen_interfaces] warning: rate {line}")
+    state = snapshot.get("samples", {}).get("/dlo/gripper/state", {})
+    if state.get("observed_s"):
+        from dlo_sim.config import DT, SUBSTEPS_PER_ACTION
+
+        hz, configured = state["count"] / state["observed_s"], 1.0 / (DT * SUBSTEPS_PER_ACTION)
+        log(f"[gen_interfaces] /dlo/gripper/state: {hz:.1f} Hz measured in real_time, {configured:g} Hz configured"
+            + ("" if abs(hz - configured) <= 0.2 * configured else " (warning: more than 20% off; a loaded machine?)"))
     for topic in sorted(set(snapshot.get("samples", {})) - set(sem)):
         log(f"[gen_interfaces] warning: {topic} has no entry in the semantics table (units, rate, driver)")
     return render(build_model(snapshot), sem, parameter_tables(), message_definitions())
