@@ -359,7 +359,7 @@ def check_stale(rec: Recording, s: Settings) -> Result:
     if len(late) < 2:
         return Result("stale", "FAIL", f"{len(late)} states between {limit:.2f} s and {end - t0:.2f} s after the last "
                                        "command: a real-time driver keeps publishing its state")
-    moving = [b.wall for a, b in after if moved(a, b) > STILL]
+    moving = [b.wall for a, b in after if moved(a, b) > STILL and b.episode == a.episode]  # not a reset's jump
     stop = (max(moving) - t0) if moving else 0.0
     if stop > limit:
         return Result("stale", "FAIL", f"still moving {stop:.2f} s after the last command "

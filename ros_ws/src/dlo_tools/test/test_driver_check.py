@@ -215,3 +215,26 @@ def test_analyze_of_a_driver_bag_says_it_has_no_task_state(tmp_path, capsys):
     out, err = capsys.readouterr()
     assert out == ""  # no empty outcome table
     assert err.count("\n") == 1 and "has no /dlo/task/state: a driver bag (5 gripper states)" in err
+
+
+def test_a_reset_during_the_silence_is_not_motion():
+    """An episode that ends (the sim drops the cable) puts the gripper back to the start: a jump, not a move."""
+    s = Settings()
+    window_end = next(end for name, _, end in ideal_recording(s).phases if name == "silent")
+    t_reset = window_end - 0.2  # well after the allowed stop time
+
+    def with_jump(new_episode: bool) -> Recording:
+        rec = ideal_recording(s)
+        later = [x for x in rec.states if x.wall >= t_reset]
+        first_step = later[0].step
+        for x in later:
+            x.x -= 0.05
+            if new_episode:
+                x.episode, x.step = 1, x.step - first_step
+        rec.answered = {((1, k - first_step) if new_episode and k >= first_step else (e, k)): p
+                        for (e, k), p in rec.answered.items()}
+        return rec
+
+    assert check_stale(with_jump(True), s).status == "PASS"
+    moved_late = check_stale(with_jump(False), s)
+    assert moved_late.status == "FAIL" and "still moving" in moved_late.reason
