@@ -27,6 +27,10 @@ def kill_process_group(pid: int, grace: float = 30.0) -> None:
         return
     deadline = time.monotonic() + grace
     while time.monotonic() < deadline:
+        try:  # a leader that is our own unreaped child stays a zombie (still "in" its group) until reaped
+            os.waitpid(pid, os.WNOHANG)
+        except ChildProcessError:
+            pass
         try:
             os.killpg(pid, 0)
         except ProcessLookupError:
