@@ -71,3 +71,20 @@ class TopCamera:
     def metres_per_pixel(self, plane_z: float) -> float:
         """Size of one pixel [m] on the plane z = ``plane_z``."""
         return (self.position[2] - plane_z) / self.fx
+
+
+CAMERA_FRAME = "top_camera_optical"  # frame_id of /dlo/camera/image and /dlo/camera/camera_info
+
+
+def camera_info(camera: TopCamera, frame_id: str = CAMERA_FRAME):
+    """The sensor_msgs/CameraInfo of ``camera``: undistorted pinhole, K, R = I, P = [K | 0] (header
+    stamp left to the caller). Used by the simulator and the driver template alike."""
+    from sensor_msgs.msg import CameraInfo  # message type only, no rclpy
+
+    info = CameraInfo(width=camera.width, height=camera.height, distortion_model="plumb_bob")
+    info.header.frame_id = frame_id
+    info.k = camera.k_matrix.reshape(-1).tolist()
+    info.d = [0.0] * 5
+    info.r = np.eye(3).reshape(-1).tolist()
+    info.p = np.hstack([camera.k_matrix, np.zeros((3, 1))]).reshape(-1).tolist()
+    return info

@@ -42,7 +42,7 @@ from visualization_msgs.msg import Marker, MarkerArray
 
 from dlo_msgs.msg import GripperCommand, GripperState, TaskState
 from dlo_msgs.srv import ResetEpisode
-from dlo_perception.camera import TopCamera
+from dlo_perception.camera import CAMERA_FRAME, TopCamera, camera_info
 from dlo_perception.cloud import particle_cloud
 from dlo_sim.command import CommandError, RejectionLog, command_mismatch, command_to_action, hold_action
 from dlo_sim.config import DT, FINGER_CLEARANCE, FINGER_HALF_LENGTH, FINGER_RADIUS, SUBSTEPS_PER_ACTION
@@ -236,7 +236,7 @@ class SimNode(Node):
                                     throttle_duration_sec=WAIT_REPORT_PERIOD)
         if not self.started:
             if not self.info_published:  # after the look for another simulator (__init__)
-                self.pub_info.publish(self.camera_info())
+                self.pub_info.publish(camera_info(self.camera))
                 self.info_published = True
                 return
             subscribers = self.count_subscribers(self.pub_gripper.topic_name)
@@ -337,7 +337,7 @@ class SimNode(Node):
         self.episode += 1
         self.started = True
         if not self.info_published:
-            self.pub_info.publish(self.camera_info())
+            self.pub_info.publish(camera_info(self.camera))
             self.info_published = True
         self.start_episode(seed)
         response.success, response.message = True, f"episode {self.episode} started with seed {seed}"
@@ -378,22 +378,13 @@ class SimNode(Node):
         for msg in (cloud, state, image, task):
             msg.header.stamp = stamp
             msg.header.frame_id = "world"
-        image.header.frame_id = "top_camera_optical"  # the image and its camera_info share the camera's frame
+        image.header.frame_id = CAMERA_FRAME  # the image and its camera_info share the camera's frame
         self.pub_particles.publish(cloud)
         self.pub_image.publish(image)
         self.pub_task.publish(task)
         if self.pub_markers is not None:
             self.pub_markers.publish(self.markers(positions, gripper, stamp))
         self.pub_gripper.publish(state)  # last: perception/policy react to the complete set
-
-    def camera_info(self) -> CameraInfo:
-        info = CameraInfo(width=self.camera.width, height=self.camera.height, distortion_model="plumb_bob")
-        info.header.frame_id = "top_camera_optical"
-        info.k = self.camera.k_matrix.reshape(-1).tolist()
-        info.d = [0.0] * 5
-        info.r = np.eye(3).reshape(-1).tolist()
-        info.p = np.hstack([self.camera.k_matrix, np.zeros((3, 1))]).reshape(-1).tolist()
-        return info
 
     def markers(self, positions, gripper, stamp) -> MarkerArray:
         cable = Marker(ns="cable", id=0, type=Marker.LINE_STRIP, action=Marker.ADD)

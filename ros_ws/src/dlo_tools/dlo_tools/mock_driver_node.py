@@ -45,7 +45,7 @@ from dlo_common.node_util import declare_parameters
 from dlo_common.params import Param
 from dlo_msgs.msg import GripperCommand, GripperState
 from dlo_msgs.srv import ResetEpisode
-from dlo_perception.camera import TopCamera
+from dlo_perception.camera import CAMERA_FRAME, TopCamera, camera_info
 from dlo_perception.cloud import particle_cloud
 from dlo_sim.command import CommandError, RejectionLog, command_mismatch, command_to_action
 from dlo_sim.config import (DT, FINGER_RADIUS, FIXED_END, GRIPPER_HEIGHT, GRIPPER_START_BEHIND, REST_SPACING,
@@ -86,17 +86,6 @@ def draw_cable(points: np.ndarray, camera: TopCamera) -> np.ndarray:
     return np.where(near <= CABLE_RADIUS, 255, 0).astype(np.uint8)
 
 
-def camera_info_msg(camera: TopCamera, frame_id: str) -> CameraInfo:
-    """An undistorted pinhole CameraInfo of ``camera`` (K, R = I, P = [K | 0])."""
-    info = CameraInfo(width=camera.width, height=camera.height, distortion_model="plumb_bob")
-    info.header.frame_id = frame_id
-    info.k = camera.k_matrix.reshape(-1).tolist()
-    info.d = [0.0] * 5
-    info.r = np.eye(3).reshape(-1).tolist()
-    info.p = np.hstack([camera.k_matrix, np.zeros((3, 1))]).reshape(-1).tolist()
-    return info
-
-
 class MockDriver(Node):
     """Kinematic gripper over a fixed cable, with the timing, checks and limits of a real driver."""
 
@@ -122,7 +111,7 @@ class MockDriver(Node):
         self.pub_image = self.create_publisher(Image, "/dlo/camera/image", 10)
         self.pub_info = self.create_publisher(CameraInfo, "/dlo/camera/camera_info", latched)
         self.pub_state = self.create_publisher(GripperState, "/dlo/gripper/state", 10)
-        self.pub_info.publish(camera_info_msg(self.camera, "top_camera_optical"))
+        self.pub_info.publish(camera_info(self.camera))
         self.create_subscription(GripperCommand, "/dlo/gripper/cmd", self.on_command, 10)
         self.create_service(ResetEpisode, "/dlo/sim/reset", self.on_reset)
         if self.mode == "real_time":
@@ -260,7 +249,7 @@ class MockDriver(Node):
         state = GripperState(x=x, y=y, z=z, closure=closure, episode=self.episode, step=self.step)
         for msg in (cloud, image, state):
             msg.header.stamp, msg.header.frame_id = stamp, "world"
-        image.header.frame_id = "top_camera_optical"  # shared with camera_info
+        image.header.frame_id = CAMERA_FRAME  # shared with camera_info
         self.pub_cloud.publish(cloud)
         self.pub_image.publish(image)
         self.pub_state.publish(state)  # last: perception and policy react to the complete set
