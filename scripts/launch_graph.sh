@@ -221,7 +221,14 @@ stop_monitor() {
   wait "$monitor_pid" 2>/dev/null || true
   monitor_pid=""
 }
-trap 'echo "[launch] interrupted: stopping the graph"; [ -z "${sim_pid:-}" ] || kill -INT "$sim_pid" 2>/dev/null; stop_monitor; stop_all; interrupted=1' INT TERM
+# The sim first (no episode runs on while the monitor stops: a failed recorder loses nothing more),
+# then the monitor, then every node.
+stop_graph() {
+  [ -z "${sim_pid:-}" ] || kill -INT "$sim_pid" 2>/dev/null
+  stop_monitor
+  stop_all
+}
+trap 'echo "[launch] interrupted: stopping the graph"; stop_graph; interrupted=1' INT TERM
 interrupted=0
 
 subscribers=3 sim_extra=()
@@ -290,8 +297,7 @@ while kill -0 "$sim_pid" 2>/dev/null && [ "$interrupted" = 0 ] && [ -z "$failed_
   [ -n "$failed_node" ] || sleep 0.2
 done
 kill -0 "$sim_pid" 2>/dev/null || reap "$sim_index"  # (a sim still running is stopped and reaped by stop_all)
-# the sim first (no episode runs on while the monitor stops: a failed recorder loses nothing more)
-[ "$interrupted" = 1 ] || { kill -INT "$sim_pid" 2>/dev/null; stop_monitor; stop_all; }
+[ "$interrupted" = 1 ] || stop_graph
 
 done_episodes=0
 [ -f "$outcomes" ] && done_episodes=$(grep -c . "$outcomes")
