@@ -65,7 +65,8 @@ def synthetic_bag(tmp_path_factory):
                     reward, done = 0.0, False
                 else:
                     r, term, trunc = tracker.step(np.array([p_i]), np.array([n_h]), np.array([largest]),
-                                                  np.array([N_C]), np.array([0.4]), np.array([p_i]))
+                                                  np.array([N_C]), np.array([0.4]), np.array([p_i]),
+                                                  np.array([n_h]))
                     reward, done = float(r[0]), bool(term[0] or trunc[0])
                 x = -0.25 + 0.01 * index
                 positions = np.stack([-0.25 + 0.01 * np.arange(N_C), np.zeros(N_C), np.full(N_C, 0.1)], axis=1)
@@ -87,7 +88,8 @@ def synthetic_bag(tmp_path_factory):
                     mean_held_index=p_i, num_particles=N_C, cable_length=0.4, reward=reward,
                     episode_return=float(tracker.episode_return[0]), done=done,
                     outcome=int(tracker.outcome[0]) if done else 0, held_indices_authors=held,
-                    mean_held_index_authors=p_i, outcome_authors=int(tracker.outcome_authors[0]) if done else 0))
+                    mean_held_index_authors=p_i, outcome_authors=int(tracker.outcome_authors[0]) if done else 0,
+                    task_rules="paper_text"))
                 put("/dlo/tactile/pose", T["dlo_msgs/msg/TactilePose"](header=header, angle=0.01 * step, y=0.001,
                                                                        contact=True, contact_count=3))
                 put("/dlo/vision/pose", T["dlo_msgs/msg/VisualPose"](header=header, visible=True, confidence=0.5,

@@ -18,6 +18,8 @@ Options (keywords of both entry points):
     tactile_noise="none"  "none" | "partial" | "full" | (sigma_theta [rad], sigma_y [m])
     horizon=150           control steps per episode
     end_particles=10      "at the end" = holding one of the last this-many particles
+    task_rules="paper_text"  "paper_text" | "authors_code": the held set, reward and termination the
+                          episode uses, and the held set the tactile input is fitted to (dlo_sim.task)
     camera_resolution=128 top-view image size [px]
     sim_config=None       a dlo_sim.SimConfig
 
@@ -47,7 +49,7 @@ from dlo_sim.config import GRIPPER_HEIGHT
 def check_options(options) -> None:
     """Raise ValueError with a one-line reason for an unknown option or a bad value (module
     docstring), before any simulator is built: what dlo-train checks its ``env_options`` with."""
-    known = ("without", "tactile_noise", "horizon", "end_particles", "camera_resolution", "sim_config")
+    known = ("without", "tactile_noise", "horizon", "end_particles", "camera_resolution", "sim_config", "task_rules")
     unknown = sorted(set(options) - set(known))
     if unknown:
         raise ValueError(f"unknown option(s) {', '.join(unknown)}; known: {', '.join(known)}")
@@ -58,6 +60,8 @@ def check_options(options) -> None:
             raise ValueError(f"tactile_noise: {error}; or a pair [sigma_theta, sigma_y]") from None
     if options.get("without"):
         parse_modalities(options["without"])
+    if "task_rules" in options:
+        task.check_task_rules(options["task_rules"])
     for name, low in (("horizon", 1), ("end_particles", 1), ("camera_resolution", 16)):
         value = options.get(name, low)
         if isinstance(value, bool) or not isinstance(value, int) or value < low:
@@ -74,7 +78,7 @@ class CableFollowingVecEnv(VectorEnv):
 
     def __init__(self, num_envs, modalities="All", seed=0, without=(), tactile_noise="none",
                  horizon=task.HORIZON, end_particles=task.END_PARTICLES, camera_resolution=128,
-                 sim_config=None, autoreset=True):
+                 sim_config=None, autoreset=True, task_rules="paper_text"):
         self.num_envs = int(num_envs)
         self.modalities = parse_modalities(modalities)
         self.without = parse_modalities(without) if without else ()
@@ -88,7 +92,7 @@ class CableFollowingVecEnv(VectorEnv):
         self.action_space = gymnasium.vector.utils.batch_space(self.single_action_space, self.num_envs)
         self.task = TaskSim(self.num_envs, horizon=horizon, end_particles=end_particles, config=sim_config,
                             camera=TopCamera.covering_workspace(int(camera_resolution)),
-                            render=self._uses("V"))
+                            render=self._uses("V"), task_rules=task_rules)
         self.sim, self.tracker = self.task.sim, self.task.tracker
         self.default_seed = int(seed)
         self.next_seed = None  # next unused episode seed; None until the first reset
@@ -151,7 +155,7 @@ class CableFollowingVecEnv(VectorEnv):
         state = {"n_held": self.task.n_held, "p_i": self.task.mean_held_index}
         tactile = visual = None
         if self._uses("T"):
-            tactile = tactile_pose(snapshot.positions, snapshot.held, gripper[:, :2], gripper[:, 3],
+            tactile = tactile_pose(snapshot.positions, self.task.held_task, gripper[:, :2], gripper[:, 3],
                                    sigma=self.tactile_sigma, rng=self.noise_rng)
         if self._uses("V"):
             visual = visual_pose(snapshot.image, self.sim.camera, gripper[:, :2], VISION_PLANE_Z)

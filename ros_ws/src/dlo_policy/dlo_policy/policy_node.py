@@ -29,6 +29,7 @@ from dlo_perception.tactile import TactilePose as Tactile
 from dlo_perception.vision import VisualPose as Visual
 from dlo_policy.observation import build_observation, parse_modalities
 from dlo_sim.command import action_to_command
+from dlo_sim.task import dropped
 
 POLICIES = ("sac", "tactile_reactive", "oracle", "random")
 PARAMETERS = (
@@ -181,7 +182,9 @@ class PolicyNode(Node):
             without=self.without)
         if self.learner is not None:
             task = values["task"]
-            action = self.learner.act(observation[0], task.reward, task.done, task.done and task.n_held == 0,
+            terminated = task.done and bool(dropped(task.task_rules or "paper_text", task.n_held,
+                                                    len(task.held_indices_authors)))
+            action = self.learner.act(observation[0], task.reward, task.done, terminated,
                                       gripper.episode, gripper.step)
         else:
             self.truth.cloud, self.truth.gripper = values.get("particles"), gripper

@@ -34,7 +34,8 @@ The paper reports the best evaluation during training; the held-out test is the 
 
 The run directory also holds config.yaml (resolved config), checkpoint.pt (everything, replay
 buffer included, every `train.checkpoint_every` steps), policy.pt (actor only, at the end) and
-done.json (completion marker with a summary; dlo-experiments skips runs that have it).
+done.json (completion marker with a summary and "source": the git commit the run trained on;
+dlo-experiments skips runs that have it).
 """
 from __future__ import annotations
 
@@ -43,6 +44,7 @@ import csv
 import importlib
 import json
 import os
+import subprocess
 import sys
 import time
 from pathlib import Path
@@ -65,6 +67,22 @@ EVAL_SEED_STRIDE = 100_000  # eval seeds of run seed s lie in eval_seed + [s, s 
 CONFIG_FILE, EVAL_FILE, CHECKPOINT_FILE = "config.yaml", "eval.csv", "checkpoint.pt"
 POLICY_FILE, DONE_FILE, TEST_FILE = "policy.pt", "done.json", "test.json"
 BEST_POLICY_FILE, BEST_FILE = "best_policy.pt", "best.json"  # the policy of the best evaluation so far
+
+
+def source_commit() -> dict[str, Any]:
+    """The git commit of the code this process runs ({"commit": sha, "dirty": bool}; "unknown" outside a
+    git checkout): what a run records in done.json, so that a study does not drift with the code under it."""
+    here = Path(__file__).resolve().parent
+    try:
+        sha = subprocess.run(["git", "-C", str(here), "rev-parse", "HEAD"], capture_output=True, text=True,
+                             timeout=10, check=True).stdout.strip()
+        top = subprocess.run(["git", "-C", str(here), "rev-parse", "--show-toplevel"], capture_output=True,
+                             text=True, timeout=10, check=True).stdout.strip()
+        dirty = subprocess.run(["git", "-C", top, "status", "--porcelain", "--untracked-files=no", "--", "ros_ws/src"],
+                               capture_output=True, text=True, timeout=10, check=True).stdout.strip() != ""
+    except (OSError, subprocess.SubprocessError):
+        return {"commit": "unknown", "dirty": None}
+    return {"commit": sha, "dirty": dirty}
 
 
 def available_cores() -> int:
@@ -146,6 +164,7 @@ class Trainer:
         self.log = EvalLog(out_dir / EVAL_FILE, self.agent.num_env_steps if resume else None)
         self.tested = [("", [])] + [(m, blanked_columns(config.modalities, [m]))
                                     for m in config.train.eval_without]
+        self.source = source_commit()  # the code this run trains on (recorded in done.json)
         self.started = time.perf_counter()
         self.last_eval: dict[str, float] = {}
         self.checkpoint_due = False
@@ -248,7 +267,7 @@ class Trainer:
         summary = {"env_steps": self.agent.num_env_steps, "updates": self.agent.num_updates,
                    "episodes": self.agent.num_episodes, "wall_time_s": round(self.wall_time(), 2),
                    "threads": self.threads, "last_eval": self.last_eval, "best_eval": self.best,
-                   "test": test}
+                   "test": test, "source": self.source}
         (self.out_dir / DONE_FILE).write_text(json.dumps(summary, indent=2) + "\n")
         return summary
 

@@ -9,7 +9,8 @@ from __future__ import annotations
 import numpy as np
 
 from dlo_sim.rope import RopeSim, Snapshot
-from dlo_sim.task import END_PARTICLES, HORIZON, EpisodeTracker, held_mask_authors, held_statistics
+from dlo_sim.task import (END_PARTICLES, HORIZON, EpisodeTracker, check_task_rules, held_mask_authors,
+                          held_statistics)
 
 
 class TaskSim:
@@ -18,18 +19,23 @@ class TaskSim:
     ``state`` is the ``Snapshot`` of the current state (after the last reset or step): positions,
     held mask, gripper and, if ``render``, the top view, read back with the step in one kernel
     launch for the task and reusable by the observation; ``n_held`` and ``mean_held_index`` (N,)
-    are its held statistics (n_h, p_i); ``held_authors`` (N, P_MAX) and ``mean_held_index_authors``
-    (N,) the same for the authors' narrower held set (the second outcome definition).
+    are its held statistics (n_h, p_i); ``held_authors`` (N, P_MAX), ``n_held_authors`` and
+    ``mean_held_index_authors`` (N,) the same for the authors' narrower held set (the second outcome
+    definition). ``task_rules`` (``dlo_sim.task.TASK_RULES``) says which of the two the task's reward,
+    termination and the tactile input use: ``held_task`` is that mask.
     """
 
     def __init__(self, num_envs: int, horizon: int = HORIZON, end_particles: int = END_PARTICLES,
-                 render: bool = False, **sim_options):
+                 render: bool = False, task_rules: str = "paper_text", **sim_options):
+        check_task_rules(task_rules)
         self.sim = RopeSim(num_envs, **sim_options)
-        self.tracker = EpisodeTracker(self.sim.num_envs, horizon=horizon, end_particles=end_particles)
+        self.tracker = EpisodeTracker(self.sim.num_envs, horizon=horizon, end_particles=end_particles,
+                                      task_rules=task_rules)
+        self.task_rules = task_rules
         self.render = bool(render)
         self.state: Snapshot | None = None
         self.n_held = self.mean_held_index = None
-        self.held_authors = self.mean_held_index_authors = None
+        self.held_authors = self.n_held_authors = self.mean_held_index_authors = None
 
     @property
     def num_envs(self) -> int:
@@ -39,6 +45,11 @@ class TaskSim:
     def held(self) -> np.ndarray:
         """(N, P_MAX) bool held-particle mask of the current state."""
         return self.state.held
+
+    @property
+    def held_task(self) -> np.ndarray:
+        """(N, P_MAX) bool: the held set the task rules use (reward, termination, tactile input)."""
+        return self.held_authors if self.task_rules == "authors_code" else self.state.held
 
     def reset(self, seeds, env_ids=None) -> None:
         """Start new episodes from ``seeds`` in ``env_ids`` (all if None)."""
@@ -58,7 +69,7 @@ class TaskSim:
         self._held_statistics()
         reward, terminated, truncated = self.tracker.step(self.mean_held_index, self.n_held, self.max_held_index,
                                                           self.sim.num_particles, self.sim.cable_length,
-                                                          self.mean_held_index_authors)
+                                                          self.mean_held_index_authors, self.n_held_authors)
         unstable = self.sim.unstable()
         return reward, terminated, truncated | (unstable & ~terminated), unstable
 
@@ -66,4 +77,4 @@ class TaskSim:
         """Held statistics of the current snapshot under both held rules."""
         self.n_held, self.mean_held_index, self.max_held_index = held_statistics(self.state.held)
         self.held_authors = held_mask_authors(self.state.positions, self.sim.num_particles, self.state.gripper)
-        self.mean_held_index_authors = held_statistics(self.held_authors)[1]
+        self.n_held_authors, self.mean_held_index_authors, _ = held_statistics(self.held_authors)

@@ -47,7 +47,7 @@ from dlo_perception.cloud import particle_cloud
 from dlo_sim.command import CommandError, RejectionLog, command_mismatch, command_to_action, hold_action
 from dlo_sim.config import DT, FINGER_CLEARANCE, FINGER_HALF_LENGTH, FINGER_RADIUS, SUBSTEPS_PER_ACTION
 from dlo_sim.episode import TaskSim
-from dlo_sim.task import HORIZON, OUTCOME_NAMES
+from dlo_sim.task import HORIZON, OUTCOME_NAMES, TASK_RULES
 from dlo_common.node_util import NodeStartError, declare_parameters
 from dlo_common.params import Param
 
@@ -58,6 +58,8 @@ PARAMETERS = (
     Param("seed", 0, "episode k is randomised with seed + k", at_least=0),
     Param("episodes", 0, "episodes to run before the node exits (0 = forever)", at_least=0),
     Param("horizon", HORIZON, "control steps per episode", at_least=1),
+    Param("task_rules", "paper_text", "which held set the reward, the episode's end and the tactile input (the "
+                                      "particles' held flags) use, one of " + str(TASK_RULES), choices=TASK_RULES),
     Param("rate_factor", 1.0, "real_time mode: simulation speed relative to wall time", above=0.0),
     Param("command_timeout", 0.5, "real_time mode: a command older than this [s] stops the gripper", above=0.0),
     Param("step_timeout", 1.0, "step_locked mode: republish the state after this long [s] without a command",
@@ -128,12 +130,12 @@ class SimNode(Node):
         self.get_logger().info(f"alone on ROS_DOMAIN_ID={os.environ.get('ROS_DOMAIN_ID') or '0'}: no other publisher "
                                f"of {self.pub_gripper.topic_name}; building the simulation")
         self.camera = TopCamera.covering_workspace(p["camera_resolution"])
-        self.task = TaskSim(1, horizon=p["horizon"], render=True, camera=self.camera)
+        self.task = TaskSim(1, horizon=p["horizon"], render=True, camera=self.camera, task_rules=p["task_rules"])
 
         if p["mode"] == "real_time":
             self.create_timer(DT * SUBSTEPS_PER_ACTION / p["rate_factor"], self.on_real_time_tick)
         self.create_timer(0.05, self.on_watchdog)
-        self.get_logger().info(f"{p['mode']} simulation, seed {p['seed']}, "
+        self.get_logger().info(f"{p['mode']} simulation, seed {p['seed']}, task rules {p['task_rules']}, "
                                f"{p['episodes'] or 'unlimited'} episodes of {p['horizon']} steps")
 
     # ------------------------------------------------------------------ episodes
@@ -358,7 +360,7 @@ class SimNode(Node):
         held = snapshot.held[0, :n_c]
         gripper = snapshot.gripper[0]
 
-        cloud = particle_cloud(positions, held)
+        cloud = particle_cloud(positions, self.task.held_task[0, :n_c])  # the touch the tactile node fits to
         state = GripperState(x=float(gripper[0]), y=float(gripper[1]), z=float(gripper[2]),
                              closure=float(gripper[3]), episode=self.episode, step=self.step_index)
         pixels = snapshot.image[0]
@@ -374,7 +376,8 @@ class SimNode(Node):
                          outcome=int(tracker.outcome[0]) if self.done else 0,
                          held_indices_authors=np.flatnonzero(self.task.held_authors[0, :n_c]).astype(np.int32).tolist(),
                          mean_held_index_authors=float(self.task.mean_held_index_authors[0]),
-                         outcome_authors=int(tracker.outcome_authors[0]) if self.done else 0)
+                         outcome_authors=int(tracker.outcome_authors[0]) if self.done else 0,
+                         task_rules=self.task.task_rules)
         for msg in (cloud, state, image, task):
             msg.header.stamp = stamp
             msg.header.frame_id = "world"

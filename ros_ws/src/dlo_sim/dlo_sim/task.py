@@ -26,7 +26,18 @@ that set on the last step it was non-empty; "at the end" = (n_c - 1) - p_a < 5.
     STOP_BEFORE         it is non-empty on the last step and p_a is not at the end
     REACH_END_BUT_DROP  it is empty on the last step and the last p_a was at the end
     DROP_BEFORE         it is empty on the last step and the last p_a was not at the end
-The episode itself (reward, termination, horizon) always uses the paper-text quantities.
+Task rules (``TASK_RULES``, env option / sim node parameter ``task_rules``): what the episode
+itself (reward, termination, the tactile input) is computed from.
+    paper_text    (default) the physics' held set; reward as above; the episode ends when it is empty.
+    authors_code  the authors' held set (SoftSlidingGym ``action_space_sliding.py`` get_hold_idx,
+                  ``rope_sliding_env.py`` _get_obs, ``rope_follow.py`` compute_reward): reward from
+                  the mean index p_a of that set with their segment count s = n_c - 1,
+                  R = ALPHA_MOVE (d_t - d_{t-1}) + R_end, d_t = p_a L_c / s,
+                  R_end = ALPHA_END (p_a + END_REWARD_WINDOW - s) if p_a > s - END_REWARD_WINDOW,
+                  R = FALL_PENALTY when the set is empty; the episode ends when it holds <= 1
+                  particle (their ``self.done`` when fewer than two points are left to fit).
+Both outcome rules are computed under either task rule; "dropped" in the paper-text outcome is
+"the episode ended by the task rule's drop" (terminated).
 Metrics: time at end = number of control steps at the end; how far = particles from the end,
 n_c - 1 - (largest held index reached in the episode), 0 = it held the last particle.
 """
@@ -43,6 +54,8 @@ END_REWARD_WINDOW = 20  # particles
 FALL_PENALTY = -0.5
 END_PARTICLES = 10  # "at the end" = any of the last 10 held (the authors' code used 5)
 HORIZON = 150  # control steps per episode
+TASK_RULES = ("paper_text", "authors_code")  # what reward, termination and the tactile input use
+AUTHORS_DROP_AT = 1  # authors' rules: the episode ends when their held set has at most this many particles
 AUTHORS_HELD_HALF_WIDTH = 0.0075  # m, authors' held set: |y - y_G| below this (the finger axis segment)
 AUTHORS_HELD_DISTANCE = 0.0245  # m, authors' held set: distance to the lower finger's axis in x-z below this
 AUTHORS_HELD_ABOVE = 0.0125  # m, authors' held set: z above the lower finger's axis by more than this
@@ -80,6 +93,30 @@ def step_reward(prev_p_i, p_i, n_h, n_c, L_c):
     move = np.where(prev_p_i >= 0, ALPHA_MOVE * (p_i - prev_p_i) * L_c / n_c, 0.0)
     end = np.where(p_i > n_c - END_REWARD_WINDOW, ALPHA_END * (p_i + END_REWARD_WINDOW - n_c), 0.0)
     return np.where(np.asarray(n_h) > 0, move + end, FALL_PENALTY)
+
+
+def step_reward_authors(prev_p_a, p_a, n_h_a, n_c, L_c):
+    """Reward of one control step under the authors' task rules (module docstring), batched or scalar."""
+    prev_p_a, p_a = np.asarray(prev_p_a, dtype=np.float64), np.asarray(p_a, dtype=np.float64)
+    segments = np.asarray(n_c, dtype=np.float64) - 1.0
+    spacing = np.asarray(L_c, dtype=np.float64) / segments
+    move = np.where(prev_p_a >= 0, ALPHA_MOVE * (p_a - prev_p_a) * spacing, 0.0)
+    end = np.where(p_a > segments - END_REWARD_WINDOW, ALPHA_END * (p_a + END_REWARD_WINDOW - segments), 0.0)
+    return np.where(np.asarray(n_h_a) > 0, move + end, FALL_PENALTY)
+
+
+def check_task_rules(rules) -> str:
+    """``rules`` if it is one of TASK_RULES, else ValueError with a one-line reason."""
+    if rules not in TASK_RULES:
+        raise ValueError(f"task_rules: expected one of {', '.join(TASK_RULES)}, got {rules!r}")
+    return rules
+
+
+def dropped(rules, n_h, n_h_authors):
+    """True where the task rules end the episode as a drop: paper_text n_h = 0, authors_code n_h_a <= 1."""
+    if check_task_rules(rules) == "authors_code":
+        return np.asarray(n_h_authors) <= AUTHORS_DROP_AT
+    return np.asarray(n_h) == 0
 
 
 def at_end(max_held_index, n_c, end_particles=END_PARTICLES):
@@ -136,8 +173,9 @@ class EpisodeTracker:
     environment. ``p_i_authors``: mean index of ``held_mask_authors`` (-1 when it is empty).
     """
 
-    def __init__(self, num_envs, horizon=HORIZON, end_particles=END_PARTICLES):
+    def __init__(self, num_envs, horizon=HORIZON, end_particles=END_PARTICLES, task_rules="paper_text"):
         self.num_envs, self.horizon, self.end_particles = int(num_envs), int(horizon), int(end_particles)
+        self.task_rules = check_task_rules(task_rules)
         n = self.num_envs
         self.prev_p_i = np.full(n, -1.0)
         self.steps = np.zeros(n, np.int64)
@@ -148,6 +186,7 @@ class EpisodeTracker:
         self.num_particles = np.zeros(n, np.int64)
         self.outcome = np.full(n, OUTCOME_NONE, np.int64)
         self.last_p_i_authors = np.full(n, -1.0)  # authors' mean held index on the last step it was defined
+        self.prev_p_i_authors = np.full(n, -1.0)  # authors' mean held index on the previous step (their reward)
         self.outcome_authors = np.full(n, OUTCOME_NONE, np.int64)
 
     def reset(self, env_ids, p_i, max_held_index, n_c, p_i_authors):
@@ -162,11 +201,15 @@ class EpisodeTracker:
         self.num_particles[ids] = n_c
         self.outcome[ids] = OUTCOME_NONE
         self.last_p_i_authors[ids] = p_i_authors
+        self.prev_p_i_authors[ids] = p_i_authors
         self.outcome_authors[ids] = OUTCOME_NONE
 
-    def step(self, p_i, n_h, max_held_index, n_c, L_c, p_i_authors):
+    def step(self, p_i, n_h, max_held_index, n_c, L_c, p_i_authors, n_h_authors):
         """Account one control step of all environments; arrays (N,). Returns reward, terminated, truncated."""
-        reward = step_reward(self.prev_p_i, p_i, n_h, n_c, L_c)
+        if self.task_rules == "authors_code":
+            reward = step_reward_authors(self.prev_p_i_authors, p_i_authors, n_h_authors, n_c, L_c)
+        else:
+            reward = step_reward(self.prev_p_i, p_i, n_h, n_c, L_c)
         end_now = at_end(max_held_index, n_c, self.end_particles)
         self.steps += 1
         self.episode_return += reward
@@ -175,11 +218,12 @@ class EpisodeTracker:
         self.reached_end |= end_now
         self.num_particles[:] = n_c
         self.prev_p_i = np.asarray(p_i, dtype=np.float64).copy()
-        terminated = np.asarray(n_h) == 0
+        terminated = dropped(self.task_rules, n_h, n_h_authors)
         truncated = ~terminated & (self.steps >= self.horizon)
         done = terminated | truncated
         self.outcome = np.where(done, classify_outcome(terminated, self.reached_end, end_now), self.outcome)
         p_i_authors = np.asarray(p_i_authors, dtype=np.float64)
+        self.prev_p_i_authors = p_i_authors.copy()
         holding_authors = p_i_authors >= 0
         self.last_p_i_authors = np.where(holding_authors, p_i_authors, self.last_p_i_authors)
         self.outcome_authors = np.where(

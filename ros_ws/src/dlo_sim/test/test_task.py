@@ -43,7 +43,8 @@ def run(trajectory, n_c=N_C, horizon=task.HORIZON):
     rewards = []
     for p_i, n_h, max_held, *authors in trajectory:
         p_a = authors[0] if authors else p_i
-        reward, terminated, truncated = tracker.step([p_i], [n_h], [max_held], [n_c], [(n_c - 1) * 0.0043], [p_a])
+        reward, terminated, truncated = tracker.step([p_i], [n_h], [max_held], [n_c], [(n_c - 1) * 0.0043], [p_a],
+                                                        [2 if p_a >= 0 else 0])
         rewards.append(float(reward[0]))
         if terminated[0] or truncated[0]:
             break
@@ -77,7 +78,8 @@ def test_end_is_a_parameter_and_batched_envs_are_independent():
     tracker = EpisodeTracker(2, horizon=3, end_particles=5)
     tracker.reset(None, [0.5, 0.5], [1, 1], [40, 40], [0.5, 0.5])
     for _ in range(3):
-        _, terminated, truncated = tracker.step([33.0, 36.0], [2, 2], [34, 36], [40, 40], [0.17, 0.17], [33.0, 36.0])
+        _, terminated, truncated = tracker.step([33.0, 36.0], [2, 2], [34, 36], [40, 40], [0.17, 0.17], [33.0, 36.0],
+                                             [2, 2])
     assert truncated.tolist() == [True, True] and not terminated.any()
     assert [tracker.summary(i)["outcome"] for i in range(2)] == ["stop_before", "hold_the_end"]
     tracker.reset([1], [0.5], [1], [40], [0.5])

@@ -67,18 +67,18 @@ def test_a_tracker_reused_for_the_next_episode_starts_from_its_reset():
     tracker = EpisodeTracker(1, horizon=3)
     tracker.reset(None, [0.5], [1], [N_C], [0.5])
     for p_i in (10.0, 36.0, 38.0):  # reaches the end, first three steps
-        tracker.step([p_i], [2], [int(p_i) + 1], [N_C], [L_C], [p_i])
+        tracker.step([p_i], [2], [int(p_i) + 1], [N_C], [L_C], [p_i], [2])
     assert tracker.outcome[0] == task.OUTCOME_HOLD_THE_END
     assert tracker.outcome_authors[0] == task.OUTCOME_HOLD_THE_END
     # next episode, another cable: everything from the reset's values
     tracker.reset(None, [2.0], [5], [30], [-1.0])
     assert tracker.how_far().tolist() == [30 - 1 - 5]
     assert tracker.outcome[0] == task.OUTCOME_NONE and tracker.outcome_authors[0] == task.OUTCOME_NONE
-    reward, terminated, truncated = tracker.step([3.0], [2], [4], [30], [29 * 0.0043], [-1.0])
+    reward, terminated, truncated = tracker.step([3.0], [2], [4], [30], [29 * 0.0043], [-1.0], [0])
     assert reward[0] == pytest.approx(10 * 1.0 * 29 * 0.0043 / 30)  # from the reset's p_i = 2
-    reward, _, _ = tracker.step([3.5], [2], [4], [30], [29 * 0.0043], [-1.0])
+    reward, _, _ = tracker.step([3.5], [2], [4], [30], [29 * 0.0043], [-1.0], [0])
     assert reward[0] == pytest.approx(10 * 0.5 * 29 * 0.0043 / 30)  # from the previous step's p_i
-    reward, terminated, truncated = tracker.step([-1.0], [0], [-1], [30], [29 * 0.0043], [-1.0])  # dropped
+    reward, terminated, truncated = tracker.step([-1.0], [0], [-1], [30], [29 * 0.0043], [-1.0], [0])  # dropped
     assert terminated[0] and not truncated[0] and reward[0] == -0.5
     summary = tracker.summary(0)
     assert summary["episode_return"] == pytest.approx(10 * 1.5 * 29 * 0.0043 / 30 - 0.5)
@@ -92,19 +92,19 @@ def test_a_tracker_reset_with_nothing_held_and_its_first_steps():
     tracker = EpisodeTracker(1, horizon=5)
     tracker.reset(None, [-1.0], [-1], [N_C], [-1.0])
     assert tracker.how_far().tolist() == [N_C - 1]
-    reward, _, _ = tracker.step([3.0], [2], [4], [N_C], [L_C], [0.0])
+    reward, _, _ = tracker.step([3.0], [2], [4], [N_C], [L_C], [0.0], [2])
     assert reward[0] == 0.0  # nothing held before: no move reward
     # the authors' set holding only particle 0 on the last step: held, not at the end of 40 particles
     for _ in range(4):
-        tracker.step([3.0], [2], [4], [N_C], [L_C], [0.0])
+        tracker.step([3.0], [2], [4], [N_C], [L_C], [0.0], [2])
     assert tracker.outcome_authors[0] == task.OUTCOME_STOP_BEFORE
 
 
 def test_a_new_tracker_counts_nothing_held_before_its_first_step():
     tracker = EpisodeTracker(2)
-    reward, _, _ = tracker.step([3.0, 3.0], [2, 2], [4, 4], [N_C, N_C], [L_C, L_C], [3.0, 3.0])
+    reward, _, _ = tracker.step([3.0, 3.0], [2, 2], [4, 4], [N_C, N_C], [L_C, L_C], [3.0, 3.0], [2, 2])
     assert reward.tolist() == [0.0, 0.0]
     assert tracker.how_far().tolist() == [N_C - 1 - 4] * 2  # the cable of the step, not of a reset
     short = EpisodeTracker(1, horizon=1)  # a 5-particle cable dropped at once: the authors' set never held
-    short.step([-1.0], [0], [-1], [5], [4 * 0.0043], [-1.0])
+    short.step([-1.0], [0], [-1], [5], [4 * 0.0043], [-1.0], [0])
     assert short.outcome_authors[0] == task.OUTCOME_DROP_BEFORE

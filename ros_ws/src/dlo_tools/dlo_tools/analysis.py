@@ -71,26 +71,28 @@ def recompute_episode(task_states: dict) -> dict:
         raise ValueError("the episode's first step (0) is missing from the bag")
     final = next((s for s in steps if task_states[s].done), None)
     # An episode ends by a drop or at its horizon: the step the sim marked done is that horizon.
-    tracker = EpisodeTracker(1, horizon=final if final else 10**9)
+    rules = getattr(task_states[0], "task_rules", "") or "paper_text"  # bags from before the field: paper_text
+    tracker = EpisodeTracker(1, horizon=final if final else 10**9, task_rules=rules)
 
     def held_inputs(msg):
-        """p_i, n_h, largest held index (paper-text held set) and p_i of the authors' held set."""
+        """p_i, n_h, largest held index (paper-text held set), p_i and n_h of the authors' held set."""
         held = np.asarray(msg.held_indices, dtype=np.int64)
         held_authors = np.asarray(msg.held_indices_authors, dtype=np.int64)
         return (np.array([held.mean() if len(held) else -1.0]), np.array([len(held)]),
                 np.array([held.max() if len(held) else -1]),
-                np.array([held_authors.mean() if len(held_authors) else -1.0]))
+                np.array([held_authors.mean() if len(held_authors) else -1.0]), np.array([len(held_authors)]))
 
     first = task_states[0]
-    p_i, _, max_index, p_i_authors = held_inputs(first)
+    p_i, _, max_index, p_i_authors, _ = held_inputs(first)
     tracker.reset([0], p_i, max_index, np.array([first.num_particles]), p_i_authors)
     for step in steps[1:final + 1 if final else None]:
         msg = task_states[step]
-        p_i, n_h, max_index, p_i_authors = held_inputs(msg)
-        tracker.step(p_i, n_h, max_index, np.array([msg.num_particles]), np.array([msg.cable_length]), p_i_authors)
+        p_i, n_h, max_index, p_i_authors, n_h_authors = held_inputs(msg)
+        tracker.step(p_i, n_h, max_index, np.array([msg.num_particles]), np.array([msg.cable_length]), p_i_authors,
+                     n_h_authors)
     last = task_states[final if final else steps[-1]]
     summary = tracker.summary(0)
-    summary.update(seed=int(first.seed), complete=final is not None,
+    summary.update(seed=int(first.seed), complete=final is not None, task_rules=rules,
                    recorded_outcome=OUTCOME_NAMES[int(last.outcome)],
                    recorded_outcome_authors=OUTCOME_NAMES[int(last.outcome_authors)],
                    recorded_return=float(last.episode_return))

@@ -114,7 +114,7 @@ def make_messages(ts) -> dict:
             header=header, episode=2, seed=42, step=17, held_indices=np.array([3, 4], np.int32), n_held=2,
             mean_held_index=3.5, num_particles=40, cable_length=0.4, reward=0.25, episode_return=1.5,
             done=True, outcome=1, held_indices_authors=np.array([4], np.int32), mean_held_index_authors=4.0,
-            outcome_authors=2),
+            outcome_authors=2, task_rules="paper_text"),
         "/dlo/markers": T["visualization_msgs/msg/MarkerArray"](markers=[marker]),
         "/dlo/sim/instance": T["std_msgs/msg/String"](data='{"pid": 1}'),
         "/clock": T["rosgraph_msgs/msg/Clock"](clock=T["builtin_interfaces/msg/Time"](sec=12, nanosec=345)),
