@@ -81,6 +81,11 @@ def main() -> int:
     parser.add_argument("--temp-dir", required=True, help="Ray's temp dir (short: it holds sockets)")
     args = parser.parse_args()
 
+    # Ray's Cluster writes the head's address to $RAY_TMPDIR/ray/ray_current_cluster (else $TMPDIR/ray or
+    # /tmp/ray), a folder it never creates: on a machine where Ray never ran the start fails with
+    # FileNotFoundError. Keep that file in this cluster's own temp dir, never in a shared /tmp/ray.
+    os.environ["RAY_TMPDIR"] = args.temp_dir
+    os.makedirs(os.path.join(args.temp_dir, "ray"), exist_ok=True)
     from ray.cluster_utils import Cluster  # noqa: PLC0415
 
     patch_agent_port_wait()

@@ -36,12 +36,13 @@ GRID_TIMEOUT_S = 1200
 RUNS = 4
 
 
-def ray_env() -> dict:
+def ray_env(temp_dir: str) -> dict:
     """Environment of the cluster and the driver: node address 127.0.0.1 for every node and the
     driver (Ray otherwise turns 127.0.0.1 into the machine's outward address), no usage reports,
-    the test helpers importable by Ray's workers (sac_reach_env)."""
+    Ray's own files (the current-cluster address file) in the cluster's temp dir, nothing assumed
+    under /tmp/ray, the test helpers importable by Ray's workers (sac_reach_env)."""
     env = dict(os.environ)
-    env.update(RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER="0", RAY_DISABLE_USAGE_STATS="1",
+    env.update(RAY_TMPDIR=temp_dir, RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER="0", RAY_DISABLE_USAGE_STATS="1",
                RAY_worker_register_timeout_seconds="600",  # workers start slowly on a loaded machine
                RAY_worker_niceness="0",  # Ray's workers keep the test's priority (Ray's default: +15)
                PYTHONPATH=os.pathsep.join([str(HERE), env.get("PYTHONPATH", "")]))
@@ -127,7 +128,7 @@ def cluster():
     holder = subprocess.Popen([sys.executable, str(HERE / "ray_local_cluster.py"), "--workers", "2",
                                "--num-cpus", "1", "--temp-dir", temp_dir], stdin=subprocess.PIPE,
                               stdout=subprocess.PIPE, stderr=open(Path(temp_dir) / "holder.log", "w"),
-                              text=True, env=ray_env(), start_new_session=True)
+                              text=True, env=ray_env(temp_dir), start_new_session=True)
     try:
         line: list[str] = []
         reader = threading.Thread(target=lambda: line.append(holder.stdout.readline()), daemon=True)
@@ -173,7 +174,8 @@ def test_grid_spreads_over_nodes_survives_a_lost_node_and_returns_every_result(c
     node_ids = {cluster["head"]["node_id"], *(w["node_id"] for w in cluster["workers"])}
     stderr_path = tmp_path / "driver.err"
     driver = subprocess.Popen(grid_command(out, cluster["address"]), stdout=subprocess.PIPE,
-                              stderr=open(stderr_path, "w"), text=True, env=ray_env(), cwd=tmp_path)
+                              stderr=open(stderr_path, "w"), text=True, env=ray_env(cluster["temp_dir"]),
+                              cwd=tmp_path)
     lines, killed_run = [], None
     deadline = time.monotonic() + GRID_TIMEOUT_S
     timer = threading.Timer(GRID_TIMEOUT_S, driver.kill)
@@ -218,7 +220,7 @@ def test_grid_spreads_over_nodes_survives_a_lost_node_and_returns_every_result(c
     assert f"{RUNS}/{RUNS}" in errors and "failed=0 retried=1" in errors  # the progress bar's last state
 
     # the same command again: every run is finished, nothing is dispatched
-    again = subprocess.run(grid_command(out, cluster["address"]), capture_output=True, text=True, env=ray_env(),
-                           cwd=tmp_path, timeout=600)
+    again = subprocess.run(grid_command(out, cluster["address"]), capture_output=True, text=True,
+                           env=ray_env(cluster["temp_dir"]), cwd=tmp_path, timeout=600)
     assert again.returncode == 0, again.stderr[-3000:]
     assert f"{RUNS} runs, {RUNS} done, 0 to run" in again.stdout and "[start]" not in again.stdout
