@@ -21,6 +21,8 @@ usage: scripts/launch_graph.sh [options]
   --train-out DIR      learn online (SAC) while running; checkpoints and policy.pt go to DIR
   --train-config YAML  online training: dlo-train config file (SAC hyperparameters)
   --tactile-noise N    tactile sensitivity: none (default), partial or full
+  --task-rules R       paper_text (default) or authors_code: the held set the reward, the episode's
+                       end and the tactile input use (the sim's task_rules parameter)
   --record DIR         record every /dlo topic to the rosbag2 (MCAP) directory DIR
   --foxglove [PORT]    live view: also start the Foxglove bridge (dlo_tools foxglove_bridge) on
                        127.0.0.1:PORT (default 8765; 0 = any free port) and print the URL to open;
@@ -37,7 +39,7 @@ output (stdout): the chosen domain and each node's pid and log; while the graph 
 finished episode ("[launch] episode 1/5 (seed 0): hold_the_end, authors' rule hold_the_end; return
 4.321, 97 steps, 0 particles from the end") and every S s a status line ("[launch] status: 11.8
 steps/s (sim time x0.94), 1/5 episodes done, nodes alive 4/4; policy: no tactile input"); at the end
-a header naming the policy, checkpoint, ablation, tactile noise, mode and seeds, then the outcome
+a header naming the policy, checkpoint, ablation, tactile noise, mode, task rules and seeds, then the outcome
 table (both outcome rules).
 
 exit status:
@@ -52,11 +54,12 @@ EOF
 }
 
 episodes=5 seed=0 mode=step_locked rate=1.0 policy=sac checkpoint="" without="" noise=none record="" logs=""
+task_rules=paper_text
 train_out="" train_config="" domain="" namespace="" foxglove="" status_period=10
 while [ $# -gt 0 ]; do
   case "$1" in
     --episodes|--seed|--mode|--rate-factor|--policy|--checkpoint|--without|--tactile-noise|--record|\
-    --train-out|--train-config|--logs|--domain-id|--namespace|--status-period)
+    --task-rules|--train-out|--train-config|--logs|--domain-id|--namespace|--status-period)
       [ $# -ge 2 ] || { echo "launch_graph: $1 needs a value" >&2; usage >&2; exit $EXIT_USAGE; } ;;
   esac
   case "$1" in
@@ -68,6 +71,7 @@ while [ $# -gt 0 ]; do
     --checkpoint) checkpoint="$2"; shift 2 ;;
     --without) without="$2"; shift 2 ;;
     --tactile-noise) noise="$2"; shift 2 ;;
+    --task-rules) task_rules="$2"; shift 2 ;;
     --record) record="$2"; shift 2 ;;
     --train-out) train_out="$2"; shift 2 ;;
     --train-config) train_config="$2"; shift 2 ;;
@@ -85,6 +89,7 @@ bad() { echo "launch_graph: $*" >&2; exit $EXIT_USAGE; }
 [[ "$episodes" =~ ^[0-9]+$ ]] || bad "--episodes must be a number >= 0, got '$episodes'"
 [[ "$seed" =~ ^[0-9]+$ ]] || bad "--seed must be a number >= 0, got '$seed'"
 case "$mode" in step_locked|real_time) ;; *) bad "--mode must be step_locked or real_time" ;; esac
+case "$task_rules" in paper_text|authors_code) ;; *) bad "--task-rules must be paper_text or authors_code, got '$task_rules'" ;; esac
 [[ "$status_period" =~ ^[0-9]+([.][0-9]+)?$ ]] || bad "--status-period must be a number of seconds >= 0, got '$status_period'"
 if [ -n "$domain" ]; then
   [[ "$domain" =~ ^[0-9]+$ ]] && [ "$domain" -le 232 ] || bad "--domain-id must be a number in 0..232, got '$domain'"
@@ -236,7 +241,7 @@ subscribers=3 sim_extra=()
 # The sim first: it refuses to start next to another simulator on this domain; nothing else of this graph
 # starts before it has looked (no second graph's nodes answering, publishing or recording into the first).
 start sim dlo_sim sim_node --ros-args -p mode:="$mode" -p seed:="$seed" -p episodes:="$episodes" \
-  -p rate_factor:="$rate" -p min_subscribers:="$subscribers" -p summary_file:="$outcomes" \
+  -p rate_factor:="$rate" -p min_subscribers:="$subscribers" -p summary_file:="$outcomes" -p task_rules:="$task_rules" \
   ${sim_extra[@]+"${sim_extra[@]}"} ${remap[@]+"${remap[@]}"}
 sim_index=0
 sim_pid="${pids[0]}"

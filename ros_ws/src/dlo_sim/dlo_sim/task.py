@@ -245,4 +245,5 @@ class EpisodeTracker:
             "how_far": int(self.how_far()[env_id]),
             "episode_return": float(self.episode_return[env_id]),
             "episode_length": int(self.steps[env_id]),
+            "task_rules": self.task_rules,
         }

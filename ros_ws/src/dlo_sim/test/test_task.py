@@ -162,3 +162,36 @@ def test_authors_outcomes_over_episodes():
     back = [(0.5 + i, 2, 1 + i) for i in range(39)] + [(10.0, 2, 11)] * 5 + [(-1.0, 0, -1)]
     summary = run(back)[1]
     assert summary["outcome"] == "reach_end_but_drop" and summary["outcome_authors"] == "drop_before"
+
+
+def test_authors_reward_uses_their_segment_count_and_the_fall_penalty():
+    n_c, L_c = 41, 40 * 0.004  # 40 segments of 4 mm
+    assert task.step_reward_authors(5.0, 7.0, 3, n_c, L_c) == pytest.approx(10 * 2 * 0.004)
+    assert task.step_reward_authors(20.0, 20.0, 2, n_c, L_c) == 0.0  # p_a = s - 20: not yet
+    assert task.step_reward_authors(30.0, 30.0, 2, n_c, L_c) == pytest.approx((30 + 20 - 40) / 20)
+    assert task.step_reward_authors(40.0, 40.0, 1, n_c, L_c) == pytest.approx(1.0)  # one particle: still a reward
+    assert task.step_reward_authors(10.0, -1.0, 0, n_c, L_c) == -0.5
+    assert task.step_reward_authors(-1.0, 3.0, 2, n_c, L_c) == 0.0  # nothing held before: no move term
+
+
+def test_task_rules_decide_the_drop():
+    assert task.dropped("paper_text", [0, 1, 5], [0, 0, 0]).tolist() == [True, False, False]
+    assert task.dropped("authors_code", [5, 5, 5], [0, 1, 2]).tolist() == [True, True, False]
+    with pytest.raises(ValueError, match="task_rules: expected one of paper_text, authors_code, got 'authors'"):
+        task.dropped("authors", [1], [1])
+
+
+def test_authors_rules_end_the_episode_when_their_set_holds_one_particle_while_the_wide_set_holds():
+    tracker = EpisodeTracker(1, horizon=10, task_rules="authors_code")
+    tracker.reset(None, [3.0], [4], [40], [3.0])
+    reward, terminated, truncated = tracker.step([4.0], [3], [5], [40], [0.16], [4.0], [2])
+    assert not terminated[0] and not truncated[0]
+    assert reward[0] == pytest.approx(task.step_reward_authors(3.0, 4.0, 2, 40, 0.16))
+    reward, terminated, _ = tracker.step([5.0], [3], [6], [40], [0.16], [5.0], [1])
+    assert terminated[0]  # the wide set still holds 3: the paper-text rules would go on
+    summary = tracker.summary(0)
+    assert summary["outcome"] == "drop_before" and summary["outcome_authors"] == "stop_before"
+    assert summary["task_rules"] == "authors_code"
+    paper = EpisodeTracker(1, horizon=10)
+    paper.reset(None, [3.0], [4], [40], [3.0])
+    assert not paper.step([5.0], [3], [6], [40], [0.16], [5.0], [1])[1][0]

@@ -69,7 +69,7 @@ def run_header(episodes, policy: str = "", checkpoint: str = "", without: str = 
                mode: str = "", policy_line: str = "", train_out: str = "") -> str:
     """What produced the outcomes: policy (and the modalities it observes, from the policy node's start-up
     line ``policy_line``, e.g. 'policy sac on T+K+V without T'), checkpoint, ablation, tactile noise, clock
-    mode and the seeds of the episodes."""
+    mode, the task rules the episodes ran under (from the episodes themselves) and their seeds."""
     observes = re.search(r" on ([A-Za-z+]+)", policy_line or "")
     described = f"policy {policy or '?'}" + (f" observing {observes.group(1)}" if observes else "")
     if policy == "sac":
@@ -81,8 +81,10 @@ def run_header(episodes, policy: str = "", checkpoint: str = "", without: str = 
     ablation = f"ablation: without {without} (zeroed)" if without else "ablation: none"
     seeds = seed_ranges(e["seed"] for e in episodes)
     count = f"{len(episodes)} episode{'' if len(episodes) == 1 else 's'}"
+    rules = sorted({e.get("task_rules", "paper_text") for e in episodes})
     return (f"run: {described} ({source}); {ablation}; tactile noise: {noise or 'none'}"
-            + (f"; mode {mode}" if mode else "") + f"; seeds {seeds} ({count})")
+            + (f"; mode {mode}" if mode else "") + f"; task rules {', '.join(rules) or 'paper_text'}"
+            + f"; seeds {seeds} ({count})")
 
 
 # ---------------------------------------------------------------- node health from the logs

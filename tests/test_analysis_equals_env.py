@@ -1,0 +1,85 @@
+"""Bag analysis recomputes what the env computed, to the last bit, under both task rules.
+
+The env's episodes (the shipped policy, seeds where the authors' held set ends some episodes
+early) are turned into the TaskState messages the sim node would publish for them; dlo-analyze's
+``recompute_episode`` must give the env's outcomes under both rules, return and length exactly,
+and a TaskState without ``task_rules`` (bags recorded before the field) reads as paper_text.
+"""
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from dlo_tools.analysis import recompute_episode
+
+SEEDS = range(7005, 7009)
+
+
+def task_states(env, agent, seed, rules_field):
+    """{step: TaskState-like} of one env episode, as the sim node fills them, and the env's final info."""
+    task = env.vec.task
+    observation, _ = env.reset(seed=seed)
+
+    def message(step, done, info):
+        n_c = int(task.sim.num_particles[0])
+        held = np.flatnonzero(task.state.held[0, :n_c]).astype(np.int32)
+        authors = np.flatnonzero(task.held_authors[0, :n_c]).astype(np.int32)
+        codes = {"none": 0, "hold_the_end": 1, "stop_before": 2, "reach_end_but_drop": 3, "drop_before": 4}
+        fields = dict(step=step, seed=seed, held_indices=held, held_indices_authors=authors, num_particles=n_c,
+                      cable_length=float(task.sim.cable_length[0]), done=done,
+                      outcome=codes[info["outcome"]] if done else 0,
+                      outcome_authors=codes[info["outcome_authors"]] if done else 0,
+                      episode_return=float(task.tracker.episode_return[0]))
+        if rules_field is not None:
+            fields["task_rules"] = rules_field
+        return SimpleNamespace(**fields)
+
+    states, step, done, info = {0: message(0, False, {})}, 0, False, {}
+    while not done:
+        observation, _, terminated, truncated, info = env.step(agent.predict(observation[None], deterministic=True)[0])
+        done = terminated or truncated
+        step += 1
+        states[step] = message(step, done, info)
+    return states, info
+
+
+@pytest.fixture(scope="module")
+def episodes():
+    """{rules: [(seed, TaskState-likes, env info)]}: the shipped policy's episodes under both task rules."""
+    from dlo_policy.env import make_env
+    from dlo_policy.policy_node import shipped_policy_path
+    from dlo_policy.sac import SAC
+
+    agent = SAC.load(shipped_policy_path())
+    result = {}
+    for rules in ("paper_text", "authors_code"):
+        env = make_env("All", seed=0, task_rules=rules)
+        result[rules] = [(seed, *task_states(env, agent, seed, rules)) for seed in SEEDS]
+    return result
+
+
+@pytest.mark.parametrize("rules", ["paper_text", "authors_code"])
+def test_recomputed_episodes_equal_the_env_under_both_task_rules(episodes, rules):
+    for seed, states, info in episodes[rules]:
+        summary = recompute_episode(states)
+        assert summary["task_rules"] == rules
+        assert (summary["outcome"], summary["outcome_authors"]) == (info["outcome"], info["outcome_authors"]), seed
+        assert summary["episode_return"] == info["episode_return"], seed
+        assert summary["episode_length"] == info["episode_length"], seed
+    if rules == "authors_code":  # the seeds are chosen so that the authors' held set ends an episode early
+        assert min(info["episode_length"] for _, _, info in episodes[rules]) < 150
+
+
+def test_a_task_state_without_task_rules_reads_as_paper_text(episodes):
+    _, states, info = episodes["paper_text"][0]
+    for msg in states.values():
+        del msg.task_rules
+    summary = recompute_episode(states)
+    assert summary["task_rules"] == "paper_text"
+    assert summary["episode_return"] == info["episode_return"]
+
+
+def test_the_two_task_rules_give_different_episodes(episodes):
+    """The switch reaches the episode: the same seeds and policy end with other returns."""
+    returns = {rules: [info["episode_return"] for _, _, info in runs] for rules, runs in episodes.items()}
+    assert returns["paper_text"] != returns["authors_code"]
