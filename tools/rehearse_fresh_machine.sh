@@ -26,7 +26,7 @@ set +e
 PY="$("${DLO_PYTHON:-python3.11}" -c 'import sys; print(sys.executable)')"  # the real interpreter, not a shim
 env -i PATH="$(dirname "$PY"):/usr/local/bin:/usr/bin:/bin" DLO_PYTHON="$PY" \
   HOME="$BASE/home" TMPDIR="$BASE/tmp" LANG=C.UTF-8 TERM=dumb \
-  bash -c 'cd "$0/repo" && bash .ci/run "$@"' "$BASE" "$@" 2>&1 | tee "$BASE/test.log"
+  bash -c 'cd "$0/repo" && bash scripts/test.sh "$@"' "$BASE" "$@" 2>&1 | tee "$BASE/test.log"
 status=${PIPESTATUS[0]}
 set -e
 say "test command exit $status after $(( $(date +%s) - start )) s (log: $BASE/test.log)"
