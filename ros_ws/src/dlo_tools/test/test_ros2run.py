@@ -64,3 +64,13 @@ def test_sources_env_sh_when_not_sourced():
                          timeout=60)
     assert res.returncode == 0, res.stderr
     assert "dlo_tools recorder_node" in res.stdout.split("\n")
+
+
+def test_list_shows_the_projects_executables_and_all_of_them_with_all(ros_env):
+    own = {line.split()[0] for line in run(ros_env, "--list").stdout.splitlines() if line}
+    assert own == {pkg for pkg, exes in declared_executables().items() if exes}
+    assert not any(p.startswith(("rosidl", "tracetools")) for p in own)
+    every = {line.split()[0] for line in run(ros_env, "--list", "--all").stdout.splitlines() if line}
+    assert own < every and any(p.startswith("rosidl") for p in every)
+    bad = run(ros_env, "--list", "--bogus")
+    assert bad.returncode == 2 and "unknown option '--bogus'" in bad.stderr
