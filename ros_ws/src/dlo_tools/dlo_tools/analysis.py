@@ -13,8 +13,9 @@ changes are shaded. Videos (``--video``, :mod:`dlo_tools.video`): one MP4 (or GI
 top camera + side view + signal strip, one frame per control step, real time by default.
 
 A bag without ``/dlo/task/state`` (recorded from a robot driver, not the sim) has no outcomes: it
-says so in one line and exits 3. Exit status: 0 analysed, 1 a recomputed outcome differs from the
-recorded one, 2 unreadable bag or bad option, 3 no task state.
+says so in one line and exits 3. Exit status (the same table for every bag tool, ``dlo_tools.bag``):
+0 analysed, 1 a recomputed outcome differs from the recorded one or the bag is damaged (run
+dlo-bag-recover), 2 bad option, no such path or not a bag, 3 no task state.
 """
 
 from __future__ import annotations
@@ -30,10 +31,9 @@ import numpy as np
 from dlo_perception.cloud import unpack_particles
 from dlo_perception.sync import stamp_to_ns
 from dlo_sim.task import OUTCOME_NAMES, EpisodeTracker
-from dlo_tools.bag import BagError, read_messages
+from dlo_tools.bag import EXIT_BAD_BAG, EXIT_NO_TASK_STATE, EXIT_USAGE, BagError, NotABagError, read_messages
 from dlo_tools.outcome_table import outcome_table
 
-EXIT_NO_TASK_STATE = 3
 TOPICS = {"/dlo/task/state": "task", "/dlo/gripper/state": "gripper", "/dlo/gripper/cmd": "command",
           "/dlo/tactile/pose": "tactile", "/dlo/vision/pose": "vision", "/dlo/rope/particles": "particles"}
 
@@ -276,9 +276,12 @@ def main(argv=None) -> int:
     except NoTaskState as error:
         print(f"dlo-analyze: {error}", file=sys.stderr)
         return EXIT_NO_TASK_STATE
+    except NotABagError as error:
+        print(f"dlo-analyze: {error}", file=sys.stderr)
+        return EXIT_USAGE
     except (BagError, ValueError, FileNotFoundError) as error:
         print(f"dlo-analyze: {error}", file=sys.stderr)
-        return 2
+        return EXIT_BAD_BAG if isinstance(error, BagError) else EXIT_USAGE
     except RuntimeError as error:  # dlo_tools.video.VideoError: the encoder failed
         print(f"dlo-analyze: video: {error}", file=sys.stderr)
         return 2
@@ -299,7 +302,7 @@ def main(argv=None) -> int:
         print(f"plots: {args.plots}/episode_*.png")
     if args.video:
         print(f"videos: {args.video}/episode_*.{args.video_format}")
-    return 1 if mismatched else 0
+    return EXIT_BAD_BAG if mismatched else 0
 
 
 if __name__ == "__main__":

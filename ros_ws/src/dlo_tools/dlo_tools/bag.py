@@ -55,6 +55,18 @@ class BagError(RuntimeError):
     """A bag cannot be written or read (message says why and what to do)."""
 
 
+class NotABagError(BagError):
+    """The path does not exist or holds no bag (a user's mistake, not a damaged recording)."""
+
+
+# Exit status of every bag tool (dlo-bag-info, dlo-bag-recover, dlo-analyze):
+EXIT_OK = 0
+EXIT_BAD_BAG = 1  # the bag is damaged (needs dlo-bag-recover), a part could not be recovered, or
+#                   (dlo-analyze) a recomputed outcome differs from the recorded one
+EXIT_USAGE = 2  # bad option, no such path, not a bag
+EXIT_NO_TASK_STATE = 3  # dlo-analyze: a bag without /dlo/task/state (recorded from a robot driver)
+
+
 # ---- types ----------------------------------------------------------------------------------
 
 def ament_prefixes() -> list[Path]:
@@ -596,8 +608,8 @@ def bag_parts(path: str | os.PathLike) -> list[Path]:
         if parts:
             return parts
     if not path.exists():
-        raise BagError(f"'{path}' does not exist")
-    raise BagError(f"'{path}' is not a rosbag2 bag (no {METADATA}) nor a directory of bags")
+        raise NotABagError(f"'{path}' does not exist")
+    raise NotABagError(f"'{path}' is not a rosbag2 bag (no {METADATA}) nor a directory of bags")
 
 
 def _first_line(err: BaseException) -> str:

@@ -1,4 +1,8 @@
-"""dlo-bag-info BAG: topics, types, counts and duration of a bag, like ``ros2 bag info``."""
+"""dlo-bag-info BAG: topics, types, counts and duration of a bag, like ``ros2 bag info``.
+
+Exit status (the same table for every bag tool, ``dlo_tools.bag``): 0 printed, 1 the bag is
+damaged (run dlo-bag-recover), 2 bad option, no such path or not a bag.
+"""
 
 from __future__ import annotations
 
@@ -6,14 +10,16 @@ import argparse
 import json
 import sys
 
-from .bag import BagError, bag_info, format_info
+from .bag import EXIT_BAD_BAG, EXIT_USAGE, BagError, NotABagError, bag_info, format_info
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="dlo-bag-info",
         description="Print the topics, types, message counts and duration of a rosbag2 bag "
-                    "(or of a directory of rolled bag parts).")
+                    "(or of a directory of rolled bag parts).",
+        epilog="exit status: 0 printed, 1 damaged bag (run dlo-bag-recover), 2 bad option, no such path or "
+               "not a bag")
     parser.add_argument("bag", help="bag directory (with metadata.yaml) or directory of parts")
     parser.add_argument("-v", "--verbose", action="store_true",
                         help="also print type hashes, offered QoS and custom data")
@@ -23,7 +29,7 @@ def main(argv: list[str] | None = None) -> int:
         info = bag_info(args.bag)
     except (BagError, OSError) as err:
         print(f"dlo-bag-info: error: {err}", file=sys.stderr)
-        return 1
+        return EXIT_USAGE if isinstance(err, NotABagError) else EXIT_BAD_BAG
     if args.json:
         print(json.dumps({
             "path": str(info.path),

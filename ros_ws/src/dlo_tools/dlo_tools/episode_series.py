@@ -15,7 +15,7 @@ import numpy as np
 
 from dlo_sim.task import at_end, at_end_authors
 
-CONTROL_PERIOD = 0.08  # s per control step (8 simulation steps of 0.01 s, DESIGN.md section 2)
+CONTROL_PERIOD = 0.08  # s per control step (8 simulation steps of 0.01 s, docs/ARCHITECTURE.md#world)
 
 
 @dataclass

@@ -7,7 +7,8 @@ offered QoS, RIHS01 type hashes). The original file is kept as ``<name>.mcap.dam
 ``--delete-original`` (or the recovered bag goes to ``--output DIR``). A bag that reads completely
 is left alone. Works on a bag directory or a directory of rolled parts (``split_episodes``).
 
-Exit status: 0 = recovered (or nothing to do), 1 = a part could not be recovered, 2 = usage.
+Exit status (the same table for every bag tool, ``dlo_tools.bag``): 0 recovered (or nothing to
+do), 1 a part could not be recovered, 2 bad option, no such path or not a bag.
 """
 
 from __future__ import annotations
@@ -27,11 +28,15 @@ from rosbags.rosbag2.metadata import parse_qos
 from rosbags.typesys import Stores, get_types_from_idl, get_types_from_msg, get_typestore
 
 from .bag import (
+    EXIT_BAD_BAG,
+    EXIT_OK,
+    EXIT_USAGE,
     METADATA,
     RESERVE_FILE,
     BagError,
     BagWriteError,
     BagWriter,
+    NotABagError,
     TopicSpec,
     read_messages,
     write_metadata,
@@ -107,7 +112,7 @@ def bag_dirs(path: Path) -> list[Path]:
         return [path]
     parts = sorted(p for p in path.iterdir() if p.is_dir() and any(p.glob("*.mcap")))
     if not parts:
-        raise BagError(f"'{path}' holds no .mcap file (nor parts with one): nothing to recover")
+        raise NotABagError(f"'{path}' holds no .mcap file (nor parts with one): nothing to recover")
     return parts
 
 
@@ -209,12 +214,12 @@ def recover_bag(path: str | os.PathLike, *, output: str | os.PathLike | None = N
     """Recover a bag directory or a directory of parts; one report per bag directory."""
     path = Path(path)
     if not path.is_dir():
-        raise BagError(f"'{path}' is not a directory (give the bag directory, not a file)"
+        raise NotABagError(f"'{path}' is not a directory (give the bag directory, not a file)"
                        if path.exists() else f"'{path}' does not exist")
     parts = bag_dirs(path)
     out = Path(output) if output is not None else None
     if out is not None and out.exists():
-        raise BagError(f"--output '{out}' exists already; choose a new directory")
+        raise NotABagError(f"--output '{out}' exists already; choose a new directory")
     reports = []
     for part in parts:
         target = None
@@ -240,13 +245,13 @@ def main(argv: list[str] | None = None) -> int:
         reports = recover_bag(args.bag, output=args.output, keep_original=not args.delete_original)
     except (BagError, OSError) as err:
         print(f"dlo-bag-recover: error: {err}", file=sys.stderr)
-        return 1
+        return EXIT_USAGE if isinstance(err, NotABagError) else EXIT_BAD_BAG
     for report in reports:
         print(report.line())
         if args.verbose:
             for problem in report.problems:
                 print(f"  {problem}")
-    return 1 if any(r.action == "failed" for r in reports) else 0
+    return EXIT_BAD_BAG if any(r.action == "failed" for r in reports) else EXIT_OK
 
 
 if __name__ == "__main__":

@@ -24,6 +24,7 @@ FAULTS = {
     "no_touch": "touch",  # no particle cloud, no tactile pose
     "wrong_rate": "rate",  # 20 Hz instead of 12.5 Hz
     "disobeys": "obey",  # moves at half the commanded speed
+    "state_own_clock": "sync",  # the state stamped with its own clock reading, image and cloud with the step's time
 }
 
 
@@ -37,6 +38,8 @@ def broken_driver(fault: str):
             if fault == "no_touch":
                 self.destroy_publisher(self.pub_cloud)
                 self.pub_cloud = _Null()
+            if fault == "state_own_clock":  # a few microseconds after the stamp its image and cloud carry
+                self.pub_state = _Restamped(self.pub_state, lambda: self.get_clock().now().to_msg())
 
         def on_command(self, msg):
             if fault == "accepts_invalid" and int(msg.episode) == self.episode:
@@ -69,6 +72,17 @@ def broken_driver(fault: str):
 class _Null:
     def publish(self, _msg):
         pass
+
+
+class _Restamped:
+    """A publisher that stamps each message anew, with ``stamp()``, just before publishing it."""
+
+    def __init__(self, publisher, stamp):
+        self.publisher, self.stamp = publisher, stamp
+
+    def publish(self, msg):
+        msg.header.stamp = self.stamp()
+        self.publisher.publish(msg)
 
 
 def main() -> int:

@@ -330,7 +330,7 @@ def test_launch_graph_foxglove_serves_every_graph_topic_live(launcher, tmp_path)
             second.close()
     assert launch.wait(timeout=600) == 0, launch.output()
     assert decoded["/dlo/camera/image"].encoding == "mono8"
-    # frames: each message names the frame its values are in (DESIGN.md section 2)
+    # frames: each message names the frame its values are in (docs/ARCHITECTURE.md#world)
     assert decoded["/dlo/camera/image"].header.frame_id == decoded["/dlo/camera/camera_info"].header.frame_id \
         == "top_camera_optical"
     assert decoded["/dlo/tactile/pose"].header.frame_id == decoded["/dlo/vision/pose"].header.frame_id == "gripper"
