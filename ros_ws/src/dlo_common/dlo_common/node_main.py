@@ -3,13 +3,15 @@
 from __future__ import annotations
 
 import os
+import re
 import sys
 from collections.abc import Callable, Sequence
 
 import rclpy
 from rclpy.executors import ExternalShutdownException
+from rclpy.utilities import remove_ros_args
 
-from dlo_common.node_util import NodeStartError, ParameterError
+from dlo_common.node_util import NodeStartError, ParameterError, UnknownParameterError
 from dlo_common.params import Param, help_requested, help_text, unexpected_arguments
 
 EXIT_BAD_PARAMETER = 2
@@ -33,10 +35,117 @@ def installed_params_file(package: str, executable: str) -> str:
     return ""
 
 
+PARAMS_FILE_LAYOUT = "expected '/**:' (or the node's name), then '  ros__parameters:', then '    NAME: VALUE'"
+_RCL_LOCATION = re.compile(r",? at /\S+:\d+")  # rcl's ", at /project/src/parse.c:806" source locations
+_LINE = re.compile(r" (?:at|near) line(?:_num)? \d+")  # rcl's " at line 3" / " at line_num 3"
+
+
+def params_files(argv: Sequence[str]) -> list[str]:
+    """The files of ``--params-file FILE`` in the ``--ros-args`` parts of ``argv``."""
+    files, in_ros = [], False
+    for i, arg in enumerate(argv):
+        if arg == "--ros-args":
+            in_ros = True
+        elif arg == "--":
+            in_ros = False
+        elif in_ros and arg == "--params-file" and i + 1 < len(argv):
+            files.append(argv[i + 1])
+    return files
+
+
+def params_file_problem(path: str) -> str:
+    """What is wrong with a params file before rcl reads it (missing, unreadable, not YAML, not a
+    mapping), in a few words; '' when rcl may read it."""
+    if not os.path.exists(path):
+        return "not found"
+    if os.path.isdir(path):
+        return "is a directory"
+    try:
+        with open(path, encoding="utf-8") as f:
+            text = f.read()
+    except (OSError, UnicodeDecodeError) as error:
+        return f"cannot read it ({getattr(error, 'strerror', None) or error})"
+    try:
+        import yaml
+    except ImportError:  # rcl's own parser still reads it below
+        return ""
+    try:
+        document = yaml.safe_load(text)
+    except yaml.YAMLError as error:
+        mark = getattr(error, "problem_mark", None)
+        where = f" at line {mark.line + 1}" if mark is not None else ""
+        problem = " ".join(str(getattr(error, "problem", None) or error).split())
+        return f"YAML syntax error{where}: {problem}"
+    if document is not None and not isinstance(document, dict):
+        what = "a list" if isinstance(document, list) else "a single value"
+        return f"wrong layout (the file holds {what}); {PARAMS_FILE_LAYOUT}"
+    empty = _empty_parameter_section(document or {})
+    if empty:
+        return (f"wrong layout ('{empty}: ros__parameters:' holds no parameters: add '    NAME: VALUE' under it "
+                "or leave the section out)")
+    return ""
+
+
+def _empty_parameter_section(mapping: dict, path: str = "") -> str:
+    """The node key of the first ``ros__parameters:`` with nothing under it (rcl refuses it); ''."""
+    for key, value in mapping.items():
+        if key == "ros__parameters" and value is None:
+            return path or "?"
+        if isinstance(value, dict):
+            found = _empty_parameter_section(value, f"{path}/{key}".lstrip("/") if path else str(key))
+            if found:
+                return found
+    return ""
+
+
+def ros_arguments_problem(argv: Sequence[str]) -> str:
+    """One line on what rcl would refuse in ``argv``'s ``--ros-args`` (a params file that is missing,
+    not YAML or laid out wrongly, a malformed ``-p``, an unknown ROS flag); '' when nothing.
+
+    rcl reports these from ``rclpy.init`` as a multi-line RCLError traceback; here they are found
+    first, with rcl's own argument parser (no context, no node, nothing started)."""
+    for path in params_files(argv):
+        problem = params_file_problem(path)
+        if problem:
+            return f"params file {path}: {problem}"
+    try:
+        remove_ros_args(list(argv))
+    except RuntimeError as error:  # RCLInvalidROSArgsError, UnknownROSArgsError
+        return _rcl_argument_error(error)
+    return ""
+
+
+def _rcl_argument_error(error: Exception) -> str:
+    text = _RCL_LOCATION.sub("", str(error)).strip()
+    if type(error).__name__ == "UnknownROSArgsError":  # str(error) is the list of them: "['--bogus']"
+        unknown = ", ".join(re.findall(r"'([^']*)'", text)) or text
+        return (f"unknown ROS argument {unknown} after --ros-args (there: -p NAME:=VALUE, --params-file FILE, "
+                "-r FROM:=TO, --log-level LEVEL)")
+    found = re.search(r"Couldn't parse params file: '--params-file (.*?)'\. Error: (.*)", text)
+    if found:
+        path, problem = found.groups()
+        line = re.search(r"line(?:_num)? (\d+)", problem)  # the first line rcl names
+        where = f" at line {line.group(1)}" if line else ""
+        if "no node names before ros__parameters" in problem:
+            what = "'ros__parameters:' without a node name above it"
+        elif "before ros__parameters" in problem:
+            what = "a value outside 'ros__parameters:'"
+        else:  # e.g. "Sequence should be of same type": a value rcl cannot take
+            problem = _LINE.sub("", problem)
+            return f"params file {path}: rcl cannot read it{where}: {problem}"
+        return f"params file {path}: wrong layout{where} ({what}); {PARAMS_FILE_LAYOUT}"
+    found = re.search(r"Couldn't parse parameter override rule: '(.*?)'", text)
+    if found:
+        return (f"cannot read {found.group(1)!r}: expected -p NAME:=VALUE (VALUE in YAML, e.g. 3, 0.5, true, text, "
+                "[1.0,2.0])")
+    return text.removeprefix("Failed to parse ROS arguments: ")
+
+
 def handle_help(package: str, parameters: Sequence[Param | tuple], summary: str = "",
                 args: Sequence[str] | None = None, exit_codes: str = EXIT_CODES) -> int | None:
-    """Answer ``-h``/``--help`` (print the parameters, return 0) or a stray argument before
-    ``--ros-args`` (one line, return 2); None when the node should start.
+    """Answer ``-h``/``--help`` (print the parameters, return 0), a stray argument before
+    ``--ros-args`` or ROS arguments that rcl would refuse (one line, return 2: see
+    :func:`ros_arguments_problem`); None when the node should start.
 
     Call it first in a node's ``main()``: it needs no ``rclpy.init``, creates no node and no file.
     ``args`` defaults to ``sys.argv[1:]`` (stray arguments are only checked there); ``summary`` is what the node does (its module docstring).
@@ -52,6 +161,10 @@ def handle_help(package: str, parameters: Sequence[Param | tuple], summary: str 
     if stray:
         print(f"{executable}: unexpected argument {stray[0]!r} (parameters go after --ros-args: "
               f"-p NAME:=VALUE; see '{executable} --help')", file=sys.stderr)
+        return EXIT_BAD_PARAMETER
+    problem = ros_arguments_problem(argv)
+    if problem:
+        print(f"{executable}: {problem}", file=sys.stderr)
         return EXIT_BAD_PARAMETER
     return None
 
@@ -86,7 +199,8 @@ def run_node(make_node: Callable[[], "rclpy.node.Node"], args=None, *, interrupt
         rclpy.spin(node)
         rc = interrupted_rc  # spin returns when a signal has shut the context down
     except ParameterError as error:
-        print(f"[{name}] bad parameter: {error}", file=sys.stderr)
+        what = "" if isinstance(error, UnknownParameterError) else "bad parameter: "
+        print(f"[{name}] {what}{error}", file=sys.stderr)
         rc = EXIT_BAD_PARAMETER
     except NodeStartError as error:
         print(f"[{name}] {error}", file=sys.stderr)

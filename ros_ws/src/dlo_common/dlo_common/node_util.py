@@ -9,9 +9,10 @@ from typing import Any
 
 from rcl_interfaces.msg import ParameterDescriptor
 
-from dlo_common.params import Param, ParameterError, as_params, check_value
+from dlo_common.params import Param, ParameterError, UnknownParameterError, as_params, check_value, unknown_parameter
 
-__all__ = ["NodeStartError", "Param", "ParameterError", "ShutdownRequest", "declare_parameters", "require_bounds"]
+__all__ = ["NodeStartError", "Param", "ParameterError", "ShutdownRequest", "UnknownParameterError",
+           "declare_parameters", "require_bounds"]
 
 
 class NodeStartError(RuntimeError):
@@ -25,14 +26,22 @@ def declare_parameters(node: Any, specs: Sequence[Param | tuple[str, Any, str]])
     Parameters are declared with ``dynamic_typing`` so that e.g. ``rate:=2`` (an integer) is
     accepted for a float parameter; a value that cannot be read as the default's type, or is outside
     the parameter's range, raises :class:`ParameterError` with a clear message instead of a traceback.
+
+    A value given for a parameter the node does not have (``-p nosuch:=1``, or a name in a params
+    file section for this node) raises :class:`UnknownParameterError` naming the closest declared
+    one, instead of being ignored; so a node declares all its parameters in this one call.
     """
-    values: dict[str, Any] = {}
-    for param in as_params(specs):
+    params = as_params(specs)
+    declared: dict[str, Any] = {}
+    for param in params:
         descriptor = ParameterDescriptor(description=param.description, dynamic_typing=True,
                                          additional_constraints=param.range_text)
-        declared = node.declare_parameter(param.name, param.default, descriptor)
-        values[param.name] = check_value(param, declared.value)
-    return values
+        default = list(param.default) if isinstance(param.default, tuple) else param.default
+        declared[param.name] = node.declare_parameter(param.name, default, descriptor).value
+    for name in getattr(node, "_parameter_overrides", {}):  # rclpy: what -p / params files set for this node
+        if not node.has_parameter(name) and not name.startswith("qos_overrides."):
+            raise unknown_parameter(name, declared)
+    return {param.name: check_value(param, declared[param.name]) for param in params}
 
 
 def require_bounds(values: dict[str, Any], at_least: dict[str, float] | None = None,

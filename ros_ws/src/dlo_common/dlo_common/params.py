@@ -15,6 +15,7 @@ Units are part of each description (e.g. ``[s]``, ``[m]``).
 
 from __future__ import annotations
 
+import difflib
 import inspect
 import json
 import math
@@ -30,12 +31,18 @@ class ParameterError(ValueError):
     """A parameter has a wrong type or value (the message names it and what is expected)."""
 
 
+class UnknownParameterError(ParameterError):
+    """A parameter set on the command line or in a params file that the node does not declare."""
+
+
 @dataclass(frozen=True)
 class Param:
     """One declared node parameter: its default fixes its type.
 
     Optional range: ``at_least`` (value >= bound), ``above`` (value > bound), ``at_most``
-    (value <= bound), ``choices`` (value is one of these strings).
+    (value <= bound), ``choices`` (value is one of these strings), ``length`` (a list parameter
+    has exactly this many entries).
+    A list default of numbers makes a ``double_array`` parameter, any other list a ``string_array``.
     """
 
     name: str
@@ -45,26 +52,24 @@ class Param:
     above: float | None = None
     at_most: float | None = None
     choices: tuple[str, ...] = ()
+    length: int | None = None
 
     @property
     def type_name(self) -> str:
-        """The ROS 2 parameter type of the default: bool, integer, double, string, string_array."""
+        """The ROS 2 parameter type of the default: bool, integer, double, string, string_array, double_array."""
         default = self.default
-        if isinstance(default, bool):
-            return "bool"
-        if isinstance(default, int):
-            return "integer"
-        if isinstance(default, float):
-            return "double"
         if isinstance(default, (list, tuple)):
-            return "string_array"
-        return "string"
+            return "double_array" if default and all(_is_number(v) for v in default) else "string_array"
+        return ros_type_name(default)
 
     @property
     def range_text(self) -> str:
-        """The range in words, e.g. ``>= 1``, ``0..19``, ``> 0``, ``step_locked | real_time``; '' if none."""
+        """The range in words, e.g. ``>= 1``, ``0..19``, ``> 0``, ``step_locked | real_time``,
+        ``length 3``; '' if none."""
         if self.choices:
             return " | ".join(self.choices)
+        if self.length is not None:
+            return f"length {self.length}"
         if self.at_least is not None and self.at_most is not None:
             return f"{_number(self.at_least)}..{_number(self.at_most)}"
         parts = []
@@ -81,6 +86,52 @@ def _number(value: float) -> str:
     return str(int(value)) if float(value).is_integer() else repr(float(value))
 
 
+def _is_number(value: Any) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
+def ros_type_name(value: Any) -> str:
+    """The ROS 2 parameter type a value arrives as: bool, integer, double, string, ``<type>_array``."""
+    if isinstance(value, bool):
+        return "bool"
+    if isinstance(value, int):
+        return "integer"
+    if isinstance(value, float):
+        return "double"
+    if isinstance(value, (bytes, bytearray)):
+        return "byte_array"
+    if isinstance(value, (list, tuple)):
+        kinds = {ros_type_name(v) for v in value}
+        return f"{kinds.pop()}_array" if len(kinds) == 1 else "array"
+    return "string"
+
+
+def example(param: Param) -> str:
+    """A value that fits ``param``, as set on the command line: ``-p horizon:=150``,
+    ``-p mode:=step_locked``, ``-p camera_position:=[0.0,0.0,1.0]``, ``-p topics:=/dlo/a,/dlo/b``."""
+    default = param.default
+    if param.choices:
+        value = param.choices[0]
+    elif isinstance(default, bool):
+        value = "true"
+    elif _is_number(default):
+        value = format_default(default)
+    elif param.type_name == "double_array":
+        value = "[" + ",".join(repr(float(v)) for v in default) + "]"
+    elif isinstance(default, (list, tuple)):
+        items = [str(v) for v in default] or ["/dlo/a", "/dlo/b"][: param.length or 2]
+        value = ",".join(items)
+    else:
+        value = str(default) or "text"
+    return f"-p {param.name}:={value}"
+
+
+def unknown_parameter(name: str, known: Iterable[str]) -> UnknownParameterError:
+    """``unknown parameter 'nosuch'; did you mean 'noise'?`` (the closest of ``known``, by difflib)."""
+    closest = difflib.get_close_matches(name, list(known), n=1, cutoff=0.0)
+    return UnknownParameterError(f"unknown parameter {name!r}" + (f"; did you mean {closest[0]!r}?" if closest else ""))
+
+
 def as_param(spec: Param | Sequence[Any]) -> Param:
     """A :class:`Param` from a Param or a ``(name, default, description)`` tuple."""
     return spec if isinstance(spec, Param) else Param(*spec)
@@ -95,8 +146,8 @@ def coerce(param: Param, value: Any) -> Any:
     name, default = param.name, param.default
 
     def bad(expected: str) -> ParameterError:
-        return ParameterError(f"parameter '{name}': expected {expected}, got {value!r} "
-                              f"({type(value).__name__})")
+        return ParameterError(f"parameter '{name}': expected {expected}, e.g. {example(param)}, got {value!r} "
+                              f"({ros_type_name(value)})")
 
     if isinstance(default, bool):
         if isinstance(value, bool):
@@ -115,11 +166,28 @@ def coerce(param: Param, value: Any) -> Any:
             return str(value)
         raise bad("a string")
     if isinstance(default, (list, tuple)):
-        if isinstance(value, str):  # one topic, or a comma-separated list
-            return [v.strip() for v in value.split(",") if v.strip()]
-        if isinstance(value, (list, tuple)) and all(isinstance(v, str) for v in value):
-            return list(value)
-        raise bad("a list of strings, e.g. \"['/dlo/a', '/dlo/b']\"")
+        count = f"{param.length} " if param.length is not None else "a list of "
+        if param.type_name == "double_array":
+            items = value.split(",") if isinstance(value, str) else value  # also 'x,y,z'
+            expected = f"{count}numbers"
+            try:
+                if not isinstance(items, (list, tuple)) or not all(_is_number(v) or isinstance(v, str)
+                                                                   for v in items):
+                    raise ValueError
+                got = [float(v) for v in items]
+            except ValueError:
+                raise bad(expected) from None
+        else:
+            expected = f"{count}strings"
+            if isinstance(value, str):  # one topic, or a comma-separated list
+                got = [v.strip() for v in value.split(",") if v.strip()]
+            elif isinstance(value, (list, tuple)) and all(isinstance(v, str) for v in value):
+                got = list(value)
+            else:
+                raise bad(expected)
+        if param.length is not None and len(got) != param.length:
+            raise bad(expected)
+        return got
     return value
 
 
@@ -127,6 +195,8 @@ def check_value(param: Param, value: Any) -> Any:
     """:func:`coerce`, then the range: the checked value, or :class:`ParameterError` in one line."""
     value = coerce(param, value)
     name = param.name
+    if param.type_name == "double_array" and not all(math.isfinite(v) for v in value):
+        raise ParameterError(f"parameter '{name}': expected finite numbers, e.g. {example(param)}, got {value}")
     if param.choices and value not in param.choices:
         raise ParameterError(f"parameter '{name}': expected one of {tuple(param.choices)}, got {value!r}")
     if isinstance(value, (int, float)) and not isinstance(value, bool):
@@ -153,6 +223,8 @@ def format_default(value: Any) -> str:
     if isinstance(value, int):
         return str(value)
     if isinstance(value, (list, tuple)):
+        if value and all(_is_number(v) for v in value):
+            return "[" + ", ".join(repr(float(v)) for v in value) + "]"
         return "[" + ", ".join(json.dumps(str(v)) for v in value) + "]"
     return json.dumps(str(value))
 

@@ -4,8 +4,10 @@ import re
 
 import pytest
 
-from dlo_common.params import (Param, as_param, check_value, coerce, format_default, help_requested, help_text,
-                               unexpected_arguments)
+import yaml
+
+from dlo_common.params import (Param, UnknownParameterError, as_param, check_value, coerce, example, format_default,
+                               help_requested, help_text, unexpected_arguments, unknown_parameter)
 
 INT = Param("n", 1, "count", at_least=1)
 BOUNDED = Param("port", 10, "port", at_least=0, at_most=20)
@@ -15,6 +17,8 @@ FLAG = Param("flag", False, "flag")
 TEXT = Param("name", "a", "name")
 TOPICS = Param("topics", ["/a"], "topics")
 MODE = Param("mode", "x", "mode", choices=("x", "y"))
+POSITION = Param("position", (0.0, 0.0, 1.0), "x, y, z [m]", length=3)
+EMPTY_TOPICS = Param("extra", [], "more topics")
 
 
 @pytest.mark.parametrize("param,value,expected", [
@@ -85,3 +89,40 @@ def test_help_text_lists_each_parameter_once():
     assert "\n  n (integer, default 1, range >= 1)\n      count\n" in text
     assert "\n  mode (string, default \"x\", range x | y)\n      mode\n" in text
     assert text.endswith("Exit codes: 0 ok.\n")
+
+
+def test_a_list_of_numbers_is_a_double_array_of_fixed_length():
+    assert POSITION.type_name == "double_array" and POSITION.range_text == "length 3"
+    assert format_default(POSITION.default) == "[0.0, 0.0, 1.0]"
+    for value in ([0.5, 0.0, 2.0], [1, 0, 2], (1, 0, 2.0), "0.5, 0, 2", ["0.5", "0", "2"]):
+        got = check_value(POSITION, value)
+        assert type(got) is list and all(type(v) is float for v in got) and len(got) == 3, value
+    for value, shown in [([0.0, 1.0], "[0.0, 1.0] (double_array)"), ("up", "'up' (string)"),
+                         ([True, 0.0, 1.0], "[True, 0.0, 1.0] (array)"), (1.0, "1.0 (double)")]:
+        with pytest.raises(ValueError, match=re.escape(
+                f"parameter 'position': expected 3 numbers, e.g. -p position:=[0.0,0.0,1.0], got {shown}")):
+            check_value(POSITION, value)
+    with pytest.raises(ValueError, match="expected finite numbers"):
+        check_value(POSITION, [0.0, float("nan"), 1.0])
+
+
+@pytest.mark.parametrize("param,shown", [
+    (FLAG, "-p flag:=true"), (INT, "-p n:=1"), (ABOVE, "-p rate:=1.0"), (TEXT, "-p name:=a"),
+    (TOPICS, "-p topics:=/a"), (EMPTY_TOPICS, "-p extra:=/dlo/a,/dlo/b"), (MODE, "-p mode:=x"),
+    (POSITION, "-p position:=[0.0,0.0,1.0]"), (Param("path", "", "a file"), "-p path:=text"),
+])
+def test_each_type_error_shows_an_example_that_fits_the_parameter(param, shown):
+    assert example(param) == shown
+    check_value(param, yaml.safe_load(shown.split(":=", 1)[1]))  # rcl reads a -p value as YAML
+    wrong = {"bool": 1, "integer": "x", "double": "x", "string": [1], "string_array": 3, "double_array": "x"}
+    with pytest.raises(ValueError, match=re.escape(f", e.g. {shown}, got ")):
+        coerce(param, wrong[param.type_name])
+
+
+def test_an_unknown_name_suggests_the_closest_declared_one():
+    error = unknown_parameter("sead", ["mode", "seed", "horizon"])
+    assert isinstance(error, UnknownParameterError) and isinstance(error, ValueError)
+    assert str(error) == "unknown parameter 'sead'; did you mean 'seed'?"
+    assert str(unknown_parameter("horizn", ["seed", "horizon"])) == \
+        "unknown parameter 'horizn'; did you mean 'horizon'?"
+    assert str(unknown_parameter("x", [])) == "unknown parameter 'x'"

@@ -2,17 +2,20 @@
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 from rclpy.node import Node
 from sensor_msgs.msg import PointCloud2
 
 from dlo_msgs.msg import GripperState, TactilePose
 from dlo_perception.cloud import unpack_particles
-from dlo_perception.sync import StampSync, stamp_to_ns
+from dlo_perception.sync import IncompleteSteps, StampSync, stamp_to_ns
 from dlo_perception.tactile import TACTILE_NOISE, noise_sigma, tactile_pose
 from dlo_common.node_util import ParameterError, declare_parameters
 from dlo_common.params import Param
 
+INPUT_TIMEOUT = 1.0  # s, a step's particles and state not matched by stamp after this long are reported
 PARAMETERS = (
     Param("noise", "none", f"tactile sensitivity preset {sorted(TACTILE_NOISE)} or 'custom'",
           choices=(*sorted(TACTILE_NOISE), "custom")),
@@ -34,6 +37,7 @@ class TactileNode(Node):
             raise ParameterError(str(error)) from None
         self.rng = np.random.default_rng(p["seed"])
         self.sync = StampSync(("particles", "gripper"))
+        self.incomplete = IncompleteSteps(INPUT_TIMEOUT)  # a step whose inputs never share one stamp: reported
         self.last = (None, None)  # (stamp_ns, TactilePose): a republished step gets the same reading
         self.publisher = self.create_publisher(TactilePose, "/dlo/tactile/pose", 10)
         self.create_subscription(PointCloud2, "/dlo/rope/particles",
@@ -43,6 +47,7 @@ class TactileNode(Node):
     def on_input(self, key, msg):
         stamp = stamp_to_ns(msg.header.stamp)
         matched = self.sync.add(key, stamp, msg)
+        self.report_incomplete(stamp, matched is not None)
         if matched is None:
             return
         if self.last[0] == stamp:  # the sim republished this step: same noise draw, not a new one
@@ -58,6 +63,13 @@ class TactileNode(Node):
         out.header.frame_id = "gripper"  # angle and offset are in the gripper frame (DESIGN.md section 2)
         self.last = (stamp, out)
         self.publisher.publish(out)
+
+    def report_incomplete(self, stamp, matched):
+        """Steps whose particles and state do not meet within INPUT_TIMEOUT s: one error a second at most,
+        naming the missing input and the stamps seen nearby (dlo_perception.sync.IncompleteSteps)."""
+        line = self.incomplete.note(self.sync, stamp, matched, time.monotonic(), prefer="gripper")
+        if line is not None:
+            self.get_logger().error(line)
 
 
 def main(args=None):

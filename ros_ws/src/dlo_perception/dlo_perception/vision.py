@@ -1,6 +1,6 @@
 """Vision distillation O_V = [v_V, q_V, theta_V, y_V] of the cable just right of the gripper.
 
-Definition (DESIGN.md section 9, after the authors' code): the gripper hides the cable up to
+Definition (after the authors' code, docs/ARCHITECTURE.md#constants): the gripper hides the cable up to
 ``x_o = x_G + OCCLUSION_RADIUS``. Entering the region right of it within ``SEARCH_HALF_WIDTH`` of
 the gripper in y, the strand closest to the gripper in y is followed to the right while it keeps
 heading right, for at most ``TRACK_LENGTH``:

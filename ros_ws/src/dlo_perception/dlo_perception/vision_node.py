@@ -6,6 +6,8 @@ CameraInfo does not carry, from parameters (defaults: the simulator's camera).
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile
@@ -13,14 +15,16 @@ from sensor_msgs.msg import CameraInfo, Image
 
 from dlo_msgs.msg import GripperState, VisualPose
 from dlo_perception.camera import TopCamera
-from dlo_perception.sync import StampSync, stamp_to_ns
+from dlo_perception.sync import IncompleteSteps, StampSync, stamp_to_ns
 from dlo_perception.vision import visual_pose
-from dlo_common.node_util import ParameterError, declare_parameters
+from dlo_common.node_util import declare_parameters
+from dlo_common.params import Param
 
 DEFAULT_CAMERA = TopCamera.covering_workspace()
+INPUT_TIMEOUT = 1.0  # s, a step's image and state not matched by stamp after this long are reported
 PARAMETERS = (
-    ("camera_position", [str(c) for c in DEFAULT_CAMERA.position],
-     "camera centre in the world frame [m] as 'x,y,z' (looks down -z)"),
+    Param("camera_position", tuple(float(c) for c in DEFAULT_CAMERA.position),
+          "camera centre in the world frame [m], [x, y, z] (looks down -z)", length=3),
 )
 
 
@@ -30,17 +34,14 @@ class VisionNode(Node):
     def __init__(self):
         super().__init__("vision_node")
         p = declare_parameters(self, PARAMETERS)
-        try:
-            self.camera_position = tuple(float(c) for c in p["camera_position"])
-            assert len(self.camera_position) == 3
-        except (ValueError, AssertionError):
-            raise ParameterError(f"camera_position must be three numbers 'x,y,z', got {p['camera_position']}") from None
+        self.camera_position = tuple(p["camera_position"])  # three numbers (declare_parameters checks)
         self.camera = None
         # Compile the vision kernel now, not on the first frame (a replayed or live stream would
         # queue up behind the compilation and drop frames).
         visual_pose(np.zeros((1, DEFAULT_CAMERA.height, DEFAULT_CAMERA.width), np.uint8), DEFAULT_CAMERA,
                     np.zeros((1, 2)), 0.1)
         self.sync = StampSync(("image", "gripper"))
+        self.incomplete = IncompleteSteps(INPUT_TIMEOUT)  # a step whose inputs never share one stamp: reported
         self.publisher = self.create_publisher(VisualPose, "/dlo/vision/pose", 10)
         latched = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
         self.create_subscription(CameraInfo, "/dlo/camera/camera_info", self.on_camera_info, latched)
@@ -51,7 +52,9 @@ class VisionNode(Node):
         self.camera = TopCamera.from_camera_info(info.width, info.height, info.k, self.camera_position)
 
     def on_input(self, key, msg):
-        matched = self.sync.add(key, stamp_to_ns(msg.header.stamp), msg)
+        stamp = stamp_to_ns(msg.header.stamp)
+        matched = self.sync.add(key, stamp, msg)
+        self.report_incomplete(stamp, matched is not None)
         if matched is None:
             return
         image, gripper = matched
@@ -69,6 +72,13 @@ class VisionNode(Node):
         out.header.stamp = image.header.stamp
         out.header.frame_id = "gripper"  # angle and offset relative to the gripper, in its frame
         self.publisher.publish(out)
+
+    def report_incomplete(self, stamp, matched):
+        """Steps whose image and state do not meet within INPUT_TIMEOUT s: one error a second at most,
+        naming the missing input and the stamps seen nearby (dlo_perception.sync.IncompleteSteps)."""
+        line = self.incomplete.note(self.sync, stamp, matched, time.monotonic(), prefer="gripper")
+        if line is not None:
+            self.get_logger().error(line)
 
 
 def main(args=None):

@@ -23,7 +23,7 @@ class ConfigError(ValueError):
 
 @dataclass
 class SACConfig:
-    """Soft Actor-Critic hyperparameters (defaults: the authors' agent, DESIGN.md section 9)."""
+    """Soft Actor-Critic hyperparameters (defaults: the authors' agent, docs/ARCHITECTURE.md#constants)."""
 
     hidden_sizes: tuple[int, ...] = (1024, 1024)
     actor_lr: float = 1e-3

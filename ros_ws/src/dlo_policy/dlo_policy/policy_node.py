@@ -24,7 +24,7 @@ from dlo_common.node_util import ParameterError, declare_parameters
 from dlo_common.params import Param
 from dlo_msgs.msg import GripperCommand, GripperState, TactilePose, TaskState, VisualPose
 from dlo_perception.cloud import unpack_particles
-from dlo_perception.sync import StampSync, stamp_to_ns
+from dlo_perception.sync import IncompleteSteps, StampSync, stamp_to_ns
 from dlo_perception.tactile import TactilePose as Tactile
 from dlo_perception.vision import VisualPose as Visual
 from dlo_policy.observation import build_observation, parse_modalities
@@ -61,6 +61,16 @@ def shipped_policy_path() -> Path:
     return Path(__file__).resolve().parents[1] / SHIPPED_POLICY
 
 
+def modalities_parameter(name: str, value: str) -> tuple:
+    """``parse_modalities(value)``, or a ParameterError naming the parameter and what it takes."""
+    try:
+        return parse_modalities(value)
+    except ValueError:
+        takes = ("'' (none) or the modalities to zero: K, T, V or several joined by '+', e.g. T or T+V"
+                 if name == "without" else "All or a '+'-joined subset of K, T, V, e.g. V+K")
+        raise ParameterError(f"parameter '{name}': expected {takes}, got {value!r}") from None
+
+
 class GroundTruthView:
     """One step's particle cloud and gripper state, shaped like the env's simulator for OracleFollow."""
 
@@ -87,12 +97,15 @@ def load_policy(kind: str, checkpoint: str, modalities: str, seed: int):
     """-> (act(observation (1, D), new_episode, ground truth) -> action (1, 3), modalities actually used)."""
     if kind == "sac":
         from dlo_policy.evaluate import load_run_config
-        from dlo_policy.sac import SAC
+        from dlo_policy.sac import SAC, CheckpointError
 
         path = Path(checkpoint) if checkpoint else shipped_policy_path()
         if not path.exists():
             raise ParameterError(f"checkpoint {path} does not exist")
-        agent = SAC.load(path)
+        try:
+            agent = SAC.load(path)
+        except CheckpointError as error:  # "not a dlo-vitac policy file: PATH (why)"
+            raise ParameterError(f"parameter 'checkpoint': {error}") from None
         trained_on = load_run_config(path).modalities
         return (lambda obs, new_episode, truth: agent.predict(obs, deterministic=True).reshape(1, 3)), trained_on
     if kind == "tactile_reactive":
@@ -128,8 +141,12 @@ class PolicyNode(Node):
                 self.act, modalities = None, p["modalities"]
             else:
                 self.act, modalities = load_policy(p["policy"], p["checkpoint"], p["modalities"], p["seed"])
-            self.modalities = parse_modalities(modalities)
-            self.without = parse_modalities(p["without"]) if p["without"] else ()
+            self.modalities = modalities_parameter("modalities", modalities)
+            self.without = modalities_parameter("without", p["without"]) if p["without"] else ()
+            ablated_absent = [m for m in self.without if m not in self.modalities]
+            if ablated_absent:
+                raise ParameterError(f"parameter 'without': cannot ablate {'+'.join(ablated_absent)}: the policy "
+                                     f"observes only {'+'.join(self.modalities)}")
             build_observation(self.modalities, np.zeros((1, 3)), Tactile(*np.zeros((4, 1))),
                               Visual(*np.zeros((4, 1))), without=self.without)
             self.learner = self.make_learner(p) if p["train"] else None
@@ -143,6 +160,7 @@ class PolicyNode(Node):
         self.truth = GroundTruthView()
         self.sync = StampSync(inputs)
         self.first_seen = {}  # stamp_ns -> wall time of its first input
+        self.incomplete = IncompleteSteps(self.input_timeout, first_seen=self.first_seen)  # check_missing_inputs
         self.last = (None, None)  # (stamp_ns, GripperCommand): a republished step gets the same answer
         self.publisher = self.create_publisher(GripperCommand, "/dlo/gripper/cmd", 10)
         self.create_subscription(GripperState, "/dlo/gripper/state", lambda m: self.on_input("gripper", m), 10)
@@ -213,15 +231,11 @@ class PolicyNode(Node):
         super().destroy_node()
 
     def check_missing_inputs(self):
-        now = time.monotonic()
-        for stamp, seen in list(self.first_seen.items()):
-            if now - seen > self.input_timeout:
-                have = self.sync.pending.get(stamp, {})
-                missing = [k for k in self.sync.keys if k not in have]
-                if missing:
-                    self.get_logger().error(f"step at t={stamp / 1e9:.2f} s: no {', '.join(missing)} input after "
-                                            f"{self.input_timeout} s (is that node running?)")
-                del self.first_seen[stamp]
+        """A step incomplete after ``input_timeout`` s: one error naming the missing input and the stamps
+        the inputs did carry nearby, at most once a second (with the count of the other such steps)."""
+        line = self.incomplete.check(self.sync, time.monotonic(), prefer="gripper")
+        if line is not None:
+            self.get_logger().error(line)
 
 
 def main(args=None):

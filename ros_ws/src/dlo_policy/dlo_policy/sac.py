@@ -4,14 +4,14 @@ Written in the style of CleanRL's sac_continuous_action.py, with an SB3-like sur
 `SAC(obs_dim, action_low, action_high, config, seed)`, `learn(env, total_steps, callback)`,
 `predict(obs, deterministic)`, `save(path)`, `SAC.load(path)`.
 
-The update, per gradient step (DESIGN.md section 9 defaults):
+The update, per gradient step (defaults from the authors' agent: docs/ARCHITECTURE.md#constants):
   critic:  y = s * r + gamma * (1 - done) * (min_j Q'_j(s', a') - alpha * log pi(a'|s')),  a' ~ pi(s')
            minimise sum_j (Q_j(s, a) - y)^2                                     (s = reward scale)
   every `policy_update_every` steps:
     actor: minimise alpha * log pi(a~|s) - min_j Q_j(s, a~),  a~ ~ pi(s) (critic weights frozen)
     alpha: minimise -alpha * (log pi(a~|s) + target_entropy)    (alpha = exp(log_alpha))
   every `target_update_every` steps: Q'_j <- (1 - tau) Q'_j + tau Q_j
-Speed (DESIGN.md section 10): fp32, no critic weight gradients in the actor loss, fused Adam.
+Speed (docs/ARCHITECTURE.md#benchmarks): fp32, no critic weight gradients in the actor loss, fused Adam.
 Device (`device`: "cpu", "cuda", "auto" = cuda if available): networks, replay buffer, sampling
 and normaliser live there; checkpoints are written with CPU tensors and load on either device.
 """
@@ -40,6 +40,28 @@ class CheckpointError(ValueError):
     """A checkpoint file is missing or is not a dlo_policy checkpoint (one-line message)."""
 
 
+def _not_a_policy_file(path: Path, reason: str) -> CheckpointError:
+    return CheckpointError(f"not a dlo-vitac policy file: {path} ({reason})")
+
+
+def _unreadable_reason(path: Path, error: Exception) -> str:
+    """Why torch.load could not read ``path``, in a few words (the file's first bytes tell)."""
+    with path.open("rb") as f:
+        head = f.read(4096)
+    if not head:
+        return "empty file"
+    if head.startswith(b"PK\x03\x04"):
+        return "a zip archive torch cannot read: damaged or not a torch file"
+    if b"\0" not in head:
+        try:
+            head.decode("utf-8")
+            return "a text file, not a torch checkpoint"
+        except UnicodeDecodeError as decode_error:
+            if len(head) == 4096 and decode_error.start >= len(head) - 3:  # a character cut by the read
+                return "a text file, not a torch checkpoint"
+    return f"binary data torch cannot load ({type(error).__name__})"
+
+
 def resolve_device(device: str | torch.device = "cpu") -> torch.device:
     """"auto" -> cuda if available else cpu; "cuda" without a CUDA device -> ValueError (one line)."""
     name = str(device)
@@ -62,10 +84,11 @@ def read_checkpoint(path: str | Path) -> dict[str, Any]:
     try:
         state = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as error:  # noqa: BLE001 (torch raises many types for foreign bytes: pickle, zip, EOF, ...)
-        raise CheckpointError(f"{path} is not a dlo_policy checkpoint ({type(error).__name__}: "
-                              f"{str(error).splitlines()[0][:80] if str(error) else 'unreadable'})") from None
-    if not isinstance(state, dict) or state.get("format") != CHECKPOINT_FORMAT:
-        raise CheckpointError(f"{path} is not a {CHECKPOINT_FORMAT} checkpoint")
+        raise _not_a_policy_file(path, _unreadable_reason(path, error)) from None
+    if not isinstance(state, dict) or "format" not in state:
+        raise _not_a_policy_file(path, f"a torch file without the {CHECKPOINT_FORMAT} format tag")
+    if state["format"] != CHECKPOINT_FORMAT:
+        raise _not_a_policy_file(path, f"format {state['format']!r}, expected {CHECKPOINT_FORMAT!r}")
     return state
 LOG_SQRT_2PI = 0.5 * math.log(2 * math.pi)
 
@@ -204,6 +227,7 @@ class StepResult(NamedTuple):
     terminated: bool
     truncated: bool
     info: dict
+    losses: dict  # this step's update (critic_loss, actor_loss, alpha_loss); empty before learning_starts
 
 
 class SAC:
@@ -369,15 +393,14 @@ class SAC:
             next_obs, reward, terminated, truncated, info = env.step(self._to_env_action(action))
             self.store(obs, action, reward, next_obs, terminated)
             self.num_env_steps += 1
-            if self.num_env_steps > self.config.learning_starts:
-                self.update()
+            losses = self.update() if self.num_env_steps > self.config.learning_starts else {}
             if terminated or truncated:
                 self.num_episodes += 1
                 obs, _ = env.reset(seed=self.episode_seed(self.num_episodes))
             else:
                 obs = next_obs
             if callback is not None and callback(self, StepResult(float(reward), bool(terminated),
-                                                                  bool(truncated), info)) is False:
+                                                                  bool(truncated), info, losses)) is False:
                 break
         return self
 

@@ -7,7 +7,7 @@ Every policy is called as ``policy(observation, env) -> actions (N, 3)`` on a ba
 - ``OracleFollow``: ground truth from the simulator (particles, held set): moves toward a particle
   a few indices ahead of the held ones with the closure in the sliding band, and stops and holds
   firmly once it holds particles near the free end. Proves the task is solvable in our physics.
-- ``TactileReactive``: after She et al. 2021 (DESIGN.md section 11), observations only (K, T, V):
+- ``TactileReactive``: after She et al. 2021 (docs/ARCHITECTURE.md#baselines), observations only (K, T, V):
   a pose loop steering along the cable as felt by the fingers (angle, offset) plus the cable's
   direction from its fixed end, a grip loop in the sliding band, and a stop by vision.
 """

@@ -36,6 +36,13 @@ The run directory also holds config.yaml (resolved config), checkpoint.pt (every
 buffer included, every `train.checkpoint_every` steps), policy.pt (actor only, at the end) and
 done.json (completion marker with a summary and "source": the git commit the run trained on;
 dlo-experiments skips runs that have it).
+
+TensorBoard (`tensorboard --logdir runs`): tb/ in the run directory holds event files with, against
+env steps: train/episode_return and train/episode_length per training episode; loss/critic,
+loss/actor, loss/alpha and speed/steps_per_s averaged over every TB_EVERY steps; every evaluation's
+columns (eval/..., eval_without_T/... for the ablation): both rules' outcome fractions, reward,
+time at end, how far, and the learner health (alpha, entropy, q_value, saturated). Logging changes
+nothing in the run (no random draws); a resumed run appends to the same directory.
 """
 from __future__ import annotations
 
@@ -65,6 +72,7 @@ EVAL_COLUMNS = ("step", "tested_without", "episodes", "eval_seed", *OUTCOMES, *O
                 "alpha", "entropy", "q_value", "saturated")
 EVAL_SEED_STRIDE = 100_000  # eval seeds of run seed s lie in eval_seed + [s, s + 1) * EVAL_SEED_STRIDE
 CONFIG_FILE, EVAL_FILE, CHECKPOINT_FILE = "config.yaml", "eval.csv", "checkpoint.pt"
+TB_DIR, TB_EVERY = "tb", 100  # TensorBoard event files; losses and speed averaged over this many steps
 POLICY_FILE, DONE_FILE, TEST_FILE = "policy.pt", "done.json", "test.json"
 BEST_POLICY_FILE, BEST_FILE = "best_policy.pt", "best.json"  # the policy of the best evaluation so far
 
@@ -170,6 +178,8 @@ class Trainer:
         self.checkpoint_due = False
         self.episode_return = 0.0
         self.recent_returns: list[float] = []  # the last 10 training episodes' returns, for the progress bar
+        self.tb = TensorBoardLog(out_dir / TB_DIR)
+        self.episode_length = 0
 
     def wall_time(self) -> float:
         return self.log.wall_time_offset + time.perf_counter() - self.started
@@ -186,6 +196,8 @@ class Trainer:
                          "train_episodes": self.agent.num_episodes, "wall_time_s": round(self.wall_time(), 2),
                          **health})
         self.log.append(rows)
+        for row in rows:
+            self.tb.evaluation(row)
         self.last_eval = rows[0]
         self.keep_if_best(rows[0])
 
@@ -208,10 +220,13 @@ class Trainer:
     def on_step(self, agent: SAC, result: StepResult) -> bool:
         self.bar.update(1)
         self.episode_return += result.reward
+        self.episode_length += 1
+        step = agent.num_env_steps
+        self.tb.step(step, result.losses)
         if result.terminated or result.truncated:
             self.recent_returns = (self.recent_returns + [self.episode_return])[-10:]
-            self.episode_return = 0.0
-        step = agent.num_env_steps
+            self.tb.episode(step, self.episode_return, self.episode_length)
+            self.episode_return, self.episode_length = 0.0, 0
         if step % self.config.train.eval_every == 0:
             self.evaluate()
             self.bar.set_postfix(train_return=f"{np.mean(self.recent_returns or [np.nan]):.2f}",
@@ -259,6 +274,7 @@ class Trainer:
             self.agent.learn(self.env, total, callback=self.on_step)
         finally:
             self.bar.close()
+            self.tb.close()
             self.env.close()
             self.eval_env.close()
         self.save_checkpoint()
@@ -270,6 +286,57 @@ class Trainer:
                    "test": test, "source": self.source}
         (self.out_dir / DONE_FILE).write_text(json.dumps(summary, indent=2) + "\n")
         return summary
+
+
+class TensorBoardLog:
+    """TensorBoard scalars of a run (module docstring); a one-line warning and no event files when the
+    tensorboard package is missing."""
+
+    LOSSES = {"critic_loss": "loss/critic", "actor_loss": "loss/actor", "alpha_loss": "loss/alpha"}
+    EVAL_SKIP = {"step", "tested_without", "episodes", "eval_seed", "wall_time_s"}
+
+    def __init__(self, directory: Path):
+        try:
+            from torch.utils.tensorboard import SummaryWriter
+        except ImportError as error:  # tensorboard is in scripts/requirements.txt; a bare install may lack it
+            print(f"dlo-train: warning: no TensorBoard event files ({error}); pip install tensorboard",
+                  file=sys.stderr)
+            self.writer = None
+        else:
+            self.writer = SummaryWriter(str(directory))
+        self.sums: dict[str, float] = {}
+        self.counts: dict[str, int] = {}
+        self.window_start = time.perf_counter()
+
+    def step(self, step: int, losses: dict) -> None:
+        for key, value in losses.items():
+            self.sums[key] = self.sums.get(key, 0.0) + value
+            self.counts[key] = self.counts.get(key, 0) + 1
+        if self.writer is None or step % TB_EVERY:
+            return
+        for key, total in self.sums.items():
+            self.writer.add_scalar(self.LOSSES.get(key, "loss/" + key), total / self.counts[key], step)
+        now = time.perf_counter()
+        self.writer.add_scalar("speed/steps_per_s", TB_EVERY / max(now - self.window_start, 1e-9), step)
+        self.sums, self.counts, self.window_start = {}, {}, now
+
+    def episode(self, step: int, episode_return: float, length: int) -> None:
+        if self.writer is not None:
+            self.writer.add_scalar("train/episode_return", episode_return, step)
+            self.writer.add_scalar("train/episode_length", length, step)
+
+    def evaluation(self, row: dict[str, Any]) -> None:
+        if self.writer is None:
+            return
+        prefix = f"eval_without_{row['tested_without']}" if row["tested_without"] else "eval"
+        for key, value in row.items():
+            if key not in self.EVAL_SKIP and isinstance(value, (int, float)) and np.isfinite(value):
+                self.writer.add_scalar(f"{prefix}/{key}", value, row["step"])
+        self.writer.flush()
+
+    def close(self) -> None:
+        if self.writer is not None:
+            self.writer.close()
 
 
 def check_devices(config: RunConfig) -> None:
@@ -327,6 +394,11 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         config = resolve_config(args)
         check_env_options(config)
         check_devices(config)
+        steps, starts = config.train.total_steps, config.sac.learning_starts
+        if steps <= starts:  # SAC.learn updates only after env step learning_starts
+            print(f"dlo-train: warning: train.total_steps {steps} <= sac.learning_starts {starts}: no gradient "
+                  f"update will happen (random actions only); pass e.g. sac.learning_starts={steps // 3} "
+                  f"or --steps above {starts}", file=sys.stderr)
         summary = train(config, args.out, resume=args.resume)
     except (ConfigError, FileExistsError, FileNotFoundError) as error:
         print(f"dlo-train: error: {error}", file=sys.stderr)

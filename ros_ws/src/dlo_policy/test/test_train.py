@@ -218,8 +218,8 @@ def test_garbage_checkpoint_is_one_line_naming_the_file(content, tmp_path, capsy
     (tmp_path / "config.yaml").write_text("modalities: All\n")
     assert evaluate.main(["--checkpoint", str(path), "--episodes", "1"]) == 2
     err = capsys.readouterr().err.strip()
-    assert len(err.splitlines()) == 1 and str(path) in err and "not a dlo_policy" in err
-    with pytest.raises(ValueError, match="not a dlo_policy"):
+    assert len(err.splitlines()) == 1 and err.startswith(f"dlo-evaluate: error: not a dlo-vitac policy file: {path} (")
+    with pytest.raises(ValueError, match="^not a dlo-vitac policy file: "):
         SAC.load(path)
 
 
@@ -257,3 +257,23 @@ def test_gpu_settings_without_a_gpu_exit_2_with_one_line(override, message, tmp_
     errors = [line for line in result.stderr.splitlines() if not line.startswith("[Taichi]")]
     assert len(errors) == 1 and message in errors[0], result.stderr
     assert not run.exists()
+
+
+def test_tensorboard_event_files_hold_losses_speed_episodes_and_both_rules(tmp_path):
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    run = tmp_path / "run"
+    assert train.main(["--out", str(run), "--steps", "300", "--modalities", "All", "--no-progress",
+                       "train.eval_without=[T]", *TINY]) == 0
+    events = EventAccumulator(str(run / train.TB_DIR))
+    events.Reload()
+    tags = set(events.Tags()["scalars"])
+    for tag in ("loss/critic", "loss/actor", "loss/alpha", "speed/steps_per_s", "train/episode_return",
+                "train/episode_length", "eval/hold_the_end", "eval/hold_the_end_authors", "eval/episode_reward",
+                "eval/alpha", "eval/entropy", "eval/q_value", "eval/saturated", "eval_without_T/hold_the_end"):
+        assert tag in tags, tag
+    assert [e.step for e in events.Scalars("eval/hold_the_end")] == [0, 100, 200, 300]
+    rows = [r for r in read_eval(run) if r["tested_without"] == ""]
+    assert [e.value for e in events.Scalars("eval/episode_reward")] == pytest.approx(
+        [float(r["episode_reward"]) for r in rows])
+    assert [e.step for e in events.Scalars("loss/critic")] == [100, 200, 300]  # updates start after step 50

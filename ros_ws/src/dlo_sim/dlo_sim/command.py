@@ -55,7 +55,7 @@ def command_mismatch(mode: str, episode: int, step: int, cmd_episode: int, cmd_s
                      period: float = 0.08, command_timeout: float = 0.5,
                      previous_final: tuple[int, int] | None = None) -> tuple[str, str] | None:
     """Why a command stamped (``cmd_episode``, ``cmd_step``) must not act on the sim's current
-    (``episode``, ``step``): ``(cause, text)``, or None when it matches (DESIGN.md section 6).
+    (``episode``, ``step``): ``(cause, text)``, or None when it matches (docs/ARCHITECTURE.md#topics).
 
     It must answer the current episode and, in ``step_locked`` mode, the current step; in
     ``real_time`` mode a step not ahead of the current one and not older than

@@ -1,7 +1,7 @@
 """Physical constants and the validated simulator configuration. SI units throughout.
 
 The geometric constants come from the authors' public SoftGym/Flex implementation
-(DESIGN.md section 9). Where this XPBD rebuild needs its own numbers (sub-steps, compliances,
+(docs/ARCHITECTURE.md#constants). Where this XPBD rebuild needs its own numbers (sub-steps, compliances,
 damping, the contact radius), ``SimConfig`` holds them with the reason next to each.
 """
 

@@ -18,7 +18,7 @@ from .config import (DT, FINGER_AXIS_OFFSET, FINGER_CLEARANCE, FINGER_HALF_LENGT
                      MAX_DISPLACEMENT, NOMINAL_INVERSE_MASS, P_MAX, PARTICLE_RADIUS, REST_SPACING,
                      WORKSPACE_HALF_WIDTH)
 
-HELD_DISTANCE = PARTICLE_RADIUS + FINGER_RADIUS + REST_SPACING  # m, held rule (DESIGN.md section 9)
+HELD_DISTANCE = PARTICLE_RADIUS + FINGER_RADIUS + REST_SPACING  # m, held rule (docs/ARCHITECTURE.md#constants)
 MAX_CORRECTION = 0.25 * REST_SPACING  # m, per sub-step cap on a particle's direct-solve correction
 GRIP_SLIP_STRAIN = 0.0  # a grip slips (c < 0.9) or stalls (c >= 0.9) once the straight line fixed end -> held particle exceeds its rest length along the cable by this
 SELF_EXCLUDE = 3  # particles closer than this along the chain never self-collide
@@ -156,7 +156,7 @@ class RopeKernels:
                 d = self.x[e, i] - anchor
                 reach = self.taut_reach(i)
                 if (d + dg).norm() > reach:
-                    # the gripper moves in the horizontal plane only (DESIGN.md section 2): remove the
+                    # the gripper moves in the horizontal plane only (docs/ARCHITECTURE.md#world): remove the
                     # part of dg along the horizontal direction away from the fixed end, never add z
                     r = ti.Vector([d.x, d.y, 0.0])
                     r /= ti.max(r.norm(), 1e-9)

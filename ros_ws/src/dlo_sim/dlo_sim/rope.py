@@ -32,7 +32,7 @@ class Snapshot:
     """What the task and the observations read of the current state, from one kernel launch."""
 
     positions: np.ndarray  # (N, P_MAX, 3) float32 [m], padded rows 0
-    held: np.ndarray  # (N, P_MAX) bool, particles between the fingers (DESIGN.md section 9 rule)
+    held: np.ndarray  # (N, P_MAX) bool, particles between the fingers (held rule: docs/ARCHITECTURE.md#constants)
     gripper: np.ndarray  # (N, 4) float32: x_G, y_G, z_G [m], c_G in [0, 1]
     image: np.ndarray | None  # (N, H, W) uint8 top view (as ``render``), None if not asked for
 
@@ -149,7 +149,7 @@ class RopeSim:
         return out
 
     def held_mask(self) -> np.ndarray:
-        """(N, P_MAX) bool: particles between the fingers now (DESIGN.md section 9 rule)."""
+        """(N, P_MAX) bool: particles between the fingers now (held rule: docs/ARCHITECTURE.md#constants)."""
         return self.snapshot(render=False).held
 
     def n_held(self) -> np.ndarray:

@@ -65,7 +65,7 @@ def test_a_firm_grip_on_a_taut_cable_stops_the_gripper():
 @pytest.mark.parametrize("closure, command, lead_in", [(1.0, (1.0, 0.0), 4), (1.0, (0.3, 1.0), 4),
                                                        (1.0, (1.0, 0.0), 0), (0.95, (0.7, -0.7), 8)])
 def test_a_stalled_gripper_stays_at_its_height(closure, command, lead_in):
-    """The gripper moves in the horizontal plane only (DESIGN.md section 2): the stall removes the
+    """The gripper moves in the horizontal plane only (docs/ARCHITECTURE.md#world): the stall removes the
     horizontal part of the motion away from the fixed end and never lifts or lowers the gripper
     (before: up to 4 mm up within an episode, which also made vision differ between graph and env)."""
     sim = RopeSim(1)

@@ -3,7 +3,7 @@
 - the grip law: the inverse mass and carried fraction the kernel gives the particles between the
   fingers equal ``dlo_sim.grip`` for closures across [0, 1]; every other particle keeps w_nom and is
   not carried; the pinned particle 0 is kinematic;
-- the held rule (DESIGN.md section 9) at its boundaries: the extent along the finger includes the
+- the held rule (docs/ARCHITECTURE.md#constants) at its boundaries: the extent along the finger includes the
   capsule's rounded ends (|dy| <= half-length + radius), the distance to the lower finger's axis,
   and "above the lower finger";
 - finite grip: a firm grip on a taut cable stalls the gripper, a sliding grip slides along it, and
@@ -21,7 +21,7 @@ from dlo_sim.config import (FINGER_AXIS_OFFSET, FINGER_HALF_LENGTH, FINGER_RADIU
                             PARTICLE_RADIUS, REST_SPACING)
 from dlo_sim.grip import carried_fraction, inverse_mass
 
-HELD_DISTANCE = PARTICLE_RADIUS + FINGER_RADIUS + REST_SPACING  # DESIGN.md section 9
+HELD_DISTANCE = PARTICLE_RADIUS + FINGER_RADIUS + REST_SPACING  # docs/ARCHITECTURE.md#constants
 F32 = np.float32
 
 
