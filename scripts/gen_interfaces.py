@@ -44,10 +44,10 @@ MSG_DIR = ROOT / "ros_ws" / "src" / "dlo_msgs"
 PROBE_NODE = "interfaces_probe"
 EXIT_STALE, EXIT_ERROR = 1, 2
 
-# Topics DESIGN.md section 6 lists (the contract); the live graph is compared with it.
-DESIGN_TOPICS = ("/dlo/rope/particles", "/dlo/gripper/state", "/dlo/camera/image", "/dlo/camera/camera_info",
-                 "/dlo/tactile/pose", "/dlo/vision/pose", "/dlo/gripper/cmd", "/dlo/task/state", "/dlo/markers",
-                 "/clock")
+# Topics docs/ARCHITECTURE.md#topics lists (the contract); the live graph is compared with it.
+CONTRACT_TOPICS = ("/dlo/rope/particles", "/dlo/gripper/state", "/dlo/camera/image", "/dlo/camera/camera_info",
+                   "/dlo/tactile/pose", "/dlo/vision/pose", "/dlo/gripper/cmd", "/dlo/task/state", "/dlo/markers",
+                   "/clock")
 INFRASTRUCTURE_TOPICS = ("/parameter_events", "/rosout")
 PARAMETER_SERVICES = ("describe_parameters", "get_parameters", "get_parameter_types", "list_parameters",
                       "set_parameters", "set_parameters_atomically", "get_type_description")
@@ -498,7 +498,7 @@ def render(model: dict, sem: dict, params: list, definitions: list) -> str:
         "--mode real_time --record`, the shipped SAC policy), so it cannot drift: "
         "`tests/test_interfaces_doc.py` regenerates it and fails when it is stale. How to write a driver: "
         "[WRITE_YOUR_DRIVER.md](WRITE_YOUR_DRIVER.md); whether yours fits, rule by rule: `dlo-driver-check`. "
-        "The design contract: DESIGN.md section 6; the library API: [LIBRARY_API.md](LIBRARY_API.md).\n")
+        "The topic contract: [ARCHITECTURE.md#topics](ARCHITECTURE.md#topics); the library API: [LIBRARY_API.md](LIBRARY_API.md).\n")
     add("Conventions: SI units, REP-103 (right-handed, z up). Every topic is under `/dlo` (plus `/clock`); "
         "`launch_graph.sh --namespace NS` prefixes them all with `/NS`. Every message's `header.frame_id` "
         "names the frame of its values; its `header.stamp` is the simulation (or driver) time of the control "
@@ -507,7 +507,7 @@ def render(model: dict, sem: dict, params: list, definitions: list) -> str:
     add("## Contents\n")
     for title in ("A driver's interface", "Topics", "Topic details: units, ranges, QoS of every endpoint", "Services", "Frames",
                   "Timing", "What the simulator publishes that a robot cannot", "Message definitions",
-                  "Node parameters", "Known deviations from DESIGN.md"):
+                  "Node parameters", "Known deviations from the topic contract"):
         add(f"- [{title}](#{anchor(title)})")
     add("")
 
@@ -693,7 +693,7 @@ def render(model: dict, sem: dict, params: list, definitions: list) -> str:
         add(table.rstrip())
         add("")
 
-    add("## Known deviations from DESIGN.md\n")
+    add("## Known deviations from the topic contract\n")
     for line in deviations(model):
         add(f"- {line}")
     add("")
@@ -769,43 +769,43 @@ top view (world x-y): what the camera image shows (column u ~ +x, row v ~ -y)
 def deviations(model: dict) -> list[str]:
     lines = []
     topics = model["topics"]
-    extra = sorted(set(topics) - set(DESIGN_TOPICS))
+    extra = sorted(set(topics) - set(CONTRACT_TOPICS))
     if extra:
-        lines.append("Topics the graph has that DESIGN.md section 6 does not list: "
+        lines.append("Topics the graph has that docs/ARCHITECTURE.md#topics does not list: "
                      + ", ".join(f"`{t}`" for t in extra) + ".")
-    missing = sorted(set(DESIGN_TOPICS) - set(topics))
+    missing = sorted(set(CONTRACT_TOPICS) - set(topics))
     if missing:
-        lines.append("Topics DESIGN.md section 6 lists that the running graph lacks: "
+        lines.append("Topics docs/ARCHITECTURE.md#topics lists that the running graph lacks: "
                      + ", ".join(f"`{t}`" for t in missing) + ".")
     headerless = sorted(t for t, v in topics.items() if t.startswith("/dlo/") and v.get("frame_id") is None)
     if headerless:
-        lines.append("DESIGN.md section 6: \"every message has a `std_msgs/Header`\"; these have none: "
+        lines.append("docs/ARCHITECTURE.md#topics: \"every message has a `std_msgs/Header`\"; these have none: "
                      + ", ".join(f"`{t}` (`{topics[t]['type']}`)" for t in headerless) + ".")
     own = sorted(t for t, v in topics.items() if v.get("stamp") == "own")
     if own:
-        lines.append("DESIGN.md section 6: outputs \"carry the stamp of the input they were computed from\"; these "
+        lines.append("docs/ARCHITECTURE.md#topics: outputs \"carry the stamp of the input they were computed from\"; these "
                      "carry stamps that are not a state's: " + ", ".join(f"`{t}`" for t in own) + ".")
     unframed = sorted(t for t, v in topics.items() if v.get("frame_id") == "")
     if unframed:
-        lines.append("DESIGN.md section 6: \"every message's `frame_id` names the frame its values are in\"; empty "
+        lines.append("docs/ARCHITECTURE.md#topics: \"every message's `frame_id` names the frame its values are in\"; empty "
                      "in: " + ", ".join(f"`{t}`" for t in unframed) + ".")
     if model["services"]:
-        lines.append("DESIGN.md section 6 names no services; the graph serves "
+        lines.append("docs/ARCHITECTURE.md#topics names no services; the graph serves "
                      + ", ".join(f"`{name}`" for name, _, _ in model["services"]) + ".")
     sim_time = sorted(n for n, v in model["use_sim_time"].items() if v)
     if len(sim_time) < len(model["use_sim_time"]):
-        lines.append("DESIGN.md: \"nodes run with `use_sim_time`\". In the launched graph `use_sim_time` is "
+        lines.append("The topic contract: \"nodes run with `use_sim_time`\". In the launched graph `use_sim_time` is "
                      f"{'true only for ' + ', '.join(sim_time) if sim_time else 'false for every node'}: nodes "
                      "stamp their outputs with the stamp of their inputs (so the matching by stamp holds), and their "
                      "timers and logs run on wall time (the real_time tick must: it drives `/clock`).")
     if not {"/tf", "/tf_static"} & set(topics):
-        lines.append("DESIGN.md names the frames but no node publishes `/tf` or `/tf_static` (see Frames for the "
+        lines.append("docs/ARCHITECTURE.md#world names the frames but no node publishes `/tf` or `/tf_static` (see Frames for the "
                      "static transform to publish yourself).")
     info = topics.get("/dlo/camera/camera_info", {})
     if info.get("stamp", "").startswith("0"):
         lines.append("`/dlo/camera/camera_info` is published once with stamp 0 (latched), not with each image: "
                      "a consumer pairs them by frame_id, not by stamp (image_transport's CameraSubscriber would not).")
-    lines.append("DESIGN.md section 6: \"a driver that publishes `gripper/state` and `camera/image` and obeys "
+    lines.append("docs/ARCHITECTURE.md#topics: \"a driver that publishes `gripper/state` and `camera/image` and obeys "
                  "`gripper/cmd` replaces the sim node with no change elsewhere\". It must also provide a tactile "
                  "source (`/dlo/rope/particles` contact points or `/dlo/tactile/pose`): tactile_node needs particles.")
     return lines

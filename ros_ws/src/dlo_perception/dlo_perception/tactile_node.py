@@ -60,7 +60,7 @@ class TactileNode(Node):
         out = TactilePose(angle=float(pose.angle[0]), y=float(pose.y[0]), contact=bool(pose.contact[0]),
                           contact_count=int(pose.count[0]))
         out.header.stamp = cloud.header.stamp
-        out.header.frame_id = "gripper"  # angle and offset are in the gripper frame (DESIGN.md section 2)
+        out.header.frame_id = "gripper"  # angle and offset are in the gripper frame (docs/ARCHITECTURE.md#world)
         self.last = (stamp, out)
         self.publisher.publish(out)
 

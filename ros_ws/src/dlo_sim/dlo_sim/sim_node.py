@@ -1,4 +1,4 @@
-"""sim_node: the Taichi rope simulator as a ROS 2 node (DESIGN.md section 6).
+"""sim_node: the Taichi rope simulator as a ROS 2 node (docs/ARCHITECTURE.md#topics, docs/INTERFACES.md).
 
 Publishes ``/clock`` and, for every control step, the particles, gripper state, top-view image
 (+ camera_info), task state and markers, all stamped with the simulation time of that state.

@@ -9,10 +9,10 @@ Reward per control step (n_h held particles, p_i their mean index, n_c particles
 When nothing was held before the step (p_{t-1} < 0) there is no d_{t-1}: R_move = 0.
 
 Outcomes (codes equal dlo_msgs/TaskState.OUTCOME_*), decided when the episode ends, under two
-definitions that are both always computed (DESIGN.md section 5):
+definitions that are both always computed (docs/ARCHITECTURE.md#task):
 
 **paper text** (``classify_outcome``): "at the end" = holding any of the last ``end_particles``
-(paper: 10) particles, held set = the physics' held rule (DESIGN.md section 9).
+(paper: 10) particles, held set = the physics' held rule (docs/ARCHITECTURE.md#physics).
     HOLD_THE_END        not dropped and at the end on the last step (horizon)
     STOP_BEFORE         not dropped and not at the end on the last step
     REACH_END_BUT_DROP  dropped after having been at the end at some step
