@@ -21,7 +21,7 @@ usage: scripts/launch_graph.sh [options]
   --train-out DIR      learn online (SAC) while running; checkpoints and policy.pt go to DIR
   --train-config YAML  online training: dlo-train config file (SAC hyperparameters)
   --tactile-noise N    tactile sensitivity: none (default), partial or full
-  --task-rules R       paper_text (default) or authors_code: the held set the reward, the episode's
+  --task-rules R       authors_code (default) or paper_text: the held set the reward, the episode's
                        end and the tactile input use (the sim's task_rules parameter)
   --record DIR         record every /dlo topic to the rosbag2 (MCAP) directory DIR
   --foxglove [PORT]    live view: also start the Foxglove bridge (dlo_tools foxglove_bridge) on
@@ -54,7 +54,7 @@ EOF
 }
 
 episodes=5 seed=0 mode=step_locked rate=1.0 policy=sac checkpoint="" without="" noise=none record="" logs=""
-task_rules=paper_text
+task_rules=authors_code
 train_out="" train_config="" domain="" namespace="" foxglove="" status_period=10
 while [ $# -gt 0 ]; do
   case "$1" in

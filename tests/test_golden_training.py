@@ -1,16 +1,17 @@
-"""The golden training run: a short dlo-train run whose eval.csv is committed must stay bit-identical.
+"""The golden training runs: short dlo-train runs whose eval.csv is committed must stay bit-identical.
 
 A study must not drift with the code under it: a refactor of the env, the task, the simulator, the
-observation or SAC must not change one number a run produces. This test trains the same short run
-(All, seed 7, 600 env steps, 300 gradient updates, evaluations every 200 steps with and without T)
-and compares every column of its eval.csv with tests/golden/All_seed7_600/eval.csv, exactly (only the
-wall-clock column differs between runs). It was generated at the commit that added it and checked
-equal to a run of the code before the task_rules switch (60560be).
+observation or SAC must not change one number a run produces. This test trains the same short runs
+(All, seed 7, 600 env steps, 300 gradient updates, evaluations every 200 steps with and without T),
+one per task rules variant (tests/golden/<rules>_All_seed7_600/ARGS), and compares every column of
+their eval.csv with the committed one, exactly (only the wall-clock column differs between runs).
+paper_text's was checked equal to a run of the code before the task_rules switch (60560be).
 
-When a change is MEANT to change training (a new default, a physics fix), regenerate it and say so
-in the commit message, with the study runs it invalidates:
-    dlo-train --modalities All --seed 7 --steps 600 --out /tmp/golden --no-progress $(cat tests/golden/ARGS)
-    cp /tmp/golden/eval.csv /tmp/golden/config.yaml tests/golden/All_seed7_600/
+When a change is MEANT to change training (a new default, a physics fix), regenerate and say so in
+the commit message, with the study runs it invalidates:
+    G=tests/golden/authors_code_All_seed7_600
+    dlo-train --modalities All --seed 7 --steps 600 --out /tmp/golden --no-progress $(cat $G/ARGS)
+    cp /tmp/golden/eval.csv /tmp/golden/config.yaml $G/
 """
 import csv
 import os
@@ -18,11 +19,11 @@ import pathlib
 import subprocess
 import sys
 
+import pytest
 import yaml
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
-GOLDEN = ROOT / "tests" / "golden" / "All_seed7_600"
-ARGS = (ROOT / "tests" / "golden" / "ARGS").read_text().split()
+GOLDEN_RUNS = sorted(p.name for p in (ROOT / "tests" / "golden").iterdir() if (p / "ARGS").is_file())
 VOLATILE = {"wall_time_s"}
 
 
@@ -31,17 +32,24 @@ def rows(path):
         return [{k: v for k, v in row.items() if k not in VOLATILE} for row in csv.DictReader(f)]
 
 
-def test_the_golden_training_run_is_reproduced_bit_for_bit(tmp_path):
+def test_both_task_rules_have_a_golden_run():
+    assert GOLDEN_RUNS == ["authors_code_All_seed7_600", "paper_text_All_seed7_600"]
+
+
+@pytest.mark.parametrize("name", GOLDEN_RUNS)
+def test_the_golden_training_run_is_reproduced_bit_for_bit(name, tmp_path):
+    golden_dir = ROOT / "tests" / "golden" / name
     out = tmp_path / "run"
     result = subprocess.run([sys.executable, "-m", "dlo_policy.train", "--modalities", "All", "--seed", "7",
-                             "--steps", "600", "--out", str(out), "--no-progress", *ARGS],
+                             "--steps", "600", "--out", str(out), "--no-progress",
+                             *(golden_dir / "ARGS").read_text().split()],
                             capture_output=True, text=True, timeout=900, env=os.environ.copy())
     assert result.returncode == 0, result.stderr[-3000:]
-    config, golden = (yaml.safe_load((d / "config.yaml").read_text()) for d in (out, GOLDEN))
+    config, golden = (yaml.safe_load((d / "config.yaml").read_text()) for d in (out, golden_dir))
     for section, values in golden.items():  # every setting of the golden run is unchanged (new ones may be added)
         assert config[section] == values if not isinstance(values, dict) else \
             {k: config[section].get(k) for k in values} == values, section
-    expected, got = rows(GOLDEN / "eval.csv"), rows(out / "eval.csv")
+    expected, got = rows(golden_dir / "eval.csv"), rows(out / "eval.csv")
     assert len(got) == len(expected) == 8
     for want, have in zip(expected, got):
         assert have == want, f"step {want['step']} without '{want['tested_without']}': " + ", ".join(

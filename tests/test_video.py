@@ -50,7 +50,7 @@ def synthetic_bag(tmp_path_factory):
             writer.write(topic, ts.serialize_cdr(msg, topics[topic]), t)
 
         for episode, steps in enumerate(STEPS):
-            tracker = EpisodeTracker(1, horizon=steps)
+            tracker = EpisodeTracker(1, horizon=steps, task_rules="paper_text")
             for step in range(steps + 1):
                 stamp = T["builtin_interfaces/msg/Time"](sec=100 * episode + step, nanosec=0)
                 header = T["std_msgs/msg/Header"](stamp=stamp, frame_id="world")

@@ -15,7 +15,8 @@ from __future__ import annotations
 from collections import deque
 
 NAMES = {"gripper": "gripper state", "particles": "particle cloud"}  # how a report names an input (default: its key)
-NEAR_MISS_NS = 1_000_000  # stamps of one step that differ by less than 1 ms: a clock, not a missing message
+PUBLISHERS = {"tactile": ("tactile_node", "particles"), "vision": ("vision_node", "image")}  # node, its other input
+NEAR_MISS_NS = 20_000_000  # stamps < 20 ms apart (a quarter control period): one step, stamped by two clock readings
 
 
 class StampSync:
@@ -66,16 +67,20 @@ class StampSync:
                 continue
             near = self.nearby(key, stamp_ns)
             if not near:
-                parts.append(f"{name}: nothing received yet (is its publisher running?)")
+                node, other = PUBLISHERS.get(key, (None, None))
+                parts.append(f"{name}: nothing received yet " + (
+                    f"(is {node} running? it publishes only steps whose {other} and gripper state share one stamp: "
+                    "see its log)" if node else "(is its publisher running?)"))
                 continue
             parts.append(f"{name} has stamps {', '.join(format_stamp(s) for s in near)} nearby")
             off = min(near, key=lambda s: abs(s - stamp_ns)) - stamp_ns
-            if 0 < abs(off) < NEAR_MISS_NS and (near_miss is None or abs(off) < abs(near_miss)):
-                near_miss = off
+            if 0 < abs(off) < NEAR_MISS_NS and (near_miss is None or abs(off) < abs(near_miss[1])):
+                near_miss = (name, off)
         text = "; ".join(parts)
         if near_miss is not None:
-            text += (f" (a stamp {abs(near_miss) / 1000:g} us {'later' if near_miss > 0 else 'earlier'}: every input "
-                     "of a step must carry the state's exact stamp)")
+            name, off = near_miss
+            text += (f" (the {name}'s nearest stamp is {abs(off) / 1000:g} us {'later' if off > 0 else 'earlier'}: "
+                     "every input of a step must carry the state's exact stamp)")
         return text
 
 

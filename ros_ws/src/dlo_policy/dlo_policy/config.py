@@ -164,6 +164,19 @@ def check_env_options(config: RunConfig) -> None:
             raise ConfigError(f"env_options: {error}") from None
 
 
+CABLE_ENV = "dlo_policy.env"  # the env module whose options include task_rules
+
+
+def record_task_rules(config: RunConfig, rules: str) -> RunConfig:
+    """``config`` with ``env_options.task_rules`` set to ``rules`` if the cable env's options do not name
+    them: a new run records the default it trains on (so that a later change of the default never
+    changes what its config means); a run directory from before the option existed reads as the
+    rules it was trained on (``dlo_sim.task.LEGACY_TASK_RULES``)."""
+    if config.env_module == CABLE_ENV and "task_rules" not in config.env_options:
+        config.env_options = {**config.env_options, "task_rules": rules}
+    return config
+
+
 def load_config(path: Optional[str | Path] = None, overrides: typing.Sequence[str] = (),
                 values: Optional[typing.Mapping[str, Any]] = None) -> RunConfig:
     """Defaults, then the YAML file (if any), then `key=value` overrides (values parsed as YAML),

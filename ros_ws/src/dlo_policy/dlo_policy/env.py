@@ -18,8 +18,9 @@ Options (keywords of both entry points):
     tactile_noise="none"  "none" | "partial" | "full" | (sigma_theta [rad], sigma_y [m])
     horizon=150           control steps per episode
     end_particles=10      "at the end" = holding one of the last this-many particles
-    task_rules="paper_text"  "paper_text" | "authors_code": the held set, reward and termination the
-                          episode uses, and the held set the tactile input is fitted to (dlo_sim.task)
+    task_rules="authors_code"  "authors_code" | "paper_text": the held set, reward and termination the
+                          episode uses, and the held set the tactile input is fitted to (dlo_sim.task;
+                          default dlo_sim.task.DEFAULT_TASK_RULES, docs/FIDELITY.md)
     camera_resolution=128 top-view image size [px]
     sim_config=None       a dlo_sim.SimConfig
 
@@ -78,7 +79,7 @@ class CableFollowingVecEnv(VectorEnv):
 
     def __init__(self, num_envs, modalities="All", seed=0, without=(), tactile_noise="none",
                  horizon=task.HORIZON, end_particles=task.END_PARTICLES, camera_resolution=128,
-                 sim_config=None, autoreset=True, task_rules="paper_text"):
+                 sim_config=None, autoreset=True, task_rules=task.DEFAULT_TASK_RULES):
         self.num_envs = int(num_envs)
         self.modalities = parse_modalities(modalities)
         self.without = parse_modalities(without) if without else ()

@@ -22,7 +22,9 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from .config import RunConfig, load_config
+from dlo_sim.task import LEGACY_TASK_RULES
+
+from .config import RunConfig, load_config, record_task_rules
 from .observation import MODALITY_ORDER, MODALITY_SIZES, parse_modalities
 from .sac import SAC
 
@@ -143,11 +145,12 @@ def make_vec_env_for(config: RunConfig, num_envs: int, seed: int) -> Any:
 
 
 def load_run_config(checkpoint: Path) -> RunConfig:
-    """The config.yaml written next to a checkpoint by dlo-train."""
+    """The config.yaml written next to a checkpoint by dlo-train (runs from before task_rules existed
+    were trained on the paper-text rules and read so)."""
     path = checkpoint.parent / "config.yaml"
     if not path.exists():
         raise FileNotFoundError(f"{path} not found: a checkpoint is read together with its run's config.yaml")
-    return load_config(path)
+    return record_task_rules(load_config(path), LEGACY_TASK_RULES)
 
 
 def format_table(result: EvalResult) -> str:

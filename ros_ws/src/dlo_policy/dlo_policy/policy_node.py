@@ -29,7 +29,7 @@ from dlo_perception.tactile import TactilePose as Tactile
 from dlo_perception.vision import VisualPose as Visual
 from dlo_policy.observation import build_observation, parse_modalities
 from dlo_sim.command import action_to_command
-from dlo_sim.task import dropped
+from dlo_sim.task import LEGACY_TASK_RULES, dropped
 
 POLICIES = ("sac", "tactile_reactive", "oracle", "random")
 PARAMETERS = (
@@ -200,7 +200,7 @@ class PolicyNode(Node):
             without=self.without)
         if self.learner is not None:
             task = values["task"]
-            terminated = task.done and bool(dropped(task.task_rules or "paper_text", task.n_held,
+            terminated = task.done and bool(dropped(task.task_rules or LEGACY_TASK_RULES, task.n_held,
                                                     len(task.held_indices_authors)))
             action = self.learner.act(observation[0], task.reward, task.done, terminated,
                                       gripper.episode, gripper.step)

@@ -62,8 +62,9 @@ import torch
 from tqdm import tqdm
 
 from dlo_perception.vision import init_taichi, select_taichi_arch
+from dlo_sim.task import DEFAULT_TASK_RULES, LEGACY_TASK_RULES
 
-from .config import ConfigError, RunConfig, check_env_options, load_config, save_config
+from .config import ConfigError, RunConfig, check_env_options, load_config, record_task_rules, save_config
 from .evaluate import OUTCOMES, OUTCOMES_AUTHORS, blanked_columns, evaluate_agent, make_vec_env_for
 from .sac import SAC, StepResult, resolve_device
 
@@ -148,6 +149,9 @@ class Trainer:
         if not resume and (checkpoint.exists() or (out_dir / EVAL_FILE).exists()):
             raise FileExistsError(f"{out_dir} already holds a run: pass --resume or choose another --out")
         out_dir.mkdir(parents=True, exist_ok=True)
+        # the task rules are always recorded: a new run's are the default, an older run resumed keeps paper_text
+        config = record_task_rules(config, LEGACY_TASK_RULES if resume else DEFAULT_TASK_RULES)
+        self.config = config
         save_config(config, out_dir / CONFIG_FILE)
         self.threads = set_threads(config.train.num_threads)
         self.device = resolve_device(config.train.device)

@@ -10,6 +10,7 @@
 
 import os
 import random
+import re
 
 import numpy as np
 import pytest
@@ -222,3 +223,32 @@ def test_an_incomplete_step_names_the_missing_input_once(make_node, monkeypatch)
     node.check_missing_inputs()
     node.check_missing_inputs()
     assert len(log.errors) == 1 and "no tactile input after 0.5 s" in log.errors[0] and "t=0.16 s" in log.errors[0]
+
+
+def test_incomplete_steps_are_reported_once_a_second_with_the_stamps_seen(make_node, monkeypatch):
+    """A driver whose state is stamped apart from its image and cloud: the perception outputs carry the
+    image's and cloud's stamps, the policy never gets a complete step; it says so about once a second,
+    naming the missing inputs and the stamps they carry (not one error per step)."""
+    node = make_node(act=RecordingPolicy())
+    log = Log()
+    monkeypatch.setattr(node, "get_logger", lambda: log)
+    clock = [100.0]
+    monkeypatch.setattr(policy_node_module, "time", type("Clock", (), {"monotonic": staticmethod(lambda: clock[0])}))
+    for step in range(16, 66):  # 4 s of steps from t = 1.28 s, the timer every 0.25 s
+        node.on_input("tactile", stamped(TactilePose(), step))
+        node.on_input("vision", stamped(VisualPose(), step))
+        state = stamped(GripperState(episode=0, step=step), step)
+        state.header.stamp.nanosec += 400  # the driver's own clock reading for the state
+        node.on_input("gripper", state)
+        clock[0] += 0.08
+        if step % 3 == 0:
+            node.check_missing_inputs()
+    assert node.publisher == []
+    assert 2 <= len(log.errors) <= 4, log.errors  # 50 incomplete steps, about one line a second
+    first = log.errors[0]  # the latest incomplete step when it is due, e.g. the one at 1.44 s
+    found = re.match(r"step at t=(\S+) s: no tactile, vision input after 1.0 s; gripper state at (\S+)00004; tactile has "
+                     r"stamps (\S+), \S+ nearby; vision has stamps (\S+), \S+ nearby", first)
+    assert found and found.group(1) == found.group(2) == found.group(3) == found.group(4), first
+    assert "(the tactile's nearest stamp is 0.4 us earlier: every input of a step must carry the state's exact stamp)" \
+        in first
+    assert "other incomplete steps since the last report" in log.errors[1]

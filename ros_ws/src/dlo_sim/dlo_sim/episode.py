@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from dlo_sim.rope import RopeSim, Snapshot
-from dlo_sim.task import (END_PARTICLES, HORIZON, EpisodeTracker, check_task_rules, held_mask_authors,
+from dlo_sim.task import (DEFAULT_TASK_RULES, END_PARTICLES, HORIZON, EpisodeTracker, check_task_rules, held_mask_authors,
                           held_statistics)
 
 
@@ -26,7 +26,7 @@ class TaskSim:
     """
 
     def __init__(self, num_envs: int, horizon: int = HORIZON, end_particles: int = END_PARTICLES,
-                 render: bool = False, task_rules: str = "paper_text", **sim_options):
+                 render: bool = False, task_rules: str = DEFAULT_TASK_RULES, **sim_options):
         check_task_rules(task_rules)
         self.sim = RopeSim(num_envs, **sim_options)
         self.tracker = EpisodeTracker(self.sim.num_envs, horizon=horizon, end_particles=end_particles,

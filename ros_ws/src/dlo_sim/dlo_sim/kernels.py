@@ -17,10 +17,10 @@ from .config import (DT, FINGER_AXIS_OFFSET, FINGER_CLEARANCE, FINGER_HALF_LENGT
                      GRIPPER_HEIGHT, GRIPPER_START_BEHIND, IMAGE_CABLE, IMAGE_GRIPPER,
                      MAX_DISPLACEMENT, NOMINAL_INVERSE_MASS, P_MAX, PARTICLE_RADIUS, REST_SPACING,
                      WORKSPACE_HALF_WIDTH)
+from .grip import GRIP_SLIP_STRAIN  # taut_reach, stall_firm_grip: dlo_sim.grip states the rule in numpy
 
 HELD_DISTANCE = PARTICLE_RADIUS + FINGER_RADIUS + REST_SPACING  # m, held rule (docs/ARCHITECTURE.md#constants)
 MAX_CORRECTION = 0.25 * REST_SPACING  # m, per sub-step cap on a particle's direct-solve correction
-GRIP_SLIP_STRAIN = 0.0  # a grip slips (c < 0.9) or stalls (c >= 0.9) once the straight line fixed end -> held particle exceeds its rest length along the cable by this
 SELF_EXCLUDE = 3  # particles closer than this along the chain never self-collide
 THREAD_POOL_GRAIN = 512  # loop items Taichi 1.7 hands one CPU thread at the least (measured; see RopeKernels.__init__)
 
@@ -149,7 +149,8 @@ class RopeKernels:
         """A firm grip (c >= 0.9: held particles fully carried) on a cable pulled straight from the
         fixed end stops the gripper: the part of the sub-step motion ``dg`` [m] that would take a
         held particle beyond its rest length along the cable from the fixed end is removed (it may
-        still move sideways or back). This is the robot's force limit; a lighter grip slides instead."""
+        still move sideways or back). This is the robot's force limit; a lighter grip slides instead.
+        ``dlo_sim.grip.stall_firm_grip`` is the same rule in numpy (test_kernel_rules checks they agree)."""
         anchor = self.x[e, 0]
         for i in range(1, self.n[e]):
             if self.carry[e, i] >= 1.0:

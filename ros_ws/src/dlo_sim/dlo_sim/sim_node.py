@@ -47,7 +47,7 @@ from dlo_perception.cloud import particle_cloud
 from dlo_sim.command import CommandError, RejectionLog, command_mismatch, command_to_action, hold_action
 from dlo_sim.config import DT, FINGER_CLEARANCE, FINGER_HALF_LENGTH, FINGER_RADIUS, SUBSTEPS_PER_ACTION
 from dlo_sim.episode import TaskSim
-from dlo_sim.task import HORIZON, OUTCOME_NAMES, TASK_RULES
+from dlo_sim.task import DEFAULT_TASK_RULES, HORIZON, OUTCOME_NAMES, TASK_RULES
 from dlo_common.node_util import NodeStartError, declare_parameters
 from dlo_common.params import Param
 
@@ -58,7 +58,7 @@ PARAMETERS = (
     Param("seed", 0, "episode k is randomised with seed + k", at_least=0),
     Param("episodes", 0, "episodes to run before the node exits (0 = forever)", at_least=0),
     Param("horizon", HORIZON, "control steps per episode", at_least=1),
-    Param("task_rules", "paper_text", "which held set the reward, the episode's end and the tactile input (the "
+    Param("task_rules", DEFAULT_TASK_RULES, "which held set the reward, the episode's end and the tactile input (the "
                                       "particles' held flags) use, one of " + str(TASK_RULES), choices=TASK_RULES),
     Param("rate_factor", 1.0, "real_time mode: simulation speed relative to wall time", above=0.0),
     Param("command_timeout", 0.5, "real_time mode: a command older than this [s] stops the gripper", above=0.0),

@@ -28,8 +28,8 @@ that set on the last step it was non-empty; "at the end" = (n_c - 1) - p_a < 5.
     DROP_BEFORE         it is empty on the last step and the last p_a was not at the end
 Task rules (``TASK_RULES``, env option / sim node parameter ``task_rules``): what the episode
 itself (reward, termination, the tactile input) is computed from.
-    paper_text    (default) the physics' held set; reward as above; the episode ends when it is empty.
-    authors_code  the authors' held set (SoftSlidingGym ``action_space_sliding.py`` get_hold_idx,
+    paper_text    the physics' held set; reward as above; the episode ends when it is empty.
+    authors_code  (default, DEFAULT_TASK_RULES) the authors' held set (SoftSlidingGym ``action_space_sliding.py`` get_hold_idx,
                   ``rope_sliding_env.py`` _get_obs, ``rope_follow.py`` compute_reward): reward from
                   the mean index p_a of that set with their segment count s = n_c - 1,
                   R = ALPHA_MOVE (d_t - d_{t-1}) + R_end, d_t = p_a L_c / s,
@@ -55,6 +55,8 @@ FALL_PENALTY = -0.5
 END_PARTICLES = 10  # "at the end" = any of the last 10 held (the authors' code used 5)
 HORIZON = 150  # control steps per episode
 TASK_RULES = ("paper_text", "authors_code")  # what reward, termination and the tactile input use
+DEFAULT_TASK_RULES = "authors_code"  # the study's variant: its results come closest to the paper (docs/FIDELITY.md)
+LEGACY_TASK_RULES = "paper_text"  # what runs, bags and outcome files from before the switch existed used
 AUTHORS_DROP_AT = 1  # authors' rules: the episode ends when their held set has at most this many particles
 AUTHORS_HELD_HALF_WIDTH = 0.0075  # m, authors' held set: |y - y_G| below this (the finger axis segment)
 AUTHORS_HELD_DISTANCE = 0.0245  # m, authors' held set: distance to the lower finger's axis in x-z below this
@@ -173,7 +175,7 @@ class EpisodeTracker:
     environment. ``p_i_authors``: mean index of ``held_mask_authors`` (-1 when it is empty).
     """
 
-    def __init__(self, num_envs, horizon=HORIZON, end_particles=END_PARTICLES, task_rules="paper_text"):
+    def __init__(self, num_envs, horizon=HORIZON, end_particles=END_PARTICLES, task_rules=DEFAULT_TASK_RULES):
         self.num_envs, self.horizon, self.end_particles = int(num_envs), int(horizon), int(end_particles)
         self.task_rules = check_task_rules(task_rules)
         n = self.num_envs

@@ -7,7 +7,9 @@
   capsule's rounded ends (|dy| <= half-length + radius), the distance to the lower finger's axis,
   and "above the lower finger";
 - finite grip: a firm grip on a taut cable stalls the gripper, a sliding grip slides along it, and
-  a gripped cable is not stretched.
+  a gripped cable is not stretched; the kernel's stall rule gives the displacement
+  ``dlo_sim.grip.stall_firm_grip`` (its numpy statement, used by the driver template) gives, on
+  taut, slack, curved and random cables under firm, sliding and no grips.
 
 One simulator serves every test (each new one recompiles the kernels), so a kernel mutant costs one
 compilation in scripts/mutation_check.sh.
@@ -15,11 +17,12 @@ compilation in scripts/mutation_check.sh.
 
 import numpy as np
 import pytest
+import taichi as ti
 
 from dlo_sim import RopeSim
-from dlo_sim.config import (FINGER_AXIS_OFFSET, FINGER_HALF_LENGTH, FINGER_RADIUS, NOMINAL_INVERSE_MASS, P_MAX,
-                            PARTICLE_RADIUS, REST_SPACING)
-from dlo_sim.grip import carried_fraction, inverse_mass
+from dlo_sim.config import (FINGER_AXIS_OFFSET, FINGER_HALF_LENGTH, FINGER_RADIUS, FIXED_END, NOMINAL_INVERSE_MASS,
+                            P_MAX, PARTICLE_RADIUS, REST_SPACING)
+from dlo_sim.grip import carried_fraction, inverse_mass, stall_firm_grip
 
 HELD_DISTANCE = PARTICLE_RADIUS + FINGER_RADIUS + REST_SPACING  # docs/ARCHITECTURE.md#constants
 F32 = np.float32
@@ -131,3 +134,65 @@ def test_a_sliding_grip_on_a_taut_cable_slides_and_nothing_stretches(sim):
         if len(held):
             far = held.max()
             assert np.linalg.norm(x[far] - x[0]) <= 1.05 * far * REST_SPACING
+
+
+@ti.kernel
+def _kernel_stall(k: ti.template(), dg: ti.types.ndarray(), out: ti.types.ndarray()):
+    for _ in range(1):  # the rule's loop over particles runs serially, as inside step_env's loop over envs
+        allowed = k.stall_firm_grip(0, ti.Vector([dg[0], dg[1], dg[2]]))
+        for j in ti.static(range(3)):
+            out[j] = allowed[j]
+
+
+def kernel_stall(sim, positions, carried, dg):
+    """RopeKernels.stall_firm_grip of env 0 for these particles (n = len(positions)) and carried fractions."""
+    n = len(positions)
+    x = np.zeros((1, P_MAX, 3), np.float32)
+    x[0, :n] = positions
+    carry = np.zeros((1, P_MAX), np.float32)
+    carry[0, :n] = carried
+    sim._k.x.from_numpy(x)
+    sim._k.carry.from_numpy(carry)
+    sim._k.n.from_numpy(np.array([n], np.int32))
+    out = np.zeros(3, np.float32)
+    _kernel_stall(sim._k, np.asarray(dg, np.float32), out)
+    return out
+
+
+def stall_states():
+    """(positions, carried, dg): taut, slack and curved cables under firm, sliding and no grips, and random ones."""
+    anchor = np.array(FIXED_END)
+    straight = anchor + np.arange(30)[:, None] * np.array([REST_SPACING, 0.0, 0.0])  # every particle at its reach
+    slack = anchor + np.arange(30)[:, None] * np.array([0.8 * REST_SPACING, 0.0, 0.0])
+    angle = np.linspace(0.0, 1.2, 30)  # each particle at its reach, in turning directions from the fixed end
+    fan = anchor + REST_SPACING * np.arange(30)[:, None] * np.stack([np.cos(angle), np.sin(angle), 0 * angle], 1)
+    firm = np.zeros(30)
+    firm[20:23] = 1.0
+    sliding = np.where(firm > 0, carried_fraction(0.8), 0.0)
+    step = 0.0025 / 4  # m, the gripper's largest sub-step (full speed, 4 sub-steps)
+    states = [(straight, firm, (step, 0.0, 0.0)), (straight, firm, (0.0, step, 0.0)),
+              (straight, firm, (-step, 0.0, 0.0)), (straight, firm, (step, -step, 0.0)),
+              (straight, sliding, (step, 0.0, 0.0)), (slack, firm, (step, 0.0, 0.0)),
+              (fan, firm, (step, 0.0, 0.0)), (fan, firm, (step, step, 0.0)), (fan, firm, (0.0, -step, 0.0))]
+    rng = np.random.default_rng(7)
+    for _ in range(12):  # particle i at 0.97 .. 1.03 of its reach, in random directions (a little z)
+        directions = rng.normal(size=(30, 3)) * [1.0, 1.0, 0.2] + [1.0, 0.0, 0.0]
+        directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+        positions = anchor + directions * (np.arange(30) * REST_SPACING * rng.uniform(0.97, 1.03, 30))[:, None]
+        held = rng.integers(1, 28)
+        carried = np.zeros(30)
+        carried[held:held + 3] = rng.choice([1.0, 1.0, 0.6])
+        states.append((positions, carried, (*rng.uniform(-step, step, 2), 0.0)))
+    return states
+
+
+def test_the_numpy_stall_rule_equals_the_kernel_on_these_states(sim):
+    stalled = free = 0
+    for positions, carried, dg in stall_states():
+        positions = positions.astype(np.float32)  # the kernel's precision
+        expected = stall_firm_grip(positions, carried, dg)
+        got = kernel_stall(sim, positions, carried, dg)
+        np.testing.assert_allclose(got, expected, atol=1e-7, err_msg=f"dg {dg}, carried {np.flatnonzero(carried)}")
+        changed = np.linalg.norm(expected - np.asarray(dg)) > 1e-6
+        stalled, free = stalled + changed, free + (not changed)
+    assert stalled >= 5 and free >= 5  # both outcomes were compared, not only one

@@ -38,7 +38,7 @@ def test_outcome_codes_match_task_state_message():
 def run(trajectory, n_c=N_C, horizon=task.HORIZON):
     """Drive one tracker with a list of (p_i, n_h, max_held_index[, p_i_authors]) steps (p_i_authors
     defaults to p_i); returns rewards and summary."""
-    tracker = EpisodeTracker(1, horizon=horizon)
+    tracker = EpisodeTracker(1, horizon=horizon, task_rules="paper_text")
     tracker.reset(None, [0.5], [1], [n_c], [0.5])
     rewards = []
     for p_i, n_h, max_held, *authors in trajectory:
@@ -75,7 +75,7 @@ def test_stop_before_and_drop_outcomes():
 
 
 def test_end_is_a_parameter_and_batched_envs_are_independent():
-    tracker = EpisodeTracker(2, horizon=3, end_particles=5)
+    tracker = EpisodeTracker(2, horizon=3, end_particles=5, task_rules="paper_text")
     tracker.reset(None, [0.5, 0.5], [1, 1], [40, 40], [0.5, 0.5])
     for _ in range(3):
         _, terminated, truncated = tracker.step([33.0, 36.0], [2, 2], [34, 36], [40, 40], [0.17, 0.17], [33.0, 36.0],
@@ -192,6 +192,6 @@ def test_authors_rules_end_the_episode_when_their_set_holds_one_particle_while_t
     summary = tracker.summary(0)
     assert summary["outcome"] == "drop_before" and summary["outcome_authors"] == "stop_before"
     assert summary["task_rules"] == "authors_code"
-    paper = EpisodeTracker(1, horizon=10)
+    paper = EpisodeTracker(1, horizon=10, task_rules="paper_text")
     paper.reset(None, [3.0], [4], [40], [3.0])
     assert not paper.step([5.0], [3], [6], [40], [0.16], [5.0], [1])[1][0]

@@ -64,7 +64,7 @@ def test_authors_held_set_boundaries_are_strict():
 
 
 def test_a_tracker_reused_for_the_next_episode_starts_from_its_reset():
-    tracker = EpisodeTracker(1, horizon=3)
+    tracker = EpisodeTracker(1, horizon=3, task_rules="paper_text")
     tracker.reset(None, [0.5], [1], [N_C], [0.5])
     for p_i in (10.0, 36.0, 38.0):  # reaches the end, first three steps
         tracker.step([p_i], [2], [int(p_i) + 1], [N_C], [L_C], [p_i], [2])
@@ -89,7 +89,7 @@ def test_a_tracker_reused_for_the_next_episode_starts_from_its_reset():
 
 
 def test_a_tracker_reset_with_nothing_held_and_its_first_steps():
-    tracker = EpisodeTracker(1, horizon=5)
+    tracker = EpisodeTracker(1, horizon=5, task_rules="paper_text")
     tracker.reset(None, [-1.0], [-1], [N_C], [-1.0])
     assert tracker.how_far().tolist() == [N_C - 1]
     reward, _, _ = tracker.step([3.0], [2], [4], [N_C], [L_C], [0.0], [2])
@@ -101,10 +101,10 @@ def test_a_tracker_reset_with_nothing_held_and_its_first_steps():
 
 
 def test_a_new_tracker_counts_nothing_held_before_its_first_step():
-    tracker = EpisodeTracker(2)
+    tracker = EpisodeTracker(2, task_rules="paper_text")
     reward, _, _ = tracker.step([3.0, 3.0], [2, 2], [4, 4], [N_C, N_C], [L_C, L_C], [3.0, 3.0], [2, 2])
     assert reward.tolist() == [0.0, 0.0]
     assert tracker.how_far().tolist() == [N_C - 1 - 4] * 2  # the cable of the step, not of a reset
-    short = EpisodeTracker(1, horizon=1)  # a 5-particle cable dropped at once: the authors' set never held
+    short = EpisodeTracker(1, horizon=1, task_rules="paper_text")  # a 5-particle cable dropped at once: the authors' set never held
     short.step([-1.0], [0], [-1], [5], [4 * 0.0043], [-1.0], [0])
     assert short.outcome_authors[0] == task.OUTCOME_DROP_BEFORE

@@ -7,24 +7,39 @@ It acts as the policy would: it answers every ``/dlo/gripper/state`` with a ``/d
 stamped with that state's episode and step, following a fixed schedule of phases (hold still,
 close, open, move +x / +y / -y, go silent, drive to the workspace corner, send invalid commands),
 records what the driver publishes and judges it rule by rule (DESIGN.md section 6; the driver
-guide docs/WRITE_YOUR_DRIVER.md). Every rule prints one line ``PASS``/``FAIL``/``SKIP``, its name
-and the measured numbers:
+guide docs/WRITE_YOUR_DRIVER.md). The rules are what the unchanged graph needs to run a step:
+tactile_node, vision_node and policy_node match a step's inputs by their exact header stamp
+(``dlo_perception.sync.StampSync``), vision_node reads mono8 segmentation images only and
+needs camera_info first, tactile_node reads the particle cloud layout of ``dlo_perception.cloud``,
+and the policy answers a stamp it has seen before as a republished step. A driver that passes
+them all runs the graph; a failed rule names the property and the numbers. Every rule prints one
+line ``PASS``/``FAIL``/``SKIP``, its name and the measured numbers; each rule judges one property,
+so one defect fails one rule:
 
 - ``rate``: the state arrives at the control rate (``--rate``, 12.5 Hz = one per 0.08 s, within
-  20 %) while the driver is commanded to hold still;
-- ``stamps``: header stamps strictly increase; the step counter goes +1 per state within an
-  episode, and a new episode starts at step 0;
-- ``camera``: ``/dlo/camera/image`` arrives with every state and ``camera_info`` (latched) exists
-  and matches it (width, height, frame_id, data size), with a valid pinhole K;
+  20 %) while the driver is commanded to hold still (by arrival time; the stamps are judged by
+  ``stamps``);
+- ``stamps``: header stamps strictly increase (the policy answers a stamp it has seen again as a
+  republished step); the step counter goes +1 per state within an episode, and a new episode
+  starts at step 0;
+- ``sync``: every state's exact stamp (to the nanosecond) is carried by the step's other inputs:
+  an image and the tactile source (particle cloud or tactile pose), as the perception and policy
+  nodes match them; a clock read separately for each message fails it. An input the driver does
+  not publish at all is left to ``camera`` / ``touch``;
+- ``camera``: ``camera_info`` (latched) exists with a valid pinhole K; the images are what
+  vision_node reads: ``mono8``, segmented (pixel values 0, 128 gripper, 255 cable, and the cable
+  in view), the camera_info's size and frame_id, data of height x step bytes;
 - ``obey``: valid commands are executed: velocity direction within 15 deg and speed within 20 %
-  (measured from consecutive states: displacement / stamp difference), closure within 0.05;
+  (measured from consecutive states: displacement / stamp difference, or arrival-time difference
+  when the stamps are unusable), closure within 0.05;
 - ``invalid``: non-finite (NaN) and out-of-range (speed > 0.25 m/s, closure > 1) commands are
   rejected: the gripper does not move (< 0.5 mm per step) and keeps its closure;
 - ``stale``: when commands stop, the gripper stops within ``--command-timeout`` (+ two control
   periods for the pipeline) and the driver keeps publishing its state (real-time timing);
 - ``workspace``: every reported gripper position lies in ``|x|, |y| <= --workspace`` (+ 1 mm),
   also while commanded at full speed towards the corner (+x, +y);
-- ``touch``: a tactile source exists: ``/dlo/rope/particles`` with a ``held`` field, or
+- ``touch``: a tactile source exists: ``/dlo/rope/particles`` in the layout tactile_node reads
+  (``dlo_perception.cloud``: fields x, y, z, held, FLOAT32, little endian, 16 bytes a point), or
   ``/dlo/tactile/pose``.
 
 The rules are plain functions of a :class:`Recording` (no rclpy: testable without ROS); the node
@@ -45,10 +60,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from dlo_perception.cloud import FIELD_NAMES, FLOAT32, POINT_STEP, unpack_particles
+from dlo_perception.sync import format_stamp
 from dlo_sim.command import MAX_SPEED
-from dlo_sim.config import DT, SUBSTEPS_PER_ACTION, WORKSPACE_HALF_WIDTH
+from dlo_sim.config import DT, IMAGE_BACKGROUND, IMAGE_CABLE, IMAGE_GRIPPER, SUBSTEPS_PER_ACTION, WORKSPACE_HALF_WIDTH
 
-RULES = ("rate", "stamps", "camera", "obey", "invalid", "stale", "workspace", "touch")
+RULES = ("rate", "stamps", "sync", "camera", "obey", "invalid", "stale", "workspace", "touch")
 CONTROL_RATE = 1.0 / (DT * SUBSTEPS_PER_ACTION)  # Hz, one command per 0.08 s
 RATE_TOLERANCE = 0.2  # relative
 SPEED_TOLERANCE = 0.2  # relative
@@ -59,6 +76,8 @@ WORKSPACE_SLACK = 0.001  # m
 PIPELINE_SLACK = 0.1  # s of delivery on top of two control periods for the stale stop
 ENCODING_BYTES = {"mono8": 1, "8UC1": 1, "mono16": 2, "16UC1": 2, "rgb8": 3, "bgr8": 3, "8UC3": 3,
                   "rgba8": 4, "bgra8": 4, "32FC1": 4}
+SEGMENTATION = (IMAGE_BACKGROUND, IMAGE_GRIPPER, IMAGE_CABLE)  # the pixel values vision_node reads
+QUEUE_DEPTH = 100  # the checker's subscriptions: no message lost while it is busy (sync needs every one)
 
 
 @dataclass(frozen=True)
@@ -112,7 +131,8 @@ def schedule(s: Settings) -> list[Phase]:
 
 @dataclass
 class StateSample:
-    """One received gripper state: wall arrival time [s], header stamp [s], counters, pose [m]."""
+    """One received gripper state: wall arrival time [s], header stamp [s], counters, pose [m];
+    ``stamp_ns``: the exact stamp [ns] (default: ``stamp`` rounded)."""
 
     wall: float
     stamp: float
@@ -121,6 +141,11 @@ class StateSample:
     x: float
     y: float
     closure: float
+    stamp_ns: int | None = None
+
+    def __post_init__(self):
+        if self.stamp_ns is None:
+            self.stamp_ns = int(round(self.stamp * 1e9))
 
 
 @dataclass
@@ -131,6 +156,17 @@ class ImageSample:
     step: int
     size: int
     frame_id: str
+    stamp_ns: int = 0
+    values: tuple = ()  # the distinct pixel values of a mono8 image (empty for other encodings)
+
+
+@dataclass
+class CloudSample:
+    """One particle cloud: its stamp [ns], field names and what keeps tactile_node from reading it (None: nothing)."""
+
+    stamp_ns: int
+    fields: list
+    problem: str | None = None
 
 
 @dataclass
@@ -152,8 +188,8 @@ class Recording:
     infos: list = field(default_factory=list)
     answered: dict = field(default_factory=dict)
     phases: list = field(default_factory=list)
-    cloud_fields: list = field(default_factory=list)  # field names of each particle cloud received
-    tactile: int = 0
+    clouds: list = field(default_factory=list)  # CloudSample of each particle cloud received
+    tactile_stamps: list = field(default_factory=list)  # stamp [ns] of each tactile pose received
     last_command_wall: float | None = None
 
 
@@ -191,10 +227,47 @@ def steps_in(rec: Recording, names) -> list[tuple[StateSample, StateSample]]:
     return pairs
 
 
-def typical_period(rec: Recording) -> float:
-    """Median stamp difference of consecutive states [s] (the driver's own period)."""
-    dt = [b.stamp - a.stamp for a, b in zip(rec.states, rec.states[1:]) if b.stamp > a.stamp]
+def typical_period(rec: Recording, clock: str = "stamp") -> float:
+    """Median difference of consecutive states' ``clock`` ('stamp' or 'wall') [s] (the driver's own period)."""
+    dt = [getattr(b, clock) - getattr(a, clock) for a, b in zip(rec.states, rec.states[1:])
+          if getattr(b, clock) > getattr(a, clock)]
     return float(np.median(dt)) if dt else 1.0 / CONTROL_RATE
+
+
+def motion_clock(rec: Recording) -> str:
+    """Which time measures the driver's motion: 'stamp' (the state's stamp, exact) when at least half of the
+    consecutive steps have a stamp difference of 0.5 to 2 arrival periods, else 'wall' (arrival time), so
+    that broken stamps fail 'stamps' only, not also 'obey'."""
+    pairs = [(a, b) for a, b in zip(rec.states, rec.states[1:]) if b.episode == a.episode and b.step == a.step + 1]
+    if not pairs:
+        return "stamp"
+    period = typical_period(rec, "wall")
+    usable = sum(1 for a, b in pairs if 0.5 * period <= b.stamp - a.stamp <= 2 * period)
+    return "stamp" if usable >= 0.5 * len(pairs) else "wall"
+
+
+def judged_states(rec: Recording) -> list:
+    """The states received before the schedule ended: the checker kept listening after them, so the
+    step's other messages had time to arrive."""
+    end = rec.phases[-1][2] if rec.phases else math.inf
+    return [x for x in rec.states if x.wall <= end]
+
+
+def cloud_layout_problem(msg) -> str | None:
+    """What keeps tactile_node from reading this PointCloud2 (``dlo_perception.cloud``), or None."""
+    fields = [(f.name, int(f.offset), int(f.datatype), int(f.count)) for f in msg.fields]
+    want = [(name, 4 * i, FLOAT32, 1) for i, name in enumerate(FIELD_NAMES)]
+    if fields != want or msg.is_bigendian:
+        return (f"fields {[f[0] for f in fields]} (offset, datatype, count {[f[1:] for f in fields]})"
+                f"{', big endian' if msg.is_bigendian else ''}; tactile_node reads {list(FIELD_NAMES)} as "
+                f"little-endian FLOAT32 at offsets 0, 4, 8, 12, point_step {POINT_STEP}")
+    if len(msg.data) < int(msg.width) * int(msg.height) * POINT_STEP:
+        return f"{len(msg.data)} bytes for {int(msg.width) * int(msg.height)} points of {POINT_STEP} bytes"
+    try:
+        unpack_particles(msg)  # what tactile_node does with it
+    except ValueError as error:
+        return str(error)
+    return None
 
 
 def moved(a: StateSample, b: StateSample) -> float:
@@ -219,10 +292,14 @@ def check_rate(rec: Recording, s: Settings) -> Result:
                   if b.episode == a.episode and b.step == a.step + 1]
     if len(gaps) < 3:
         return Result("rate", "FAIL", f"{len(gaps)} consecutive steps in {len(rec.states)} states")
-    rate, stamp_rate = 1.0 / max(float(np.median(gaps)), 1e-9), 1.0 / max(float(np.median(stamp_gaps)), 1e-9)
+    rate = 1.0 / max(float(np.median(gaps)), 1e-9)
+    if all(g > 0 for g in stamp_gaps):
+        by_stamps = f"{1.0 / float(np.median(stamp_gaps)):.2f} Hz by stamps"
+    else:  # the stamps are judged by 'stamps', not here
+        by_stamps = "no rate by stamps: they do not strictly increase, see 'stamps'"
     ok = abs(rate - s.rate) <= RATE_TOLERANCE * s.rate
     return Result("rate", "PASS" if ok else "FAIL",
-                  f"{rate:.2f} Hz ({stamp_rate:.2f} Hz by stamps; median of {len(gaps)} steps), "
+                  f"{rate:.2f} Hz ({by_stamps}; median of {len(gaps)} steps), "
                   f"expected {s.rate:g} Hz +-{RATE_TOLERANCE:.0%}")
 
 
@@ -232,9 +309,9 @@ def check_stamps(rec: Recording, s: Settings) -> Result:
     back = jumps = bad_episode = episodes = 0
     first_bad = ""
     for a, b in zip(rec.states, rec.states[1:]):
-        if not b.stamp > a.stamp:
+        if not b.stamp_ns > a.stamp_ns:
             back += 1
-            first_bad = first_bad or f"stamp {b.stamp:.3f} s after {a.stamp:.3f} s"
+            first_bad = first_bad or f"stamp {format_stamp(b.stamp_ns)} s after {format_stamp(a.stamp_ns)} s"
         if b.episode == a.episode:
             if b.step != a.step + 1:
                 jumps += 1
@@ -266,8 +343,18 @@ def check_camera(rec: Recording, s: Settings) -> Result:
         problems.append(f"K {k.round(2).tolist()} is not a pinhole matrix with fx, fy > 0 and the centre in the image")
     if not info.frame_id:
         problems.append("camera_info has no frame_id")
-    if len(rec.images) < 0.5 * max(len(rec.states), 1):
-        problems.append(f"{len(rec.images)} images for {len(rec.states)} states")
+    if not rec.images:
+        problems.append("no image on /dlo/camera/image")
+    encodings = sorted({im.encoding for im in rec.images} - {"mono8"})
+    if encodings:
+        problems.append(f"encoding {', '.join(encodings)}: vision_node reads mono8 segmentation images only")
+    values = sorted({int(v) for im in rec.images for v in im.values})
+    odd = [v for v in values if v not in SEGMENTATION]
+    if odd:
+        problems.append(f"pixel values {odd[:5]}{' ...' if len(odd) > 5 else ''}: a segmented image has only "
+                        f"{IMAGE_BACKGROUND} (background), {IMAGE_GRIPPER} (gripper), {IMAGE_CABLE} (cable)")
+    elif rec.images and not encodings and IMAGE_CABLE not in values:
+        problems.append(f"no cable ({IMAGE_CABLE}) in any of {len(rec.images)} images: vision_node never sees it")
     for im in rec.images:
         if (im.width, im.height) != (info.width, info.height):
             problems.append(f"image {im.width}x{im.height} but camera_info {info.width}x{info.height}")
@@ -282,21 +369,23 @@ def check_camera(rec: Recording, s: Settings) -> Result:
             break
     if problems:
         return Result("camera", "FAIL", "; ".join(problems))
-    return Result("camera", "PASS", f"{len(rec.images)} images for {len(rec.states)} states, {info.width}x{info.height} "
+    return Result("camera", "PASS", f"{len(rec.images)} mono8 segmented images for {len(rec.states)} states, "
+                                    f"{info.width}x{info.height} "
                                     f"in '{info.frame_id}', fx {k[0]:.1f} fy {k[4]:.1f} px")
 
 
 def check_obey(rec: Recording, s: Settings) -> Result:
-    period = typical_period(rec)
+    clock = motion_clock(rec)  # the stamps, unless they are broken (that is 'stamps'' to judge)
+    period = typical_period(rec, clock)
     parts, problems = [], []
     for phase in schedule(s):
         if phase.kind == "move":
-            pairs = [(a, b) for a, b in steps_in(rec, phase.name) if 0.5 * period <= b.stamp - a.stamp <= 2 * period]
+            dt = [(a, b, getattr(b, clock) - getattr(a, clock)) for a, b in steps_in(rec, phase.name)]
+            pairs = [(a, b, t) for a, b, t in dt if 0.5 * period <= t <= 2 * period]
             if len(pairs) < 2:
                 problems.append(f"{phase.name}: {len(pairs)} usable step(s) (episodes reset or states missing)")
                 continue
-            v = np.median([[(b.x - a.x) / (b.stamp - a.stamp), (b.y - a.y) / (b.stamp - a.stamp)] for a, b in pairs],
-                          axis=0)
+            v = np.median([[(b.x - a.x) / t, (b.y - a.y) / t] for a, b, t in pairs], axis=0)
             want = np.asarray(phase.command[:2])
             speed, target = float(np.linalg.norm(v)), float(np.linalg.norm(want))
             angle = math.degrees(math.acos(np.clip(v @ want / max(speed * target, 1e-12), -1, 1))) if speed > 0 else 180.0
@@ -313,9 +402,10 @@ def check_obey(rec: Recording, s: Settings) -> Result:
             parts.append(f"closure {got:.2f}")
             if not abs(got - want) <= CLOSURE_TOLERANCE:
                 problems.append(f"closure {got:.2f} after commanding {want:g} for {phase.duration:g} s")
+    timed = "" if clock == "stamp" else "; timed by arrival: the stamps are unusable"
     if problems:
-        return Result("obey", "FAIL", "; ".join(problems))
-    return Result("obey", "PASS", ", ".join(parts) + f" (commanded {s.speed:g} m/s; closure 1, 0)")
+        return Result("obey", "FAIL", "; ".join(problems) + timed)
+    return Result("obey", "PASS", ", ".join(parts) + f" (commanded {s.speed:g} m/s; closure 1, 0{timed})")
 
 
 def check_invalid(rec: Recording, s: Settings) -> Result:
@@ -390,17 +480,60 @@ def check_workspace(rec: Recording, s: Settings) -> Result:
 
 
 def check_touch(rec: Recording, s: Settings) -> Result:
-    with_held = sum(1 for names in rec.cloud_fields if "held" in names)
-    if with_held:
-        return Result("touch", "PASS", f"{with_held} particle clouds with a 'held' field")
-    if rec.tactile:
-        return Result("touch", "PASS", f"{rec.tactile} tactile poses")
-    extra = f" ({len(rec.cloud_fields)} clouds without a 'held' field)" if rec.cloud_fields else ""
-    return Result("touch", "FAIL", "no tactile source: neither /dlo/rope/particles with a 'held' field nor "
-                                   f"/dlo/tactile/pose{extra}")
+    bad = [c for c in rec.clouds if c.problem]
+    if bad:
+        return Result("touch", "FAIL", f"{len(bad)} of {len(rec.clouds)} particle clouds unreadable for tactile_node: "
+                                       f"{bad[0].problem}")
+    if rec.clouds:
+        return Result("touch", "PASS", f"{len(rec.clouds)} particle clouds in the layout tactile_node reads "
+                                       f"({', '.join(FIELD_NAMES)}; 'held' flags the touched points)")
+    if rec.tactile_stamps:
+        return Result("touch", "PASS", f"{len(rec.tactile_stamps)} tactile poses")
+    return Result("touch", "FAIL", "no tactile source: neither /dlo/rope/particles (contact points flagged 'held') "
+                                   "nor /dlo/tactile/pose")
 
 
-CHECKS = {"rate": check_rate, "stamps": check_stamps, "camera": check_camera, "obey": check_obey,
+def check_sync(rec: Recording, s: Settings) -> Result:
+    """Every state's exact stamp on the step's image and tactile source (what the nodes match on)."""
+    states = judged_states(rec)
+    if not states:
+        return Result("sync", "FAIL", "no state received before the end of the check")
+    inputs = [("image", [im.stamp_ns for im in rec.images]), ("particle cloud", [c.stamp_ns for c in rec.clouds]),
+              ("tactile pose", rec.tactile_stamps)]
+    present = [(name, stamps) for name, stamps in inputs if stamps]
+    absent = [("image", "camera")] if not rec.images else []  # an input never published is another rule's
+    absent += [("tactile source", "touch")] if not rec.clouds and not rec.tactile_stamps else []
+    note = (f" (no {' and no '.join(n for n, _ in absent)} to match: see {', '.join(r for _, r in absent)})"
+            if absent else "")
+    failing = {}  # (unmatched, judged, first unmatched state, nearby stamps) -> input names: alike in one phrase
+    for name, stamps in present:
+        have, start = set(stamps), min(stamps)
+        judged = [x for x in states if x.stamp_ns >= start]  # earlier: before the checker's subscription matched
+        unmatched = [x for x in judged if x.stamp_ns not in have]
+        if unmatched:
+            first = unmatched[0]
+            near = tuple(sorted(sorted(have, key=lambda t: (abs(t - first.stamp_ns), t))[:2]))
+            failing.setdefault((len(unmatched), len(judged), first.stamp_ns, first.step, near), []).append(name)
+    problems = []
+    for (count, judged, first_ns, step, near), names in failing.items():
+        off = min(near, key=lambda t: abs(t - first_ns)) - first_ns
+        what = " and ".join(names)
+        problems.append(f"{count} of {judged} states have no {' and no '.join(names)} with their exact stamp; "
+                        f"first: step {step} at {format_stamp(first_ns)} s, {what} stamps "
+                        f"{', '.join(format_stamp(t) for t in near)} nearby (the nearest {abs(off) / 1e3:g} us "
+                        f"{'later' if off > 0 else 'earlier'})")
+    if problems:
+        return Result("sync", "FAIL", "; ".join(problems) + ": stamp every message of a step with its state's "
+                                      "stamp (tactile_node, vision_node and policy_node match a step's inputs by exact "
+                                      "stamp and never run a step without all of them)" + note)
+    names = " and ".join(f"a{'n' if name[0] in 'aeiou' else ''} {name}" for name, _ in present)
+    if not present:
+        return Result("sync", "PASS", f"{len(states)} states, nothing else to match{note}")
+    return Result("sync", "PASS", f"{len(states)} states, each with {names} of its exact stamp (the perception "
+                                  f"and policy nodes match a step by stamp){note}")
+
+
+CHECKS = {"rate": check_rate, "stamps": check_stamps, "sync": check_sync, "camera": check_camera, "obey": check_obey,
           "invalid": check_invalid, "stale": check_stale, "workspace": check_workspace, "touch": check_touch}
 
 
@@ -453,9 +586,13 @@ def record(s: Settings, namespace: str, timeout: float, log=print) -> Recording 
     try:
         pub = node.create_publisher(GripperCommand, f"{prefix}/dlo/gripper/cmd", 10)
 
+        def stamp_ns(msg) -> int:
+            return int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)
+
         def on_state(msg):
             sample = StateSample(time.monotonic(), msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec,
-                                 int(msg.episode), int(msg.step), float(msg.x), float(msg.y), float(msg.closure))
+                                 int(msg.episode), int(msg.step), float(msg.x), float(msg.y), float(msg.closure),
+                                 stamp_ns(msg))
             rec.states.append(sample)
             i = current["index"]
             if i < 0 or i >= len(phases) or phases[i].command is None:
@@ -468,23 +605,26 @@ def record(s: Settings, namespace: str, timeout: float, log=print) -> Recording 
             rec.last_command_wall = time.monotonic()
 
         def on_image(msg):
+            values = ()
+            if msg.encoding == "mono8":  # the pixel values vision_node will see (row padding left out)
+                data = np.frombuffer(bytes(msg.data), np.uint8)
+                if msg.step >= msg.width and data.size == msg.height * msg.step:
+                    data = data.reshape(msg.height, msg.step)[:, :msg.width]
+                values = tuple(int(v) for v in np.unique(data))
             rec.images.append(ImageSample(int(msg.width), int(msg.height), msg.encoding, int(msg.step), len(msg.data),
-                                          msg.header.frame_id))
+                                          msg.header.frame_id, stamp_ns(msg), values))
 
         def on_info(msg):
             rec.infos.append(InfoSample(int(msg.width), int(msg.height), tuple(msg.k), msg.header.frame_id))
 
         latched = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
-        node.create_subscription(GripperState, f"{prefix}/dlo/gripper/state", on_state, 10)
-        node.create_subscription(Image, f"{prefix}/dlo/camera/image", on_image, 10)
+        node.create_subscription(GripperState, f"{prefix}/dlo/gripper/state", on_state, QUEUE_DEPTH)
+        node.create_subscription(Image, f"{prefix}/dlo/camera/image", on_image, QUEUE_DEPTH)
         node.create_subscription(CameraInfo, f"{prefix}/dlo/camera/camera_info", on_info, latched)
-        node.create_subscription(PointCloud2, f"{prefix}/dlo/rope/particles",
-                                 lambda m: rec.cloud_fields.append([f.name for f in m.fields]), 10)
-
-        def on_tactile(_msg):
-            rec.tactile += 1
-
-        node.create_subscription(TactilePose, f"{prefix}/dlo/tactile/pose", on_tactile, 10)
+        node.create_subscription(PointCloud2, f"{prefix}/dlo/rope/particles", lambda m: rec.clouds.append(
+            CloudSample(stamp_ns(m), [f.name for f in m.fields], cloud_layout_problem(m))), QUEUE_DEPTH)
+        node.create_subscription(TactilePose, f"{prefix}/dlo/tactile/pose",
+                                 lambda m: rec.tactile_stamps.append(stamp_ns(m)), QUEUE_DEPTH)
 
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline and (not rec.states or pub.get_subscription_count() == 0):

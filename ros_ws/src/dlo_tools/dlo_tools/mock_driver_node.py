@@ -18,6 +18,11 @@ to change are marked ``# ROBOT:``. It does what the rest of the graph relies on 
 - stops the gripper (and holds the closure) when the last command is older than ``command_timeout``;
 - keeps the gripper inside the workspace |x|, |y| <= 0.3 m (``dlo_sim.config.WORKSPACE_HALF_WIDTH``):
   commanded beyond it, it stops at the boundary;
+- has the gripper's force limit the policy relies on (the sim's finite grip, ``dlo_sim.grip.stall_firm_grip``):
+  a firm grip (closure >= 0.9) carries the cable points between the fingers but does not pull one
+  further from the fixed end than its rest length along the cable: at the end of the cable, closed
+  firmly, the gripper stalls (back it still moves, and sideways it swings about the fixed end until
+  the cable is straight; a sliding grip slides on);
 - serves ``/dlo/sim/reset`` (dlo_msgs/srv/ResetEpisode, the sim's name, so the same clients work):
   back to the start pose, next episode from step 0.
 
@@ -26,9 +31,12 @@ latest valid command over the measured time since the last tick) or ``step_locke
 answered before the next one: one command = one step of 1/``rate`` s, the state republished every
 0.25 s until answered; for replaying the sim's deterministic graph with a kinematic stand-in).
 
-The mock "cable" is a fixed S-curve at the gripper's height starting at the sim's fixed end, the
-image is drawn with numpy. It exits after ``steps`` states (0 = run until stopped), printing where
-the gripper ended.
+The mock "cable" is an S-curve at the gripper's height starting at the sim's fixed end, its points
+the sim's rest spacing apart in x, so each lies at least its rest length along the cable from the
+fixed end: the cable is taut, and a firm grip anywhere on it stalls the motion away from the fixed
+end. Only a firm grip moves points of it (those between the fingers, kinematically); a reset lays it
+out again. The image is drawn with numpy. It exits after ``steps`` states (0 = run until stopped),
+printing where the gripper ended.
 """
 
 from __future__ import annotations
@@ -48,14 +56,16 @@ from dlo_msgs.srv import ResetEpisode
 from dlo_perception.camera import CAMERA_FRAME, TopCamera, camera_info
 from dlo_perception.cloud import particle_cloud
 from dlo_sim.command import CommandError, RejectionLog, command_mismatch, command_to_action
-from dlo_sim.config import (DT, FINGER_RADIUS, FIXED_END, GRIPPER_HEIGHT, GRIPPER_START_BEHIND, REST_SPACING,
-                            SUBSTEPS_PER_ACTION, WORKSPACE_HALF_WIDTH)
+from dlo_sim.config import (DT, FINGER_RADIUS, FIXED_END, GRIPPER_HEIGHT, GRIPPER_START_BEHIND, MAX_DISPLACEMENT,
+                            REST_SPACING, SUBSTEPS_PER_ACTION, WORKSPACE_HALF_WIDTH, SimConfig)
+from dlo_sim.grip import carried_fraction, stall_firm_grip
 
 MODES = ("real_time", "step_locked")
 CONTROL_RATE = 1.0 / (DT * SUBSTEPS_PER_ACTION)  # Hz: one command per 0.08 s, like the sim
 FINGER_REACH = FINGER_RADIUS + REST_SPACING  # m, a point this close to the gripper centre (in x-y) is in contact
 CABLE_RADIUS = 0.008  # m, drawn width
 START_CLOSURE = 0.7  # closure at the start of an episode (sliding grip)
+SUBSTEP = MAX_DISPLACEMENT / SimConfig().substeps  # m, the sim's largest gripper sub-step: the stall's resolution
 REPUBLISH_PERIOD = 0.25  # s, step_locked: republish an unanswered state this often
 
 PARAMETERS = (
@@ -78,6 +88,35 @@ def mock_cable(length: float, amplitude: float, spacing: float = REST_SPACING, h
     return np.stack([x, y, np.full_like(x, height)], axis=1)
 
 
+def touching(cable: np.ndarray, gripper) -> np.ndarray:
+    """(P,) bool: the cable points between the fingers (within FINGER_REACH of the gripper centre in x-y)."""
+    return np.linalg.norm(cable[:, :2] - np.asarray(gripper)[:2], axis=1) <= FINGER_REACH
+
+
+def kinematic_move(gripper, cable: np.ndarray, vx: float, vy: float, closure: float, dt: float):
+    """Move the mock gripper with (vx, vy) [m/s] for ``dt`` s at ``closure`` -> (its new x, y [m], the cable).
+
+    Stopped at the workspace boundary, and by the sim's force limit (``dlo_sim.grip.stall_firm_grip``, per
+    sub-step of at most SUBSTEP as in the sim): a firm grip carries the points between the fingers (the
+    grip law's carried fraction 1) but never beyond their rest length from the fixed end. A lighter grip
+    slides over the cable and leaves it where it is."""
+    gripper = np.asarray(gripper, dtype=np.float64)
+    target = np.clip(gripper + dt * np.array([vx, vy]), -WORKSPACE_HALF_WIDTH, WORKSPACE_HALF_WIDTH)
+    held = touching(cable, gripper)  # the held set at the start of the step, as in the sim
+    carried = np.where(held, carried_fraction(closure), 0.0)  # the grip law
+    firm = held & (carried >= 1.0)
+    if not firm.any():
+        return target, cable
+    moved = cable.copy()
+    substeps = max(1, int(np.ceil(np.linalg.norm(target - gripper) / SUBSTEP)))
+    step = np.array([*(target - gripper) / substeps, 0.0])
+    for _ in range(substeps):
+        dg = stall_firm_grip(moved, carried, step)
+        gripper = gripper + dg[:2]
+        moved[firm] += dg  # carried with the gripper
+    return gripper, (moved if np.any(moved != cable) else cable)  # the same object when nothing moved
+
+
 def draw_cable(points: np.ndarray, camera: TopCamera) -> np.ndarray:
     """Top-view segmentation image (255 = cable) of the points, like a segmented camera frame."""
     v, u = np.mgrid[0:camera.height, 0:camera.width]
@@ -93,9 +132,11 @@ class MockDriver(Node):
         super().__init__("mock_driver")
         p = declare_parameters(self, PARAMETERS)
         self.mode, self.period, self.timeout, self.max_steps = p["mode"], 1.0 / p["rate"], p["command_timeout"], p["steps"]
-        self.cable = mock_cable(p["cable_length"], p["amplitude"])
+        self.laid_cable = mock_cable(p["cable_length"], p["amplitude"])
+        self.cable = self.laid_cable
         self.camera = TopCamera.covering_workspace(p["camera_resolution"])
-        self.cable_image = draw_cable(self.cable, self.camera)  # the mock cable does not move: drawn once
+        self.cable_image = draw_cable(self.cable, self.camera)  # drawn again only when a firm grip moved it
+        self.drawn_cable = self.cable
         self.episode, self.step, self.steps_done = 0, 0, 0
         self.previous_final = None  # (episode, step) of the last state of the previous episode
         self.command = None  # (vx, vy, closure, monotonic time received) of the latest valid command
@@ -128,12 +169,16 @@ class MockDriver(Node):
         # set the start closure; block until it is there.
         self.gripper = np.array([FIXED_END[0] - GRIPPER_START_BEHIND, FIXED_END[1]])
         self.closure = START_CLOSURE
+        self.cable = self.laid_cable  # the mock cable: laid out again
 
     def move(self, vx: float, vy: float, closure: float, dt: float):
-        """Move with velocity (vx, vy) [m/s] for ``dt`` s and set the closure, inside the workspace."""
+        """Move with velocity (vx, vy) [m/s] for ``dt`` s and set the closure, inside the workspace; a firm
+        grip on the taut cable stalls (the force limit)."""
         # ROBOT: replace this with your hardware call: send the velocity and the closure to the controller (and
-        # enforce the workspace there too). Here: integrate, and stop at the workspace boundary.
-        self.gripper = np.clip(self.gripper + dt * np.array([vx, vy]), -WORKSPACE_HALF_WIDTH, WORKSPACE_HALF_WIDTH)
+        # enforce the workspace there too, and a force/torque limit: closed firmly (closure >= 0.9) on a taut
+        # cable, the gripper must stall or stop, not drag the cable on). Here: integrate, stop at the workspace
+        # boundary, and stall as the sim does (dlo_sim.grip.stall_firm_grip).
+        self.gripper, self.cable = kinematic_move(self.gripper, self.cable, vx, vy, closure, dt)
         self.closure = float(closure)
 
     def read_sensors(self):
@@ -141,11 +186,13 @@ class MockDriver(Node):
         # ROBOT: replace this with your hardware calls: the measured pose and closure, the camera frame (segmented:
         # 255 = cable, 128 = gripper), and the cable points the tactile sensor touches (or publish
         # /dlo/tactile/pose from your tactile driver and drop the particle cloud).
+        if self.drawn_cable is not self.cable:
+            self.cable_image, self.drawn_cable = draw_cable(self.cable, self.camera), self.cable
         image = self.cable_image.copy()
         v, u = np.mgrid[0:self.camera.height, 0:self.camera.width]
         world = self.camera.pixel_to_world(np.stack([u + 0.5, v + 0.5], axis=-1), GRIPPER_HEIGHT)
         image[np.linalg.norm(world - self.gripper, axis=-1) <= FINGER_RADIUS] = 128
-        contact = np.linalg.norm(self.cable[:, :2] - self.gripper, axis=1) <= FINGER_REACH
+        contact = touching(self.cable, self.gripper)
         return (float(self.gripper[0]), float(self.gripper[1]), GRIPPER_HEIGHT), self.closure, image, self.cable, contact
 
     def state_stamp(self) -> Time:

@@ -16,7 +16,7 @@ import json
 import re
 import sys
 
-from dlo_sim.task import OUTCOME_NAMES, OUTCOME_NONE
+from dlo_sim.task import LEGACY_TASK_RULES, OUTCOME_NAMES, OUTCOME_NONE
 
 OUTCOMES = [name for code, name in sorted(OUTCOME_NAMES.items()) if code != OUTCOME_NONE]
 SHIPPED = "the shipped All policy"
@@ -81,9 +81,9 @@ def run_header(episodes, policy: str = "", checkpoint: str = "", without: str = 
     ablation = f"ablation: without {without} (zeroed)" if without else "ablation: none"
     seeds = seed_ranges(e["seed"] for e in episodes)
     count = f"{len(episodes)} episode{'' if len(episodes) == 1 else 's'}"
-    rules = sorted({e.get("task_rules", "paper_text") for e in episodes})
+    rules = sorted({e.get("task_rules", LEGACY_TASK_RULES) for e in episodes})  # older outcome files: paper_text
     return (f"run: {described} ({source}); {ablation}; tactile noise: {noise or 'none'}"
-            + (f"; mode {mode}" if mode else "") + f"; task rules {', '.join(rules) or 'paper_text'}"
+            + (f"; mode {mode}" if mode else "") + f"; task rules {', '.join(rules) or LEGACY_TASK_RULES}"
             + f"; seeds {seeds} ({count})")
 
 

@@ -25,11 +25,16 @@ FAULTS = {
     "wrong_rate": "rate",  # 20 Hz instead of 12.5 Hz
     "disobeys": "obey",  # moves at half the commanded speed
     "state_own_clock": "sync",  # the state stamped with its own clock reading, image and cloud with the step's time
+    "frozen_stamps": "stamps",  # every message of every step carries the first step's stamp
+    "color_image": "camera",  # rgb8 images (the same segmentation in three channels)
+    "cloud_float64": "touch",  # particle clouds with FLOAT64 fields (32 bytes a point)
 }
 
 
 def broken_driver(fault: str):
     class BrokenDriver(MockDriver):
+        first_stamp = None  # frozen_stamps: the stamp of the first state
+
         def __init__(self):
             super().__init__()
             self.states_published = 0
@@ -39,7 +44,11 @@ def broken_driver(fault: str):
                 self.destroy_publisher(self.pub_cloud)
                 self.pub_cloud = _Null()
             if fault == "state_own_clock":  # a few microseconds after the stamp its image and cloud carry
-                self.pub_state = _Restamped(self.pub_state, lambda: self.get_clock().now().to_msg())
+                self.pub_state = _Altered(self.pub_state, restamp(lambda: self.get_clock().now().to_msg()))
+            if fault == "color_image":
+                self.pub_image = _Altered(self.pub_image, to_rgb8)
+            if fault == "cloud_float64":
+                self.pub_cloud = _Altered(self.pub_cloud, to_float64)
 
         def on_command(self, msg):
             if fault == "accepts_invalid" and int(msg.episode) == self.episode:
@@ -60,6 +69,10 @@ def broken_driver(fault: str):
 
         def state_stamp(self):
             stamp = super().state_stamp()
+            if fault == "frozen_stamps":
+                if self.first_stamp is None:
+                    self.first_stamp = stamp
+                return self.first_stamp
             if fault == "stamps_back":
                 self.states_published += 1
                 if self.states_published % 5 == 0:
@@ -74,15 +87,39 @@ class _Null:
         pass
 
 
-class _Restamped:
-    """A publisher that stamps each message anew, with ``stamp()``, just before publishing it."""
+class _Altered:
+    """A publisher that changes each message with ``alter(msg)`` just before publishing it."""
 
-    def __init__(self, publisher, stamp):
-        self.publisher, self.stamp = publisher, stamp
+    def __init__(self, publisher, alter):
+        self.publisher, self.alter = publisher, alter
 
     def publish(self, msg):
-        msg.header.stamp = self.stamp()
+        self.alter(msg)
         self.publisher.publish(msg)
+
+
+def restamp(stamp):
+    def alter(msg):
+        msg.header.stamp = stamp()
+    return alter
+
+
+def to_rgb8(image):
+    pixels = np.frombuffer(bytes(image.data), np.uint8).reshape(image.height, image.step)[:, :image.width]
+    image.data = np.repeat(pixels, 3, axis=1).tobytes()
+    image.encoding, image.step = "rgb8", 3 * image.width
+
+
+def to_float64(cloud):
+    from sensor_msgs.msg import PointField
+
+    from dlo_perception.cloud import unpack_particles
+
+    positions, held = unpack_particles(cloud)
+    points = np.concatenate([positions, held[:, None]], axis=1).astype("<f8")
+    cloud.fields = [PointField(name=f.name, offset=8 * i, datatype=PointField.FLOAT64, count=1)
+                    for i, f in enumerate(cloud.fields)]
+    cloud.point_step, cloud.row_step, cloud.data = 32, 32 * len(points), points.tobytes()
 
 
 def main() -> int:

@@ -1,5 +1,9 @@
 """dlo-driver-check against the real sim node (real_time), the reference mock driver, and drivers
-that break one rule each (dlo_tools_broken_driver.py); the rules on synthetic recordings (no ROS)."""
+that break one rule each (dlo_tools_broken_driver.py: each fails its rule and no other, and no rule
+line shows a nonsense number); the rules on synthetic recordings (no ROS), among them what the graph
+needs to run a step: one exact stamp on all of a step's inputs (sync), mono8 segmented images
+(camera), the particle cloud layout tactile_node reads (touch), and a stamp problem failing only
+'stamps' (rate and obey timed by arrival then)."""
 
 from __future__ import annotations
 
@@ -17,8 +21,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))  # --import-mode=import
 from dlo_tools_broken_driver import FAULTS  # noqa: E402
 from dlo_tools_testutil import ROS2RUN  # noqa: E402
 
-from dlo_tools.driver_check import (RULES, Recording, Settings, StateSample, evaluate,  # noqa: E402
-                                    check_stale, check_workspace, schedule)
+from dlo_tools.driver_check import (RULES, CloudSample, ImageSample, InfoSample, Recording, Settings,  # noqa: E402
+                                    StateSample, check_stale, check_workspace, cloud_layout_problem, evaluate,
+                                    schedule)
 
 HERE = Path(__file__).resolve().parent
 CHECK = [sys.executable, "-m", "dlo_tools.driver_check"]
@@ -52,7 +57,9 @@ def test_mock_driver_passes_every_rule_in_a_namespace(procs, ros_env):
 
 
 def test_sim_node_in_real_time_passes_every_rule(procs, ros_env):
-    sim = procs("sim", [str(ROS2RUN), "dlo_sim", "sim_node", "--ros-args", "-p", "mode:=real_time"])
+    # paper_text: the check's sideways test moves end authors_code episodes every few steps (WRITE_YOUR_DRIVER.md)
+    sim = procs("sim", [str(ROS2RUN), "dlo_sim", "sim_node", "--ros-args", "-p", "mode:=real_time",
+                        "-p", "task_rules:=paper_text"])
     sim.wait_line("real_time simulation", timeout=180)
     result = run_check(ros_env, "--timeout", "60")
     assert result.returncode == 0, result.stdout + result.stderr + sim.output()[-3000:]
@@ -68,6 +75,8 @@ def test_a_broken_driver_fails_exactly_its_rule(procs, ros_env, fault):
     failed = {rule for rule, status in verdicts(result.stdout).items() if status == "FAIL"}
     assert failed == {FAULTS[fault]}, result.stdout
     assert f"failed: {FAULTS[fault]}" in result.stdout
+    rate_line = next(line for line in result.stdout.splitlines() if line.startswith(("PASS rate", "FAIL rate")))
+    assert all(float(hz) < 100 for hz in re.findall(r"([\d.]+) Hz", rate_line)), rate_line  # no 1e9 Hz "by stamps"
 
 
 FAKE_POLICY = """
@@ -238,3 +247,114 @@ def test_a_reset_during_the_silence_is_not_motion():
     assert check_stale(with_jump(True), s).status == "PASS"
     moved_late = check_stale(with_jump(False), s)
     assert moved_late.status == "FAIL" and "still moving" in moved_late.reason
+
+
+# ------------------------------------------------------------------- what the graph needs to run a step
+def complete_recording(s: Settings, state_offset_ns: int = 0, frozen: bool = False) -> Recording:
+    """``ideal_recording`` with what a good driver publishes beside each state: a segmented image, a
+    particle cloud, camera_info. ``state_offset_ns``: the states stamped that much later than the step's
+    image and cloud (a clock read per message); ``frozen``: every message carries the first stamp."""
+    rec = ideal_recording(s)
+    rec.infos = [InfoSample(128, 128, (213.3, 0.0, 64.0, 0.0, 213.3, 64.0, 0.0, 0.0, 1.0), "top_camera_optical")]
+    for x in rec.states:
+        stamp = rec.states[0].stamp_ns if frozen else x.stamp_ns
+        rec.images.append(ImageSample(128, 128, "mono8", 128, 128 * 128, "top_camera_optical", stamp, (0, 128, 255)))
+        rec.clouds.append(CloudSample(stamp, ["x", "y", "z", "held"]))
+        x.stamp_ns = stamp + state_offset_ns
+        x.stamp = x.stamp_ns / 1e9
+    return rec
+
+
+def results_of(rec: Recording, s: Settings = Settings()) -> dict:
+    return {r.rule: r for r in evaluate(rec, s)}
+
+
+def test_a_complete_recording_passes_every_rule():
+    results = results_of(complete_recording(Settings()))
+    assert {rule: r.status for rule, r in results.items()} == dict.fromkeys(RULES, "PASS"), results
+    assert "each with an image and a particle cloud of its exact stamp" in results["sync"].reason
+
+
+def test_a_state_stamped_by_its_own_clock_fails_only_sync_and_names_the_stamps():
+    results = results_of(complete_recording(Settings(), state_offset_ns=400))
+    assert {rule for rule, r in results.items() if r.status == "FAIL"} == {"sync"}, results
+    reason = results["sync"].reason
+    n = len(complete_recording(Settings()).states)
+    assert f"{n} of {n} states have no image and no particle cloud with their exact stamp" in reason
+    assert "first: step 0 at 0.0000004 s, image and particle cloud stamps 0, 0.08 nearby (the nearest 0.4 us earlier)" \
+        in reason
+    assert "match a step's inputs by exact stamp" in reason
+
+
+def test_sync_leaves_an_input_the_driver_does_not_publish_to_its_own_rule():
+    rec = complete_recording(Settings())
+    rec.images = []
+    results = results_of(rec)
+    assert results["sync"].status == "PASS" and "no image to match: see camera" in results["sync"].reason
+    assert results["camera"].status == "FAIL" and "no image on /dlo/camera/image" in results["camera"].reason
+    rec = complete_recording(Settings())
+    rec.clouds, rec.tactile_stamps = [], [x.stamp_ns for x in rec.states]  # a driver with its own tactile pose
+    results = results_of(rec)
+    assert results["sync"].status == results["touch"].status == "PASS"
+    assert "a tactile pose of its exact stamp" in results["sync"].reason
+    rec.tactile_stamps = [t + 1 for t in rec.tactile_stamps]
+    assert results_of(rec)["sync"].status == "FAIL"
+
+
+def test_frozen_stamps_fail_only_stamps_and_no_rate_by_stamps_is_made_up():
+    results = results_of(complete_recording(Settings(), frozen=True))
+    assert {rule for rule, r in results.items() if r.status == "FAIL"} == {"stamps"}, results
+    assert "no rate by stamps: they do not strictly increase, see 'stamps'" in results["rate"].reason
+    assert "timed by arrival" in results["obey"].reason  # the motion measured by arrival time, still judged
+    assert "first: stamp 0 s after 0 s" in results["stamps"].reason
+
+
+@pytest.mark.parametrize("encoding, values, expected", [
+    ("rgb8", (), "encoding rgb8: vision_node reads mono8 segmentation images only"),
+    ("mono8", (0, 1), "pixel values [1]: a segmented image has only 0 (background), 128 (gripper), 255 (cable)"),
+    ("mono8", (0, 128), "no cable (255) in any of"),
+])
+def test_the_camera_rule_wants_what_vision_node_reads(encoding, values, expected):
+    rec = complete_recording(Settings())
+    for image in rec.images:
+        image.encoding, image.values = encoding, values
+        image.step = image.width * (3 if encoding == "rgb8" else 1)
+        image.size = image.step * image.height
+    results = results_of(rec)
+    assert {rule for rule, r in results.items() if r.status == "FAIL"} == {"camera"}, results
+    assert expected in results["camera"].reason
+
+
+def test_the_touch_rule_wants_the_cloud_layout_tactile_node_reads():
+    from sensor_msgs.msg import PointField
+
+    from dlo_perception.cloud import particle_cloud
+
+    points, held = [[0.0, 0.0, 0.1], [0.004, 0.0, 0.1]], [False, True]
+    assert cloud_layout_problem(particle_cloud(points, held)) is None
+    reordered = particle_cloud(points, held)
+    reordered.fields = [reordered.fields[i] for i in (0, 1, 3, 2)]
+    integer = particle_cloud(points, held)
+    integer.fields[3] = PointField(name="held", offset=12, datatype=PointField.INT32, count=1)
+    short = particle_cloud(points, held)
+    short.data = short.data[:20]
+    for cloud, expected in [(reordered, "fields ['x', 'y', 'held', 'z']"), (integer, "(12, 5, 1)"),
+                            (short, "20 bytes for 2 points of 16 bytes")]:
+        assert expected in cloud_layout_problem(cloud)
+    rec = complete_recording(Settings())
+    rec.clouds[3].problem = cloud_layout_problem(integer)
+    results = results_of(rec)
+    assert {rule for rule, r in results.items() if r.status == "FAIL"} == {"touch"}, results
+    assert "1 of" in results["touch"].reason and "unreadable for tactile_node" in results["touch"].reason
+
+
+def test_sync_judges_an_input_from_its_first_message_on():
+    """The checker's subscriptions match the driver's publishers one by one: the first clouds may be
+    published before its cloud subscription exists. A cloud missing later is a driver's fault."""
+    rec = complete_recording(Settings())
+    del rec.clouds[:2]
+    assert results_of(rec)["sync"].status == "PASS"
+    del rec.clouds[10]
+    result = results_of(rec)["sync"]
+    n = len(rec.states) - 2
+    assert result.status == "FAIL" and f"1 of {n} states have no particle cloud with their exact stamp" in result.reason

@@ -1,0 +1,134 @@
+"""Reports of steps whose inputs never meet by stamp (dlo_perception.sync.IncompleteSteps; issue 20):
+
+- the line names the missing input and the stamps each input did carry nearby, exactly (nanoseconds),
+  and says so when a stamp is a few microseconds off (a clock read per message, not a lost message);
+- one line a second at most with the count of the other incomplete steps, never one per step; a
+  step that completes is never reported; a step of the state is preferred to a stamp of another input;
+- tactile_node in-process (no graph), fed a driver whose state is stamped 0.4 us after its particle
+  cloud: about one error a second, each naming the particle cloud's and the state's stamps.
+"""
+
+import os
+import random
+
+import pytest
+
+from dlo_perception.sync import IncompleteSteps, StampSync, format_stamp
+
+STEP_NS = 80_000_000
+
+
+def test_stamps_are_printed_exactly():
+    assert format_stamp(1_280_000_400) == "1.2800004"
+    assert format_stamp(1_360_000_000) == "1.36"
+    assert format_stamp(0) == "0"
+    assert format_stamp(1_796_194_734_574_954_704) == "1796194734.574954704"  # beyond a float's precision
+
+
+def run(sync, report, feeds, period=0.08, steps=40):
+    """Feed ``steps`` control steps (``feeds``: key -> stamp offset [ns], None = never) every ``period`` s;
+    -> [(time, line)] of the lines ``report.note`` gave."""
+    lines = []
+    for k in range(steps):
+        now, stamp = k * period, 1_280_000_000 + k * STEP_NS
+        for key, offset in feeds.items():
+            if offset is None:
+                continue
+            matched = sync.add(key, stamp + offset, key) is not None
+            line = report.note(sync, stamp + offset, matched, now, prefer="gripper")
+            if line is not None:
+                lines.append((now, line))
+    return lines
+
+
+def test_a_state_stamped_apart_from_its_cloud_is_named_once_a_second_with_both_stamps():
+    lines = run(StampSync(("particles", "gripper")), IncompleteSteps(timeout=1.0), {"particles": 0, "gripper": 400})
+    assert 2 <= len(lines) <= 3  # 3.2 s of steps: a line a second, not one per step (40)
+    assert all(b[0] - a[0] >= 1.0 for a, b in zip(lines, lines[1:]))
+    first = lines[0][1]
+    assert first.startswith("step at t=1.28 s: no particles input after 1.0 s; particle cloud has stamps 1.28, 1.36 "
+                            "nearby; gripper state at 1.2800004 (the particle cloud's nearest stamp is 0.4 us "
+                            "earlier: every input of a step must carry the state's exact stamp)"), first
+    assert "12 other incomplete steps since the last report" in lines[1][1]  # the states of a second, not stamps
+
+
+def test_a_missing_input_and_complete_steps():
+    lines = run(StampSync(("gripper", "tactile", "vision")), IncompleteSteps(timeout=1.0),
+                {"gripper": 0, "vision": 0, "tactile": None})
+    assert lines and "no tactile input after 1.0 s; gripper state at 1.28; tactile: nothing received yet (is " \
+                     "tactile_node running?" in lines[0][1] and "vision at 1.28" in lines[0][1]
+    assert run(StampSync(("gripper", "tactile")), IncompleteSteps(timeout=1.0), {"gripper": 0, "tactile": 0}) == []
+
+
+def test_a_step_is_reported_only_after_the_timeout_and_the_state_first():
+    sync, report = StampSync(("particles", "gripper")), IncompleteSteps(timeout=1.0)
+    sync.add("particles", 5, None)
+    report.seen(5, 0.0)
+    sync.add("gripper", 9, None)
+    report.seen(9, 0.001)
+    assert report.check(sync, 1.0, prefer="gripper") is None  # nothing older than 1 s yet
+    line = report.check(sync, 1.5, prefer="gripper")  # both stamps incomplete: the state's step is reported
+    assert line.startswith("step at t=0.00 s: no particles input after 1.0 s; particle cloud has stamps 0.000000005")
+    assert "gripper state at 0.000000009" in line and "(1 other" not in line
+    assert report.check(sync, 5.0) is None  # reported once
+    sync.add("particles", 2_000_000_000, None)  # a cloud whose state never comes
+    report.seen(2_000_000_000, 5.0)
+    assert report.check(sync, 6.5, prefer="gripper").startswith("step at t=2.00 s: no gripper input after 1.0 s; "
+                                                                 "particle cloud at 2; gripper state has stamps")
+
+
+# ------------------------------------------------------------------------------- tactile_node in-process
+rclpy = pytest.importorskip("rclpy")
+
+
+@pytest.fixture(scope="module")
+def context():
+    os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    context = rclpy.Context()
+    rclpy.init(context=context, domain_id=random.Random(os.getpid() + 3).randint(201, 230))
+    yield context
+    rclpy.shutdown(context=context)
+
+
+class Log:
+    def __init__(self):
+        self.errors = []
+
+    def error(self, text, **_):
+        self.errors.append(text)
+
+    def __getattr__(self, name):
+        return lambda *a, **k: None
+
+
+def test_tactile_node_reports_a_state_stamped_apart_from_its_cloud(context, monkeypatch):
+    import numpy as np
+
+    from dlo_msgs.msg import GripperState
+    from dlo_perception import tactile_node as module
+    from dlo_perception.cloud import particle_cloud
+
+    init = rclpy.node.Node.__init__
+    monkeypatch.setattr(rclpy.node.Node, "__init__", lambda self, *a, **k: init(self, *a, **{"context": context, **k}))
+    node = module.TactileNode()
+    monkeypatch.setattr(rclpy.node.Node, "__init__", init)
+    log, clock = Log(), [50.0]
+    monkeypatch.setattr(node, "get_logger", lambda: log)
+    monkeypatch.setattr(module, "time", type("Clock", (), {"monotonic": staticmethod(lambda: clock[0])}))
+    published = []
+    node.publisher = type("Published", (), {"publish": staticmethod(published.append)})()
+    try:
+        for k in range(50):  # 4 s of a driver whose state is stamped 0.4 us after its cloud
+            cloud = particle_cloud(np.array([[-0.25, 0.0, 0.1], [0.0, 0.0, 0.1]]), [False, True])
+            state = GripperState(x=0.0, y=0.0, z=0.1, closure=0.7, episode=0, step=k)
+            cloud.header.stamp.sec, cloud.header.stamp.nanosec = divmod(1_000_000_000 + k * STEP_NS, 1_000_000_000)
+            state.header.stamp.sec, state.header.stamp.nanosec = divmod(1_000_000_400 + k * STEP_NS, 1_000_000_000)
+            node.on_input("particles", cloud)
+            node.on_input("gripper", state)
+            clock[0] += 0.08
+    finally:
+        node.destroy_node()
+    assert published == []  # no step ever matched
+    assert 3 <= len(log.errors) <= 4, log.errors  # once a second, not 50 times
+    assert log.errors[0].startswith("step at t=1.00 s: no particles input after 1.0 s; particle cloud has stamps 1, "
+                                    "1.08 nearby; gripper state at 1.0000004"), log.errors[0]
