@@ -254,7 +254,10 @@ class Trainer:
         writes test.json (+ test_without_X.json) and returns the all-inputs result (dlo-evaluate JSON)."""
         cfg = self.config.train
         best = SAC.load(self.out_dir / BEST_POLICY_FILE)
-        env = make_vec_env_for(self.config, min(cfg.test_episodes, cfg.eval_episodes), seed=cfg.test_seed)
+        # The evaluation env, reseeded: its simulator's kernels were compiled at the start of the run, so
+        # the test runs the code the run trained on even if the source changed on disk meanwhile (Taichi
+        # compiles a new simulator's kernels from the source files as they are then).
+        env = self.eval_env
         results = {}
         try:
             for without, columns in self.tested:
@@ -276,14 +279,16 @@ class Trainer:
                         unit="step", disable=not self.config.train.progress, dynamic_ncols=True)
         try:
             self.agent.learn(self.env, total, callback=self.on_step)
+        except BaseException:
+            self.eval_env.close()
+            raise
         finally:
             self.bar.close()
             self.tb.close()
             self.env.close()
-            self.eval_env.close()
         self.save_checkpoint()
         self.agent.save_policy(self.out_dir / POLICY_FILE)
-        test = self.test_best()
+        test = self.test_best()  # closes the evaluation env
         summary = {"env_steps": self.agent.num_env_steps, "updates": self.agent.num_updates,
                    "episodes": self.agent.num_episodes, "wall_time_s": round(self.wall_time(), 2),
                    "threads": self.threads, "last_eval": self.last_eval, "best_eval": self.best,
