@@ -1,5 +1,6 @@
 """A running graph tells you what it does (issue 12 item 5): launch_graph.sh streams one line per
-finished episode and a status line while the graph runs, and heads its outcome table with the policy,
+finished episode and a status line while the graph runs (issue 20: recording, so the sim first waits for the
+recorder; the status line says so only while it waits), and heads its outcome table with the policy,
 ablation, noise and seeds of the run (one launch, read incrementally, for all of these); the real-time
 sim started alone waits for a command publisher (warning once a second) instead of running its
 episodes, starts when one appears, and warns while no command arrives."""
@@ -29,7 +30,7 @@ def streamed_run(tmp_path_factory):
     launch = subprocess.Popen(
         ["bash", str(ROOT / "scripts" / "launch_graph.sh"), "--policy", "tactile_reactive", "--episodes",
          str(EPISODES), "--seed", str(SEED), "--without", "V", "--tactile-noise", "partial", "--status-period", "0.5",
-         "--logs", str(logs)],
+         "--logs", str(logs), "--record", str(logs.parent / "bag")],
         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True,
         env={**os.environ, "DLO_USE_ROS2RUN": "1"}, preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     lines = queue.Queue()
@@ -82,8 +83,18 @@ def test_status_lines_report_rate_episodes_and_nodes(streamed_run):
     status = [s[0] for s in streamed_run["seen"] if s[0].startswith("[launch] status: ")]
     assert status, streamed_run["out"]
     for line in status:
-        assert re.search(r"status: (\d+\.\d steps/s|steps/s \?).*, \d/3 episodes done, nodes alive 4/4", line), line
+        assert re.search(r"status: (\d+\.\d steps/s|steps/s \?).*, \d/3 episodes done, nodes alive 5/5", line), line
     assert any(re.search(r"[1-9]\d*\.\d steps/s", line) for line in status), status  # steps counted on /clock
+
+
+def test_status_lines_drop_the_wait_once_the_graph_runs(streamed_run):
+    """Issue 20: with --record the sim first waits for the recorder ("sim: waiting for the recorder ..." on the
+    status line while it does); once steps are counted or an episode has finished, no status line says so."""
+    status = [s[0] for s in streamed_run["seen"] if s[0].startswith("[launch] status: ")]
+    running = [line for line in status
+               if re.search(r"[1-9]\d*\.\d steps/s|status: .*[1-9]/3 episodes done", line)]
+    assert running, status
+    assert not [line for line in running if "waiting for" in line], status
 
 
 def test_the_outcome_table_is_headed_by_what_produced_it(streamed_run):

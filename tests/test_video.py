@@ -7,12 +7,15 @@ them without a mismatch). No ROS processes, no simulator: a few seconds.
 Guards: one playable H.264 MP4 per episode with one frame per control step at 12.5 frames/s
 (real time); --video-speed changes the rate; --video-format gif writes looping GIFs with 80 ms
 frames; titles carry seed, policy, both outcomes and the return; the first step at the end and
-the still spans are found; plots are written with the same title; bad options are one line.
+the still spans are found; plots are written with the same title and no text of the plot covers
+another (issue 20: the subtitle sat on the top view's tick labels); --video reports on stderr, one line
+per finished video (a bar too on a terminal); bad options are one line.
 """
 
 from __future__ import annotations
 
 import os
+import re
 from pathlib import Path
 
 import numpy as np
@@ -131,6 +134,37 @@ def test_one_playable_mp4_per_episode(synthetic_bag, tmp_path, capsys):
     summaries = json.loads((tmp_path / "e.json").read_text())
     assert [s["outcome"] for s in summaries] == ["hold_the_end", "stop_before"]
     assert summaries[0]["video"].endswith("episode_0000.mp4")
+    # progress: one line per finished video on stderr (path, frames, time taken); stdout stays the table
+    out_text, err_text = capsys.readouterr()
+    progress = [line for line in err_text.splitlines() if line.startswith("dlo-analyze: ")]
+    assert progress[0] == f"dlo-analyze: rendering 2 videos ({sum(STEPS) + 2} frames) into {out}"
+    for k, steps in enumerate(STEPS):
+        assert re.fullmatch(rf"dlo-analyze: video {k + 1}/2: {re.escape(str(out))}/episode_000{k}\.mp4 "
+                            rf"\(episode {k}, {steps + 1} frames in \d+\.\d s\)", progress[k + 1]), progress
+    assert len(progress) == 3 and "dlo-analyze: video" not in out_text
+    assert out_text.splitlines()[0].startswith("episode   seed")
+
+
+def test_video_progress_on_a_terminal_is_a_bar_and_the_lines(synthetic_bag, tmp_path, capsys):
+    """On a terminal the same lines come with a tqdm bar over all the frames (to the same stream)."""
+    import io
+
+    from dlo_tools.analysis import read_run, write_videos
+
+    class Terminal(io.StringIO):
+        def isatty(self):
+            return True
+
+    run = read_run(synthetic_bag, extra={"/dlo/camera/image": "image"})
+    terminal = Terminal()
+    written = write_videos(run, {}, tmp_path / "v", width=160, log=terminal)
+    assert [w["episode"] for w in written] == [0, 1]
+    text = terminal.getvalue()
+    assert "videos: 100%" in text and f"{sum(STEPS) + 2}/{sum(STEPS) + 2}" in text, text  # the bar reached the end
+    lines = re.findall(r"dlo-analyze: video \d/2: \S+", text)
+    assert [line.split()[-1] for line in lines] == [w["path"] for w in written]
+    write_videos(run, {}, tmp_path / "q", width=160)  # no log stream (library use): silent
+    assert capsys.readouterr() == ("", "")
 
 
 def test_gif_and_speed(synthetic_bag, tmp_path):
@@ -182,3 +216,50 @@ def test_bad_video_options_are_one_line(synthetic_bag, tmp_path, capsys):
     with pytest.raises(SystemExit):
         main([str(synthetic_bag), "--video", str(tmp_path / "v"), "--video-format", "avi"])
     assert not (tmp_path / "v").exists()
+
+
+def text_overlaps(fig) -> list:
+    """Pairs of texts of a drawn figure whose boxes (matplotlib's renderer, display pixels) intersect: the
+    suptitle and every axes title against each other, against every axis' drawn tick labels and label
+    (``Axis.get_tightbbox``: only the ticks inside the view) and against the legends; legends against each
+    other and against other axes' tick labels."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.text import Text
+
+    renderer = FigureCanvasAgg(fig).get_renderer()
+    fig.draw(renderer)  # the layout engine places everything on a draw
+    suptitle = [t for t in fig.findobj(Text) if t.get_text() and t is getattr(fig, "_suptitle", None)]
+    titles = [("suptitle", t.get_window_extent(renderer)) for t in suptitle]
+    titles += [(f"axes {i} title", ax.title.get_window_extent(renderer))
+               for i, ax in enumerate(fig.axes) if ax.title.get_text()]
+    axis_boxes, legends = [], []
+    for i, ax in enumerate(fig.axes):
+        for name, axis in (("x", ax.xaxis), ("y", ax.yaxis)):
+            box = axis.get_tightbbox(renderer)
+            if box is not None and box.width > 0 and box.height > 0:
+                axis_boxes.append((i, f"axes {i} {name} tick labels and label", box))
+        if ax.get_legend() is not None:
+            legends.append((i, f"axes {i} legend", ax.get_legend().get_window_extent(renderer)))
+    found = []
+    for k, (name, box) in enumerate(titles):
+        others = [(n, b) for n, b in titles[k + 1:]] + [(n, b) for _, n, b in axis_boxes + legends]
+        found += [(name, n) for n, b in others if box.overlaps(b)]
+    for k, (i, name, box) in enumerate(legends):
+        found += [(name, n) for j, n, b in legends[k + 1:] + axis_boxes if j != i and box.overlaps(b)]
+    return found
+
+
+def test_the_episode_plot_has_no_overlapping_texts(synthetic_bag):
+    """The plot's titles (the figure's two-line title, the top view's, the signals' subtitle) do not cover
+    any axis' tick labels or each other, and the legends outside the axes do not cover each other: checked
+    on the boxes matplotlib's renderer draws, for both episodes (one with the still-gripper annotation)."""
+    from dlo_tools.analysis import episode_figure, read_run, recompute_episode
+
+    run = read_run(synthetic_bag)
+    for episode in run:
+        summary = {"episode": episode, **recompute_episode(run[episode]["task"])}
+        fig = episode_figure(episode, run[episode], summary)
+        assert text_overlaps(fig) == [], episode
+        assert [ax.get_title() for ax in fig.axes[:2]] == [
+            "top view (world frame)", "signals over the episode (dotted: first step at the end, green = paper "
+            "rule, purple = authors' rule; grey: gripper still)"]

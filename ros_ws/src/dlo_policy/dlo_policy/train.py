@@ -34,8 +34,9 @@ The paper reports the best evaluation during training; the held-out test is the 
 
 The run directory also holds config.yaml (resolved config), checkpoint.pt (everything, replay
 buffer included, every `train.checkpoint_every` steps), policy.pt (actor only, at the end) and
-done.json (completion marker with a summary and "source": the git commit the run trained on;
-dlo-experiments skips runs that have it).
+done.json (completion marker with a summary; "sources": the git commit of every part of the run,
+{"commit", "dirty", "from_step"}, one per start or resume, "source" the first; dlo-experiments skips
+runs that have it).
 
 TensorBoard (`tensorboard --logdir runs`): tb/ in the run directory holds event files with, against
 env steps: train/episode_return and train/episode_length per training episode; loss/critic,
@@ -166,6 +167,7 @@ class Trainer:
             self.agent = SAC.load(checkpoint, device=self.device)
             extra = SAC.extra_state(checkpoint)
             self.best, self.best_policy_state = extra.get("best"), extra.get("best_policy")
+            self.sources = list(extra.get("sources", []))
             if self.best is not None:
                 self.write_best()  # rewind: evaluations after the checkpoint are re-run
         else:
@@ -176,7 +178,9 @@ class Trainer:
         self.log = EvalLog(out_dir / EVAL_FILE, self.agent.num_env_steps if resume else None)
         self.tested = [("", [])] + [(m, blanked_columns(config.modalities, [m]))
                                     for m in config.train.eval_without]
-        self.source = source_commit()  # the code this run trains on (recorded in done.json)
+        # the code each part of the run ran on (done.json "sources": one entry per start or resume)
+        self.sources = (self.sources if resume else []) + [
+            {**source_commit(), "from_step": self.agent.num_env_steps}]
         self.started = time.perf_counter()
         self.last_eval: dict[str, float] = {}
         self.checkpoint_due = False
@@ -245,7 +249,7 @@ class Trainer:
         """checkpoint.pt at an episode boundary (the next episode has not taken a step: a resumed run
         starts it from its seed exactly as the uninterrupted run does), with the best evaluation so
         far and its policy, so a resume rewinds best_policy.pt / best.json to this step too."""
-        extra = {"best": self.best, "best_policy": self.best_policy_state}
+        extra = {"best": self.best, "best_policy": self.best_policy_state, "sources": self.sources}
         self.agent.save(self.out_dir / CHECKPOINT_FILE, extra=extra)
         self.checkpoint_due = False
 
@@ -292,7 +296,7 @@ class Trainer:
         summary = {"env_steps": self.agent.num_env_steps, "updates": self.agent.num_updates,
                    "episodes": self.agent.num_episodes, "wall_time_s": round(self.wall_time(), 2),
                    "threads": self.threads, "last_eval": self.last_eval, "best_eval": self.best,
-                   "test": test, "source": self.source}
+                   "test": test, "source": self.sources[0], "sources": self.sources}
         (self.out_dir / DONE_FILE).write_text(json.dumps(summary, indent=2) + "\n")
         return summary
 

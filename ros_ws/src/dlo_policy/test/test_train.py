@@ -80,6 +80,9 @@ def test_resume_after_interruption_continues_steps_and_buffer(tmp_path):
     assert [int(r["step"]) for r in read_eval(run)] == [0, 100, 200, 300, 400]
     wall = [float(r["wall_time_s"]) for r in read_eval(run)]
     assert wall == sorted(wall)
+    sources = json.loads((run / train.DONE_FILE).read_text())["sources"]  # the code of each part of the run
+    assert [s["from_step"] for s in sources] == [0, 200]
+    assert all(len(s["commit"]) == 40 or s["commit"] == "unknown" for s in sources)
 
 
 def test_existing_run_needs_resume(tmp_path, capsys):

@@ -10,7 +10,8 @@ Plots (PNG, one per episode): the gripper path over the cable at the start and t
 the top (fixed end and first step at the end marked), and over the control steps one axis per
 unit: closure, angles [rad], offsets [mm], commanded velocities [m/s], reward; spans where nothing
 changes are shaded. Videos (``--video``, :mod:`dlo_tools.video`): one MP4 (or GIF) per episode,
-top camera + side view + signal strip, one frame per control step, real time by default.
+top camera + side view + signal strip, one frame per control step, real time by default; progress on
+stderr (one line per finished video with its path and the time it took; on a terminal a bar too).
 
 A bag without ``/dlo/task/state`` (recorded from a robot driver, not the sim) has no outcomes: it
 says so in one line and exits 3. Exit status (the same table for every bag tool, ``dlo_tools.bag``):
@@ -113,19 +114,25 @@ def episode_title(episode: int, summary: dict | None) -> str:
 
 
 def plot_episode(episode: int, streams: dict, path: Path, summary: dict | None = None) -> None:
-    """One PNG: top view (cable at start and end, gripper path, fixed end, where the end was first
-    reached) and, over the control steps, one axis per unit: closure [-], held particle index,
-    angles [rad], offsets [mm], commanded velocity [m/s], reward [-]; legends outside the data."""
+    """One PNG of :func:`episode_figure`."""
+    episode_figure(episode, streams, summary).savefig(path, dpi=90, bbox_inches="tight")
+
+
+def episode_figure(episode: int, streams: dict, summary: dict | None = None):
+    """The episode plot (a matplotlib Figure): top view (cable at start and end, gripper path, fixed end,
+    where the end was first reached) and, over the control steps, one axis per unit: closure [-], held
+    particle index, angles [rad], offsets [mm], commanded velocity [m/s], reward [-]; legends outside the
+    data. Matplotlib's constrained layout places the titles, tick labels and legends (no text overlaps
+    another axis' tick labels, whatever the data's extent)."""
     from matplotlib.figure import Figure
 
     from dlo_tools.episode_series import episode_series, still_spans
 
     s = episode_series(episode, streams)
     steps = s.steps
-    fig = Figure(figsize=(12.0, 13.5), dpi=90)
+    fig = Figure(figsize=(12.0, 13.5), dpi=90, layout="constrained")
     fig.suptitle(episode_title(episode, summary), fontsize=13)
-    grid = fig.add_gridspec(7, 1, height_ratios=[2.2, 1, 1, 1, 1, 1, 1], hspace=0.22,
-                            left=0.08, right=0.8, top=0.93, bottom=0.05)
+    grid = fig.add_gridspec(7, 1, height_ratios=[2.2, 1, 1, 1, 1, 1, 1])
     # top view
     top = fig.add_subplot(grid[0])
     particles = streams.get("particles", {})
@@ -190,25 +197,49 @@ def plot_episode(episode: int, streams: dict, path: Path, summary: dict | None =
                          xycoords=("data", "axes fraction"), ha="center", va="center", fontsize=8,
                          color="0.3", bbox={"boxstyle": "round", "fc": "white", "ec": "0.7", "alpha": 0.8})
     axes[-1].set_xlabel("control step (0.08 s each)")
+    fig.align_ylabels(axes)
     if len(steps):
         axes[-1].set_xlim(steps[0], max(steps[-1], steps[0] + 1))
-    fig.savefig(path, dpi=90, bbox_inches="tight")
+    return fig
 
 
 def write_videos(run: dict, summaries: dict, out: Path, *, fmt: str = "mp4", policy: str | None = None,
-                 speed: float = 1.0, width: int | None = None) -> list[dict]:
-    """One video per episode of ``run`` into ``out`` (``episode_NNNN.mp4`` / ``.gif``)."""
+                 speed: float = 1.0, width: int | None = None, log=None) -> list[dict]:
+    """One video per episode of ``run`` into ``out`` (``episode_NNNN.mp4`` / ``.gif``).
+
+    ``log``: a text stream for progress (dlo-analyze: stderr, so that stdout stays the table): a line
+    naming the videos to come, then one line per finished video with its path, frames and the seconds
+    it took; on a terminal also a progress bar over all the frames (tqdm, removed at the end)."""
     from dlo_tools.video import render_episode_video
 
     out.mkdir(parents=True, exist_ok=True)
+    todo = [(episode, streams) for episode, streams in run.items() if "task" in streams]
+    frames = sum(len(set(streams["task"]) | set(streams.get("gripper", {}))) for _, streams in todo)
+    bar = None
+    if log is not None and todo and getattr(log, "isatty", lambda: False)():
+        from tqdm import tqdm
+
+        bar = tqdm(total=frames, desc="videos", unit="frame", file=log, leave=False, dynamic_ncols=True)
+
+    def say(line: str) -> None:
+        if bar is not None:
+            bar.write(line, file=log)
+        elif log is not None:
+            print(line, file=log, flush=True)
+
+    say(f"dlo-analyze: rendering {len(todo)} video{'' if len(todo) == 1 else 's'} ({frames} frames) into {out}")
     written = []
-    for episode, streams in run.items():
-        if "task" not in streams:
-            continue
-        item = render_episode_video(episode, streams, summaries.get(episode, {}),
-                                    out / f"episode_{episode:04d}.{fmt}", fmt=fmt, policy=policy,
-                                    speed=speed, width=width)
-        written.append({"episode": int(episode), **item})
+    try:
+        for k, (episode, streams) in enumerate(todo, 1):
+            item = render_episode_video(episode, streams, summaries.get(episode, {}),
+                                        out / f"episode_{episode:04d}.{fmt}", fmt=fmt, policy=policy,
+                                        speed=speed, width=width, progress=bar.update if bar is not None else None)
+            written.append({"episode": int(episode), **item})
+            say(f"dlo-analyze: video {k}/{len(todo)}: {item['path']} (episode {episode}, {item['frames']} frames "
+                f"in {item['render_s']:.1f} s)")
+    finally:
+        if bar is not None:
+            bar.close()
     return written
 
 
@@ -270,7 +301,7 @@ def main(argv=None) -> int:
     video = None
     if args.video:
         video = {"out": args.video, "fmt": args.video_format, "policy": args.policy,
-                 "speed": args.video_speed, "width": args.video_width}
+                 "speed": args.video_speed, "width": args.video_width, "log": sys.stderr}
     try:
         summaries = analyse(args.bag, args.plots, video)
     except NoTaskState as error:

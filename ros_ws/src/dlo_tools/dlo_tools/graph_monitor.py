@@ -4,6 +4,12 @@ health (control steps per second counted on ``/clock``, episodes done, node proc
 inputs and warnings from the nodes' logs) until all ``--episodes`` are done. Formatting:
 dlo_tools.outcome_table. Stops on SIGINT/SIGTERM after printing the episodes that finished meanwhile.
 
+Warnings and missing inputs are events: a status line counts those logged since the previous one. What a
+node waits for (its last "waiting for ..." line, e.g. the sim's "waiting for the recorder ...") is a state:
+it is shown while it holds and dropped once it no longer does, i.e. once that node has logged anything
+after it (it started, finished an episode, ...) or a control step was counted on ``/clock`` after it was
+logged (the graph runs).
+
     python -m dlo_tools.graph_monitor OUTCOMES.jsonl --logs DIR --node sim=PID --node policy=PID ...
 
 Without rclpy (or with ``--no-ros``) the step rate is shown as unknown.
@@ -14,13 +20,16 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import re
 import signal
 import sys
 import time
 
-from dlo_tools.outcome_table import episode_line, health_notes, status_line
+from dlo_tools.outcome_table import _WAITING, episode_line, health_notes, status_line
 
 PREFIX = "[launch] "
+# a line a node logged (rclpy's console format: [SEVERITY] [time] [name]: text; the time may be left out)
+_LOG_LINE = re.compile(r"^\[(?:DEBUG|INFO|WARN|WARNING|ERROR|FATAL)\](?: \[(\d+(?:\.\d+)?)\])?")
 
 
 class LogTail:
@@ -43,6 +52,39 @@ class LogTail:
         return lines
 
 
+class NodeHealth:
+    """The notes on one node for the status line, from its log (see the module docstring): the lines logged
+    since the previous status line, and the "waiting for ..." line that still holds, if any."""
+
+    def __init__(self, name: str, tail: LogTail):
+        self.name, self.tail = name, tail
+        self.waiting, self.waiting_since = None, None  # the last "waiting for" line, its wall time [s]
+
+    def catch_up(self) -> None:
+        """Read what the node logged before the monitor started: what it waits for holds, the rest is past."""
+        self._read()
+
+    def notes(self, last_step_wall: float | None = None) -> list:
+        """Notes for a status line now; ``last_step_wall``: wall time (time.time()) of the last control step
+        counted, None if unknown."""
+        lines = self._read()
+        if self.waiting is not None and last_step_wall is not None and last_step_wall > self.waiting_since:
+            self.waiting = None  # the graph stepped after the line was logged
+        events = [line for line in lines if not _WAITING.search(line)]
+        return health_notes(self.name, ([self.waiting] if self.waiting else []) + events)
+
+    def _read(self) -> list:
+        lines = self.tail.new_lines()
+        for line in lines:
+            logged = _LOG_LINE.match(line)
+            if _WAITING.search(line):
+                self.waiting = line
+                self.waiting_since = float(logged.group(1)) if logged and logged.group(1) else time.time()
+            elif logged:  # the node did something after waiting: it no longer waits
+                self.waiting = None
+        return lines
+
+
 class ClockCounter:
     """Counts distinct /clock stamps (one per control step of the sim) on the graph's domain."""
 
@@ -58,6 +100,7 @@ class ClockCounter:
         rclpy.init(context=self.context, signal_handler_options=SignalHandlerOptions.NO)
         self.node = rclpy.create_node("launch_monitor", context=self.context)
         self.last_ns, self.steps, self.first_ns = None, 0, None
+        self.last_step_wall = None  # time.time() when the last new step was counted
         self.node.create_subscription(Clock, topic, self.on_clock,
                                       QoSProfile(depth=50, reliability=ReliabilityPolicy.BEST_EFFORT))
         self.executor = rclpy.executors.SingleThreadedExecutor(context=self.context)
@@ -68,6 +111,7 @@ class ClockCounter:
         if ns != self.last_ns:  # a republished step repeats its stamp
             self.steps += 1
             self.last_ns = ns
+            self.last_step_wall = time.time()
             if self.first_ns is None:
                 self.first_ns = ns
 
@@ -110,8 +154,9 @@ def main(argv=None) -> int:
             print(f"{PREFIX}status: no step rate ({type(error).__name__}: {error})", flush=True)
     outcomes = LogTail(args.outcomes)
     logs = {name: LogTail(os.path.join(args.logs, f"{name}.log")) for name in nodes} if args.logs else {}
-    for tail in logs.values():  # notes cover the time since the last status line only
-        tail.new_lines()
+    health = [NodeHealth(name, tail) for name, tail in logs.items()]
+    for node in health:  # warnings count from the monitor's start on; a wait logged before it holds
+        node.catch_up()
     done = 0
     last_status, last_steps = time.monotonic(), 0
     last_sim_ns = None
@@ -151,7 +196,8 @@ def main(argv=None) -> int:
                         alive[name] = False
                     except PermissionError:
                         alive[name] = True
-                notes = [note for name, tail in logs.items() for note in health_notes(name, tail.new_lines())]
+                stepped = counter.last_step_wall if counter is not None else None
+                notes = [note for node in health for note in node.notes(stepped)]
                 print(PREFIX + "status: " + status_line(rate, factor, done, args.episodes, alive, notes), flush=True)
                 last_status = now
         report_episodes()  # those that finished while the graph stopped

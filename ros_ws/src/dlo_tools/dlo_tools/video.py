@@ -217,10 +217,12 @@ def _writer(path: Path, size: tuple[int, int], fps: float, fmt: str):
 
 
 def render_episode_video(episode: int, streams: dict, summary: dict, path, *, fmt: str = "mp4",
-                         policy: str | None = None, speed: float = 1.0, width: int | None = None) -> dict:
+                         policy: str | None = None, speed: float = 1.0, width: int | None = None,
+                         progress=None) -> dict:
     """Write one episode's video to ``path``; returns {frames, seconds, fps, render_fps, bytes}.
 
-    ``speed`` 1.0 = real time (12.5 frames/s); ``width`` in pixels (height = 3/4 of it).
+    ``speed`` 1.0 = real time (12.5 frames/s); ``width`` in pixels (height = 3/4 of it); ``progress``:
+    called with 1 after each frame is encoded (e.g. a tqdm bar's ``update``).
     """
     if fmt not in FORMATS:
         raise ValueError(f"video format must be one of {FORMATS}, got {fmt!r}")
@@ -239,6 +241,8 @@ def render_episode_video(episode: int, streams: dict, summary: dict, path, *, fm
         try:
             for i in range(len(frames)):
                 gen.send(frames.frame(i).tobytes())
+                if progress is not None:
+                    progress(1)
         finally:
             gen.close()
         tmp.replace(path)
