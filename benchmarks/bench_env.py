@@ -8,7 +8,7 @@ with the same seeds, at the same steps as the full arm's auto-resets: both arms 
 physics, the same number of resets (printed as "resets"). One env-step = one control step of one
 environment. Overhead = t_full / t_bare - 1, the time the pipeline adds on top of the bare
 simulator. Each arm is timed ``--repeats`` times from the same start state; the best is kept.
-Usage: python scripts/bench_env.py [--steps 60] [--repeats 3] [--sizes 1,10,64] [--action 0.1,0,0.6]
+Usage: python benchmarks/run.py env -- [--steps 60] [--repeats 3] [--sizes 1,10,64] [--action 0.1,0,0.6]
 (the default action ends no episode, so both arms run without resets; --action 0.5,0,0.6 slides
 off the end and gives resets, the same in both arms).
 The JSON line last has env_steps_per_s {N: full}, bare_steps_per_s {N: bare},

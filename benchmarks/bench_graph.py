@@ -6,7 +6,7 @@ episodes, then reads the recorded bag: the recorder's receive time of each messa
 hops of one control step (state -> tactile pose, state -> visual pose, last pose -> command,
 command -> next state) and the loop rate within episodes (resets excluded). Prints a JSON line last.
 
-    python scripts/bench_graph.py [--episodes 3] [--policy sac|tactile_reactive|random]
+    python benchmarks/run.py graph -- [--episodes 3] [--policy sac|tactile_reactive|random]
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """SAC gradient updates per second: ours vs Stable-Baselines3, and a matmul roofline (JSON last).
 
-    python scripts/bench_sac.py [--threads 2] [--updates 100] [--rounds 3] [--device cpu|cuda|auto] [--no-sb3]
+    python benchmarks/run.py sac -- [--threads 2] [--updates 100] [--rounds 3] [--device cpu|cuda|auto] [--no-sb3]
 
 Same problem for both: obs dim 9, action dim 3, MLPs 2 x 1024 ReLU, batch 128, replay filled with
 learning_starts = 1000 random transitions, one gradient step per call, torch.set_num_threads

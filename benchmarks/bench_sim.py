@@ -15,7 +15,7 @@ first body fixed 0.1 m above a floor, timestep 0.01 / 8 s (8 MuJoCo steps = 1 en
 XPBD runs 4 sub-steps), self-collision on, given its fastest setting here: ``jacobian="dense"``
 with ``solver="CG"`` (about 3x the default sparse/Newton on this cable).
 
-Usage: python scripts/bench_sim.py [--seconds 2] [--repeats 3] [--batches 1 16 64 256]
+Usage: python benchmarks/run.py sim -- [--seconds 2] [--repeats 3] [--batches 1 16 64 256]
 """
 
 import argparse

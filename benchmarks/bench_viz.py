@@ -19,7 +19,7 @@ without the bridge and a client, video rendering speed. Prints a JSON line last.
    - ``bridge_cpu_percent_of_one_core``: the bridge's CPU time / wall time in the B windows;
    - ``rate``: steps/s in A and in B windows and their ratio (the issue asks >= 0.9).
 
-    python scripts/bench_viz.py [--episodes 2] [--window 15] [--pairs 2] [--policy tactile_reactive]
+    python benchmarks/run.py viz -- [--episodes 2] [--window 15] [--pairs 2] [--policy tactile_reactive]
 """
 
 from __future__ import annotations

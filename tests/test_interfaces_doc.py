@@ -1,4 +1,4 @@
-"""docs/INTERFACES.md is generated (scripts/gen_interfaces.py) and must be current.
+"""docs/INTERFACES.md is generated (tools/gen_interfaces.py) and must be current.
 
 The first test starts the graph (scripts/launch_graph.sh, real_time, one episode, on a free domain of
 its own), regenerates the doc and compares it with the committed file: topics, types, publishers,
@@ -17,8 +17,8 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-GEN = ROOT / "scripts" / "gen_interfaces.py"
-sys.path.insert(0, str(ROOT / "scripts"))
+GEN = ROOT / "tools" / "gen_interfaces.py"
+sys.path.insert(0, str(ROOT / "tools"))
 
 import gen_interfaces  # noqa: E402
 
@@ -76,7 +76,7 @@ def test_committed_doc_is_current_with_the_live_graph():
     services, timers, message or parameter declarations without regenerating the doc fails here."""
     result = run_gen("--check", timeout=900)
     assert result.returncode == 0, (
-        "docs/INTERFACES.md is stale or could not be regenerated; run: python scripts/gen_interfaces.py\n"
+        "docs/INTERFACES.md is stale or could not be regenerated; run: python tools/gen_interfaces.py\n"
         + result.stdout + result.stderr[-6000:])
     text = (ROOT / "docs" / "INTERFACES.md").read_text()
     for needle in ("`/dlo/gripper/state` | `dlo_msgs/msg/GripperState` | `sim_node`",

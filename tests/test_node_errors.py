@@ -25,7 +25,7 @@ from dlo_common.params import as_params, check_value
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 ROS2RUN = str(ROOT / "scripts" / "ros2run")
-_spec = importlib.util.spec_from_file_location("gen_node_configs", ROOT / "scripts" / "gen_node_configs.py")
+_spec = importlib.util.spec_from_file_location("gen_node_configs", ROOT / "tools" / "gen_node_configs.py")
 gen = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(gen)
 NODES = gen.node_executables()

@@ -19,7 +19,7 @@ from dlo_common.params import Param, as_params, check_value, help_requested, mar
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 ROS2RUN = str(ROOT / "scripts" / "ros2run")
-_spec = importlib.util.spec_from_file_location("gen_node_configs", ROOT / "scripts" / "gen_node_configs.py")
+_spec = importlib.util.spec_from_file_location("gen_node_configs", ROOT / "tools" / "gen_node_configs.py")
 gen = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(gen)
 NODES = gen.node_executables()
@@ -34,9 +34,9 @@ def test_every_node_executable_is_found():
 @pytest.mark.parametrize("package,executable,module", NODES, ids=[exe for _, exe, _ in NODES])
 def test_committed_params_file_equals_the_declarations(package, executable, module):
     path = gen.config_path(package, executable)
-    assert path.exists(), f"{path} missing: run python scripts/gen_node_configs.py"
+    assert path.exists(), f"{path} missing: run python tools/gen_node_configs.py"
     assert path.read_text() == gen.render(package, executable, module), \
-        f"{path} differs from {module}.PARAMETERS: run python scripts/gen_node_configs.py"
+        f"{path} differs from {module}.PARAMETERS: run python tools/gen_node_configs.py"
     installed = ROOT / "ros_ws" / "install" / package / "share" / package / "config" / f"{executable}.yaml"
     assert installed.read_text() == path.read_text(), f"{installed} is stale: run scripts/setup.sh"
 

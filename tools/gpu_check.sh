@@ -1,14 +1,14 @@
 #!/usr/bin/env bash
 # One-command GPU check: does training run on a CUDA GPU here, and how fast?
 #
-#   scripts/gpu_check.sh [OUT_DIR]          (default OUT_DIR: gpu_check/; GPU_CHECK_STEPS=2000)
+#   tools/gpu_check.sh [OUT_DIR]            (default OUT_DIR: gpu_check/; GPU_CHECK_STEPS=2000)
 #
-# 1. SAC updates/s on cuda (ours and SB3, scripts/bench_sac.py --device cuda) and, for scale, ours
+# 1. SAC updates/s on cuda (ours and SB3, benchmarks/run.py sac -- --device cuda) and, for scale, ours
 #    on this machine's CPU (--device cpu, all cores);
 # 2. a short dlo-train run (All, GPU_CHECK_STEPS steps) three ways: SAC on cpu + sim on cpu, SAC on
 #    cuda + sim on cpu, SAC on cuda + sim on cuda (train.device / train.sim_arch); wall times from
 #    their done.json; the cuda-trained policy is then evaluated on the CPU (checkpoints load on either);
-# 3. the simulator on cuda (DLO_TI_ARCH=cuda scripts/bench_sim.py, batches 1 / 256 / 4096).
+# 3. the simulator on cuda (DLO_TI_ARCH=cuda benchmarks/run.py sim, batches 1 / 256 / 4096).
 # Everything is logged under OUT_DIR; OUT_DIR/summary.json gathers the figures and is printed.
 # Exit: 0 all steps passed, 1 a step failed (its log says why), 2 no CUDA GPU usable here (one
 # line, nothing run). The setup installs torch's CPU build: on a GPU machine install the CUDA
@@ -61,8 +61,8 @@ step() {  # step NAME COMMAND...: run, log to OUT/NAME.log, report time and stat
   fi
 }
 cores="$(nproc)"
-step bench_sac_cuda python scripts/bench_sac.py --device cuda --threads "$cores" --rounds 3 --updates 300
-step bench_sac_cpu python scripts/bench_sac.py --device cpu --threads "$cores" --rounds 3 --updates 50 --no-sb3
+step bench_sac_cuda python benchmarks/run.py sac -- --device cuda --threads "$cores" --rounds 3 --updates 300
+step bench_sac_cpu python benchmarks/run.py sac -- --device cpu --threads "$cores" --rounds 3 --updates 50 --no-sb3
 for variant in "cpu cpu" "cuda cpu" "cuda cuda"; do
   set -- $variant
   rm -rf "$OUT/train_sac-$1_sim-$2"
@@ -72,18 +72,19 @@ for variant in "cpu cpu" "cuda cpu" "cuda cuda"; do
 done
 step eval_cuda_policy_on_cpu dlo-evaluate --checkpoint "$OUT/train_sac-cuda_sim-cuda/policy.pt" --episodes 20 \
   --seed 5000 --json "$OUT/eval_cuda_policy_on_cpu.json"
-step bench_sim_cuda env DLO_TI_ARCH=cuda python scripts/bench_sim.py --seconds 1 --repeats 2 --batches 1 256 4096
+step bench_sim_cuda env DLO_TI_ARCH=cuda python benchmarks/run.py sim -- --seconds 1 --repeats 2 --batches 1 256 4096
 
 python - "$OUT" "$gpu" "$STEPS" > "$OUT/summary.json" <<'EOF'
 import json, sys
 from pathlib import Path
 out, gpu, steps = Path(sys.argv[1]), sys.argv[2], int(sys.argv[3])
 
-def last_json(name):
+def last_json(name):  # benchmarks/run.py's line (last): the benchmark's JSON, or the record with its error
     try:
-        return json.loads((out / f"{name}.log").read_text().strip().splitlines()[-1])
+        record = json.loads((out / f"{name}.log").read_text().strip().splitlines()[-1])
     except (OSError, ValueError, IndexError):
         return None
+    return record.get("result", record) if isinstance(record, dict) else None
 
 def done(name):
     try:

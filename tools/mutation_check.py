@@ -6,12 +6,12 @@ ONE function of a COPY of the source tree; the module's fast unit tests run agai
 the mutant is *killed* when they fail (or hang past the time limit), *survived* when they pass.
 The live tree is never written: other work can go on in it meanwhile.
 
-    scripts/mutation_check.sh                       # every module of scripts/mutation.toml
-    scripts/mutation_check.sh --module dlo_sim.task --module dlo_sim.command
-    scripts/mutation_check.sh --list                # the mutants, nothing run
-    scripts/mutation_check.sh --fresh               # forget earlier verdicts
+    tools/mutation_check.sh                       # every module of tools/mutation.toml
+    tools/mutation_check.sh --module dlo_sim.task --module dlo_sim.command
+    tools/mutation_check.sh --list                # the mutants, nothing run
+    tools/mutation_check.sh --fresh               # forget earlier verdicts
 
-Configuration: ``scripts/mutation.toml`` (modules: file, functions, tests; equivalent mutants with
+Configuration: ``tools/mutation.toml`` (modules: file, functions, tests; equivalent mutants with
 the reason). Output: one line per module (killed / mutants, score), then every surviving mutant
 ``file:line  function  original -> mutated``; exit 0 when every module reaches ``target`` (default
 0.9) counting equivalent mutants as not killable, else 1. Verdicts are kept in
@@ -234,7 +234,7 @@ def _functions(tree: ast.Module, wanted: list[str] | None):
     names = {name for name, _ in found}
     missing = [w for w in wanted if w not in names]
     if missing:
-        raise SystemExit(f"mutation_check: {', '.join(missing)} not found in the module (see scripts/mutation.toml)")
+        raise SystemExit(f"mutation_check: {', '.join(missing)} not found in the module (see tools/mutation.toml)")
     return [(name, node) for name, node in found if name in wanted]
 
 
@@ -303,9 +303,10 @@ def copy_tree(work: Path) -> None:
             shutil.rmtree(dst)
         shutil.copytree(src, dst, ignore=shutil.ignore_patterns("__pycache__", "*.pyc"))
     shutil.copy2(ROOT / "pytest.ini", work / "pytest.ini")
-    scripts = work / "scripts"
-    if not scripts.exists():
-        scripts.symlink_to(ROOT / "scripts")
+    for name in ("scripts", "tools", "benchmarks"):  # the tests run scripts/ros2run and load tools/gen_*.py
+        link = work / name
+        if not link.exists():
+            link.symlink_to(ROOT / name)
 
 
 def redirect_paths(work: Path) -> None:
@@ -434,7 +435,7 @@ def digest(*texts: str) -> str:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="mutation_check", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--config", type=Path, default=ROOT / "scripts" / "mutation.toml")
+    parser.add_argument("--config", type=Path, default=ROOT / "tools" / "mutation.toml")
     parser.add_argument("--module", action="append", default=[], help="only this module (repeatable)")
     parser.add_argument("--list", action="store_true", help="list the mutants and exit")
     parser.add_argument("--fresh", action="store_true", help="ignore earlier verdicts")
@@ -562,13 +563,13 @@ def main(argv: list[str] | None = None) -> int:
     named_results = [(name, mu, v) for name in results if results[name] for mu, v, _ in results[name]
                      if mu.operator == "named"]
     if named_results:
-        print("\n=== named bugs (scripts/mutation.toml [[named]]: the weaknesses of issue 14) ===")
+        print("\n=== named bugs (tools/mutation.toml [[named]]: the weaknesses of issue 14) ===")
         for name, mutant, verdict in named_results:
             print(f"{verdict:<16} {name}: {mutant.function}  ({mutant.path}:{mutant.line})")
             ok &= verdict.startswith("killed")
     equiv = [s for s in survivors if len(s) == 3]
     if equiv:
-        print("\n=== equivalent mutants (listed in scripts/mutation.toml) ===")
+        print("\n=== equivalent mutants (listed in tools/mutation.toml) ===")
         for name, mutant, reason in equiv:
             print(f"{name}: {mutant.describe()}\n    why: {reason}")
     return 0 if ok else 1

@@ -1,4 +1,4 @@
-"""Records what every rclpy node of a process declares, for scripts/gen_interfaces.py.
+"""Records what every rclpy node of a process declares, for tools/gen_interfaces.py.
 
 Active only when ``DLO_INTERFACES_DUMP`` names a directory (the generator puts this directory first
 on PYTHONPATH of the graph it launches, so Python imports it at start-up as ``sitecustomize``).

@@ -11,7 +11,7 @@ setup(
     data_files=[
         ("share/ament_index/resource_index/packages", ["resource/" + package_name]),
         ("share/" + package_name, ["package.xml"]),
-        # the SAC defaults and the policy node's parameters file (scripts/gen_node_configs.py)
+        # the SAC defaults and the policy node's parameters file (tools/gen_node_configs.py)
         ("share/" + package_name + "/config", ["config/sac_default.yaml", "config/policy_node.yaml"]),
         # the shipped All-modalities policy (actor + run config), used by policy_node by default
         ("share/" + package_name + "/policies/all", sorted(glob("policies/all/*"))),
@@ -28,6 +28,8 @@ setup(
             "dlo-evaluate = dlo_policy.evaluate:main",
             "dlo-experiments = dlo_policy.experiments:main",
             "dlo-report = dlo_policy.report:main",
+            "dlo-validate-vision = dlo_policy.validate_vision:main",
+            "dlo-normalizer-drift = dlo_policy.normalizer_drift:main",
             "policy_node = dlo_policy.policy_node:main",
         ],
     },

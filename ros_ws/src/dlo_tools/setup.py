@@ -11,7 +11,7 @@ setup(
     data_files=[
         ("share/ament_index/resource_index/packages", ["resource/" + package_name]),
         ("share/" + package_name, ["package.xml"]),
-        # parameters files of the nodes (scripts/gen_node_configs.py): --ros-args --params-file
+        # parameters files of the nodes (tools/gen_node_configs.py): --ros-args --params-file
         ("share/" + package_name + "/config", sorted(glob("config/*.yaml"))),
     ],
     install_requires=["setuptools"],

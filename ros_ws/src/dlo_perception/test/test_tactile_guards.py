@@ -1,4 +1,4 @@
-"""dlo_perception.tactile beyond its statistics (issue 14, found by scripts/mutation_check.sh): the
+"""dlo_perception.tactile beyond its statistics (issue 14, found by tools/mutation_check.sh): the
 exact noise model (one draw for the angle, then one for y, scaled by 1 - c_G, c_G clipped to [0, 1]),
 each sigma on its own, the generator used as given and untouched without noise, the y range, full
 gripper states as input, scalar results for one sample, and no invalid arithmetic without contact."""

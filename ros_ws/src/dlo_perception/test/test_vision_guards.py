@@ -1,5 +1,5 @@
 """The vision ground truth (visual_pose_ground_truth, line_slope) on hand-placed particles, rule by
-rule and at the rules' edges (issue 14, found by scripts/mutation_check.sh): which particle is the
+rule and at the rules' edges (issue 14, found by tools/mutation_check.sh): which particle is the
 entry, which way the cable is walked, where following stops, what is padding, and the line fit."""
 
 import numpy as np

@@ -6,6 +6,11 @@ vector env built from the run's saved config, prints the outcome table and optio
 `--without X` blanks modality X's observation entries (zeros) before the policy sees them: the
 paper's ablation of an agent trained with all inputs. A progress bar over the episodes goes to stderr
 when it is a terminal (`--progress` forces it, `--quiet` turns it off); stdout carries only the table.
+
+`dlo-evaluate --policy oracle|tactile_reactive|random ...` (instead of `--checkpoint`) runs a scripted
+baseline of `dlo_policy.scripted` through the same protocol on the All-modalities environment
+(`--task-rules` picks the task variant, default the env's; `--stop-before-end N` makes the oracle
+stop once it holds particle n_c - 1 - N). Both outcome rules are reported in the table and the JSON.
 """
 from __future__ import annotations
 
@@ -22,8 +27,9 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from dlo_sim.task import LEGACY_TASK_RULES
+from dlo_sim.task import DEFAULT_TASK_RULES, LEGACY_TASK_RULES, TASK_RULES
 
+from .cli import OneLineErrorParser
 from .config import RunConfig, load_config, record_task_rules
 from .observation import MODALITY_ORDER, MODALITY_SIZES, parse_modalities
 from .sac import SAC
@@ -31,6 +37,8 @@ from .sac import SAC
 OUTCOMES = ("hold_the_end", "stop_before", "reach_end_but_drop", "drop_before")  # paper-text rule
 AUTHORS_SUFFIX = "_authors"
 OUTCOMES_AUTHORS = tuple(name + AUTHORS_SUFFIX for name in OUTCOMES)  # authors'-code rule (dlo_sim.task)
+SCRIPTED_POLICIES = ("oracle", "tactile_reactive", "random")  # dlo_policy.scripted, as the policy node names them
+SCRIPTED_MODALITIES = "All"  # the environment of the scripted baselines (tactile_reactive reads K, T and V)
 
 
 @dataclass
@@ -144,6 +152,54 @@ def make_vec_env_for(config: RunConfig, num_envs: int, seed: int) -> Any:
     return module.make_vec_env(num_envs, modalities=config.modalities, seed=seed, **config.env_options)
 
 
+class ScriptedAgent:
+    """A scripted policy of dlo_policy.scripted as `evaluate_agent`'s agent: `predict(obs)` is
+    `policy(obs, env)` (the oracle reads the simulator's ground truth through `env`)."""
+
+    num_env_steps = 0
+
+    def __init__(self, policy: Any, vec_env: Any) -> None:
+        self.policy, self.vec_env = policy, vec_env
+
+    def predict(self, obs: np.ndarray, deterministic: bool = True) -> np.ndarray:
+        return self.policy(obs, self.vec_env)
+
+
+class _ResetsPolicy:
+    """The vector env with one change: `reset` also clears the scripted policy's per-env memory, so
+    every batch of episodes starts it afresh."""
+
+    def __init__(self, vec_env: Any, policy: Any) -> None:
+        self._env, self._policy = vec_env, policy
+
+    def reset(self, **kwargs: Any) -> Any:
+        self._policy.reset()
+        return self._env.reset(**kwargs)
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._env, name)
+
+
+def scripted_policy(name: str, seed: int = 0, stop_before_end: Optional[int] = None) -> Any:
+    """A fresh scripted policy by its `--policy` name (random is seeded with `seed`)."""
+    from .scripted import OracleFollow, RandomPolicy, TactileReactive  # noqa: PLC0415
+
+    if name == "oracle":
+        return OracleFollow() if stop_before_end is None else OracleFollow(stop_before_end=stop_before_end)
+    if name == "tactile_reactive":
+        return TactileReactive()
+    if name == "random":
+        return RandomPolicy(seed=seed)
+    raise ValueError(f"unknown scripted policy {name!r}: expected one of {', '.join(SCRIPTED_POLICIES)}")
+
+
+def make_scripted_vec_env(num_envs: int, seed: int, task_rules: str) -> Any:
+    """The All-modalities vector env the scripted baselines run on."""
+    from .env import make_vec_env  # noqa: PLC0415
+
+    return make_vec_env(num_envs, modalities=SCRIPTED_MODALITIES, seed=seed, task_rules=task_rules)
+
+
 def load_run_config(checkpoint: Path) -> RunConfig:
     """The config.yaml written next to a checkpoint by dlo-train (runs from before task_rules existed
     were trained on the paper-text rules and read so)."""
@@ -166,10 +222,19 @@ def format_table(result: EvalResult) -> str:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = OneLineErrorParser(
         prog="dlo-evaluate", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--checkpoint", required=True, type=Path,
-                        help="checkpoint.pt or policy.pt of a dlo-train run directory")
+    what = parser.add_mutually_exclusive_group(required=True)
+    what.add_argument("--checkpoint", type=Path, help="checkpoint.pt or policy.pt of a dlo-train run directory")
+    what.add_argument("--policy", choices=SCRIPTED_POLICIES,
+                      help="a scripted baseline instead of a checkpoint: oracle (ground truth), tactile_reactive "
+                           "(observations only, after She et al. 2021) or random (seeded with --seed)")
+    parser.add_argument("--task-rules", choices=TASK_RULES,
+                        help=f"with --policy: the task variant (default {DEFAULT_TASK_RULES}); a checkpoint is "
+                             "evaluated under the rules of its run's config.yaml")
+    parser.add_argument("--stop-before-end", type=int, metavar="N",
+                        help="with --policy oracle: stop once the largest held index reaches n_c - 1 - N "
+                             "(default 2; 9 = at particle n_c - 10)")
     parser.add_argument("--episodes", type=int, default=100, help="number of episodes (default 100)")
     parser.add_argument("--seed", type=int, default=0, help="first episode seed (default 0)")
     parser.add_argument("--json", type=Path, help="also write the results to this JSON file")
@@ -189,8 +254,14 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     if args.episodes < 1 or args.num_envs < 1:
         print("dlo-evaluate: error: --episodes and --num-envs must be >= 1", file=sys.stderr)
         return 2
+    problem = _option_problem(args)
+    if problem:
+        print(f"dlo-evaluate: error: {problem}", file=sys.stderr)
+        return 2
     if args.threads:
         torch.set_num_threads(args.threads)
+    if args.policy is not None:
+        return _evaluate_scripted(args)
     try:
         agent = SAC.load(args.checkpoint)  # first: a missing or foreign file is named as such
         config = load_run_config(args.checkpoint)
@@ -199,22 +270,66 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         print(f"dlo-evaluate: error: {error}", file=sys.stderr)
         return 2
     vec_env = make_vec_env_for(config, min(args.num_envs, args.episodes), seed=args.seed)
+    result = _run(agent, vec_env, args, blank)
+    title = f"{config.name}, seeds {args.seed}..{args.seed + args.episodes - 1}"
+    _report(result, args, title, {"checkpoint": str(args.checkpoint), "policy": "sac", "seed": args.seed,
+                                  "without": args.without, "modalities": config.modalities,
+                                  "env_steps": agent.num_env_steps})
+    return 0
+
+
+def _option_problem(args: argparse.Namespace) -> Optional[str]:
+    """Why the options do not fit together (None when they do)."""
+    if args.checkpoint is not None and args.task_rules is not None:
+        return "--task-rules is for --policy: a checkpoint is evaluated under its run's task rules"
+    if args.stop_before_end is not None and args.policy != "oracle":
+        return "--stop-before-end is for --policy oracle"
+    if args.stop_before_end is not None and args.stop_before_end < 0:
+        return f"--stop-before-end must be >= 0, got {args.stop_before_end}"
+    return None
+
+
+def _evaluate_scripted(args: argparse.Namespace) -> int:
+    """dlo-evaluate --policy NAME: a scripted baseline through the same protocol, JSON and table."""
+    rules = args.task_rules or DEFAULT_TASK_RULES
+    try:
+        blank = blanked_columns(SCRIPTED_MODALITIES, args.without)
+    except ValueError as error:
+        print(f"dlo-evaluate: error: {error}", file=sys.stderr)
+        return 2
+    policy = scripted_policy(args.policy, seed=args.seed, stop_before_end=args.stop_before_end)
+    vec_env = make_scripted_vec_env(min(args.num_envs, args.episodes), seed=args.seed, task_rules=rules)
+    result = _run(ScriptedAgent(policy, vec_env), _ResetsPolicy(vec_env, policy), args, blank)
+    name = args.policy + (f" (stops {args.stop_before_end} before the end)" if args.stop_before_end is not None
+                          else "")
+    title = (f"scripted {name} on {SCRIPTED_MODALITIES}, task rules {rules}, "
+             f"seeds {args.seed}..{args.seed + args.episodes - 1}")
+    details = {"policy": args.policy, "seed": args.seed, "without": args.without, "modalities": SCRIPTED_MODALITIES,
+               "task_rules": rules}
+    if args.stop_before_end is not None:
+        details["stop_before_end"] = args.stop_before_end
+    _report(result, args, title, details)
+    return 0
+
+
+def _run(agent: Any, vec_env: Any, args: argparse.Namespace, blank: Sequence[int]) -> EvalResult:
+    """`evaluate_agent` with the progress bar of the command line; the env is closed afterwards."""
     hidden = args.quiet or not (args.progress or sys.stderr.isatty())
     try:
         with tqdm(total=args.episodes, desc="dlo-evaluate", unit="episode", file=sys.stderr, disable=hidden,
                   dynamic_ncols=True) as bar:
-            result = evaluate_agent(agent, vec_env, args.seed, args.episodes, blank, progress=bar.update)
+            return evaluate_agent(agent, vec_env, args.seed, args.episodes, blank, progress=bar.update)
     finally:
         vec_env.close()
-    title = f"{config.name}, seeds {args.seed}..{args.seed + args.episodes - 1}"
+
+
+def _report(result: EvalResult, args: argparse.Namespace, title: str, details: dict[str, Any]) -> None:
+    """The title and the table on stdout; with --json the results (both outcome rules) and `details`."""
     print(title + (f", without {'+'.join(args.without)}" if args.without else ""))
     print(format_table(result))
     if args.json:
-        payload = {**result.to_json(), "checkpoint": str(args.checkpoint), "seed": args.seed,
-                   "without": args.without, "modalities": config.modalities,
-                   "env_steps": agent.num_env_steps}
+        payload = {**result.to_json(), **details}
         args.json.write_text(json.dumps(payload, indent=2) + "\n")
-    return 0
 
 
 if __name__ == "__main__":

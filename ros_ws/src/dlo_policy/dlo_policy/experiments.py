@@ -32,6 +32,12 @@ Each finished run's done.json records where and how long it ran: "node" (the Ray
 training, evaluations, held-out test) and "attempts". A progress bar over runs (done / running /
 failed / retried, ETA from the runs finished so far) goes to stderr (`--no-progress`: none).
 
+`dlo-experiments --out RUNS --collect RESULTS` trains nothing: it copies the small files of every
+finished run under RUNS (done.json present; config.yaml, eval.csv, done.json, best.json, test*.json,
+never checkpoints, replay buffers, policies or bags) into RESULTS with the same layout, copying a
+file only when it differs, and prints the run directories it added or updated: the run record
+under results/ that docs/RESULTS.md cites.
+
 `--dry-run` lists the runs and estimates the wall time from a short calibration measured now, on
 this machine, under its current load: `CALIBRATION_STEPS` SAC steps (env step + one gradient
 update, the run's network, `--threads` threads) and one evaluation of the configuration with the
@@ -45,6 +51,7 @@ import concurrent.futures
 import concurrent.futures.process
 import contextlib
 import csv
+import filecmp
 import importlib
 import json
 import logging
@@ -52,6 +59,7 @@ import math
 import multiprocessing
 import os
 import re
+import shutil
 import socket
 import sys
 import tempfile
@@ -536,6 +544,33 @@ def _duration(seconds: float) -> str:
     return f"{seconds / 3600:.1f} h" if seconds >= 3600 else f"{seconds / 60:.0f} min"
 
 
+COLLECTED_FILES = (CONFIG_FILE, EVAL_FILE, DONE_FILE, BEST_FILE)  # and test*.json: a run's record, a few kB
+
+
+def collect_results(runs: Path, results: Path) -> list[Path]:
+    """Copy the small files of every finished run (a done.json) anywhere under `runs` into `results`,
+    same layout: COLLECTED_FILES and test*.json. A file is copied only when it is new or differs.
+    Returns the directories under `results` that were added or updated, in path order."""
+    runs, results = Path(runs), Path(results)
+    changed = []
+    for done in sorted(runs.rglob(DONE_FILE)):
+        run = done.parent
+        if results.resolve() in run.resolve().parents or run.resolve() == results.resolve():
+            continue  # RESULTS inside RUNS: not a run of RUNS
+        dest = results / run.relative_to(runs)
+        updated = False
+        for source in [run / name for name in COLLECTED_FILES] + sorted(run.glob("test*.json")):
+            target = dest / source.name
+            if not source.is_file() or (target.is_file() and filecmp.cmp(source, target, shallow=False)):
+                continue
+            dest.mkdir(parents=True, exist_ok=True)
+            shutil.copyfile(source, target)
+            updated = True
+        if updated:
+            changed.append(dest)
+    return changed
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="dlo-experiments", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter,
@@ -567,12 +602,22 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--no-progress", action="store_true", help="no progress bar over the runs")
     parser.add_argument("--dry-run", action="store_true",
                         help="list the runs and their status, estimate the wall time (short calibration), run nothing")
+    parser.add_argument("--collect", type=Path, metavar="RESULTS",
+                        help="train nothing: copy the small files of every finished run under --out (config.yaml, "
+                             "eval.csv, done.json, best.json, test*.json) into RESULTS, same layout, and print the "
+                             "run directories added or updated")
     parser.add_argument("overrides", nargs="*", metavar="key=value", help="config overrides for every run")
     return parser
 
 
 def main(argv: Optional[Sequence[str]] = None) -> int:
     args = build_parser().parse_args(argv)
+    if args.collect is not None:
+        if not args.out.is_dir():
+            return _usage_error(f"--collect: no directory {args.out}")
+        for directory in collect_results(args.out, args.collect):
+            print(directory, flush=True)
+        return 0
     for name in ("threads", "seeds"):
         if getattr(args, name) < 1:
             return _usage_error(f"--{name} must be at least 1")

@@ -1,7 +1,6 @@
-#!/usr/bin/env python3
 """How far the running observation normaliser moved during a run, from its replay buffer.
 
-Usage: python scripts/normalizer_drift.py RUN_DIR [RUN_DIR ...] [--every 1000]
+`dlo-normalizer-drift RUN_DIR [RUN_DIR ...] [--every 1000]`
 
 A full checkpoint.pt holds every observation the agent stored (replay buffer, 100k > the run's
 steps) in order, so the running mean m(t) and std s(t) the `running` scaling used at step t are
@@ -9,28 +8,51 @@ the statistics of obs[:t]. For each window (t - every, t] this prints the larges
 normalised value of a fixed observation, max_i |m_i(t) - m_i(t - every)| / s_i(t) (in units of the
 current std: how far the networks' inputs moved under them), the dimension it happened in, and
 the run's hold-the-end rate over the evaluations of that window (eval.csv), so collapses can be
-set against drift. A JSON line per run comes last.
+set against drift. A JSON line per run comes last. Exit 2 with one line when a run directory lacks
+its checkpoint.pt, config.yaml or eval.csv or they cannot be read.
 """
+from __future__ import annotations
+
 import argparse
 import csv
 import json
+import pickle
 import sys
 from pathlib import Path
+from typing import Optional, Sequence
 
 import numpy as np
-import torch
 
-from dlo_policy.config import load_config
-from dlo_policy.observation import observation_labels
+from .cli import OneLineErrorParser
+
+
+class DriftError(Exception):
+    """A run directory that cannot be read; the message is one line."""
 
 
 def drift(run: Path, every: int) -> dict:
-    state = torch.load(run / "checkpoint.pt", map_location="cpu", weights_only=True)
-    steps = state["counters"]["env_steps"]
-    obs = state["replay"]["obs"][:steps].double().numpy()
-    labels = observation_labels(load_config(run / "config.yaml").modalities)
+    """The windows of one run directory (see the module docstring); DriftError when it cannot be read."""
+    import torch
+
+    from .config import ConfigError, load_config
+    from .observation import observation_labels
+
+    for name in ("checkpoint.pt", "config.yaml", "eval.csv"):
+        if not (run / name).is_file():
+            raise DriftError(f"{run / name} not found (a dlo-train run directory with its full checkpoint)")
+    try:
+        state = torch.load(run / "checkpoint.pt", map_location="cpu", weights_only=True)
+        steps = int(state["counters"]["env_steps"])
+        obs = state["replay"]["obs"][:steps].double().numpy()
+    except (OSError, RuntimeError, ValueError, KeyError, TypeError, IndexError, pickle.UnpicklingError) as error:
+        raise DriftError(f"{run / 'checkpoint.pt'}: not a full dlo-train checkpoint with its replay buffer "
+                         f"({type(error).__name__}: {str(error).splitlines()[0] if str(error) else ''})") from None
+    try:
+        labels = observation_labels(load_config(run / "config.yaml").modalities)
+    except (ConfigError, ValueError, OSError) as error:
+        raise DriftError(f"{run / 'config.yaml'}: {error}") from None
     with (run / "eval.csv").open(newline="") as f:
-        rows = [r for r in csv.DictReader(f) if r["tested_without"] == ""]
+        rows = [r for r in csv.DictReader(f) if r.get("tested_without", "") == ""]
     windows = []
     for t in range(2 * every, steps + 1, every):
         before, now = obs[:t - every], obs[:t]
@@ -43,18 +65,27 @@ def drift(run: Path, every: int) -> dict:
     return {"run": str(run), "steps": steps, "every": every, "windows": windows}
 
 
-def main() -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0], epilog=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("runs", nargs="+", type=Path, help="dlo-train run directories with checkpoint.pt")
+def build_parser() -> argparse.ArgumentParser:
+    parser = OneLineErrorParser(prog="dlo-normalizer-drift", description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("runs", nargs="+", type=Path, metavar="RUN_DIR",
+                        help="dlo-train run directories with checkpoint.pt")
     parser.add_argument("--every", type=int, default=1000, help="window length [env steps] (default 1000)")
-    args = parser.parse_args()
+    return parser
+
+
+def main(argv: Optional[Sequence[str]] = None) -> int:
+    args = build_parser().parse_args(argv)
+    if args.every < 1:
+        print(f"dlo-normalizer-drift: error: --every must be >= 1, got {args.every}", file=sys.stderr)
+        return 2
     results = []
     for run in args.runs:
-        if not (run / "checkpoint.pt").exists():
-            print(f"normalizer_drift: {run}/checkpoint.pt not found", file=sys.stderr)
+        try:
+            result = drift(run, args.every)
+        except DriftError as error:
+            print(f"dlo-normalizer-drift: error: {error}", file=sys.stderr)
             return 2
-        result = drift(run, args.every)
         results.append(result)
         print(f"{run}: window end, largest mean shift [current std] (dimension), hold the end in the window")
         for w in result["windows"]:

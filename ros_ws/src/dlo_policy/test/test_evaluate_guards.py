@@ -1,5 +1,5 @@
 """dlo_policy.evaluate's protocol on a scripted vector env whose episodes are known in advance (issue 14,
-found by scripts/mutation_check.sh): the seeds of every batch, the episodes of a last partial
+found by tools/mutation_check.sh): the seeds of every batch, the episodes of a last partial
 batch, returns summed only until each env's first episode end, outcomes and metrics from that end's
 info (gymnasium's "_key" masks), deterministic actions, NaN where the env reports no such info, and
 the JSON layout."""

@@ -1,5 +1,5 @@
 """Guards found by mutation testing (issue 14): each test fails when one known, realistic bug is put
-back into the library (scripts/mutation_check.sh; docs/MUTATION.md names the bug each one catches).
+back into the library (tools/mutation_check.sh; docs/MUTATION.md names the bug each one catches).
 
 - the actor loss uses the MIN of the twin critics and alpha * log pi, exactly;
 - a horizon cut-off (truncated) is never stored as terminal, in dlo-train's loop and online learning;

@@ -1,4 +1,4 @@
-"""SAC, exactly (issue 14, found by scripts/mutation_check.sh): the policy's squashed log-std, its
+"""SAC, exactly (issue 14, found by tools/mutation_check.sh): the policy's squashed log-std, its
 reparameterised sample and log-probability against a reference computed here, exploration, the TD
 target and the critic/actor/temperature losses of one update from replayed random draws, the update
 schedule, and the training loop's counters, seeds and callback."""

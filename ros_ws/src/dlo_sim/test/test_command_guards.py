@@ -1,6 +1,6 @@
 """dlo_sim.command beyond the gate's boundaries (tests/test_command_gate.py): the policy's action <->
 the command in SI units both ways, the hold action, and the error each bad command raises (issue 14,
-found by scripts/mutation_check.sh)."""
+found by tools/mutation_check.sh)."""
 
 import numpy as np
 import pytest

@@ -12,7 +12,7 @@
   taut, slack, curved and random cables under firm, sliding and no grips.
 
 One simulator serves every test (each new one recompiles the kernels), so a kernel mutant costs one
-compilation in scripts/mutation_check.sh.
+compilation in tools/mutation_check.sh.
 """
 
 import numpy as np

@@ -1,4 +1,4 @@
-"""dlo_sim.task at its edges (issue 14, found by scripts/mutation_check.sh): held statistics of single
+"""dlo_sim.task at its edges (issue 14, found by tools/mutation_check.sh): held statistics of single
 and batched masks, rewards when only particle 0 or one particle is held, the ends of both outcome
 rules at small indices, the authors' held set around a gripper away from the origin and at its
 exact boundaries, and a tracker reused across episodes."""
