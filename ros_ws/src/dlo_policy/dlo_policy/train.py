@@ -263,15 +263,20 @@ class Trainer:
         # compiles a new simulator's kernels from the source files as they are then).
         env = self.eval_env
         results = {}
+        bar = tqdm(total=cfg.test_episodes * len(self.tested), desc=f"{self.config.name} held-out test",
+                   unit="episode", disable=not cfg.progress, dynamic_ncols=True)
         try:
             for without, columns in self.tested:
-                result = evaluate_agent(best, env, cfg.test_seed, cfg.test_episodes, columns).to_json()
+                bar.set_postfix_str(f"without {without}" if without else "all inputs")
+                result = evaluate_agent(best, env, cfg.test_seed, cfg.test_episodes, columns,
+                                        progress=bar.update).to_json()
                 payload = {**result, "checkpoint": BEST_POLICY_FILE, "seed": cfg.test_seed,
                            "without": [without] if without else [], "modalities": self.config.modalities,
                            "env_steps": best.num_env_steps}
                 (self.out_dir / test_file(without)).write_text(json.dumps(payload, indent=2) + "\n")
                 results[without] = payload
         finally:
+            bar.close()
             env.close()
         return results[""]
 

@@ -280,3 +280,11 @@ def test_tensorboard_event_files_hold_losses_speed_episodes_and_both_rules(tmp_p
     assert [e.value for e in events.Scalars("eval/episode_reward")] == pytest.approx(
         [float(r["episode_reward"]) for r in rows])
     assert [e.step for e in events.Scalars("loss/critic")] == [100, 200, 300]  # updates start after step 50
+
+
+def test_the_held_out_test_shows_progress(tmp_path, capsys):
+    run = tmp_path / "run"
+    assert train.main(["--out", str(run), "--steps", "100", "--modalities", "All", *TINY,
+                       "train.test_episodes=12", "train.eval_without=[T]", "train.progress=true"]) == 0
+    err = capsys.readouterr().err
+    assert "All held-out test" in err and "24/24" in err and "without T" in err
