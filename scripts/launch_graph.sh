@@ -20,7 +20,8 @@ usage: scripts/launch_graph.sh [options]
   --without M          test-time ablation: zero modality M (T or V) for the policy
   --train-out DIR      learn online (SAC) while running; checkpoints and policy.pt go to DIR
   --train-config YAML  online training: dlo-train config file (SAC hyperparameters)
-  --tactile-noise N    tactile sensitivity: none (default), partial or full
+  --tactile-noise N    tactile noise (the tactile node's tactile_noise parameter): none (default),
+                       partial, full, or sigma_theta,sigma_y [rad, m] such as 0.1,0.001 (or [0.1,0.001])
   --task-rules R       authors_code (default) or paper_text: the held set the reward, the episode's
                        end and the tactile input use (the sim's task_rules parameter)
   --record DIR         record every /dlo topic to the rosbag2 (MCAP) directory DIR
@@ -112,6 +113,13 @@ else
   RUN=("$ROOT/scripts/ros2run")
 fi
 PY="$(command -v python || command -v python3)"
+# the tactile noise as the env and the tactile node read it (dlo_perception.tactile.noise_setting), checked
+# before anything starts; its -p form goes to the node, and names it in the run header
+if ! noise_check="$("$PY" -m dlo_perception.tactile --check-noise="$noise" 2>&1)"; then
+  noise_check="${noise_check##*$'\n'}"
+  bad "--tactile-noise: ${noise_check#tactile noise: }"
+fi
+noise="${noise_check##*$'\n'}"  # its last line (stdout comes last)
 monitor_pid=""
 logs="${logs:-$(mktemp -d -t dlo-graph-XXXXXX)}"
 mkdir -p "$logs"
@@ -272,7 +280,7 @@ if [ -n "$foxglove" ]; then
     echo "[launch]   (Foxglove app: Open connection -> Foxglove WebSocket -> $ws; layout: $ROOT/docs/foxglove/dlo_vitac.json)"
   fi
 fi
-start tactile dlo_perception tactile_node --ros-args -p noise:="$noise" -p seed:="$seed" ${remap[@]+"${remap[@]}"}
+start tactile dlo_perception tactile_node --ros-args -p tactile_noise:="$noise" -p seed:="$seed" ${remap[@]+"${remap[@]}"}
 start vision dlo_perception vision_node --ros-args ${remap[@]+"${remap[@]}"}
 policy_args=(-p policy:="$policy")
 [ -n "$checkpoint" ] && policy_args+=(-p checkpoint:="$checkpoint")
@@ -337,7 +345,7 @@ fi
 
 policy_line="$(grep -m1 -o "policy [a-z_]* on [^;]*" "$logs/policy.log" 2>/dev/null || true)"
 "$PY" -m dlo_tools.outcome_table "$outcomes" --policy "$policy" --checkpoint "$checkpoint" --without "$without" \
-  --noise "$noise" --mode "$mode" --train-out "$train_out" --policy-line "$policy_line" || true
+  --tactile-noise "$noise" --mode "$mode" --train-out "$train_out" --policy-line "$policy_line" || true
 if [ -n "$record" ]; then
   rst="${status[recorder]:-}"
   cause="$(recorder_failure)"

@@ -195,7 +195,7 @@ def test_missing_perception_is_reported_without_deadlock(probe, tmp_path):
 @pytest.mark.parametrize("pkg,exe,param,expected", [
     ("dlo_sim", "sim_node", "mode:=warp_speed", "parameter 'mode'"),
     ("dlo_sim", "sim_node", "horizon:=-3", "parameter 'horizon'"),
-    ("dlo_perception", "tactile_node", "noise:=loud", "parameter 'noise'"),
+    ("dlo_perception", "tactile_node", "tactile_noise:=loud", "parameter 'tactile_noise'"),
     ("dlo_policy", "policy_node", "checkpoint:=/nonexistent/policy.pt", "does not exist"),
     ("dlo_policy", "policy_node", "policy:=magic", "parameter 'policy'"),
 ])

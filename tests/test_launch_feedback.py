@@ -1,7 +1,8 @@
 """A running graph tells you what it does (issue 12 item 5): launch_graph.sh streams one line per
 finished episode and a status line while the graph runs (issue 20: recording, so the sim first waits for the
 recorder; the status line says so only while it waits), and heads its outcome table with the policy,
-ablation, noise and seeds of the run (one launch, read incrementally, for all of these); the real-time
+ablation, noise and seeds of the run (one launch, read incrementally, for all of these; its tactile noise
+is a custom pair, given as on the command line, which the tactile node and the header name); the real-time
 sim started alone waits for a command publisher (warning once a second) instead of running its
 episodes, starts when one appears, and warns while no command arrives."""
 
@@ -20,6 +21,7 @@ import pytest
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 ROS2RUN = str(ROOT / "scripts" / "ros2run")
 SEED, EPISODES = 5, 3
+NOISE, NOISE_SAID = "0.1,0.001", "sigma_theta 0.1 rad, sigma_y 0.001 m"  # --tactile-noise, how the run names it
 
 
 @pytest.fixture(scope="module")
@@ -29,7 +31,7 @@ def streamed_run(tmp_path_factory):
     logs = tmp_path_factory.mktemp("feedback") / "logs"
     launch = subprocess.Popen(
         ["bash", str(ROOT / "scripts" / "launch_graph.sh"), "--policy", "tactile_reactive", "--episodes",
-         str(EPISODES), "--seed", str(SEED), "--without", "V", "--tactile-noise", "partial", "--status-period", "0.5",
+         str(EPISODES), "--seed", str(SEED), "--without", "V", "--tactile-noise", NOISE, "--status-period", "0.5",
          "--logs", str(logs), "--record", str(logs.parent / "bag")],
         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True,
         env={**os.environ, "DLO_USE_ROS2RUN": "1"}, preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
@@ -56,7 +58,8 @@ def streamed_run(tmp_path_factory):
             pass
         launch.wait()
     return {"rc": rc, "seen": seen, "out": "\n".join(s[0] for s in seen),
-            "live": [json.loads(line) for line in outcomes.read_text().splitlines()]}
+            "live": [json.loads(line) for line in outcomes.read_text().splitlines()],
+            "tactile_log": (logs / "tactile.log").read_text()}
 
 
 def test_the_launch_succeeds(streamed_run):
@@ -101,10 +104,18 @@ def test_the_outcome_table_is_headed_by_what_produced_it(streamed_run):
     out = streamed_run["out"]
     header = next(line for line in out.splitlines() if line.startswith("run: "))
     for part in ("policy tactile_reactive observing K+T+V", "no checkpoint", "ablation: without V",
-                 "tactile noise: partial", "mode step_locked", f"seeds {SEED}..{SEED + EPISODES - 1} (3 episodes)"):
+                 f"tactile noise: {NOISE_SAID}", "mode step_locked", f"seeds {SEED}..{SEED + EPISODES - 1} (3 episodes)"):
         assert part in header, (part, header)
     assert out.splitlines()[out.splitlines().index(header) + 1].split()[:2] == ["episode", "seed"]
 
+
+
+def test_the_custom_noise_pair_reaches_the_tactile_node(streamed_run):
+    """--tactile-noise 0.1,0.001 is passed on as -p tactile_noise:=[0.1,0.001]: the node says it uses that pair
+    (and was not given an old name: no notice)."""
+    log = streamed_run["tactile_log"]
+    assert f"[tactile_node]: tactile noise: {NOISE_SAID}; seed {SEED}" in log, log
+    assert "now 'tactile_noise'" not in log
 
 def test_real_time_sim_waits_for_a_command_publisher_then_warns_without_commands(tmp_path):
     import rclpy

@@ -113,7 +113,7 @@ def test_an_unknown_name_in_a_params_file_and_a_far_one_on_the_command_line(tmp_
     assert one_line(run("dlo_sim", "sim_node", "--params-file", str(params), cwd=tmp_path)) == \
         "[sim_node] unknown parameter 'horizn'; did you mean 'horizon'?"
     assert one_line(run("dlo_perception", "tactile_node", "-p", "nosuch:=1", cwd=tmp_path)) == \
-        "[tactile_node] unknown parameter 'nosuch'; did you mean 'noise'?"
+        "[tactile_node] unknown parameter 'nosuch'; did you mean 'tactile_noise'?"  # never an old name
 
 
 @pytest.mark.parametrize("package,executable,setting,line", [

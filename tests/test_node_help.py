@@ -15,7 +15,7 @@ import time
 
 import pytest
 
-from dlo_common.params import Param, as_params, check_value, help_requested, markdown_table, params_yaml
+from dlo_common.params import Param, as_params, check_value, help_requested, markdown_table, params_yaml, renamed_names
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 ROS2RUN = str(ROOT / "scripts" / "ros2run")
@@ -47,7 +47,7 @@ def test_gen_check_reports_a_drifted_file(tmp_path, monkeypatch, capsys):
     monkeypatch.setattr(gen, "config_path", lambda p, e, src=None: tmp_path / f"{e}.yaml")
     assert gen.main([]) == 0 and gen.main(["--check"]) == 0
     stale = tmp_path / f"{executable}.yaml"
-    stale.write_text(stale.read_text().replace('noise: "none"', 'noise: "full"'))
+    stale.write_text(stale.read_text().replace('tactile_noise: "none"', 'tactile_noise: "full"'))
     assert gen.main(["--check"]) == 1
     assert f"{executable}.yaml differs from the declarations" in capsys.readouterr().err
 
@@ -60,10 +60,16 @@ def test_help_lists_every_parameter_and_starts_nothing(package, executable, modu
     assert result.returncode == 0, result.stderr
     out = result.stdout
     assert out.startswith(f"usage: ros2run {package} {executable} [--ros-args"), out[:200]
-    for param in as_params(importlib.import_module(module).PARAMETERS):
+    parameters = importlib.import_module(module).PARAMETERS
+    for param in as_params(parameters):
+        if param.renamed_to:  # an old name: listed once, under "renamed", not as a parameter
+            assert f"\n  {param.name} (" not in out, param.name
+            continue
         assert f"\n  {param.name} ({param.type_name}, default " in out, param.name
         if param.range_text:
             assert f"range {param.range_text})" in out, param.name
+    for new, old in renamed_names(parameters).items():
+        assert f"\n  {', '.join(old)} -> {new}\n" in out, new
     listed = re.search(r"a params file with every default: (\S+)\):", out).group(1)  # the installed one
     assert listed.endswith(f"share/{package}/config/{executable}.yaml") and pathlib.Path(listed).is_file(), listed
     assert "[Taichi]" not in out + result.stderr  # no banner before the text
@@ -93,14 +99,16 @@ def test_a_bad_value_in_a_params_file_is_a_one_line_error(tmp_path):
 
 
 def test_params_file_values_take_effect(tmp_path, own_groups):
-    """tactile_node started with its shipped file, two values changed: its parameter service reports them."""
+    """tactile_node started with its shipped file, two values changed (the noise to a pair, as YAML writes
+    it): its parameter service reports them."""
     import rclpy
     from rcl_interfaces.srv import GetParameters
 
     params = tmp_path / "tactile.yaml"
     text = gen.config_path("dlo_perception", "tactile_node").read_text()
-    assert 'noise: "none"' in text and "seed: 0" in text
-    params.write_text(text.replace('noise: "none"', 'noise: "partial"').replace("seed: 0", "seed: 7"))
+    assert 'tactile_noise: "none"' in text and "seed: 0" in text
+    params.write_text(text.replace('tactile_noise: "none"', "tactile_noise: [0.1, 0.001]")
+                      .replace("seed: 0", "seed: 7"))
     node = subprocess.Popen([ROS2RUN, "dlo_perception", "tactile_node", "--ros-args", "--params-file", str(params)],
                             cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
                             start_new_session=True)
@@ -113,10 +121,10 @@ def test_params_file_values_take_effect(tmp_path, own_groups):
         while not client.wait_for_service(timeout_sec=0.5):
             assert node.poll() is None, node.stdout.read()
             assert time.monotonic() < deadline, "tactile_node's parameter service did not appear"
-        future = client.call_async(GetParameters.Request(names=["noise", "seed", "sigma_y"]))
+        future = client.call_async(GetParameters.Request(names=["tactile_noise", "seed"]))
         rclpy.spin_until_future_complete(client_node, future, timeout_sec=30)
         values = future.result().values
-        assert [values[0].string_value, values[1].integer_value, values[2].double_value] == ["partial", 7, 0.0]
+        assert [list(values[0].double_array_value), values[1].integer_value] == [[0.1, 0.001], 7]
         client_node.destroy_node()
     finally:
         rclpy.try_shutdown()

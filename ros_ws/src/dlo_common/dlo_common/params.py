@@ -4,7 +4,10 @@ A node module lists its parameters once, as a module-level ``PARAMETERS`` sequen
 :class:`Param` records (or plain ``(name, default, description)`` tuples). From that one list come:
 
 - the checks when the node starts (:func:`check_value`, called by
-  ``dlo_common.node_util.declare_parameters``): type of the default, range, choices;
+  ``dlo_common.node_util.declare_parameters``): type of the default, range, choices, or the
+  parameter's own ``check`` (a value that is a name or a pair of numbers, say);
+- old names kept for one release (``renamed_to``): accepted with a one-line notice naming the new
+  name (:func:`renamed_notice`), left out of the help's parameter list, the file and the tables;
 - the node's ``--help`` text (:func:`help_text`);
 - its parameters file ``config/<executable>.yaml`` (:func:`params_yaml`, ROS 2 ``--params-file``
   format, each description as a comment);
@@ -20,7 +23,7 @@ import inspect
 import json
 import math
 import textwrap
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -43,6 +46,17 @@ class Param:
     (value <= bound), ``choices`` (value is one of these strings), ``length`` (a list parameter
     has exactly this many entries).
     A list default of numbers makes a ``double_array`` parameter, any other list a ``string_array``.
+
+    ``check``: for a parameter whose values one ROS type cannot hold (a preset name or a pair of
+    numbers, e.g. ``tactile_noise``): a function from the value as it arrives to the value to use,
+    raising ValueError ("expected ..., got ...") for a bad one; it replaces the type and range checks.
+    Then ``types`` names the ROS types it takes (e.g. ``string or double_array``) and ``accepts`` its
+    range in words, for the help, the parameters file and the docs.
+
+    ``renamed_to``: this is the old name of that parameter, still accepted for one release: checked as
+    declared here, then :func:`dlo_common.node_util.declare_parameters` logs one line naming the new
+    name (:func:`renamed_notice`) and returns the value under the old name for the node to translate.
+    Not declared on the node, not in the help's parameter list, the parameters file or the tables.
     """
 
     name: str
@@ -53,10 +67,17 @@ class Param:
     at_most: float | None = None
     choices: tuple[str, ...] = ()
     length: int | None = None
+    check: Callable[[Any], Any] | None = None
+    types: str = ""
+    accepts: str = ""
+    renamed_to: str = ""
 
     @property
     def type_name(self) -> str:
-        """The ROS 2 parameter type of the default: bool, integer, double, string, string_array, double_array."""
+        """The ROS 2 parameter type of the default: bool, integer, double, string, string_array, double_array
+        (``types`` when given)."""
+        if self.types:
+            return self.types
         default = self.default
         if isinstance(default, (list, tuple)):
             return "double_array" if default and all(_is_number(v) for v in default) else "string_array"
@@ -65,7 +86,9 @@ class Param:
     @property
     def range_text(self) -> str:
         """The range in words, e.g. ``>= 1``, ``0..19``, ``> 0``, ``step_locked | real_time``,
-        ``length 3``; '' if none."""
+        ``length 3``, ``accepts`` when given; '' if none."""
+        if self.accepts:
+            return self.accepts
         if self.choices:
             return " | ".join(self.choices)
         if self.length is not None:
@@ -132,6 +155,24 @@ def unknown_parameter(name: str, known: Iterable[str]) -> UnknownParameterError:
     return UnknownParameterError(f"unknown parameter {name!r}" + (f"; did you mean {closest[0]!r}?" if closest else ""))
 
 
+def renamed_notice(old_names: Sequence[str], new_name: str) -> str:
+    """The one line a node logs when it is given old names of a parameter: ``parameter 'noise' is now
+    'tactile_noise' (the old name works until the next release)``."""
+    names = ", ".join(f"'{name}'" for name in old_names)
+    several = len(old_names) > 1
+    return (f"parameter{'s' if several else ''} {names} {'are' if several else 'is'} now '{new_name}' "
+            f"(the old name{'s work' if several else ' works'} until the next release)")
+
+
+def renamed_names(parameters: Iterable[Param | Sequence[Any]]) -> dict[str, list[str]]:
+    """new name -> its old names (``renamed_to``), in declaration order."""
+    renamed: dict[str, list[str]] = {}
+    for p in as_params(parameters):
+        if p.renamed_to:
+            renamed.setdefault(p.renamed_to, []).append(p.name)
+    return renamed
+
+
 def as_param(spec: Param | Sequence[Any]) -> Param:
     """A :class:`Param` from a Param or a ``(name, default, description)`` tuple."""
     return spec if isinstance(spec, Param) else Param(*spec)
@@ -192,9 +233,15 @@ def coerce(param: Param, value: Any) -> Any:
 
 
 def check_value(param: Param, value: Any) -> Any:
-    """:func:`coerce`, then the range: the checked value, or :class:`ParameterError` in one line."""
-    value = coerce(param, value)
+    """:func:`coerce`, then the range (or the parameter's own ``check``): the checked value, or
+    :class:`ParameterError` in one line."""
     name = param.name
+    if param.check is not None:
+        try:
+            return param.check(value)
+        except (TypeError, ValueError) as error:
+            raise ParameterError(f"parameter '{name}': {error}") from None
+    value = coerce(param, value)
     if param.type_name == "double_array" and not all(math.isfinite(v) for v in value):
         raise ParameterError(f"parameter '{name}': expected finite numbers, e.g. {example(param)}, got {value}")
     if param.choices and value not in param.choices:
@@ -254,6 +301,8 @@ def help_text(package: str, executable: str, parameters: Iterable[Param | Sequen
         lines += [textwrap.fill(" ".join(summary.replace("``", "`").split()), width), ""]
     params_file = params_file or f"share/{package}/config/{executable}.yaml"
     lines.append(f"parameters (a params file with every default: {params_file}):")
+    renamed = renamed_names(params)
+    params = [p for p in params if not p.renamed_to]
     if not params:
         lines.append("  (none)")
     for p in params:
@@ -262,6 +311,9 @@ def help_text(package: str, executable: str, parameters: Iterable[Param | Sequen
         lines.append(head)
         lines += textwrap.wrap(" ".join(p.description.split()), width, initial_indent=" " * 6,
                                subsequent_indent=" " * 6)
+    if renamed:
+        lines += ["", "renamed (the old names work until the next release, with a notice):"]
+        lines += [f"  {', '.join(old)} -> {new}" for new, old in renamed.items()]
     lines += ["", "Set one with '--ros-args -p NAME:=VALUE', several with '--ros-args --params-file FILE'."]
     if exit_codes:
         lines.append(f"Exit codes: {exit_codes}.")
@@ -273,11 +325,13 @@ def params_yaml(parameters: Iterable[Param | Sequence[Any]], header: str = "") -
 
     ``/**`` applies it to any node name. Each parameter is preceded by its description, then its
     type and range, as comments. A list parameter whose default is empty is written commented out (a ROS 2
-    parameters file cannot hold an empty array).
+    parameters file cannot hold an empty array). Old names (``renamed_to``) are left out.
     """
     lines = [f"# {line}".rstrip() for line in header.strip().splitlines()] if header.strip() else []
     lines += ["/**:", "  ros__parameters:"]
     for p in as_params(parameters):
+        if p.renamed_to:
+            continue
         for text in textwrap.wrap(" ".join(p.description.split()), 92):
             lines.append(f"    # {text}")
         lines.append(f"    # type {p.type_name}" + (f", range {p.range_text}" if p.range_text else ""))
@@ -290,12 +344,14 @@ def params_yaml(parameters: Iterable[Param | Sequence[Any]], header: str = "") -
 
 
 def markdown_table(parameters: Iterable[Param | Sequence[Any]]) -> str:
-    """The parameters as a Markdown table: name | type | default | range | description."""
+    """The parameters as a Markdown table: name | type | default | range | description (old names left out)."""
     def cell(text: str) -> str:
         return " ".join(str(text).split()).replace("|", "\\|")
 
     rows = ["| name | type | default | range | description |", "|---|---|---|---|---|"]
     for p in as_params(parameters):
+        if p.renamed_to:
+            continue
         rng = f"`{cell(p.range_text)}`" if p.range_text else ""
         rows.append(f"| `{p.name}` | {p.type_name} | `{cell(format_default(p.default))}` | {rng} | "
                     f"{cell(p.description)} |")

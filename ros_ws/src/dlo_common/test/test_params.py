@@ -6,8 +6,9 @@ import pytest
 
 import yaml
 
-from dlo_common.params import (Param, UnknownParameterError, as_param, check_value, coerce, example, format_default,
-                               help_requested, help_text, unexpected_arguments, unknown_parameter)
+from dlo_common.params import (Param, ParameterError, UnknownParameterError, as_param, check_value, coerce, example,
+                               format_default, help_requested, help_text, markdown_table, params_yaml, renamed_names,
+                               renamed_notice, unexpected_arguments, unknown_parameter)
 
 INT = Param("n", 1, "count", at_least=1)
 BOUNDED = Param("port", 10, "port", at_least=0, at_most=20)
@@ -126,3 +127,56 @@ def test_an_unknown_name_suggests_the_closest_declared_one():
     assert str(unknown_parameter("horizn", ["seed", "horizon"])) == \
         "unknown parameter 'horizn'; did you mean 'horizon'?"
     assert str(unknown_parameter("x", [])) == "unknown parameter 'x'"
+
+
+def level(value):
+    """A check as dlo_perception.tactile.noise_setting is one: a name or a pair of numbers."""
+    if value in ("low", "high"):
+        return value
+    low, high = (float(v) for v in value)  # TypeError / ValueError for anything else
+    if low < 0:
+        raise ValueError(f"expected low, high or a pair >= 0, got {value!r}")
+    return low, high
+
+
+LEVEL = Param("level", "low", "how loud", check=level, types="string or double_array", accepts="low | high | [a,b]",
+              choices=("never",), at_least=5.0)  # a check replaces choices and bounds
+OLD_LEVEL = Param("loudness", "low", "old name: level", choices=("low", "high"), renamed_to="level")
+OLD_PAIR = Param("low", 0.0, "old name: level", at_least=0.0, renamed_to="level")
+
+
+def test_a_parameter_with_its_own_check():
+    assert LEVEL.type_name == "string or double_array" and LEVEL.range_text == "low | high | [a,b]"
+    assert check_value(LEVEL, "high") == "high" and check_value(LEVEL, [1, 2]) == (1.0, 2.0)
+    for value, message in [("loud", "could not convert string to float: 'l'"), (3, "'int' object is not iterable"),
+                           ([-1.0, 2.0], "expected low, high or a pair >= 0, got [-1.0, 2.0]")]:
+        with pytest.raises(ParameterError) as error:
+            check_value(LEVEL, value)
+        assert str(error.value) == f"parameter 'level': {message}", value
+    assert ("\n  level (string or double_array, default \"low\", range low | high | [a,b])\n"
+            in help_text("p", "e", [LEVEL]))
+    assert "    # type string or double_array, range low | high | [a,b]\n    level: \"low\"\n" in params_yaml([LEVEL])
+    assert markdown_table([LEVEL]).splitlines()[2] == \
+        '| `level` | string or double_array | `"low"` | `low \\| high \\| [a,b]` | how loud |'
+
+
+def test_old_names_are_listed_once_and_left_out_of_the_file_and_the_tables():
+    params = [LEVEL, INT, OLD_LEVEL, OLD_PAIR]
+    assert renamed_names(params) == {"level": ["loudness", "low"]} and renamed_names([LEVEL, INT]) == {}
+    text = help_text("p", "e", params)
+    assert "\n  loudness (" not in text and "\n  low (" not in text and "\n  n (integer" in text
+    assert ("\nrenamed (the old names work until the next release, with a notice):\n  loudness, low -> level\n"
+            in text)
+    assert "renamed" not in help_text("p", "e", [LEVEL, INT])
+    assert params_yaml(params) == params_yaml([LEVEL, INT]) and markdown_table(params) == markdown_table([LEVEL, INT])
+    assert "loudness" not in params_yaml(params) + markdown_table(params)
+    assert check_value(OLD_LEVEL, "high") == "high"  # an old name is checked as it was declared
+    with pytest.raises(ParameterError, match="parameter 'low': must be >= 0, got -1"):
+        check_value(OLD_PAIR, -1.0)
+
+
+def test_the_notice_for_old_names_names_the_new_one():
+    assert renamed_notice(["noise"], "tactile_noise") == \
+        "parameter 'noise' is now 'tactile_noise' (the old name works until the next release)"
+    assert renamed_notice(["a", "b"], "c") == \
+        "parameters 'a', 'b' are now 'c' (the old names work until the next release)"

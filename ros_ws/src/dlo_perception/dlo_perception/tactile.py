@@ -14,10 +14,17 @@ travel), gripper y = world y (along the fingers).
 
 Sensor noise (paper, Tactile sensors): ``angle += (1 - c_G) N(0, sigma_theta)`` and
 ``y += (1 - c_G) N(0, sigma_y)`` on contact (angle re-wrapped, y re-clipped). ``TACTILE_NOISE`` holds the sensitivity presets.
+
+The noise setting has one name, ``tactile_noise``, and one reading, :func:`noise_setting`, wherever it is
+given: the gym env's option (and dlo-train's ``env_options.tactile_noise``), the tactile node's
+parameter and ``scripts/launch_graph.sh --tactile-noise``, which checks its value first with
+
+    python -m dlo_perception.tactile --check-noise=VALUE   # prints the -p form; one line and exit 2 if bad
 """
 
 from __future__ import annotations
 
+import sys
 from dataclasses import dataclass
 
 import numpy as np
@@ -30,6 +37,8 @@ TACTILE_NOISE = {
     "partial": (0.25, 0.001),
     "full": (0.5, 0.002),
 }
+# What a tactile noise setting can be, in words (error messages, the node's --help, the docs).
+NOISE_FORMS = "none, partial, full or a pair [sigma_theta, sigma_y] (rad, m; >= 0) such as [0.1,0.001]"
 Y_LIMIT = 0.03  # m, |y_T| bound (beyond the fingers' reach of ~0.02 m)
 
 
@@ -43,16 +52,68 @@ class TactilePose:
     count: np.ndarray  # int, number of held particles
 
 
+def noise_setting(value) -> str | tuple[float, float]:
+    """Read a tactile noise setting, the same wherever it is given (env option ``tactile_noise``, the
+    tactile node's ``tactile_noise`` parameter, ``launch_graph.sh --tactile-noise``): a preset name of
+    ``TACTILE_NOISE`` ("none", "partial", "full"), or a pair sigma_theta [rad], sigma_y [m] of finite
+    numbers >= 0, as a sequence (``[0.1, 0.001]``, a ROS double array) or as text (``"0.1,0.001"``,
+    ``"[0.1,0.001]"``). Returns the preset name or the pair as two floats; ValueError in one line
+    ("expected ..., got ...") otherwise."""
+    if isinstance(value, str) and value in TACTILE_NOISE:
+        return value
+    if isinstance(value, str):
+        text = value.strip()
+        if text[:1] + text[-1:] in ("[]", "()"):
+            text = text[1:-1]
+        items = text.split(",")
+        shown = repr(value)
+    else:
+        try:
+            items = list(value)
+        except TypeError:
+            raise ValueError(f"expected {NOISE_FORMS}, got {value!r}") from None
+        shown = repr(items)
+    try:
+        if len(items) != 2 or any(isinstance(v, (bool, np.bool_)) for v in items):
+            raise ValueError
+        pair = (float(items[0]), float(items[1]))
+    except (TypeError, ValueError):
+        raise ValueError(f"expected {NOISE_FORMS}, got {shown}") from None
+    if not all(np.isfinite(s) and s >= 0 for s in pair):
+        raise ValueError(f"expected {NOISE_FORMS}, got {shown}")
+    return pair
+
+
 def noise_sigma(sigma) -> tuple:
-    """A preset name ("none", "partial", "full") or a pair (sigma_theta [rad], sigma_y [m]) -> the pair."""
-    if isinstance(sigma, str):
-        if sigma not in TACTILE_NOISE:
-            raise ValueError(f"unknown tactile noise preset {sigma!r}; choose from {sorted(TACTILE_NOISE)}")
-        return TACTILE_NOISE[sigma]
-    sigma_theta, sigma_y = (float(s) for s in sigma)
-    if sigma_theta < 0 or sigma_y < 0:
-        raise ValueError(f"tactile noise sigmas must be >= 0, got {sigma}")
-    return sigma_theta, sigma_y
+    """A tactile noise setting (:func:`noise_setting`: a preset name or a pair) -> the pair
+    (sigma_theta [rad], sigma_y [m]); ValueError in one line for anything else."""
+    setting = noise_setting(sigma)
+    return TACTILE_NOISE[setting] if isinstance(setting, str) else setting
+
+
+def _number(value: float) -> str:
+    """0.1 -> '0.1', 1e-05 -> '0.00001', 0 -> '0.0': always a decimal point, never an exponent (YAML reads
+    it as a float)."""
+    return np.format_float_positional(float(value), trim="0")
+
+
+def noise_label(setting) -> str:
+    """A tactile noise setting in words, for the run header and the tactile node's start line:
+    ``none``, ``partial (sigma_theta 0.25 rad, sigma_y 0.001 m)``, and a custom pair as its numbers,
+    ``sigma_theta 0.1 rad, sigma_y 0.001 m``."""
+    setting = noise_setting(setting)
+    if setting == "none":
+        return setting
+    sigma_theta, sigma_y = noise_sigma(setting)
+    numbers = f"sigma_theta {_number(sigma_theta)} rad, sigma_y {_number(sigma_y)} m"
+    return f"{setting} ({numbers})" if isinstance(setting, str) else numbers
+
+
+def noise_parameter_value(setting) -> str:
+    """A tactile noise setting as written after ``-p tactile_noise:=`` (and in YAML): the preset's name,
+    or the pair as ``[0.1,0.001]``."""
+    setting = noise_setting(setting)
+    return setting if isinstance(setting, str) else "[" + ",".join(_number(s) for s in setting) + "]"
 
 
 def tactile_pose(points_xy, held_mask, gripper_xy, closure, sigma=(0.0, 0.0), rng=None) -> TactilePose:
@@ -97,3 +158,26 @@ def tactile_pose(points_xy, held_mask, gripper_xy, closure, sigma=(0.0, 0.0), rn
 def wrap_line_angle(angle):
     """Angle of an undirected line [rad] -> (-pi/2, pi/2]."""
     return np.pi / 2 - np.mod(np.pi / 2 - np.asarray(angle), np.pi)
+
+
+def main(argv=None) -> int:
+    """``python -m dlo_perception.tactile --check-noise=VALUE``: check a tactile noise setting as
+    :func:`noise_setting` reads it; print its ``-p tactile_noise:=`` form and return 0, or print one line
+    on stderr and return 2 (what launch_graph.sh runs before it starts any node)."""
+    import argparse
+
+    parser = argparse.ArgumentParser(prog="python -m dlo_perception.tactile",
+                                     description="Check a tactile noise setting (" + NOISE_FORMS + ").")
+    parser.add_argument("--check-noise", metavar="VALUE", required=True,
+                        help="the setting; write --check-noise=VALUE for a value that starts with '-'")
+    args = parser.parse_args(argv)
+    try:
+        print(noise_parameter_value(args.check_noise))
+    except ValueError as error:
+        print(f"tactile noise: {error}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,4 +1,10 @@
-"""tactile_node: particles + gripper state of one step -> /dlo/tactile/pose with the same stamp."""
+"""tactile_node: particles + gripper state of one step -> /dlo/tactile/pose with the same stamp.
+
+Its noise is ``tactile_noise``, read as the gym env and ``launch_graph.sh --tactile-noise`` read it
+(``dlo_perception.tactile.noise_setting``): ``none``, ``partial``, ``full`` or a pair
+``[sigma_theta,sigma_y]`` [rad, m]. The old parameters ``noise`` (with ``custom``), ``sigma_theta``
+and ``sigma_y`` work until the next release, with a one-line notice.
+"""
 
 from __future__ import annotations
 
@@ -11,18 +17,34 @@ from sensor_msgs.msg import PointCloud2
 from dlo_msgs.msg import GripperState, TactilePose
 from dlo_perception.cloud import unpack_particles
 from dlo_perception.sync import IncompleteSteps, StampSync, stamp_to_ns
-from dlo_perception.tactile import TACTILE_NOISE, noise_sigma, tactile_pose
-from dlo_common.node_util import ParameterError, declare_parameters
+from dlo_perception.tactile import TACTILE_NOISE, noise_label, noise_setting, noise_sigma, tactile_pose
+from dlo_common.node_util import declare_parameters
 from dlo_common.params import Param
 
 INPUT_TIMEOUT = 1.0  # s, a step's particles and state not matched by stamp after this long are reported
+OLD_NOISE_NAMES = ("noise", "sigma_theta", "sigma_y")  # renamed tactile_noise; accepted until the next release
 PARAMETERS = (
-    Param("noise", "none", f"tactile sensitivity preset {sorted(TACTILE_NOISE)} or 'custom'",
-          choices=(*sorted(TACTILE_NOISE), "custom")),
-    Param("sigma_theta", 0.0, "noise std of theta_T at an open gripper [rad] (noise = custom)", at_least=0.0),
-    Param("sigma_y", 0.0, "noise std of y_T at an open gripper [m] (noise = custom)", at_least=0.0),
+    Param("tactile_noise", "none",
+          "noise std of theta_T and y_T at an open gripper (scaled by 1 - closure): none, "
+          f"partial ({list(TACTILE_NOISE['partial'])}), full ({list(TACTILE_NOISE['full'])}) or a pair "
+          "[sigma_theta [rad], sigma_y [m]] such as [0.1,0.001]",
+          check=noise_setting, types="string or double_array", accepts="none | partial | full | [sigma_theta,sigma_y]"),
     Param("seed", 0, "seed of the noise generator", at_least=0),
+    Param("noise", "none", "old name: tactile_noise", choices=(*sorted(TACTILE_NOISE), "custom"),
+          renamed_to="tactile_noise"),
+    Param("sigma_theta", 0.0, "old name: tactile_noise", at_least=0.0, renamed_to="tactile_noise"),
+    Param("sigma_y", 0.0, "old name: tactile_noise", at_least=0.0, renamed_to="tactile_noise"),
 )
+
+
+def tactile_noise_of(values: dict):
+    """The node's noise setting from its checked parameters: ``tactile_noise``, or what the old names
+    given instead meant (``noise``: a preset or ``custom``, then the pair ``sigma_theta``, ``sigma_y``,
+    0 when not given; the sigmas alone did nothing)."""
+    if not any(name in values for name in OLD_NOISE_NAMES):
+        return values["tactile_noise"]
+    old = values.get("noise", "none")
+    return (values.get("sigma_theta", 0.0), values.get("sigma_y", 0.0)) if old == "custom" else old
 
 
 class TactileNode(Node):
@@ -31,10 +53,9 @@ class TactileNode(Node):
     def __init__(self):
         super().__init__("tactile_node")
         p = declare_parameters(self, PARAMETERS)
-        try:
-            self.sigma = noise_sigma((p["sigma_theta"], p["sigma_y"]) if p["noise"] == "custom" else p["noise"])
-        except ValueError as error:
-            raise ParameterError(str(error)) from None
+        self.tactile_noise = noise_setting(tactile_noise_of(p))
+        self.sigma = noise_sigma(self.tactile_noise)
+        self.get_logger().info(f"tactile noise: {noise_label(self.tactile_noise)}; seed {p['seed']}")
         self.rng = np.random.default_rng(p["seed"])
         self.sync = StampSync(("particles", "gripper"))
         self.incomplete = IncompleteSteps(INPUT_TIMEOUT)  # a step whose inputs never share one stamp: reported

@@ -2,7 +2,9 @@
 
 A step the sim republishes (same stamp: nobody answered it) gets the SAME tactile reading, noise
 included; the next step gets a new draw; the reading carries the input's stamp; the generator is
-seeded by the ``seed`` parameter; ``noise:=none`` is the exact line fit of dlo_perception.tactile.
+seeded by the ``seed`` parameter; ``tactile_noise:=none`` is the exact line fit of dlo_perception.tactile.
+Its noise parameter ``tactile_noise`` takes a preset or a pair in each ROS form; the old names ``noise``,
+``sigma_theta`` and ``sigma_y`` still work, with one notice.
 """
 
 import os
@@ -13,6 +15,9 @@ import pytest
 
 rclpy = pytest.importorskip("rclpy")
 from dlo_msgs.msg import GripperState  # noqa: E402
+from rclpy.parameter import Parameter  # noqa: E402
+
+from dlo_common.params import ParameterError  # noqa: E402
 
 from dlo_perception import tactile_node as tactile_node_module  # noqa: E402
 
@@ -57,6 +62,28 @@ def make_node(context, monkeypatch):
         node.destroy_node()
 
 
+@pytest.fixture
+def node_with(context, monkeypatch):
+    """A tactile node given these parameters as ``-p`` would (its real declare_parameters)."""
+    nodes = []
+
+    def make(**overrides):
+        init = rclpy.node.Node.__init__
+        given = [Parameter(name, value=value) for name, value in overrides.items()]
+        monkeypatch.setattr(rclpy.node.Node, "__init__", lambda self, *a, **k: init(
+            self, *a, **{"context": context, "parameter_overrides": given, **k}))
+        try:
+            node = tactile_node_module.TactileNode()
+        finally:
+            monkeypatch.setattr(rclpy.node.Node, "__init__", init)
+        nodes.append(node)
+        return node
+
+    yield make
+    for node in nodes:
+        node.destroy_node()
+
+
 POSITIONS = np.array([[-0.25, 0.0, 0.1], [0.0, -0.001, 0.085], [0.004, 0.0005, 0.085], [0.008, 0.002, 0.085],
                       [0.05, 0.01, 0.02]], np.float32)
 HELD = np.array([False, True, True, True, False])
@@ -80,7 +107,7 @@ def reading(msg):
 
 
 def test_a_republished_step_gets_the_same_noisy_reading(make_node):
-    node = make_node(noise="full", seed=3)
+    node = make_node(tactile_noise="full", seed=3)
     stamp = feed(node, 5)
     feed(node, 5)  # the sim republished step 5
     feed(node, 6)
@@ -95,7 +122,8 @@ def test_a_republished_step_gets_the_same_noisy_reading(make_node):
 
 
 def test_the_noise_generator_follows_the_seed(make_node):
-    a, b, c = make_node(noise="full", seed=3), make_node(noise="full", seed=3), make_node(noise="full", seed=4)
+    a, b, c = (make_node(tactile_noise="full", seed=3), make_node(tactile_noise="full", seed=3),
+               make_node(tactile_noise="full", seed=4))
     for node in (a, b, c):
         feed(node, 1)
     assert reading(a.publisher[0]) == reading(b.publisher[0]) != reading(c.publisher[0])
@@ -103,28 +131,71 @@ def test_the_noise_generator_follows_the_seed(make_node):
 
 def test_no_noise_is_the_exact_line_fit_and_a_closed_gripper_has_none(make_node):
     exact = tactile_pose(POSITIONS[:, :2], HELD, (0.002, 0.0005), 0.0)
-    quiet = make_node(noise="none")
+    quiet = make_node(tactile_noise="none")
     feed(quiet, 2)
     assert (quiet.publisher[0].angle, quiet.publisher[0].y) == pytest.approx((exact.angle, exact.y), abs=1e-9)
-    closed = make_node(noise="full", seed=1)
+    closed = make_node(tactile_noise="full", seed=1)
     feed(closed, 2, closure=1.0)  # noise scales with 1 - c_G
     assert (closed.publisher[0].angle, closed.publisher[0].y) == pytest.approx((exact.angle, exact.y), abs=1e-9)
-    custom = make_node(noise="custom", sigma_theta=0.0, sigma_y=0.001, seed=1)
-    feed(custom, 2)
-    assert custom.publisher[0].angle == pytest.approx(exact.angle, abs=1e-9)
-    assert custom.publisher[0].y != pytest.approx(exact.y, abs=1e-7)
+    custom = make_node(tactile_noise=(0.0, 0.001), seed=1)
+    old = make_node(noise="custom", sigma_theta=0.0, sigma_y=0.001, seed=1)  # the old names: the same noise
+    for node in (custom, old):
+        feed(node, 2)
+        assert node.publisher[0].angle == pytest.approx(exact.angle, abs=1e-9)
+        assert node.publisher[0].y != pytest.approx(exact.y, abs=1e-7)
+    assert reading(custom.publisher[0]) == reading(old.publisher[0])
 
 
 def test_topics_and_parameter_defaults(make_node):
     node = make_node()
     assert node.real_publisher.topic_name == "/dlo/tactile/pose"
     assert sorted(s.topic_name for s in node.subscriptions) == ["/dlo/gripper/state", "/dlo/rope/particles"]
-    assert {name: node.get_parameter(name).value for name in ("noise", "sigma_theta", "sigma_y", "seed")} == {
-        "noise": "none", "sigma_theta": 0.0, "sigma_y": 0.0, "seed": 0}
+    assert {name: node.get_parameter(name).value for name in ("tactile_noise", "seed")} == {
+        "tactile_noise": "none", "seed": 0}
+    assert not any(node.has_parameter(name) for name in ("noise", "sigma_theta", "sigma_y"))  # old names: not declared
+    assert node.sigma == (0.0, 0.0)
     custom = make_node(noise="custom")  # custom without sigmas: no noise
     assert custom.sigma == (0.0, 0.0)
-    default_seed = make_node(noise="full")
+    default_seed = make_node(tactile_noise="full")
     feed(default_seed, 1)
-    seeded = make_node(noise="full", seed=0)
+    seeded = make_node(tactile_noise="full", seed=0)
     feed(seeded, 1)
     assert reading(default_seed.publisher[0]) == reading(seeded.publisher[0])
+
+
+
+@pytest.mark.parametrize("value", [[0.1, 0.001], "0.1,0.001", "[0.1,0.001]", [0.1, 1e-3]])
+def test_a_pair_in_each_ros_form(node_with, value, capfd):
+    node = node_with(tactile_noise=value)
+    assert node.sigma == (0.1, 0.001) and node.tactile_noise == (0.1, 0.001)
+    assert node.get_parameter("tactile_noise").value == value  # the parameter as given
+    assert "tactile noise: sigma_theta 0.1 rad, sigma_y 0.001 m; seed 0" in capfd.readouterr().err
+
+
+def test_the_old_names_give_the_old_noise_and_one_notice(node_with, capfd):
+    assert node_with(tactile_noise="partial").sigma == (0.25, 0.001)
+    assert "now 'tactile_noise'" not in capfd.readouterr().err
+    for old, sigma in [({"noise": "full"}, (0.5, 0.002)), ({"noise": "custom", "sigma_y": 0.001}, (0.0, 0.001)),
+                       ({"noise": "custom", "sigma_theta": 0.2, "sigma_y": 0.0}, (0.2, 0.0)),
+                       ({"sigma_y": 0.001}, (0.0, 0.0))]:  # the sigmas without noise:=custom did nothing, as before
+        node = node_with(**old)
+        assert node.sigma == sigma, old
+        assert not node.has_parameter("noise")
+        notices = [line for line in capfd.readouterr().err.splitlines() if "now 'tactile_noise'" in line]
+        assert len(notices) == 1, (old, notices)
+        assert notices[0].startswith("[WARN]") and all(f"'{name}'" in notices[0] for name in old), notices
+
+
+@pytest.mark.parametrize("overrides,message", [
+    ({"tactile_noise": "loud"}, "parameter 'tactile_noise': expected none, partial, full or a pair"),
+    ({"tactile_noise": [0.1, -0.001]}, "parameter 'tactile_noise': expected none, partial, full or a pair"),
+    ({"tactile_noise": "custom"}, "parameter 'tactile_noise': expected none, partial, full or a pair"),
+    ({"noise": "loud"}, "parameter 'noise': expected one of ('full', 'none', 'partial', 'custom'), got 'loud'"),
+    ({"sigma_theta": -1.0}, "parameter 'sigma_theta': must be >= 0, got -1.0"),
+    ({"tactile_noise": "full", "noise": "full"},
+     "parameter 'noise' is the old name of 'tactile_noise': set only 'tactile_noise'"),
+])
+def test_bad_noise_parameters_are_refused(node_with, overrides, message):
+    with pytest.raises(ParameterError) as error:
+        node_with(**overrides)
+    assert str(error.value).startswith(message)

@@ -1,7 +1,8 @@
 import numpy as np
 import pytest
 
-from dlo_perception.tactile import TACTILE_NOISE, noise_sigma, tactile_pose
+from dlo_perception.tactile import (NOISE_FORMS, TACTILE_NOISE, main, noise_label, noise_parameter_value,
+                                    noise_setting, noise_sigma, tactile_pose)
 
 
 def line_particles(angle, offset, gripper=(0.05, -0.02), count=5, spacing=0.0043):
@@ -67,3 +68,41 @@ def test_noise_presets_and_values():
         noise_sigma("loud")
     with pytest.raises(ValueError):
         noise_sigma((-0.1, 0.0))
+
+
+def test_noise_settings_in_every_form():
+    """One reading for the env option, the node parameter and the launcher: a preset name, or a pair as
+    a sequence or as text; the pair as floats, the preset as its name."""
+    for preset in TACTILE_NOISE:
+        assert noise_setting(preset) == preset
+    for value in ((0.1, 0.001), [0.1, 0.001], ["0.1", "0.001"], np.array([0.1, 0.001]), "0.1,0.001", "[0.1, 0.001]",
+                  "(0.1,0.001)", " 0.1 ,0.001 "):
+        got = noise_setting(value)
+        assert got == (0.1, 0.001) and type(got) is tuple and all(type(s) is float for s in got), value
+    assert noise_setting([0, 1]) == (0.0, 1.0) and noise_sigma("0,0") == (0.0, 0.0)
+    for bad, shown in [("loud", "'loud'"), ("custom", "'custom'"), ("", "''"), ("0.1", "'0.1'"), ([0.1], "[0.1]"),
+                       ((0.1, 0.2, 0.3), "[0.1, 0.2, 0.3]"), ("-0.1,0", "'-0.1,0'"), ((0.0, -1e-9), "[0.0, -1e-09]"),
+                       ((float("nan"), 0.0), "[nan, 0.0]"), ((0.0, float("inf")), "[0.0, inf]"),
+                       ((True, 0.0), "[True, 0.0]"), (None, "None"), (3, "3"), ("a,b", "'a,b'"), ("[0.1", "'[0.1'")]:
+        with pytest.raises(ValueError) as error:
+            noise_setting(bad)
+        assert str(error.value) == f"expected {NOISE_FORMS}, got {shown}", bad
+
+
+def test_noise_labels_and_parameter_values():
+    assert noise_label("none") == "none"
+    assert noise_label("partial") == "partial (sigma_theta 0.25 rad, sigma_y 0.001 m)"
+    assert noise_label("[0.1,0.001]") == noise_label((0.1, 0.001)) == "sigma_theta 0.1 rad, sigma_y 0.001 m"
+    assert noise_label((1e-5, 2)) == "sigma_theta 0.00001 rad, sigma_y 2.0 m"  # numbers, never an exponent
+    assert noise_parameter_value("full") == "full"
+    assert noise_parameter_value("0.1,0.001") == "[0.1,0.001]" and noise_parameter_value((0, 1e-5)) == "[0.0,0.00001]"
+    with pytest.raises(ValueError):
+        noise_label("loud")
+
+
+def test_check_noise_command(capsys):
+    """What launch_graph.sh runs before it starts anything: the -p form, or one line and exit 2."""
+    assert main(["--check-noise=0.1,0.001"]) == 0 and main(["--check-noise", "partial"]) == 0
+    assert capsys.readouterr() == ("[0.1,0.001]\npartial\n", "")
+    assert main(["--check-noise=-0.1,0.001"]) == 2
+    assert capsys.readouterr() == ("", f"tactile noise: expected {NOISE_FORMS}, got '-0.1,0.001'\n")

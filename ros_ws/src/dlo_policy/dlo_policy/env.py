@@ -15,7 +15,9 @@ seed and actions give the same episodes. The tactile noise generator is seeded f
 
 Options (keywords of both entry points):
     without=()            modalities zeroed at test time (ablation), e.g. ("T",)
-    tactile_noise="none"  "none" | "partial" | "full" | (sigma_theta [rad], sigma_y [m])
+    tactile_noise="none"  "none" | "partial" | "full" | a pair [sigma_theta [rad], sigma_y [m]] (also as
+                          text "0.1,0.001"): read by dlo_perception.tactile.noise_setting, as the tactile
+                          node's tactile_noise parameter and launch_graph.sh --tactile-noise are
     horizon=150           control steps per episode
     end_particles=10      "at the end" = holding one of the last this-many particles
     task_rules="authors_code"  "authors_code" | "paper_text": the held set, reward and termination the
@@ -58,7 +60,7 @@ def check_options(options) -> None:
         try:
             noise_sigma(options["tactile_noise"])
         except (TypeError, ValueError) as error:
-            raise ValueError(f"tactile_noise: {error}; or a pair [sigma_theta, sigma_y]") from None
+            raise ValueError(f"tactile_noise: {error}") from None
     if options.get("without"):
         parse_modalities(options["without"])
     if "task_rules" in options:

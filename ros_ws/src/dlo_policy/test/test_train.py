@@ -232,7 +232,8 @@ def test_missing_checkpoint_is_named(tmp_path, capsys):
 
 
 @pytest.mark.parametrize("override, message", [
-    ("env_options.tactile_noise=loud", "env_options: tactile_noise: unknown tactile noise preset 'loud'"),
+    ("env_options.tactile_noise=loud", "env_options: tactile_noise: expected none, partial, full or a pair "
+                                       "[sigma_theta, sigma_y] (rad, m; >= 0) such as [0.1,0.001], got 'loud'"),
     ("env_options.tactile_nois=full", "env_options: unknown option(s) tactile_nois"),
     ("env_options.horizon=0", "env_options: horizon: expected an integer >= 1"),
     ("env_options.without=X", "env_options: modalities must be"),

@@ -3,6 +3,7 @@ episode report the launcher streams while the graph runs, the header naming what
 and the health notes read from the nodes' logs. Pure text processing (no rclpy).
 
     python -m dlo_tools.outcome_table OUTCOMES.jsonl [--policy sac --checkpoint PATH --without T ...]
+                                                     [--tactile-noise none|partial|full|0.1,0.001]
 
 Each JSON line is one finished episode as ``sim_node`` writes it (``summary_file``): episode, seed,
 outcome and outcome_authors (dlo_sim.task, both rules), episode_return, episode_length [steps],
@@ -16,6 +17,7 @@ import json
 import re
 import sys
 
+from dlo_perception.tactile import noise_label
 from dlo_sim.task import LEGACY_TASK_RULES, OUTCOME_NAMES, OUTCOME_NONE
 
 OUTCOMES = [name for code, name in sorted(OUTCOME_NAMES.items()) if code != OUTCOME_NONE]
@@ -65,11 +67,13 @@ def seed_ranges(seeds) -> str:
     return ", ".join(f"{a}" if a == b else f"{a}..{b}" for a, b in parts) or "none"
 
 
-def run_header(episodes, policy: str = "", checkpoint: str = "", without: str = "", noise: str = "",
+def run_header(episodes, policy: str = "", checkpoint: str = "", without: str = "", tactile_noise="",
                mode: str = "", policy_line: str = "", train_out: str = "") -> str:
     """What produced the outcomes: policy (and the modalities it observes, from the policy node's start-up
-    line ``policy_line``, e.g. 'policy sac on T+K+V without T'), checkpoint, ablation, tactile noise, clock
-    mode, the task rules the episodes ran under (from the episodes themselves) and their seeds."""
+    line ``policy_line``, e.g. 'policy sac on T+K+V without T'), checkpoint, ablation, tactile noise (a
+    setting as ``dlo_perception.tactile.noise_setting`` reads it, '' = none; named by ``noise_label``: a
+    preset with its numbers, a custom pair as numbers), clock mode, the task rules the episodes ran under
+    (from the episodes themselves) and their seeds."""
     observes = re.search(r" on ([A-Za-z+]+)", policy_line or "")
     described = f"policy {policy or '?'}" + (f" observing {observes.group(1)}" if observes else "")
     if policy == "sac":
@@ -82,7 +86,8 @@ def run_header(episodes, policy: str = "", checkpoint: str = "", without: str = 
     seeds = seed_ranges(e["seed"] for e in episodes)
     count = f"{len(episodes)} episode{'' if len(episodes) == 1 else 's'}"
     rules = sorted({e.get("task_rules", LEGACY_TASK_RULES) for e in episodes})  # older outcome files: paper_text
-    return (f"run: {described} ({source}); {ablation}; tactile noise: {noise or 'none'}"
+    noise = noise_label(tactile_noise) if tactile_noise not in ("", None) else "none"
+    return (f"run: {described} ({source}); {ablation}; tactile noise: {noise}"
             + (f"; mode {mode}" if mode else "") + f"; task rules {', '.join(rules) or LEGACY_TASK_RULES}"
             + f"; seeds {seeds} ({count})")
 
@@ -143,12 +148,25 @@ def main(argv=None) -> int:
     parser.add_argument("--policy", default="", help="the run's policy (sac, tactile_reactive, ...)")
     parser.add_argument("--checkpoint", default="", help="the policy file (empty: the shipped policy)")
     parser.add_argument("--without", default="", help="test-time ablation: modalities zeroed for the policy")
-    parser.add_argument("--noise", default="", help="tactile noise option of the run")
+    parser.add_argument("--tactile-noise", default="", help="the run's tactile noise: none, partial, full or "
+                                                            "sigma_theta,sigma_y [rad, m], e.g. 0.1,0.001")
+    parser.add_argument("--noise", default=None, help=argparse.SUPPRESS)  # the old name, until the next release
     parser.add_argument("--mode", default="", help="the sim's clock mode")
     parser.add_argument("--train-out", default="", help="online training run directory, if any")
     parser.add_argument("--policy-line", default="", help="the policy node's description of itself "
                                                           "(e.g. 'policy sac on T+K+V without T')")
     args = parser.parse_args(argv)
+    if args.noise is not None:
+        print("outcome_table: --noise is now --tactile-noise (the old name works until the next release)",
+              file=sys.stderr)
+        if args.tactile_noise:
+            parser.error("give --tactile-noise only (--noise is its old name)")
+        args.tactile_noise = args.noise
+    if args.tactile_noise:
+        try:
+            noise_label(args.tactile_noise)
+        except ValueError as error:
+            parser.error(f"--tactile-noise: {error}")
     try:
         episodes = read_episodes(args.outcomes)
     except FileNotFoundError:
@@ -158,7 +176,7 @@ def main(argv=None) -> int:
         print(f"outcome_table: cannot read {args.outcomes}: {error}", file=sys.stderr)
         return 1
     if args.policy or args.policy_line:
-        print(run_header(episodes, args.policy, args.checkpoint, args.without, args.noise, args.mode,
+        print(run_header(episodes, args.policy, args.checkpoint, args.without, args.tactile_noise, args.mode,
                          args.policy_line, args.train_out))
     print(outcome_table(episodes))
     return 0

@@ -10,6 +10,8 @@ import subprocess
 import sys
 import time
 
+import pytest
+
 from dlo_tools.outcome_table import (episode_line, episode_row, health_notes, main, outcome_table, run_header,
                                      seed_ranges, status_line)
 
@@ -30,8 +32,12 @@ def test_run_header_names_policy_checkpoint_ablation_noise_mode_and_seeds():
     header = run_header(episodes, "sac", "runs/x/policy.pt", "T", "partial", "real_time",
                         policy_line="policy sac on T+K+V without T")
     assert header.startswith("run: policy sac observing T+K+V (checkpoint runs/x/policy.pt)")
-    for part in ("ablation: without T", "tactile noise: partial", "mode real_time", "seeds 5..7, 9 (4 episodes)"):
+    for part in ("ablation: without T", "tactile noise: partial (sigma_theta 0.25 rad, sigma_y 0.001 m)",
+                 "mode real_time", "seeds 5..7, 9 (4 episodes)"):
         assert part in header, (part, header)
+    for noise, said in [("", "none"), ("none", "none"), ("[0.1,0.001]", "sigma_theta 0.1 rad, sigma_y 0.001 m"),
+                        ((0.1, 0.001), "sigma_theta 0.1 rad, sigma_y 0.001 m")]:  # a custom pair: its numbers
+        assert f"; tactile noise: {said}; " in run_header(episodes, "sac", tactile_noise=noise), noise
     shipped = run_header(episodes[:1], "sac")
     assert "the shipped All policy" in shipped and "ablation: none" in shipped and "(1 episode)" in shipped
     assert "no checkpoint" in run_header(episodes, "tactile_reactive")
@@ -44,12 +50,34 @@ def test_main_prints_the_header_above_the_unchanged_table(tmp_path, capsys):
     path.write_text(json.dumps(EPISODE) + "\n")
     assert main([str(path)]) == 0
     plain = capsys.readouterr().out
-    assert main([str(path), "--policy", "random", "--without", "V", "--noise", "full"]) == 0
-    headed = capsys.readouterr().out
-    assert headed.splitlines()[0].startswith("run: policy random") and headed.endswith(plain)
+    assert main([str(path), "--policy", "random", "--without", "V", "--tactile-noise", "0.1,0.001"]) == 0
+    headed, err = capsys.readouterr()
+    assert headed.splitlines()[0].startswith("run: policy random") and headed.endswith(plain) and err == ""
+    assert "; tactile noise: sigma_theta 0.1 rad, sigma_y 0.001 m; " in headed.splitlines()[0]
     assert main([str(tmp_path / "missing.jsonl")]) == 1
     assert "no finished episodes" in capsys.readouterr().err
 
+
+
+def test_the_old_noise_option_works_with_one_notice_and_bad_values_are_usage_errors(tmp_path, capsys):
+    """--noise is the old name of --tactile-noise (until the next release): the same header, one line on
+    stderr naming the new option; both at once, or a value the tactile node would refuse: exit 2."""
+    path = tmp_path / "outcomes.jsonl"
+    path.write_text(json.dumps(EPISODE) + "\n")
+    assert main([str(path), "--policy", "random", "--tactile-noise", "full"]) == 0
+    new = capsys.readouterr().out
+    assert main([str(path), "--policy", "random", "--noise", "full"]) == 0
+    old, err = capsys.readouterr()
+    assert old == new and "tactile noise: full (sigma_theta 0.5 rad, sigma_y 0.002 m)" in new
+    assert err.splitlines() == ["outcome_table: --noise is now --tactile-noise (the old name works until the next "
+                                "release)"]
+    for args in (["--noise", "full", "--tactile-noise", "full"], ["--tactile-noise", "loud"]):
+        with pytest.raises(SystemExit) as exit_:
+            main([str(path), "--policy", "random", *args])
+        assert exit_.value.code == 2, args
+    assert capsys.readouterr().err.splitlines()[-1].endswith(
+        "error: --tactile-noise: expected none, partial, full or a pair [sigma_theta, sigma_y] (rad, m; >= 0) such "
+        "as [0.1,0.001], got 'loud'")
 
 def test_health_notes_name_missing_inputs_waits_and_warnings():
     lines = ["[INFO] [1.0] [policy_node]: policy sac on T+K+V; inputs ['gripper', 'tactile']",
