@@ -5,10 +5,11 @@ it serves, from the advertised ros2msg schemas only.
   graph message type round-trips, late topics are advertised to connected clients, latched topics
   reach late subscribers, clients connect and leave, a client that stops reading neither blocks
   the publisher nor starves a second client, and stop() is bounded;
-- node: ``launch_graph.sh --foxglove 0`` (one episode, tactile-reactive policy): the printed URL
-  serves every /dlo topic + /clock (also those that appear after the client connected), decoded
-  from the schemas, with consistent frames; a second client joins mid-run; the graph ends with
-  exit 0 and the bridge's counts; a port in use is one line and exit 3.
+- node: ``launch_graph.sh --foxglove 0`` (tactile-reactive policy): the printed URL serves every
+  /dlo topic + /clock (also those that appear after the client connected), decoded from the
+  schemas, with consistent frames; a second client joins mid-run; the bridge subscribes to a topic
+  in the ROS graph only while a client watches it (transient-local topics always); it stops
+  cleanly with the graph and logs its counts; a port in use is one line and exit 3.
 """
 
 from __future__ import annotations
@@ -277,7 +278,10 @@ def launcher(ros_env):
 
     def start(*args: str) -> Proc:
         proc = Proc(["bash", str(ROS2RUN.parent / "launch_graph.sh"), *args],
-                    {**ros_env, "DLO_USE_ROS2RUN": "1"}, "launch")
+                    {**ros_env, "DLO_USE_ROS2RUN": "1"}, "launch",
+                    # bash cannot trap a signal ignored at its start (a test run started as a background
+                    # job ignores SIGINT): the launcher must stop its graph on the SIGINT sent to it
+                    preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
         started.append(proc)
         return proc
 
@@ -291,18 +295,55 @@ def launcher(ros_env):
                 proc.kill()
 
 
-def test_launch_graph_foxglove_serves_every_graph_topic_live(launcher, tmp_path):
+class GraphObserver:
+    """A node of the test's own on the launcher's domain: who subscribes to what in the ROS graph."""
+
+    def __init__(self, domain_id: int) -> None:
+        import rclpy
+
+        self.rclpy = rclpy
+        self.context = rclpy.Context()
+        rclpy.init(context=self.context, domain_id=domain_id)
+        self.node = rclpy.create_node("foxglove_test_observer", context=self.context)
+
+    def subscribed_by(self, node_name: str, topics) -> set[str]:
+        """The ``topics`` that node ``node_name`` subscribes to, as discovery shows them now."""
+        return {t for t in topics
+                if any(i.node_name == node_name for i in self.node.get_subscriptions_info_by_topic(t))}
+
+    def close(self) -> None:
+        self.node.destroy_node()
+        self.rclpy.try_shutdown(context=self.context)
+
+
+def test_launch_graph_foxglove_serves_every_graph_topic_live(launcher, tmp_path, monkeypatch):
     """``launch_graph.sh --foxglove 0``: the printed URL works; every /dlo topic + /clock is
     advertised (perception/policy topics appear after the client connected) and decoded from the
-    advertised schemas; frames are consistent; a second client joins mid-run; the bridge stops
-    cleanly with the graph (the launcher's exit 0)."""
+    advertised schemas; frames are consistent; a second client joins mid-run; the bridge is lazy:
+    it subscribes to every topic in the ROS graph while the clients watch them and, once both left,
+    to the transient-local ones only; it stops cleanly with the graph.
+
+    The run is unlimited and the test ends it (SIGINT, exit 130) once it has seen what it checks:
+    with a fixed number of episodes, a slow machine could end the graph while a client still
+    watches, or before the bridge has followed the clients' departure."""
     logs = tmp_path / "logs"
-    launch = launcher("--foxglove", "0", "--episodes", "1", "--seed", "3", "--policy", "tactile_reactive",
+    launch = launcher("--foxglove", "0", "--episodes", "0", "--seed", "3", "--policy", "tactile_reactive",
                       "--logs", str(logs))
     launch.wait_line("Foxglove live view: open https://app.foxglove.dev/", timeout=180)
     url = re.search(r"(ws://127\.0\.0\.1:\d+)", launch.wait_line("Foxglove WebSocket ->", timeout=10)).group(1)
+    domain = int(re.search(r"\[launch\] ROS_DOMAIN_ID=(\d+)", launch.output()).group(1))
+    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")  # as the graph's nodes (ros_env)
+    observer = GraphObserver(domain)
     client = FoxgloveTestClient(url).connect()
     second = None
+
+    def bridge_subscribes(wanted: set[str], what: str) -> None:
+        end = time.monotonic() + 120
+        while (now := observer.subscribed_by("foxglove_bridge", GRAPH_TYPES)) != wanted:
+            assert launch.p.poll() is None, "the launcher ended early"
+            assert time.monotonic() < end, f"{what}: the bridge subscribes to {sorted(now)}, not {sorted(wanted)}"
+            time.sleep(0.1)
+
     try:
         try:  # the sim builds its Taichi kernels first (minutes on a loaded 2-core machine)
             client.wait(lambda: set(GRAPH_TYPES) <= {c["topic"] for c in client.channels.values()}
@@ -318,17 +359,28 @@ def test_launch_graph_foxglove_serves_every_graph_topic_live(launcher, tmp_path)
             second.subscribe(["/dlo/gripper/state", "/dlo/camera/camera_info"])
             second.wait(lambda: {"/dlo/gripper/state", "/dlo/camera/camera_info"} <= second.topics_received(), 60,
                         "state + latched camera_info at the second client")
+            bridge_subscribes(set(GRAPH_TYPES), "while every topic is watched")
+            decoded = {m.topic: client.decode(m) for m in client.messages}  # every message, from the schemas
+            for m in second.messages:
+                second.decode(m)
+            client.close()
+            second.close()
+            # lazy: with both clients gone, only the transient-local topics stay subscribed
+            latched = set(re.findall(r"advertising (\S+) \[[^]]+\] \([a-z_]+, transient_local",
+                                     (logs / "foxglove.log").read_text()))
+            assert "/dlo/camera/camera_info" in latched, latched
+            bridge_subscribes(latched & set(GRAPH_TYPES), "once both clients left")
         except AssertionError as err:
             logs_text = "\n".join(f"--- {f.name}:\n{f.read_text()[-1500:]}" for f in sorted(logs.glob("*.log")))
             raise AssertionError(f"{err}\n--- launcher:\n{launch.output()[-2000:]}\n{logs_text}") from None
-        decoded = {m.topic: client.decode(m) for m in client.messages}  # every message, from the schemas
-        for m in second.messages:
-            second.decode(m)
     finally:
         client.close()
         if second is not None:
             second.close()
-    assert launch.wait(timeout=600) == 0, launch.output()
+        observer.close()
+    launch.signal(signal.SIGINT)
+    assert launch.wait(timeout=600) == 130, launch.output()  # interrupted: no node failed before
+    assert "did not stop within" not in launch.output(), launch.output()
     assert decoded["/dlo/camera/image"].encoding == "mono8"
     # frames: each message names the frame its values are in (docs/ARCHITECTURE.md#world)
     assert decoded["/dlo/camera/image"].header.frame_id == decoded["/dlo/camera/camera_info"].header.frame_id \
@@ -343,12 +395,13 @@ def test_launch_graph_foxglove_serves_every_graph_topic_live(launcher, tmp_path)
     assert decoded["/clock"].clock.sec >= 0
     bridge_log = (logs / "foxglove.log").read_text()
     assert "Traceback" not in bridge_log
+    assert re.search(r"bridge cpu [\d.]+ s over", bridge_log), bridge_log[-1500:]  # its shutdown ran to the end
     forwarded = re.findall(r"forwarded (\d+)", bridge_log)
     assert forwarded and int(forwarded[-1]) > 0, bridge_log[-1500:]
     assert "client 127.0.0.1" in bridge_log  # connections are logged
-    # lazy: once both clients left, only the transient-local topics stay subscribed
+    # its counts at shutdown: every topic advertised, the transient-local ones still subscribed
     topics, subscribed = map(int, re.findall(r"(\d+) topics \((\d+) subscribed\)", bridge_log)[-1])
-    assert topics >= len(GRAPH_TYPES) and subscribed < topics, bridge_log[-1500:]
+    assert topics >= len(GRAPH_TYPES) and subscribed == len(latched), bridge_log[-1500:]
 
 
 def test_bridge_node_port_in_use_is_one_line(procs):

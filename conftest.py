@@ -1,0 +1,71 @@
+"""Test tiers: the markers of pytest.ini, put on every collected test here (also when only
+``ros_ws/src`` is run), so that ``scripts/test.sh -m "not graph and not slow"`` is the fast tier
+for the inner loop. Tiers, commands and measured times: tests/README.md#running-the-tests.
+
+- ``graph``: the test starts ROS nodes or a launched graph as processes. Found by the fixtures
+  that start or stop them (GRAPH_FIXTURES); tests that start them without one are listed in GRAPH.
+- ``slow``: the test trains, or runs a long simulation, evaluation or video render: about 3 s or
+  more on its own (SLOW).
+
+A list entry is a test file (every test in it) or ``file::test`` (every parametrization);
+tests/test_tiers.py checks that each entry still names a test.
+"""
+
+from __future__ import annotations
+
+GRAPH_FIXTURES = frozenset({
+    "launches",              # tests/test_graph_isolation.py: launch_graph.sh in its own session
+    "launch_in_own_group",   # tests/conftest.py: launch_graph.sh, whole process group stopped
+    "own_groups",            # tests/conftest.py: node processes started by the test
+    "procs",                 # ros_ws/src/dlo_tools/test/conftest.py: node processes on a test domain
+    "launcher",              # ros_ws/src/dlo_tools/test/test_foxglove_bridge.py: launch_graph.sh
+    "probe",                 # tests/test_graph_faults.py: an in-process node next to node processes
+})
+
+GRAPH = (
+    "tests/test_graph.py::test_sigint_mid_run_leaves_a_complete_readable_bag",
+    "tests/test_graph_equals_env.py",
+    "tests/test_graph_faults.py",
+    "tests/test_interfaces_doc.py::test_committed_doc_is_current_with_the_live_graph",
+    "tests/test_launch_feedback.py",
+    "tests/test_msgs.py::test_every_message_type_crosses_processes",
+    "tests/test_node_errors.py",
+    "tests/test_node_help.py::test_help_lists_every_parameter_and_starts_nothing",
+    "tests/test_node_help.py::test_a_stray_argument_is_a_one_line_error",
+    "tests/test_node_help.py::test_a_bad_value_in_a_params_file_is_a_one_line_error",
+    "ros_ws/src/dlo_policy/test/test_cli_errors.py::test_policy_node_refuses_a_text_file_as_checkpoint",
+    "ros_ws/src/dlo_tools/test/test_driver_check.py::test_no_driver_is_one_clear_line_and_bad_usage_exits_2",
+)
+
+SLOW = (  # each about 3 s or more: a training, a long simulation, evaluation or video render
+    "tests/test_golden_training.py",
+    "tests/test_graph_train.py",
+    "tests/test_analysis_equals_env.py",
+    "tests/test_video.py::test_one_playable_mp4_per_episode",
+    "tests/test_video.py::test_gif_and_speed",
+    "tests/test_video.py::test_video_progress_on_a_terminal_is_a_bar_and_the_lines",
+    "ros_ws/src/dlo_policy/test/test_ray_cluster.py",
+    "ros_ws/src/dlo_policy/test/test_train.py::test_resume_after_sigkill_reproduces_the_uninterrupted_run",
+    "ros_ws/src/dlo_policy/test/test_experiments.py::test_runner_skips_finished_runs_and_runs_the_rest_in_processes",
+    "ros_ws/src/dlo_policy/test/test_cli_errors.py::test_dlo_train_warns_when_no_update_will_happen",
+    "ros_ws/src/dlo_policy/test/test_evaluate_scripted.py::test_the_same_episodes_as_run_episodes_seed_by_seed",
+    "ros_ws/src/dlo_policy/test/test_evaluate_scripted.py::test_a_tiny_real_run_of_the_executable",
+    "ros_ws/src/dlo_sim/test/test_rope_physics.py::test_reset_randomises_within_paper_ranges",
+)
+
+
+def listed(nodeid: str, entries) -> bool:
+    """True when ``nodeid`` (``path::test[param]``) is one of ``entries`` (a file or ``file::test``)."""
+    path, _, rest = nodeid.partition("::")
+    test = f"{path}::{rest.split('[', 1)[0]}" if rest else path
+    return any(entry in (path, test) for entry in entries)
+
+
+def pytest_collection_modifyitems(config, items):
+    import pytest
+
+    for item in items:
+        if GRAPH_FIXTURES.intersection(getattr(item, "fixturenames", ())) or listed(item.nodeid, GRAPH):
+            item.add_marker(pytest.mark.graph)
+        if listed(item.nodeid, SLOW):
+            item.add_marker(pytest.mark.slow)

@@ -1,0 +1,67 @@
+"""The test tiers stay true (conftest.py, tests/README.md#running-the-tests): the markers are
+registered, every listed file or test still exists, every fixture the graph rule names is still
+defined, and the markers are put on tests also when only ``ros_ws/src`` is collected."""
+
+from __future__ import annotations
+
+import ast
+import configparser
+import importlib.util
+import pathlib
+import subprocess
+import sys
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+_spec = importlib.util.spec_from_file_location("dlo_test_tiers", ROOT / "conftest.py")
+tiers = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(tiers)
+
+
+def defined(path: pathlib.Path, decorated_with: str | None = None) -> set[str]:
+    """Names of the functions a test file defines (at any depth; only fixtures with ``decorated_with``)."""
+    names = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+            if decorated_with is None or any(decorated_with in ast.unparse(d) for d in node.decorator_list):
+                names.add(node.name)
+    return names
+
+
+def test_the_markers_are_registered():
+    ini = configparser.ConfigParser()
+    ini.read(ROOT / "pytest.ini")
+    markers = {line.split(":")[0].strip() for line in ini["pytest"]["markers"].splitlines() if line.strip()}
+    assert markers >= {"graph", "slow"}
+
+
+def test_every_listed_file_and_test_exists():
+    for entry in tiers.GRAPH + tiers.SLOW:
+        path, _, test = entry.partition("::")
+        assert (ROOT / path).is_file(), f"conftest.py lists {entry}: no such file"
+        assert not test or test in defined(ROOT / path), f"conftest.py lists {entry}: no such test"
+
+
+def test_every_graph_fixture_is_defined():
+    fixtures = set()
+    for path in [*ROOT.glob("tests/**/*.py"), *ROOT.glob("ros_ws/src/*/test/**/*.py")]:
+        fixtures |= defined(path, decorated_with="fixture")
+    assert tiers.GRAPH_FIXTURES <= fixtures, tiers.GRAPH_FIXTURES - fixtures
+
+
+def test_listed_matches_files_tests_and_parametrizations():
+    entries = ("a/test_x.py", "a/test_y.py::test_one")
+    assert tiers.listed("a/test_x.py::test_any[p1]", entries)
+    assert tiers.listed("a/test_y.py::test_one", entries)
+    assert tiers.listed("a/test_y.py::test_one[p-2]", entries)
+    assert not tiers.listed("a/test_y.py::test_one_more", entries)
+    assert not tiers.listed("a/test_y.py::test_two", entries)
+
+
+def test_markers_are_put_on_tests_when_only_ros_ws_is_collected():
+    """By fixture (``procs``) and by the list; the unit tests of the same file stay unmarked."""
+    module = "ros_ws/src/dlo_tools/test/test_playback.py"
+    collected = subprocess.run([sys.executable, "-m", "pytest", "--collect-only", "-q", "-m", "graph", module],
+                               cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert collected.returncode == 0, collected.stdout + collected.stderr
+    graph = {line.split("::")[1] for line in collected.stdout.splitlines() if "::" in line}
+    assert graph == {"test_playback_republishes_the_same_messages", "test_playback_bad_parameters"}, collected.stdout
