@@ -12,7 +12,7 @@ import pytest
 
 from dlo_tools.analysis import recompute_episode
 
-SEEDS = range(7005, 7009)
+SEEDS = (7005, 7006, 7007, 7096)  # 7096: the shipped policy drops the cable early (authors' set <= 1 particle)
 
 
 def task_states(env, agent, seed, rules_field):

@@ -213,7 +213,7 @@ def test_not_an_mcap_and_garbage_are_one_line_errors(tmp_path):
     result = in_process(recover_cli, str(bag))
     assert result.returncode == 1 and "not an MCAP file" in one_line(result)
     result = in_process(recover_cli, str(tmp_path / "missing"))
-    assert result.returncode == 1 and "does not exist" in one_line(result)
+    assert result.returncode == 2 and "does not exist" in one_line(result)
     good = tmp_path / "good"
     with BagWriter(good, chunk_size=500) as writer:
         writer.add_topic(STATE, "dlo_msgs/msg/GripperState")
