@@ -8,8 +8,6 @@
   cloud: about one error a second, each naming the particle cloud's and the state's stamps.
 """
 
-import os
-import random
 
 import pytest
 
@@ -79,15 +77,6 @@ def test_a_step_is_reported_only_after_the_timeout_and_the_state_first():
 
 # ------------------------------------------------------------------------------- tactile_node in-process
 rclpy = pytest.importorskip("rclpy")
-
-
-@pytest.fixture(scope="module")
-def context():
-    os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-    context = rclpy.Context()
-    rclpy.init(context=context, domain_id=random.Random(os.getpid() + 3).randint(201, 230))
-    yield context
-    rclpy.shutdown(context=context)
 
 
 class Log:

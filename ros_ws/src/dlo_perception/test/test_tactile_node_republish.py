@@ -7,8 +7,6 @@ Its noise parameter ``tactile_noise`` takes a preset or a pair in each ROS form;
 ``sigma_theta`` and ``sigma_y`` still work, with one notice.
 """
 
-import os
-import random
 
 import numpy as np
 import pytest
@@ -24,15 +22,6 @@ from dlo_perception import tactile_node as tactile_node_module  # noqa: E402
 DECLARE = tactile_node_module.declare_parameters  # the original: every node gets only its own overrides
 from dlo_perception.cloud import particle_cloud  # noqa: E402
 from dlo_perception.tactile import tactile_pose  # noqa: E402
-
-
-@pytest.fixture(scope="module")
-def context():
-    os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-    context = rclpy.Context()
-    rclpy.init(context=context, domain_id=random.Random(os.getpid() + 1).randint(201, 230))
-    yield context
-    rclpy.shutdown(context=context)
 
 
 class Published(list):
