@@ -10,7 +10,6 @@ import os
 import pathlib
 import subprocess
 
-import numpy as np
 import pytest
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]

@@ -3,13 +3,11 @@ rate and command timeout, a policy node killed and restarted mid-episode, missin
 simulator on the same domain, a recorder that lacks a topic, perception nodes interrupted mid-stream,
 malformed parameters."""
 
-import os
 import pathlib
 import signal
 import subprocess
 import time
 
-import numpy as np
 import pytest
 import rclpy
 from rosgraph_msgs.msg import Clock
@@ -88,7 +86,7 @@ def test_bad_commands_are_rejected_and_the_gripper_holds(probe, tmp_path):
         for vx, closure in ((float("nan"), 0.5), (3.0, 0.5), (0.1, 1.7)):
             state = probe.states[-1]
             probe.send(state, vx, 0.0, closure)
-            assert probe.spin_until(lambda: probe.states[-1].step == state.step + 1, 20)
+            assert probe.spin_until(lambda state=state: probe.states[-1].step == state.step + 1, 20)
             after = probe.states[-1]
             assert (after.x, after.y, after.closure) == pytest.approx((state.x, state.y, state.closure), abs=1e-6)
         # step-locked: a command for an old step, a future step or another episode does not advance the sim
@@ -100,7 +98,7 @@ def test_bad_commands_are_rejected_and_the_gripper_holds(probe, tmp_path):
         assert probe.states[-1].step == state.step and probe.states[-1].episode == state.episode
         assert (probe.states[-1].x, probe.states[-1].closure) == pytest.approx((state.x, state.closure), abs=1e-9)
         probe.send(state, 0.25, 0.0, 0.6)  # the answer to the current step does
-        assert probe.spin_until(lambda: probe.states[-1].step == state.step + 1, 20)
+        assert probe.spin_until(lambda state=state: probe.states[-1].step == state.step + 1, 20)
     finally:
         stop(sim)
     text = (tmp_path / "sim.log").read_text()
@@ -127,7 +125,7 @@ def test_real_time_mode_holds_its_rate_and_stops_on_stale_commands(probe, tmp_pa
             # sliding grip (a firm one stalls on the taut cable; at 0.6 the stopped gripper loses the cable)
             probe.send(state, 0.1, 0.0, 0.7)
             answered += 1
-            assert probe.spin_until(lambda: probe.states[-1].step > state.step, 10)
+            assert probe.spin_until(lambda state=state: probe.states[-1].step > state.step, 10)
         probe.spin_for(0.6)  # commands stop: after the timeout the gripper stands still, in the same episode
         x_after_timeout, closure = probe.states[-1].x, probe.states[-1].closure
         assert x_after_timeout > start_x + 0.02  # it did follow the live commands

@@ -498,7 +498,8 @@ def render(model: dict, sem: dict, params: list, definitions: list) -> str:
         "--mode real_time --record`, the shipped SAC policy), so it cannot drift: "
         "`tests/test_interfaces_doc.py` regenerates it and fails when it is stale. How to write a driver: "
         "[WRITE_YOUR_DRIVER.md](WRITE_YOUR_DRIVER.md); whether yours fits, rule by rule: `dlo-driver-check`. "
-        "The topic contract: [ARCHITECTURE.md#topics](ARCHITECTURE.md#topics); the library API: [LIBRARY_API.md](LIBRARY_API.md).\n")
+        "The topic contract: [ARCHITECTURE.md#topics](ARCHITECTURE.md#topics); "
+        "the library API: [LIBRARY_API.md](LIBRARY_API.md).\n")
     add("Conventions: SI units, REP-103 (right-handed, z up). Every topic is under `/dlo` (plus `/clock`); "
         "`launch_graph.sh --namespace NS` prefixes them all with `/NS`. Every message's `header.frame_id` "
         "names the frame of its values; its `header.stamp` is the simulation (or driver) time of the control "
@@ -799,7 +800,8 @@ def deviations(model: dict) -> list[str]:
                      "stamp their outputs with the stamp of their inputs (so the matching by stamp holds), and their "
                      "timers and logs run on wall time (the real_time tick must: it drives `/clock`).")
     if not {"/tf", "/tf_static"} & set(topics):
-        lines.append("docs/ARCHITECTURE.md#world names the frames but no node publishes `/tf` or `/tf_static` (see Frames for the "
+        lines.append("docs/ARCHITECTURE.md#world names the frames but no node publishes `/tf` or `/tf_static` "
+                     "(see Frames for the "
                      "static transform to publish yourself).")
     info = topics.get("/dlo/camera/camera_info", {})
     if info.get("stamp", "").startswith("0"):

@@ -148,7 +148,8 @@ def handle_help(package: str, parameters: Sequence[Param | tuple], summary: str 
     :func:`ros_arguments_problem`); None when the node should start.
 
     Call it first in a node's ``main()``: it needs no ``rclpy.init``, creates no node and no file.
-    ``args`` defaults to ``sys.argv[1:]`` (stray arguments are only checked there); ``summary`` is what the node does (its module docstring).
+    ``args`` defaults to ``sys.argv[1:]`` (stray arguments are only checked there); ``summary`` is what the
+    node does (its module docstring).
     """
     argv = list(sys.argv[1:] if args is None else args)
     executable = executable_name()

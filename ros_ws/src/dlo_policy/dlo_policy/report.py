@@ -905,7 +905,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="dlo-report", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("results", type=Path, nargs="?", metavar="RESULTS",
                         help="directory holding dlo-train run directories (anywhere below it)")
-    parser.add_argument("--out", type=Path, metavar="DIR", help="where to write (default RESULTS/report; required with --compare)")
+    parser.add_argument("--out", type=Path, metavar="DIR",
+                        help="where to write (default RESULTS/report; required with --compare)")
     parser.add_argument("--compare", nargs="+", metavar="NAME=DIR",
                         help="compare results directories of the same configurations trained under different "
                              "settings: writes compare.md and compare.png instead of the study's report")

@@ -5,7 +5,6 @@ Usage: python -m dlo_sim.figure [--seed 3] [--out docs/img/dlo_sim_initial_cable
 
 import argparse
 
-import numpy as np
 
 from .config import FINGER_CLEARANCE, FINGER_RADIUS
 from .rope import RopeSim

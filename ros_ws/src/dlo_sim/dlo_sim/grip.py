@@ -19,7 +19,9 @@ import numpy as np
 
 from .config import REST_SPACING
 
-GRIP_SLIP_STRAIN = 0.0  # a grip slips (c < 0.9) or stalls (c >= 0.9) once the straight line fixed end -> held particle exceeds its rest length along the cable by this
+# a grip slips (c < 0.9) or stalls (c >= 0.9) once the straight line fixed end -> held particle exceeds
+# its rest length along the cable by this
+GRIP_SLIP_STRAIN = 0.0
 
 
 def inverse_mass(c, w_nom):

@@ -13,7 +13,7 @@ import taichi as ti  # noqa: E402
 
 from dlo_perception.vision import init_taichi  # noqa: E402
 
-from .config import (DT, FINGER_AXIS_OFFSET, FINGER_CLEARANCE, FINGER_HALF_LENGTH, FINGER_RADIUS, FIXED_END, GRAVITY,
+from .config import (DT, FINGER_AXIS_OFFSET, FINGER_HALF_LENGTH, FINGER_RADIUS, FIXED_END, GRAVITY,
                      GRIPPER_HEIGHT, GRIPPER_START_BEHIND, IMAGE_CABLE, IMAGE_GRIPPER,
                      MAX_DISPLACEMENT, NOMINAL_INVERSE_MASS, P_MAX, PARTICLE_RADIUS, REST_SPACING,
                      WORKSPACE_HALF_WIDTH)
@@ -350,7 +350,7 @@ class RopeKernels:
         self.update_grip(e, g0, c)
         dg_commanded = (g1 - g0) / self.substeps
         g = g0
-        for k in range(self.substeps):
+        for _k in range(self.substeps):
             dg = self.stall_firm_grip(e, dg_commanded)
             g = g + dg
             self.predict(e, dg)

@@ -47,7 +47,7 @@ from dlo_perception.cloud import particle_cloud
 from dlo_sim.command import CommandError, RejectionLog, command_mismatch, command_to_action, hold_action
 from dlo_sim.config import DT, FINGER_CLEARANCE, FINGER_HALF_LENGTH, FINGER_RADIUS, SUBSTEPS_PER_ACTION
 from dlo_sim.episode import TaskSim
-from dlo_sim.task import DEFAULT_TASK_RULES, HORIZON, OUTCOME_NAMES, TASK_RULES
+from dlo_sim.task import DEFAULT_TASK_RULES, HORIZON, TASK_RULES
 from dlo_common.node_util import NodeStartError, declare_parameters
 from dlo_common.params import Param
 

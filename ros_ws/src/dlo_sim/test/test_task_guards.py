@@ -105,6 +105,7 @@ def test_a_new_tracker_counts_nothing_held_before_its_first_step():
     reward, _, _ = tracker.step([3.0, 3.0], [2, 2], [4, 4], [N_C, N_C], [L_C, L_C], [3.0, 3.0], [2, 2])
     assert reward.tolist() == [0.0, 0.0]
     assert tracker.how_far().tolist() == [N_C - 1 - 4] * 2  # the cable of the step, not of a reset
-    short = EpisodeTracker(1, horizon=1, task_rules="paper_text")  # a 5-particle cable dropped at once: the authors' set never held
+    # a 5-particle cable dropped at once: the authors' set never held
+    short = EpisodeTracker(1, horizon=1, task_rules="paper_text")
     short.step([-1.0], [0], [-1], [5], [4 * 0.0043], [-1.0], [0])
     assert short.outcome_authors[0] == task.OUTCOME_DROP_BEFORE

@@ -265,8 +265,8 @@ def complete_recording(s: Settings, state_offset_ns: int = 0, frozen: bool = Fal
     return rec
 
 
-def results_of(rec: Recording, s: Settings = Settings()) -> dict:
-    return {r.rule: r for r in evaluate(rec, s)}
+def results_of(rec: Recording, s: Settings | None = None) -> dict:
+    return {r.rule: r for r in evaluate(rec, s or Settings())}
 
 
 def test_a_complete_recording_passes_every_rule():

@@ -183,7 +183,7 @@ def test_every_graph_type_round_trips_and_late_topics_are_advertised(bridge, typ
 def test_clients_connect_and_leave(bridge, typestore):
     data = typestore.serialize_cdr(make_messages(typestore)["/dlo/gripper/state"], GRAPH_TYPES["/dlo/gripper/state"])
     bridge.add_topic("/dlo/gripper/state", GRAPH_TYPES["/dlo/gripper/state"])
-    for round_ in range(3):
+    for _round in range(3):
         clients = [FoxgloveTestClient(bridge.ws_url).connect() for _ in range(2)]
         for c in clients:
             c.wait(lambda c=c: c.channel_by_topic("/dlo/gripper/state") is not None, 10, "advertise")
