@@ -1,5 +1,5 @@
 """dlo-evaluate --policy oracle|tactile_reactive|random: the scripted baselines through the evaluation
-protocol (issue 18; it replaced scripts/eval_scripted.py). Exactly one of --checkpoint and --policy;
+protocol (it replaced scripts/eval_scripted.py). Exactly one of --checkpoint and --policy;
 one-line errors on options that do not fit; per seed the same episodes as ``scripted.run_episodes``
 (what the baseline table was made with), the policy's memory cleared for every batch; the JSON with
 both outcome rules."""

@@ -1,4 +1,4 @@
-"""dlo-experiments --out RUNS --collect RESULTS (issue 18; was scripts/collect_results.sh): the small
+"""dlo-experiments --out RUNS --collect RESULTS (was scripts/collect_results.sh): the small
 files of every finished run, the same layout, copied only when they differ, the run directories
 added or updated printed; unfinished runs and big files never; a missing RUNS is one line, exit 2."""
 

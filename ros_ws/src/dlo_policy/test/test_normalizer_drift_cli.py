@@ -1,4 +1,4 @@
-"""dlo-normalizer-drift (issue 18; was scripts/normalizer_drift.py): --help, one-line errors on a run
+"""dlo-normalizer-drift (was scripts/normalizer_drift.py): --help, one-line errors on a run
 directory it cannot read, and a tiny run on a synthetic run directory whose drift is known."""
 
 import json

@@ -1,4 +1,4 @@
-"""dlo-validate-vision (issue 18; was scripts/validate_vision.py): --help, one-line errors on bad
+"""dlo-validate-vision (was scripts/validate_vision.py): --help, one-line errors on bad
 input, a tiny real run whose JSON line comes last, and the statistics where no state shows the cable
 to both (None, not a crash)."""
 
