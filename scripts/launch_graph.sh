@@ -91,6 +91,10 @@ bad() { echo "launch_graph: $*" >&2; exit $EXIT_USAGE; }
 [[ "$seed" =~ ^[0-9]+$ ]] || bad "--seed must be a number >= 0, got '$seed'"
 case "$mode" in step_locked|real_time) ;; *) bad "--mode must be step_locked or real_time" ;; esac
 case "$task_rules" in paper_text|authors_code) ;; *) bad "--task-rules must be paper_text or authors_code, got '$task_rules'" ;; esac
+case "$policy" in sac|tactile_reactive|oracle|random) ;;
+  *) bad "--policy must be one of sac, tactile_reactive, oracle, random, got '$policy'" ;; esac
+[[ "$without" =~ ^([KTV](\+[KTV])*)?$ ]] || bad "--without must be empty or modalities joined by '+' (K, T, V), e.g. T or T+V, got '$without'"
+if [ -n "$checkpoint" ] && [ ! -f "$checkpoint" ]; then bad "--checkpoint $checkpoint: no such file"; fi
 [[ "$status_period" =~ ^[0-9]+([.][0-9]+)?$ ]] || bad "--status-period must be a number of seconds >= 0, got '$status_period'"
 if [ -n "$domain" ]; then
   [[ "$domain" =~ ^[0-9]+$ ]] && [ "$domain" -le 232 ] || bad "--domain-id must be a number in 0..232, got '$domain'"

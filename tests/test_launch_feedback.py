@@ -164,3 +164,20 @@ def test_real_time_sim_waits_for_a_command_publisher_then_warns_without_commands
             sim.kill()
             sim.wait()
     assert "Traceback" not in log.read_text()
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--policy", "nosuch"], "launch_graph: --policy must be one of sac, tactile_reactive, oracle, random, got 'nosuch'"),
+    (["--without", "X"], "launch_graph: --without must be empty or modalities joined by '+' (K, T, V), e.g. T or T+V, "
+                         "got 'X'"),
+    (["--checkpoint", "/nonexistent/policy.pt"], "launch_graph: --checkpoint /nonexistent/policy.pt: no such file"),
+    (["--task-rules", "authors"], "launch_graph: --task-rules must be paper_text or authors_code, got 'authors'"),
+])
+def test_the_launcher_refuses_its_own_bad_choices_before_any_node_starts(args, message, tmp_path):
+    logs = tmp_path / "logs"
+    result = subprocess.run(["bash", str(ROOT / "scripts" / "launch_graph.sh"), *args, "--logs", str(logs),
+                             "--episodes", "1"], capture_output=True, text=True, timeout=120,
+                            env={**os.environ, "DLO_USE_ROS2RUN": "1"})
+    assert result.returncode == 2, result.stdout + result.stderr
+    assert result.stderr.splitlines() == [message]
+    assert result.stdout == "" and not logs.exists()  # no domain chosen, no node started
