@@ -10,6 +10,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+from dlo_sim.task import OUTCOME_CODES
 from dlo_tools.analysis import recompute_episode
 
 SEEDS = (7005, 7006, 7007, 7096)  # 7096: the shipped policy drops the cable early (authors' set <= 1 particle)
@@ -24,11 +25,10 @@ def task_states(env, agent, seed, rules_field):
         n_c = int(task.sim.num_particles[0])
         held = np.flatnonzero(task.state.held[0, :n_c]).astype(np.int32)
         authors = np.flatnonzero(task.held_authors[0, :n_c]).astype(np.int32)
-        codes = {"none": 0, "hold_the_end": 1, "stop_before": 2, "reach_end_but_drop": 3, "drop_before": 4}
         fields = dict(step=step, seed=seed, held_indices=held, held_indices_authors=authors, num_particles=n_c,
                       cable_length=float(task.sim.cable_length[0]), done=done,
-                      outcome=codes[info["outcome"]] if done else 0,
-                      outcome_authors=codes[info["outcome_authors"]] if done else 0,
+                      outcome=OUTCOME_CODES[info["outcome"]] if done else 0,
+                      outcome_authors=OUTCOME_CODES[info["outcome_authors"]] if done else 0,
                       episode_return=float(task.tracker.episode_return[0]))
         if rules_field is not None:
             fields["task_rules"] = rules_field
