@@ -277,7 +277,11 @@ def test_a_killed_launcher_leaves_no_node_running_and_a_closed_bag(tmp_path, lau
 
 
 def test_a_node_rejecting_its_parameters_stops_the_graph_with_exit_2(tmp_path, launches):
-    run = launches(tmp_path, "run", "--policy", "magic", "--episodes", 1)
+    # the launcher checks its own options first; --rate-factor goes to the sim unchecked, so the sim's
+    # own parameter check is what refuses it here
+    run = launches(tmp_path, "run", "--rate-factor", 0, "--episodes", 1)
     assert run.wait() == 2, run.out
-    assert "policy exited early (status 2); the end of its log:" in run.out
-    assert "parameter 'policy'" in run.out  # the node's own one-line reason, shown by the launcher
+    assert "sim exited early (status 2" in run.out
+    assert "parameter 'rate_factor': must be > 0" in run.out  # the node's own one-line reason, shown by the launcher
+    for node in ("tactile", "vision", "policy"):  # the graph stopped at the sim: nothing else was started
+        assert not (run.logs / f"{node}.log").exists(), node
