@@ -17,8 +17,8 @@ GRAPH_FIXTURES = frozenset({
     "launches",              # tests/test_graph_isolation.py: launch_graph.sh in its own session
     "launch_in_own_group",   # tests/conftest.py: launch_graph.sh, whole process group stopped
     "own_groups",            # tests/conftest.py: node processes started by the test
-    "procs",                 # ros_ws/src/dlo_tools/test/conftest.py: node processes on a test domain
-    "launcher",              # ros_ws/src/dlo_tools/test/test_foxglove_bridge.py: launch_graph.sh
+    "procs",                 # ros_ws/src/dlo_{bag,viz,driver_kit}/test/conftest.py: node processes on a test domain
+    "launcher",              # ros_ws/src/dlo_viz/test/test_foxglove_bridge.py: launch_graph.sh
     "probe",                 # tests/test_graph_faults.py: an in-process node next to node processes
 })
 
@@ -34,7 +34,7 @@ GRAPH = (
     "tests/test_node_help.py::test_a_stray_argument_is_a_one_line_error",
     "tests/test_node_help.py::test_a_bad_value_in_a_params_file_is_a_one_line_error",
     "ros_ws/src/dlo_policy/test/test_cli_errors.py::test_policy_node_refuses_a_text_file_as_checkpoint",
-    "ros_ws/src/dlo_tools/test/test_driver_check.py::test_no_driver_is_one_clear_line_and_bad_usage_exits_2",
+    "ros_ws/src/dlo_driver_kit/test/test_driver_check.py::test_no_driver_is_one_clear_line_and_bad_usage_exits_2",
 )
 
 SLOW = (  # each about 3 s or more: a training, a long simulation, evaluation or video render

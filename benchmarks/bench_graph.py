@@ -34,7 +34,7 @@ def main() -> int:
     args = parser.parse_args()
 
     from dlo_perception.sync import stamp_to_ns
-    from dlo_tools.bag import read_messages
+    from dlo_bag.bag import read_messages
 
     work = Path(tempfile.mkdtemp(prefix="bench_graph_"))
     bag, logs = work / "bag", work / "logs"

@@ -3,11 +3,11 @@
 without the bridge and a client, video rendering speed. Prints a JSON line last.
 
 1. **Videos**: a recorded run of ``--episodes`` episodes (scripts/launch_graph.sh --record), then
-   every episode rendered as MP4 (dlo_tools.video): frames/s of wall time and of CPU time.
+   every episode rendered as MP4 (dlo_bag.video): frames/s of wall time and of CPU time.
 2. **Live view, paired**: one step-locked graph runs episodes until stopped (launch_graph.sh
    --episodes 0: sim, tactile, vision, policy). In alternating windows of ``--window`` seconds
    (order A B B A, repeated ``--pairs`` times, so slow drifts of a shared machine's load cancel)
-   the graph runs **A** alone or **B** with ``dlo_tools foxglove_bridge`` and one protocol
+   the graph runs **A** alone or **B** with ``dlo_viz foxglove_bridge`` and one protocol
    client (a separate process, subscribed to every topic). This script's ROS node subscribes to
    the gripper state in both (the rate: control steps/s within episodes, resets excluded) and
    answers every state with a probe on ``/dlo/bench/probe`` (std_msgs/Header stamped with the
@@ -40,7 +40,7 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "ros_ws" / "src" / "dlo_tools" / "test"))  # the protocol test client
+sys.path.insert(0, str(ROOT / "ros_ws" / "src" / "dlo_viz" / "test"))  # the protocol test client
 
 PROBE = "/dlo/bench/probe"
 
@@ -145,8 +145,8 @@ def launch(args, *extra: str) -> subprocess.Popen:
 
 
 def video_benchmark(args, work: Path) -> dict:
-    from dlo_tools.analysis import read_run, recompute_episode
-    from dlo_tools.video import render_episode_video
+    from dlo_bag.analysis import read_run, recompute_episode
+    from dlo_bag.video import render_episode_video
 
     bag = work / "bag"
     proc = launch(args, "--episodes", str(args.episodes), "--record", str(bag), "--logs", str(work / "logs_video"))
@@ -176,7 +176,7 @@ class Bridge:
     def __init__(self, domain: int, work: Path, index: int, params: list[str]) -> None:
         env = {**os.environ, "ROS_DOMAIN_ID": str(domain)}
         extra = [x for param in params for x in ("-p", param)]
-        self.proc = subprocess.Popen([str(ROOT / "scripts" / "ros2run"), "dlo_tools", "foxglove_bridge", "--ros-args",
+        self.proc = subprocess.Popen([str(ROOT / "scripts" / "ros2run"), "dlo_viz", "foxglove_bridge", "--ros-args",
                                       "-p", "port:=0", "-p", "stats_period:=0", *extra],
                                      stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env,
                                      start_new_session=True)

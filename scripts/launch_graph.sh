@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Start the whole dlo-vitac graph (sim, tactile, vision, policy [, recorder]) as separate processes
 # on a DDS domain of its own, wait until the sim has run its episodes (or Ctrl-C) while printing one
-# line per finished episode and a periodic status line (dlo_tools.graph_monitor), stop every
+# line per finished episode and a periodic status line (dlo_viz.graph_monitor), stop every
 # process it started, print the outcome table headed by what produced it; fail loudly (exit codes in --help) when a node dies
 # or the recording fails. Uses `ros2 run` on a real ROS 2 install, scripts/ros2run with the wheels.
 set -euo pipefail
@@ -25,7 +25,7 @@ usage: scripts/launch_graph.sh [options]
   --task-rules R       authors_code (default) or paper_text: the held set the reward, the episode's
                        end and the tactile input use (the sim's task_rules parameter)
   --record DIR         record every /dlo topic to the rosbag2 (MCAP) directory DIR
-  --foxglove [PORT]    live view: also start the Foxglove bridge (dlo_tools foxglove_bridge) on
+  --foxglove [PORT]    live view: also start the Foxglove bridge (dlo_viz foxglove_bridge) on
                        127.0.0.1:PORT (default 8765; 0 = any free port) and print the URL to open;
                        layout to import: docs/foxglove/dlo_vitac.json
   --logs DIR           node logs and the outcome file go here (default: a new temp dir)
@@ -266,11 +266,11 @@ done
 if kill -0 "$sim_pid" 2>/dev/null && [ "$interrupted" = 0 ]; then
 if [ -n "$record" ]; then
   if [ -n "$namespace" ]; then rec_topics=(-p namespace:="$prefix"); else rec_topics=(-p record_clock:=true); fi
-  start recorder dlo_tools recorder_node --ros-args -p output:="$record" "${rec_topics[@]}" \
+  start recorder dlo_bag recorder_node --ros-args -p output:="$record" "${rec_topics[@]}" \
     -p summary_file:="$logs/recorder_summary.json" ${remap[@]+"${remap[@]}"}
 fi
 if [ -n "$foxglove" ]; then
-  start foxglove dlo_tools foxglove_bridge --ros-args -p port:="$foxglove" -p address:=127.0.0.1 \
+  start foxglove dlo_viz foxglove_bridge --ros-args -p port:="$foxglove" -p address:=127.0.0.1 \
     -p topics:="$prefix/dlo,$prefix/clock"
   for _ in $(seq 1 300); do  # its first lines name the URL (a port in use ends it: reported below)
     grep -q "Foxglove bridge on ws://" "$logs/foxglove.log" 2>/dev/null && break
@@ -295,7 +295,7 @@ start policy dlo_policy policy_node --ros-args "${policy_args[@]}" ${remap[@]+"$
 # finished episodes and a status line while the graph runs (not a node of the graph: its end fails nothing)
 monitor_args=(--logs "$logs" --episodes "$episodes" --status-period "$status_period" --clock-topic "$prefix/clock")
 for i in "${!pids[@]}"; do monitor_args+=(--node "${names[$i]}=${pids[$i]}"); done
-${ORPHAN[@]+"${ORPHAN[@]}"} "$PY" -m dlo_tools.graph_monitor "$outcomes" "${monitor_args[@]}" &
+${ORPHAN[@]+"${ORPHAN[@]}"} "$PY" -m dlo_viz.graph_monitor "$outcomes" "${monitor_args[@]}" &
 monitor_pid=$!
 fi
 
@@ -348,7 +348,7 @@ else
 fi
 
 policy_line="$(grep -m1 -o "policy [a-z_]* on [^;]*" "$logs/policy.log" 2>/dev/null || true)"
-"$PY" -m dlo_tools.outcome_table "$outcomes" --policy "$policy" --checkpoint "$checkpoint" --without "$without" \
+"$PY" -m dlo_bag.outcome_table "$outcomes" --policy "$policy" --checkpoint "$checkpoint" --without "$without" \
   --tactile-noise "$noise" --mode "$mode" --train-out "$train_out" --policy-line "$policy_line" || true
 if [ -n "$record" ]; then
   rst="${status[recorder]:-}"

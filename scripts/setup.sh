@@ -78,6 +78,14 @@ if [ "$(cat "$STAMPS/workspace" 2>/dev/null)" != "$src_hash" ] || [ ! -d "$WS/in
     cd "$WS"
     export PATH="$VENV/bin:$PATH" AMENT_PREFIX_PATH="$VENV" CMAKE_PREFIX_PATH="$VENV"
     export _ROS_WHEELS_BOOTSTRAP_COMPLETE=1 LD_LIBRARY_PATH="$VENV/lib${LD_LIBRARY_PATH:+:$LD_LIBRARY_PATH}"
+    # A package no longer in src (renamed, split, removed) would stay in install/ (and in colcon's
+    # install/setup.bash): remove its build and install trees.
+    for old in build/dlo_* install/dlo_*; do
+      if [ -d "$old" ] && [ ! -d "src/${old#*/}" ]; then
+        say "removing $old (no package ${old#*/} in ros_ws/src any more)"
+        rm -rf "$old"
+      fi
+    done
     colcon build --executor sequential \
       --cmake-args -DPython3_EXECUTABLE="$VENV/bin/python" -DBUILD_TESTING=OFF >"$STAMPS/colcon.out" 2>&1 \
       || { tail -40 "$STAMPS/colcon.out" >&2; die "colcon build failed (output above; full log in ros_ws/log/latest_build)" \

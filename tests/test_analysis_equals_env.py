@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from dlo_sim.task import OUTCOME_CODES
-from dlo_tools.analysis import recompute_episode
+from dlo_bag.analysis import recompute_episode
 
 SEEDS = (7005, 7006, 7007, 7096)  # 7096: the shipped policy drops the cable early (authors' set <= 1 particle)
 

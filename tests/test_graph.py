@@ -16,7 +16,7 @@ import time
 import numpy as np
 import pytest
 
-from dlo_tools.analysis import read_run
+from dlo_bag.analysis import read_run
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 SEED = 11
@@ -103,7 +103,7 @@ def test_graph_equals_in_process_env(recorded_run):
 
 def test_bag_analysis_equals_live_outcomes(recorded_run, tmp_path):
     out = tmp_path / "analysis.json"
-    result = subprocess.run([sys.executable, "-m", "dlo_tools.analysis", str(recorded_run["bag"]), "--json", str(out),
+    result = subprocess.run([sys.executable, "-m", "dlo_bag.analysis", str(recorded_run["bag"]), "--json", str(out),
                              "--plots", str(tmp_path / "plots")], capture_output=True, text=True, timeout=300)
     assert result.returncode == 0, result.stderr
     analysed = json.loads(out.read_text())
@@ -136,7 +136,7 @@ def test_playback_reruns_perception_on_recorded_images(recorded_run, own_groups)
         while probe.get_publisher_count() == 0 and time.monotonic() < deadline:  # the vision node is up and matched
             rclpy.spin_once(node, timeout_sec=0.1)
         topics = "['/dlo/camera/image', '/dlo/camera/camera_info', '/dlo/gripper/state']"
-        playback = subprocess.Popen([ros2run, "dlo_tools", "playback_node", "--ros-args", "-p", f"bag:={recorded_run['bag']}",
+        playback = subprocess.Popen([ros2run, "dlo_bag", "playback_node", "--ros-args", "-p", f"bag:={recorded_run['bag']}",
                                      "-p", "rate:=2.0", "-p", f"topics:={topics}", "-p", "wait_for_subscribers:=1",
                                      "-p", "wait_timeout:=60.0"], stdout=subprocess.DEVNULL, stderr=subprocess.STDOUT,
                                     start_new_session=True)
@@ -206,6 +206,6 @@ def test_sigint_mid_run_leaves_a_complete_readable_bag(tmp_path):
     run = read_run(bag)
     finished = [e for e, streams in run.items() if any(m.done for m in streams["task"].values())]
     assert finished and len(run) == len(finished) + 1  # the interrupted episode is in the bag too
-    result = subprocess.run([sys.executable, "-m", "dlo_tools.analysis", str(bag)], capture_output=True, text=True,
+    result = subprocess.run([sys.executable, "-m", "dlo_bag.analysis", str(bag)], capture_output=True, text=True,
                             timeout=300)
     assert result.returncode == 0 and "unfinished in the bag" in result.stdout, result.stdout + result.stderr

@@ -225,7 +225,7 @@ def test_a_second_simulator_started_by_hand_refuses_in_one_line(probe, tmp_path)
 def test_the_sim_names_the_topics_a_recorder_lacks(probe, tmp_path):
     """A recorder that does not subscribe to every topic must not leave the sim waiting silently."""
     sim_log = tmp_path / "sim.log"
-    recorder = start("dlo_tools", "recorder_node", f"output:={tmp_path / 'bag'}", "namespace:=/dlo/camera")
+    recorder = start("dlo_bag", "recorder_node", f"output:={tmp_path / 'bag'}", "namespace:=/dlo/camera")
     sim = start("dlo_sim", "sim_node", "wait_for_recorder:=recorder", "publish_markers:=false", log=open(sim_log, "w"))
     try:
         assert probe.spin_until(lambda: "waiting for the recorder 'recorder' to subscribe to" in sim_log.read_text(), 120)

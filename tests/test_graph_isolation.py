@@ -15,9 +15,9 @@ import time
 import pytest
 
 from dlo_common.params import as_params
-from dlo_tools.analysis import read_run
-from dlo_tools.bag import bag_info, read_messages
-from dlo_tools.recorder_node import PARAMETERS as RECORDER_PARAMETERS
+from dlo_bag.analysis import read_run
+from dlo_bag.bag import bag_info, read_messages
+from dlo_bag.recorder_node import PARAMETERS as RECORDER_PARAMETERS
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 LAUNCH = ROOT / "scripts" / "launch_graph.sh"
@@ -167,7 +167,7 @@ def test_namespaces_share_a_domain_deliberately(tmp_path, launches):
     topics = set(bag_info(tmp_path / "bag").topics)
     assert "/robot1/dlo/task/state" in topics and "/robot1/clock" in topics
     assert not any(t.startswith("/robot2") or t.startswith("/dlo") for t in topics)
-    result = subprocess.run([sys.executable, "-m", "dlo_tools.analysis", str(tmp_path / "bag"),
+    result = subprocess.run([sys.executable, "-m", "dlo_bag.analysis", str(tmp_path / "bag"),
                              "--json", str(tmp_path / "a.json")], capture_output=True, text=True, timeout=300)
     assert result.returncode == 0, result.stdout + result.stderr
     assert [s["outcome"] for s in json.loads((tmp_path / "a.json").read_text())] == [outcome]
@@ -192,7 +192,7 @@ def test_recorder_killed_mid_run_fails_the_launch_and_the_bag_is_recovered(tmp_p
     assert "recorder exited early (status 137: killed by SIGKILL)" in run.out
     assert f"dlo-bag-recover {bag}" in run.out
     live = run.episodes_done()  # every episode the sim finished, also after the kill
-    fixed = subprocess.run([str(ROOT / "scripts" / "ros2run"), "dlo_tools", "dlo-bag-recover", str(bag)],
+    fixed = subprocess.run([str(ROOT / "scripts" / "ros2run"), "dlo_bag", "dlo-bag-recover", str(bag)],
                            capture_output=True, text=True, timeout=120)
     assert fixed.returncode == 0 and "recovered" in fixed.stdout, fixed.stdout + fixed.stderr
     episodes = read_run(bag)
@@ -201,7 +201,7 @@ def test_recorder_killed_mid_run_fails_the_launch_and_the_bag_is_recovered(tmp_p
     assert len(finished) >= len(safe), (
         f"the recovered bag has {len(finished)} finished episodes; {len(safe)} had finished "
         f"{3 * FLUSH_PERIOD} s before the kill ({len(at_kill)} at the kill, {len(live)} in all)")
-    result = subprocess.run([sys.executable, "-m", "dlo_tools.analysis", str(bag), "--json", str(tmp_path / "a.json")],
+    result = subprocess.run([sys.executable, "-m", "dlo_bag.analysis", str(bag), "--json", str(tmp_path / "a.json")],
                             capture_output=True, text=True, timeout=300)
     assert result.returncode == 0, result.stdout + result.stderr
     analysed = [s for s in json.loads((tmp_path / "a.json").read_text()) if s["complete"]]

@@ -1,4 +1,4 @@
-"""A driver that is not the simulator (dlo_tools mock_driver_node) runs the rest of the graph unchanged."""
+"""A driver that is not the simulator (dlo_driver_kit mock_driver_node) runs the rest of the graph unchanged."""
 
 import pathlib
 import re
@@ -6,7 +6,7 @@ import subprocess
 
 import numpy as np
 
-from dlo_tools.mock_driver_node import FINGER_REACH, mock_cable
+from dlo_driver_kit.mock_driver_node import FINGER_REACH, mock_cable
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 ROS2RUN = str(ROOT / "scripts" / "ros2run")
@@ -19,7 +19,7 @@ def test_perception_and_policy_follow_a_mock_robot_cable(own_groups):
              subprocess.Popen([ROS2RUN, "dlo_policy", "policy_node", "--ros-args", "-p", "policy:=tactile_reactive"], **quiet)]
     for node in nodes:
         own_groups(node.pid)  # stopped at teardown (SIGINT, then SIGKILL), even if this test fails
-    driver = subprocess.run([ROS2RUN, "dlo_tools", "mock_driver_node", "--ros-args", "-p", "steps:=40",
+    driver = subprocess.run([ROS2RUN, "dlo_driver_kit", "mock_driver_node", "--ros-args", "-p", "steps:=40",
                              "-p", "mode:=step_locked"],  # one answered state = one step: 40 steps of the policy
                             capture_output=True, text=True, timeout=300)
     assert driver.returncode == 0, driver.stdout + driver.stderr

@@ -129,7 +129,7 @@ def test_an_unknown_name_in_a_params_file_and_a_far_one_on_the_command_line(tmp_
     ("dlo_sim", "sim_node", "publish_markers:=1",
      "[sim_node] bad parameter: parameter 'publish_markers': expected a bool (true/false), e.g. "
      "-p publish_markers:=true, got 1 (integer)"),
-    ("dlo_tools", "foxglove_bridge", "topics:=[1,2]",
+    ("dlo_viz", "foxglove_bridge", "topics:=[1,2]",
      "[foxglove_bridge] bad parameter: parameter 'topics': expected a list of strings, e.g. -p topics:=/dlo,/clock, "
      "got [1, 2] (integer_array)"),
 ])

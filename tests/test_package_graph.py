@@ -62,7 +62,7 @@ def undeclared_imports(src: pathlib.Path) -> list[str]:
             for imported in sorted(imported_packages(path)):
                 if not imported.startswith("dlo_") or imported == name:
                     continue
-                if (path.parent / f"{imported}.py").exists():  # a helper module next to it (test/dlo_tools_testutil.py)
+                if (path.parent / f"{imported}.py").exists():  # a helper module next to it (test/dlo_bag_testutil.py)
                     continue
                 if imported not in pkgs:
                     problems.append(f"{name}/{rel}: imports {imported}, which is no package of {src}")
@@ -110,16 +110,36 @@ def test_declared_dependencies_form_a_dag():
     assert dependency_cycle(SRC) == [], " -> ".join(dependency_cycle(SRC))
 
 
+TOOLS = ("dlo_bag", "dlo_viz", "dlo_driver_kit")  # the tool packages, on top of the graph's own packages
+# who may depend on a tool package (any tag): dlo_viz serves bags' schemas, the driver kit's tests analyse a bag
+TOOL_USERS = {"dlo_bag": {"dlo_viz", "dlo_driver_kit"}, "dlo_viz": set(), "dlo_driver_kit": set()}
+
+
 def test_node_helpers_live_in_the_base_package():
-    """dlo_common depends on no other dlo_* package and no package depends on dlo_tools (the leaf)."""
+    """dlo_common depends on no other dlo_* package; the node helpers are its, not a tool package's."""
     pkgs = packages(SRC)
     assert "dlo_common" in pkgs
     base_deps = set().union(*pkgs["dlo_common"][1].values())
     assert not {d for d in base_deps if d.startswith("dlo_")}
-    for name, (_, deps) in pkgs.items():
-        assert "dlo_tools" not in set().union(*deps.values()), f"{name} depends on dlo_tools"
     assert (SRC / "dlo_common" / "dlo_common" / "node_main.py").exists()
-    assert not (SRC / "dlo_tools" / "dlo_tools" / "node_main.py").exists()
+    assert not [t for t in TOOLS if (SRC / t / t / "node_main.py").exists()]
+
+
+def test_the_tool_packages_sit_on_top_of_the_graph():
+    """The expected DAG: dlo_bag (bag I/O, recorder, playback, analysis) and dlo_driver_kit (driver template
+    and checker) need only msgs, common, perception and sim; dlo_viz (live view) needs dlo_bag; no package of
+    the graph itself depends on a tool package, and nothing depends on dlo_viz or dlo_driver_kit."""
+    pkgs = packages(SRC)
+    assert set(TOOLS) <= set(pkgs)
+    dlo_deps = {name: {d for d in set().union(*deps.values()) if d in pkgs} for name, (_, deps) in pkgs.items()}
+    for tool in TOOLS:
+        users = {name for name, deps in dlo_deps.items() if tool in deps}
+        assert users <= TOOL_USERS[tool], f"{sorted(users - TOOL_USERS[tool])} depend on {tool}"
+    core = {"dlo_msgs", "dlo_common", "dlo_perception", "dlo_sim"}
+    assert dlo_deps["dlo_bag"] == core
+    assert dlo_deps["dlo_driver_kit"] == core | {"dlo_bag"}  # <test_depend> only
+    assert "dlo_bag" not in set().union(*(pkgs["dlo_driver_kit"][1][t] for t in RUN_TAGS))
+    assert dlo_deps["dlo_viz"] == {"dlo_msgs", "dlo_common", "dlo_bag"}
 
 
 def test_every_python_package_is_on_the_environment():
@@ -142,23 +162,23 @@ def _package(src: pathlib.Path, name: str, depends: list[str], module_source: st
 
 
 def test_checker_finds_an_undeclared_import_and_a_cycle(tmp_path):
-    """The old tree's faults, in a scratch copy: dlo_tools imports dlo_sim without declaring it,
-    and dlo_sim depends on dlo_tools for its node helpers while dlo_tools needs dlo_sim."""
+    """The old tree's faults, in a scratch copy: the tool package (here dlo_bag) imports dlo_sim without
+    declaring it, and dlo_sim depends on it for its node helpers while it needs dlo_sim."""
     src = tmp_path / "src"
     _package(src, "dlo_common", [])
     _package(src, "dlo_sim", ["dlo_common"], "def main():\n    from dlo_common.node_main import run_node\n")
-    _package(src, "dlo_tools", ["dlo_common"], "from dlo_sim.task import OUTCOME_NAMES\n")
+    _package(src, "dlo_bag", ["dlo_common"], "from dlo_sim.task import OUTCOME_NAMES\n")
     assert undeclared_imports(src) == [
-        "dlo_tools/dlo_tools/__init__.py: imports dlo_sim, not declared in dlo_tools/package.xml "
+        "dlo_bag/dlo_bag/__init__.py: imports dlo_sim, not declared in dlo_bag/package.xml "
         "(add <exec_depend>dlo_sim</...>)"]
     assert dependency_cycle(src) == []
 
-    (src / "dlo_tools" / "package.xml").write_text((src / "dlo_tools" / "package.xml").read_text().replace(
+    (src / "dlo_bag" / "package.xml").write_text((src / "dlo_bag" / "package.xml").read_text().replace(
         "</package>", "  <exec_depend>dlo_sim</exec_depend>\n</package>"))
     assert undeclared_imports(src) == []
     (src / "dlo_sim" / "package.xml").write_text((src / "dlo_sim" / "package.xml").read_text().replace(
-        "</package>", "  <exec_depend>dlo_tools</exec_depend>\n</package>"))
-    assert dependency_cycle(src) in (["dlo_sim", "dlo_tools", "dlo_sim"], ["dlo_tools", "dlo_sim", "dlo_tools"])
+        "</package>", "  <exec_depend>dlo_bag</exec_depend>\n</package>"))
+    assert dependency_cycle(src) in (["dlo_sim", "dlo_bag", "dlo_sim"], ["dlo_bag", "dlo_sim", "dlo_bag"])
 
 
 def test_checker_on_a_copy_of_the_tree_with_an_undeclared_import(tmp_path):
@@ -170,6 +190,6 @@ def test_checker_on_a_copy_of_the_tree_with_an_undeclared_import(tmp_path):
     module = src / "dlo_perception" / "dlo_perception" / "tactile_node.py"
     module.parent.mkdir()
     module.write_text((SRC / "dlo_perception" / "dlo_perception" / "tactile_node.py").read_text()
-                      + "\n\ndef _late():\n    from dlo_tools.node_main import run_node  # noqa\n")
+                      + "\n\ndef _late():\n    from dlo_bag.bag import read_messages  # noqa\n")
     problems = undeclared_imports(src)
-    assert len(problems) == 1 and "imports dlo_tools, not declared in dlo_perception/package.xml" in problems[0]
+    assert len(problems) == 1 and "imports dlo_bag, not declared in dlo_perception/package.xml" in problems[0]

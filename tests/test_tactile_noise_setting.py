@@ -4,7 +4,7 @@ node's parameter and ``launch_graph.sh --tactile-noise``, all read by
 ``dlo_perception.tactile.noise_setting``; a bad value is one line and exit 2 (the launcher's before
 anything starts); the node's old names (``noise``, ``sigma_theta``, ``sigma_y``) work for one release
 with a one-line notice naming the new one. (The launcher's custom pair reaching the node and the run
-header: tests/test_launch_feedback.py; outcome_table's old ``--noise``: dlo_tools test_outcome_text.py.)"""
+header: tests/test_launch_feedback.py; outcome_table's old ``--noise``: dlo_bag test_outcome_text.py.)"""
 
 from __future__ import annotations
 

@@ -59,7 +59,7 @@ def test_listed_matches_files_tests_and_parametrizations():
 
 def test_markers_are_put_on_tests_when_only_ros_ws_is_collected():
     """By fixture (``procs``) and by the list; the unit tests of the same file stay unmarked."""
-    module = "ros_ws/src/dlo_tools/test/test_playback.py"
+    module = "ros_ws/src/dlo_bag/test/test_playback.py"
     collected = subprocess.run([sys.executable, "-m", "pytest", "--collect-only", "-q", "-m", "graph", module],
                                cwd=ROOT, capture_output=True, text=True, timeout=300)
     assert collected.returncode == 0, collected.stdout + collected.stderr

@@ -33,7 +33,7 @@ def synthetic_bag(tmp_path_factory):
         pytest.skip("source scripts/env.sh first")
     from dlo_perception.cloud import pack_particles
     from dlo_sim.task import EpisodeTracker
-    from dlo_tools.bag import BagWriter, make_typestore
+    from dlo_bag.bag import BagWriter, make_typestore
 
     ts = make_typestore()
     T = ts.types
@@ -115,7 +115,7 @@ def frames_of(path: Path):
 
 
 def test_one_playable_mp4_per_episode(synthetic_bag, tmp_path, capsys):
-    from dlo_tools.analysis import main
+    from dlo_bag.analysis import main
 
     out = tmp_path / "videos"
     rc = main([str(synthetic_bag), "--video", str(out), "--policy", "scripted test", "--json",
@@ -149,7 +149,7 @@ def test_video_progress_on_a_terminal_is_a_bar_and_the_lines(synthetic_bag, tmp_
     """On a terminal the same lines come with a tqdm bar over all the frames (to the same stream)."""
     import io
 
-    from dlo_tools.analysis import read_run, write_videos
+    from dlo_bag.analysis import read_run, write_videos
 
     class Terminal(io.StringIO):
         def isatty(self):
@@ -170,7 +170,7 @@ def test_video_progress_on_a_terminal_is_a_bar_and_the_lines(synthetic_bag, tmp_
 def test_gif_and_speed(synthetic_bag, tmp_path):
     from PIL import Image
 
-    from dlo_tools.analysis import main
+    from dlo_bag.analysis import main
 
     assert main([str(synthetic_bag), "--video", str(tmp_path / "gif"), "--video-format", "gif",
                  "--video-width", "320"]) == 0
@@ -184,9 +184,9 @@ def test_gif_and_speed(synthetic_bag, tmp_path):
 
 
 def test_titles_marks_and_still_spans(synthetic_bag):
-    from dlo_tools.analysis import episode_title, read_run, recompute_episode
-    from dlo_tools.episode_series import episode_series, still_spans
-    from dlo_tools.video import EpisodeFrames, video_title
+    from dlo_bag.analysis import episode_title, read_run, recompute_episode
+    from dlo_bag.episode_series import episode_series, still_spans
+    from dlo_bag.video import EpisodeFrames, video_title
 
     run = read_run(synthetic_bag, extra={"/dlo/camera/image": "image"})
     summary = {"episode": 0, **recompute_episode(run[0]["task"])}
@@ -207,7 +207,7 @@ def test_titles_marks_and_still_spans(synthetic_bag):
 
 
 def test_bad_video_options_are_one_line(synthetic_bag, tmp_path, capsys):
-    from dlo_tools.analysis import main
+    from dlo_bag.analysis import main
 
     with pytest.raises(SystemExit) as err:
         main([str(synthetic_bag), "--video", str(tmp_path / "v"), "--video-speed", "0"])
@@ -253,7 +253,7 @@ def test_the_episode_plot_has_no_overlapping_texts(synthetic_bag):
     """The plot's titles (the figure's two-line title, the top view's, the signals' subtitle) do not cover
     any axis' tick labels or each other, and the legends outside the axes do not cover each other: checked
     on the boxes matplotlib's renderer draws, for both episodes (one with the still-gripper annotation)."""
-    from dlo_tools.analysis import episode_figure, read_run, recompute_episode
+    from dlo_bag.analysis import episode_figure, read_run, recompute_episode
 
     run = read_run(synthetic_bag)
     for episode in run:

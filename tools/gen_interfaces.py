@@ -227,7 +227,7 @@ def observe(node, proc: subprocess.Popen, window: float, timeout: float) -> tupl
     import rclpy
     from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
-    from dlo_tools.playback import import_message_class
+    from dlo_bag.playback import import_message_class
 
     deadline = time.monotonic() + timeout
     while not (node.count_publishers("/dlo/gripper/cmd") and node.count_publishers("/dlo/gripper/state")):

@@ -33,10 +33,9 @@ if not torch.cuda.is_available():
         else f"built for CUDA {torch.version.cuda}"
     print(f"no CUDA GPU visible to torch {torch.__version__} ({build})")
     sys.exit(1)
-from dlo_perception.vision import init_taichi, select_taichi_arch
+from dlo_common import taichi_runtime
 try:
-    select_taichi_arch("cuda")
-    init_taichi()
+    taichi_runtime.init("cuda")
 except ValueError as error:
     print(f"torch sees {torch.cuda.get_device_name(0)}, but Taichi cannot use it ({error})")
     sys.exit(1)

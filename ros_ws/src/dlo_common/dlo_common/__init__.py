@@ -5,4 +5,6 @@
 - :mod:`dlo_common.node_util`: declaring checked parameters on an rclpy node, start errors,
   signal handling.
 - :mod:`dlo_common.node_main`: the shared ``main()`` body (``--help``, init, spin, shutdown, exit codes).
+- :mod:`dlo_common.taichi_runtime`: the process's one Taichi runtime (backend choice, ``ti.init`` once),
+  shared by the vision kernel and the simulator; Taichi is imported only when it starts.
 """

@@ -16,17 +16,14 @@ Not visible -> confidence = angle = y = 0.
 ``visual_pose_ground_truth`` from the particles (to validate the image pipeline).
 """
 
-import os
 from dataclasses import dataclass
 
 import numpy as np
 
-# No "[Taichi] version ..." banner on stdout when taichi is imported: it would precede a
-# command's --help text or its one-line error (ENABLE_TAICHI_HEADER_PRINT=1 brings it back).
-os.environ.setdefault("ENABLE_TAICHI_HEADER_PRINT", "0")
-import taichi as ti  # noqa: E402
+from dlo_common import taichi_runtime  # before taichi: no "[Taichi] version" banner on stdout (see there)
+import taichi as ti
 
-from dlo_perception.camera import TopCamera  # noqa: E402
+from dlo_perception.camera import TopCamera
 
 IMAGE_CABLE = 255  # pixel value of the cable in the rendered top view
 IMAGE_GRIPPER = 128  # pixel value of the gripper
@@ -49,40 +46,6 @@ class VisualPose:
     y: np.ndarray  # y_V [m]
 
 
-def init_taichi() -> None:
-    """``ti.init`` once per process, shared by this module and the simulator (``dlo_sim.kernels``),
-    so every process (env, sim node, vision node) compiles the kernels with the same options: CPU,
-    or the backend named by ``DLO_TI_ARCH`` (cpu/cuda/gpu/vulkan). Results are bit-reproducible for
-    a given build; the simulator's NaN checks test exponent bits, so fast math is safe."""
-    global _taichi_ready
-    if _taichi_ready:
-        return
-    name = os.environ.get("DLO_TI_ARCH", "cpu").lower()
-    if name not in TAICHI_ARCHS:
-        raise ValueError(f"DLO_TI_ARCH={name!r}: expected one of {', '.join(TAICHI_ARCHS)}")
-    ti.init(arch=TAICHI_ARCHS[name], fast_math=True, default_fp=ti.f32, offline_cache=True,
-            log_level=ti.WARN if name == "cpu" else ti.ERROR)  # a missing GPU: our one line, not Taichi's three
-    _taichi_ready = True
-    if name == "cuda" and ti.lang.impl.current_cfg().arch != ti.cuda:  # Taichi falls back to the CPU silently
-        raise ValueError("Taichi arch cuda asked for (DLO_TI_ARCH / train.sim_arch), but Taichi found no "
-                         "CUDA device and fell back to the CPU (use cpu)")
-
-
-TAICHI_ARCHS = {"cpu": ti.cpu, "cuda": ti.cuda, "gpu": ti.gpu, "vulkan": ti.vulkan}
-
-
-def select_taichi_arch(name: str) -> None:
-    """Ask for a Taichi backend before the first kernel runs (same as DLO_TI_ARCH=name)."""
-    if name not in TAICHI_ARCHS:
-        raise ValueError(f"Taichi arch: expected one of {', '.join(TAICHI_ARCHS)}, got {name!r}")
-    if _taichi_ready and os.environ.get("DLO_TI_ARCH", "cpu").lower() != name:
-        raise ValueError(f"Taichi is already running on {os.environ.get('DLO_TI_ARCH', 'cpu')} in this process")
-    os.environ["DLO_TI_ARCH"] = name
-
-
-_taichi_ready = False
-
-
 def visual_pose(images, camera: TopCamera, gripper_xy, plane_z: float) -> VisualPose:
     """O_V from top-view images (numpy, from the renderer or a real camera); one Taichi kernel.
 
@@ -91,7 +54,7 @@ def visual_pose(images, camera: TopCamera, gripper_xy, plane_z: float) -> Visual
     cable next to it (the gripper's height): pixel offsets are converted to metres at this plane.
     Pixel (row v, column u) covers continuous pixel coordinates [u, u+1) x [v, v+1).
     """
-    init_taichi()
+    taichi_runtime.init()
     images = np.ascontiguousarray(images, dtype=np.uint8)
     n = images.shape[0]
     gripper = np.asarray(gripper_xy, dtype=np.float64).reshape(n, -1)[:, :2]

@@ -48,6 +48,10 @@ class SACConfig:
     # but fixed once learning starts; "bounds": a fixed affine map of the observation bounds onto
     # [-1, 1]; "none": raw SI values (the authors' agent)
     observation_scaling: str = "running"
+    # true: a transition that ends its episode by the horizon cut-off (truncated, not terminated) is
+    # stored as terminal (done = 1, no bootstrap), the authors' agent's quirk (docs/FIDELITY.md row 7)
+    # on every cut-off; false: cut-offs bootstrap
+    cutoff_as_terminal: bool = False
 
     def __post_init__(self) -> None:
         _require(len(self.hidden_sizes) >= 1 and all(h > 0 for h in self.hidden_sizes),
@@ -149,11 +153,27 @@ class RunConfig:
         return _build(cls, data, prefix="")
 
 
+def env_module(config: RunConfig) -> Any:
+    """The run's env module (`config.env_module`), imported: it provides make_env(modalities, seed, **options),
+    make_vec_env(num_envs, modalities, seed, **options) and optionally check_options(options)."""
+    import importlib  # noqa: PLC0415 (the env module imports the simulator: only when asked)
+    return importlib.import_module(config.env_module)
+
+
+def make_env(config: RunConfig, num_envs: Optional[int] = None, seed: Optional[int] = None) -> Any:
+    """The run's environment (its env module, modalities and options): one env, or with `num_envs` a
+    vector env; seeded with `seed` (default: the run's seed)."""
+    module = env_module(config)
+    seed = config.seed if seed is None else seed
+    if num_envs is None:
+        return module.make_env(modalities=config.modalities, seed=seed, **config.env_options)
+    return module.make_vec_env(num_envs, modalities=config.modalities, seed=seed, **config.env_options)
+
+
 def check_env_options(config: RunConfig) -> None:
     """ConfigError for env_options the run's env module rejects (its `check_options`, if it has one)."""
-    import importlib  # noqa: PLC0415 (the env module imports the simulator: only when asked)
     try:
-        module = importlib.import_module(config.env_module)
+        module = env_module(config)
     except ImportError as error:
         raise ConfigError(f"env_module: cannot import {config.env_module!r} ({error})") from None
     check = getattr(module, "check_options", None)

@@ -25,6 +25,9 @@ Options (keywords of both entry points):
                           default dlo_sim.task.DEFAULT_TASK_RULES, docs/FIDELITY.md)
     camera_resolution=128 top-view image size [px]
     sim_config=None       a dlo_sim.SimConfig
+    single_particle_grip=False  true: the grip carries ONE particle, the held one nearest the finger axis
+                          (never particle 0), as the authors' code did (dlo_sim.grip, docs/FIDELITY.md
+                          row 5); false: every held particle (or what a given sim_config says)
 
 Info: every step carries "n_held" and "mean_held_index"; an env whose episode ended in this step
 has "outcome" (name; paper-text rule), "outcome_code", "outcome_authors" (name; the authors'-code
@@ -37,6 +40,8 @@ dict-of-arrays layout with "_key" masks.
 
 from __future__ import annotations
 
+import dataclasses
+
 import gymnasium
 import numpy as np
 from gymnasium.vector import AutoresetMode, VectorEnv
@@ -47,12 +52,13 @@ from dlo_perception.vision import visual_pose
 from dlo_policy.observation import build_observation, observation_bounds, parse_modalities
 from dlo_sim import task
 from dlo_sim.episode import TaskSim
-from dlo_sim.config import GRIPPER_HEIGHT
+from dlo_sim.config import GRIPPER_HEIGHT, SimConfig
 
 def check_options(options) -> None:
     """Raise ValueError with a one-line reason for an unknown option or a bad value (module
     docstring), before any simulator is built: what dlo-train checks its ``env_options`` with."""
-    known = ("without", "tactile_noise", "horizon", "end_particles", "camera_resolution", "sim_config", "task_rules")
+    known = ("without", "tactile_noise", "horizon", "end_particles", "camera_resolution", "sim_config", "task_rules",
+             "single_particle_grip")
     unknown = sorted(set(options) - set(known))
     if unknown:
         raise ValueError(f"unknown option(s) {', '.join(unknown)}; known: {', '.join(known)}")
@@ -65,6 +71,8 @@ def check_options(options) -> None:
         parse_modalities(options["without"])
     if "task_rules" in options:
         task.check_task_rules(options["task_rules"])
+    if not isinstance(options.get("single_particle_grip", False), bool):
+        raise ValueError(f"single_particle_grip: expected true or false, got {options['single_particle_grip']!r}")
     for name, low in (("horizon", 1), ("end_particles", 1), ("camera_resolution", 16)):
         value = options.get(name, low)
         if isinstance(value, bool) or not isinstance(value, int) or value < low:
@@ -81,7 +89,10 @@ class CableFollowingVecEnv(VectorEnv):
 
     def __init__(self, num_envs, modalities="All", seed=0, without=(), tactile_noise="none",
                  horizon=task.HORIZON, end_particles=task.END_PARTICLES, camera_resolution=128,
-                 sim_config=None, autoreset=True, task_rules=task.DEFAULT_TASK_RULES):
+                 sim_config=None, autoreset=True, task_rules=task.DEFAULT_TASK_RULES, single_particle_grip=False):
+        check_options({"single_particle_grip": single_particle_grip})
+        if single_particle_grip:
+            sim_config = dataclasses.replace(sim_config or SimConfig(), single_particle_grip=True)
         self.num_envs = int(num_envs)
         self.modalities = parse_modalities(modalities)
         self.without = parse_modalities(without) if without else ()

@@ -15,7 +15,6 @@ stop once it holds particle n_c - 1 - N). Both outcome rules are reported in the
 from __future__ import annotations
 
 import argparse
-import importlib
 import json
 import math
 import sys
@@ -27,16 +26,14 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from dlo_sim.task import DEFAULT_TASK_RULES, LEGACY_TASK_RULES, TASK_RULES
+from dlo_sim.task import DEFAULT_TASK_RULES, TASK_RULES
 
 from .cli import OneLineErrorParser
-from .config import RunConfig, load_config, record_task_rules
+from .config import RunConfig, make_env
 from .observation import MODALITY_ORDER, MODALITY_SIZES, parse_modalities
+from .rundir import AUTHORS_SUFFIX, CONFIG_FILE, OUTCOMES, read_trained_config
 from .sac import SAC
 
-OUTCOMES = ("hold_the_end", "stop_before", "reach_end_but_drop", "drop_before")  # paper-text rule
-AUTHORS_SUFFIX = "_authors"
-OUTCOMES_AUTHORS = tuple(name + AUTHORS_SUFFIX for name in OUTCOMES)  # authors'-code rule (dlo_sim.task)
 SCRIPTED_POLICIES = ("oracle", "tactile_reactive", "random")  # dlo_policy.scripted, as the policy node names them
 SCRIPTED_MODALITIES = "All"  # the environment of the scripted baselines (tactile_reactive reads K, T and V)
 
@@ -147,9 +144,8 @@ def _mean_of(ends: list[dict[str, Any]], key: str) -> float:
 
 
 def make_vec_env_for(config: RunConfig, num_envs: int, seed: int) -> Any:
-    """The run's vector env (its env module, modalities and options)."""
-    module = importlib.import_module(config.env_module)
-    return module.make_vec_env(num_envs, modalities=config.modalities, seed=seed, **config.env_options)
+    """The run's vector env (`config.make_env`); dlo-evaluate builds its env through this name."""
+    return make_env(config, num_envs, seed=seed)
 
 
 class ScriptedAgent:
@@ -203,10 +199,10 @@ def make_scripted_vec_env(num_envs: int, seed: int, task_rules: str) -> Any:
 def load_run_config(checkpoint: Path) -> RunConfig:
     """The config.yaml written next to a checkpoint by dlo-train (runs from before task_rules existed
     were trained on the paper-text rules and read so)."""
-    path = checkpoint.parent / "config.yaml"
+    path = checkpoint.parent / CONFIG_FILE
     if not path.exists():
-        raise FileNotFoundError(f"{path} not found: a checkpoint is read together with its run's config.yaml")
-    return record_task_rules(load_config(path), LEGACY_TASK_RULES)
+        raise FileNotFoundError(f"{path} not found: a checkpoint is read together with its run's {CONFIG_FILE}")
+    return read_trained_config(checkpoint.parent)
 
 
 def format_table(result: EvalResult) -> str:

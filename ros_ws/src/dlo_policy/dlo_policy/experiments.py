@@ -50,15 +50,11 @@ import argparse
 import concurrent.futures
 import concurrent.futures.process
 import contextlib
-import csv
 import filecmp
-import importlib
-import json
 import logging
 import math
 import multiprocessing
 import os
-import re
 import shutil
 import socket
 import sys
@@ -71,87 +67,11 @@ from typing import Any, Iterator, Optional, Sequence
 
 from tqdm import tqdm
 
-from .config import ConfigError, RunConfig, check_env_options, load_config
-from .train import (BEST_FILE, BEST_POLICY_FILE, CHECKPOINT_FILE, CONFIG_FILE, DONE_FILE, EVAL_FILE, POLICY_FILE,
-                    available_cores, set_threads, train)
-
-LOG_FILE = "train.log"
-
-GROUPS = ("single", "pairs", "ablation", "sensitivity")
-TACTILE_NOISE_LEVELS = ("partial", "full")
-SENSITIVITY_PAIRS = (("All", "V+K"), ("T+V", "V"))  # (with tactile, same without tactile): with K, without K
-
-
-@dataclass(frozen=True)
-class RunSpec:
-    """One training run of the grid."""
-
-    label: str
-    modalities: str
-    seed: int
-    env_options: tuple[tuple[str, Any], ...] = ()
-    eval_without: tuple[str, ...] = ()
-    groups: tuple[str, ...] = field(default=(), compare=False)
-
-    def directory(self, out_dir: Path) -> Path:
-        return out_dir / re.sub(r"[^A-Za-z0-9+\-]+", "_", self.label) / f"seed{self.seed}"
-
-
-def sensitivity_label(modalities: str, noise: str) -> str:
-    return f"{modalities} tactile-{noise}"
-
-
-def experiment_grid(groups: Sequence[str], seeds: Sequence[int]) -> list[RunSpec]:
-    """The runs of `groups`, each configuration once (shared between groups) for every seed."""
-    unknown = set(groups) - set(GROUPS)
-    if unknown:
-        raise ValueError(f"unknown group(s) {sorted(unknown)}; choose from {', '.join(GROUPS)}")
-    configs: dict[str, dict[str, Any]] = {}
-
-    def add(group: str, label: str, modalities: str, env_options=(), eval_without=()) -> None:
-        entry = configs.setdefault(label, {"modalities": modalities, "env_options": tuple(env_options),
-                                           "eval_without": (), "groups": ()})
-        entry["eval_without"] = tuple(sorted(set(entry["eval_without"]) | set(eval_without)))
-        entry["groups"] += (group,)
-
-    if "single" in groups:
-        for modalities in ("T", "K", "V", "All"):
-            add("single", modalities, modalities)
-    if "pairs" in groups:
-        for modalities in ("T+K", "V+K", "T+V"):
-            add("pairs", modalities, modalities)
-    if "ablation" in groups:
-        add("ablation", "All", "All", eval_without=("T", "V"))
-        add("ablation", "V+K", "V+K")  # trained without T
-        add("ablation", "T+K", "T+K")  # trained without V
-    if "sensitivity" in groups:
-        for modalities, no_tactile in SENSITIVITY_PAIRS:
-            add("sensitivity", modalities, modalities)  # tactile noise "none" (the env's default)
-            for noise in TACTILE_NOISE_LEVELS:
-                add("sensitivity", sensitivity_label(modalities, noise), modalities,
-                    env_options=(("tactile_noise", noise),))
-            add("sensitivity", no_tactile, no_tactile)
-    # seed-major: every configuration's first seed before any second one, so a grid that is
-    # stopped part-way leaves the same number of finished seeds per configuration (+- 1)
-    return [RunSpec(label, c["modalities"], seed, c["env_options"], c["eval_without"], c["groups"])
-            for seed in seeds for label, c in configs.items()]
-
-
-def run_config(spec: RunSpec, config_path: Optional[Path], overrides: Sequence[str], steps: Optional[int],
-               threads: int) -> RunConfig:
-    values: dict[str, Any] = {"modalities": spec.modalities, "seed": spec.seed, "label": spec.label,
-                              "train.eval_without": list(spec.eval_without), "train.num_threads": threads,
-                              "train.progress": False}
-    values.update({f"env_options.{key}": value for key, value in spec.env_options})
-    if steps is not None:
-        values["train.total_steps"] = steps
-    return load_config(config_path, overrides, values)
-
-
-def run_status(run_dir: Path) -> str:
-    if (run_dir / DONE_FILE).exists():
-        return "done"
-    return "partial" if (run_dir / CHECKPOINT_FILE).exists() else "todo"
+from . import rundir
+from .config import ConfigError, RunConfig, check_env_options, make_env
+from .grid import GROUPS, RunSpec, experiment_grid, run_config
+from .rundir import CHECKPOINT_FILE, DONE_FILE, EVAL_FILE, LOG_FILE, run_status
+from .train import available_cores, set_threads, train
 
 
 class GridError(Exception):
@@ -194,10 +114,9 @@ def run_one(config_data: dict[str, Any], run_dir: str) -> dict[str, Any]:
 
 def stamp_done(run_dir: Path, node: str, duration_s: float, attempts: int) -> None:
     """Add where and how long the run ran to its done.json."""
-    path = run_dir / DONE_FILE
-    summary = json.loads(path.read_text())
+    summary = rundir.read_done(run_dir)
     summary.update(node=node, host=socket.gethostname(), duration_s=round(duration_s, 2), attempts=attempts)
-    path.write_text(json.dumps(summary, indent=2) + "\n")
+    rundir.write_done(run_dir, summary)
 
 
 @dataclass(eq=False)
@@ -306,14 +225,13 @@ def import_ray() -> Any:
     return ray
 
 
-RESULT_FILES = (CONFIG_FILE, EVAL_FILE, BEST_FILE, BEST_POLICY_FILE, POLICY_FILE, LOG_FILE, DONE_FILE)
 MAX_LOG_BYTES = 1 << 20  # the end of a longer train.log is sent back
 
 
 def result_files(run_dir: Path) -> dict[str, bytes]:
-    """The run's small result files (never checkpoint.pt: it holds the replay buffer)."""
-    names = [*RESULT_FILES[:-1], *sorted(p.name for p in run_dir.glob("test*.json")), DONE_FILE]
-    files = {name: (run_dir / name).read_bytes() for name in names if (run_dir / name).is_file()}
+    """The run's small result files, name -> content (rundir.result_names: never checkpoint.pt, it holds
+    the replay buffer)."""
+    files = {name: (run_dir / name).read_bytes() for name in rundir.result_names(run_dir)}
     if LOG_FILE in files:
         files[LOG_FILE] = files[LOG_FILE][-MAX_LOG_BYTES:]
     return files
@@ -479,12 +397,11 @@ def calibrate(config: RunConfig, steps: int = CALIBRATION_STEPS) -> Calibration:
     """Time `steps` SAC steps (each with one update) and one evaluation of `config` in this process."""
     import dataclasses  # noqa: PLC0415
 
-    from .evaluate import evaluate_agent, make_vec_env_for  # noqa: PLC0415
+    from .evaluate import evaluate_agent  # noqa: PLC0415
     from .sac import SAC  # noqa: PLC0415
 
     set_threads(config.train.num_threads)
-    env_module = importlib.import_module(config.env_module)
-    env = env_module.make_env(modalities=config.modalities, seed=config.seed, **config.env_options)
+    env = make_env(config)
     sac_config = dataclasses.replace(config.sac, learning_starts=config.sac.batch_size)
     agent = SAC(env.observation_space.shape[0], env.action_space.low, env.action_space.high, sac_config,
                 seed=config.seed, observation_low=env.observation_space.low,
@@ -494,7 +411,7 @@ def calibrate(config: RunConfig, steps: int = CALIBRATION_STEPS) -> Calibration:
     agent.learn(env, agent.num_env_steps + steps)
     step_s = (time.perf_counter() - start) / steps
     env.close()
-    vec_env = make_vec_env_for(config, config.train.eval_episodes, seed=config.train.eval_seed)
+    vec_env = make_env(config, config.train.eval_episodes, seed=config.train.eval_seed)
     evaluate_agent(agent, vec_env, config.train.eval_seed, vec_env.num_envs)  # warm-up (kernel compilation)
     start = time.perf_counter()
     evaluate_agent(agent, vec_env, config.train.eval_seed, config.train.eval_episodes)
@@ -506,8 +423,7 @@ def calibrate(config: RunConfig, steps: int = CALIBRATION_STEPS) -> Calibration:
 def done_steps(run_dir: Path) -> int:
     """Env steps a partial run has already taken (its last evaluation row), 0 if none."""
     try:
-        with (run_dir / EVAL_FILE).open(newline="") as f:
-            rows = list(csv.DictReader(f))
+        rows = rundir.read_eval_rows(run_dir)
         return int(rows[-1]["step"]) if rows and (run_dir / CHECKPOINT_FILE).exists() else 0
     except (OSError, KeyError, ValueError):
         return 0
@@ -544,12 +460,9 @@ def _duration(seconds: float) -> str:
     return f"{seconds / 3600:.1f} h" if seconds >= 3600 else f"{seconds / 60:.0f} min"
 
 
-COLLECTED_FILES = (CONFIG_FILE, EVAL_FILE, DONE_FILE, BEST_FILE)  # and test*.json: a run's record, a few kB
-
-
 def collect_results(runs: Path, results: Path) -> list[Path]:
     """Copy the small files of every finished run (a done.json) anywhere under `runs` into `results`,
-    same layout: COLLECTED_FILES and test*.json. A file is copied only when it is new or differs.
+    same layout: its record (rundir.record_names). A file is copied only when it is new or differs.
     Returns the directories under `results` that were added or updated, in path order."""
     runs, results = Path(runs), Path(results)
     changed = []
@@ -559,9 +472,9 @@ def collect_results(runs: Path, results: Path) -> list[Path]:
             continue  # RESULTS inside RUNS: not a run of RUNS
         dest = results / run.relative_to(runs)
         updated = False
-        for source in [run / name for name in COLLECTED_FILES] + sorted(run.glob("test*.json")):
+        for source in [run / name for name in rundir.record_names(run)]:
             target = dest / source.name
-            if not source.is_file() or (target.is_file() and filecmp.cmp(source, target, shallow=False)):
+            if target.is_file() and filecmp.cmp(source, target, shallow=False):
                 continue
             dest.mkdir(parents=True, exist_ok=True)
             shutil.copyfile(source, target)

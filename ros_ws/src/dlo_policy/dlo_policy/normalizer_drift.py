@@ -14,7 +14,6 @@ its checkpoint.pt, config.yaml or eval.csv or they cannot be read.
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 import pickle
 import sys
@@ -24,6 +23,7 @@ from typing import Optional, Sequence
 import numpy as np
 
 from .cli import OneLineErrorParser
+from .rundir import CHECKPOINT_FILE, CONFIG_FILE, EVAL_FILE, read_config, read_eval_rows
 
 
 class DriftError(Exception):
@@ -34,25 +34,24 @@ def drift(run: Path, every: int) -> dict:
     """The windows of one run directory (see the module docstring); DriftError when it cannot be read."""
     import torch
 
-    from .config import ConfigError, load_config
+    from .config import ConfigError
     from .observation import observation_labels
 
-    for name in ("checkpoint.pt", "config.yaml", "eval.csv"):
+    for name in (CHECKPOINT_FILE, CONFIG_FILE, EVAL_FILE):
         if not (run / name).is_file():
             raise DriftError(f"{run / name} not found (a dlo-train run directory with its full checkpoint)")
     try:
-        state = torch.load(run / "checkpoint.pt", map_location="cpu", weights_only=True)
+        state = torch.load(run / CHECKPOINT_FILE, map_location="cpu", weights_only=True)
         steps = int(state["counters"]["env_steps"])
         obs = state["replay"]["obs"][:steps].double().numpy()
     except (OSError, RuntimeError, ValueError, KeyError, TypeError, IndexError, pickle.UnpicklingError) as error:
-        raise DriftError(f"{run / 'checkpoint.pt'}: not a full dlo-train checkpoint with its replay buffer "
+        raise DriftError(f"{run / CHECKPOINT_FILE}: not a full dlo-train checkpoint with its replay buffer "
                          f"({type(error).__name__}: {str(error).splitlines()[0] if str(error) else ''})") from None
     try:
-        labels = observation_labels(load_config(run / "config.yaml").modalities)
+        labels = observation_labels(read_config(run).modalities)
     except (ConfigError, ValueError, OSError) as error:
-        raise DriftError(f"{run / 'config.yaml'}: {error}") from None
-    with (run / "eval.csv").open(newline="") as f:
-        rows = [r for r in csv.DictReader(f) if r.get("tested_without", "") == ""]
+        raise DriftError(f"{run / CONFIG_FILE}: {error}") from None
+    rows = [r for r in read_eval_rows(run) if r.get("tested_without", "") == ""]
     windows = []
     for t in range(2 * every, steps + 1, every):
         before, now = obs[:t - every], obs[:t]

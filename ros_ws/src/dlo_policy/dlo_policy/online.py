@@ -15,7 +15,7 @@ import numpy as np
 
 from dlo_policy.config import RunConfig, save_config
 from dlo_policy.sac import SAC
-from dlo_policy.train import CHECKPOINT_FILE, CONFIG_FILE, POLICY_FILE
+from dlo_policy.rundir import CHECKPOINT_FILE, CONFIG_FILE, POLICY_FILE
 
 
 class OnlineLearner:
@@ -38,7 +38,8 @@ class OnlineLearner:
         agent = self.agent
         if self.previous is not None and self.previous[:2] == (episode, step - 1):
             _, _, previous_obs, previous_action = self.previous
-            agent.store(previous_obs, previous_action, reward, observation, dropped)
+            agent.store(previous_obs, previous_action, reward, observation,
+                        agent.stored_terminal(dropped, done and not dropped))
             agent.num_env_steps += 1
             if agent.num_env_steps > agent.config.learning_starts:
                 agent.update()

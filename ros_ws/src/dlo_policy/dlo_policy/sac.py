@@ -310,6 +310,11 @@ class SAC:
                 self.normalizer.freeze()  # statistics of the random-action phase, fixed from the first update on
         self.replay.add(obs, action, reward, next_obs, terminated)
 
+    def stored_terminal(self, terminated: bool, truncated: bool) -> bool:
+        """The done flag a transition is stored with: `terminated`, and with `config.cutoff_as_terminal`
+        also a cut-off (`truncated`, not terminated), which then does not bootstrap either."""
+        return bool(terminated) or (self.config.cutoff_as_terminal and bool(truncated))
+
     # ---------------------------------------------------------------- learning
     @torch.no_grad()
     def td_target(self, rewards: torch.Tensor, next_obs: torch.Tensor, terminated: torch.Tensor,
@@ -384,14 +389,14 @@ class SAC:
         """Interact with a gymnasium env until `num_env_steps == total_steps`, one update per step.
 
         Continues from the current counters (after `load`, a fresh episode starts). Truncated
-        episodes bootstrap; terminated ones do not. `callback(agent, result)` runs after every
-        step; returning False stops learning.
+        episodes bootstrap (unless `config.cutoff_as_terminal`); terminated ones do not.
+        `callback(agent, result)` runs after every step; returning False stops learning.
         """
         obs, _ = env.reset(seed=self.episode_seed(self.num_episodes))
         while self.num_env_steps < total_steps:
             action = self.explore(obs)
             next_obs, reward, terminated, truncated, info = env.step(self._to_env_action(action))
-            self.store(obs, action, reward, next_obs, terminated)
+            self.store(obs, action, reward, next_obs, self.stored_terminal(terminated, truncated))
             self.num_env_steps += 1
             losses = self.update() if self.num_env_steps > self.config.learning_starts else {}
             if terminated or truncated:

@@ -48,8 +48,6 @@ nothing in the run (no random draws); a resumed run appends to the same director
 from __future__ import annotations
 
 import argparse
-import csv
-import importlib
 import json
 import os
 import subprocess
@@ -62,21 +60,18 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from dlo_perception.vision import init_taichi, select_taichi_arch
+from dlo_common import taichi_runtime
 from dlo_sim.task import DEFAULT_TASK_RULES, LEGACY_TASK_RULES
 
-from .config import ConfigError, RunConfig, check_env_options, load_config, record_task_rules, save_config
-from .evaluate import OUTCOMES, OUTCOMES_AUTHORS, blanked_columns, evaluate_agent, make_vec_env_for
+from . import rundir
+from .config import (ConfigError, RunConfig, check_env_options, load_config, make_env, record_task_rules,
+                     save_config)
+from .evaluate import blanked_columns, evaluate_agent
+from .rundir import BEST_POLICY_FILE, CHECKPOINT_FILE, CONFIG_FILE, EVAL_FILE, POLICY_FILE, TB_DIR, EvalLog
 from .sac import SAC, StepResult, resolve_device
 
-EVAL_COLUMNS = ("step", "tested_without", "episodes", "eval_seed", *OUTCOMES, *OUTCOMES_AUTHORS,
-                "episode_reward", "time_at_end", "how_far", "train_episodes", "wall_time_s",
-                "alpha", "entropy", "q_value", "saturated")
 EVAL_SEED_STRIDE = 100_000  # eval seeds of run seed s lie in eval_seed + [s, s + 1) * EVAL_SEED_STRIDE
-CONFIG_FILE, EVAL_FILE, CHECKPOINT_FILE = "config.yaml", "eval.csv", "checkpoint.pt"
-TB_DIR, TB_EVERY = "tb", 100  # TensorBoard event files; losses and speed averaged over this many steps
-POLICY_FILE, DONE_FILE, TEST_FILE = "policy.pt", "done.json", "test.json"
-BEST_POLICY_FILE, BEST_FILE = "best_policy.pt", "best.json"  # the policy of the best evaluation so far
+TB_EVERY = 100  # TensorBoard: losses and speed averaged over this many steps
 
 
 def source_commit() -> dict[str, Any]:
@@ -114,31 +109,6 @@ def eval_seeds(config: RunConfig, evaluation: int) -> int:
     return config.train.eval_seed + EVAL_SEED_STRIDE * config.seed + evaluation * stride
 
 
-def test_file(without: str = "") -> str:
-    """Name of the held-out test's JSON (all inputs, or with one modality blanked)."""
-    return f"test_without_{without}.json" if without else TEST_FILE
-
-
-class EvalLog:
-    """eval.csv: appends rows and keeps only rows up to the checkpoint step on resume."""
-
-    def __init__(self, path: Path, resume_step: Optional[int]):
-        self.path = path
-        kept: list[dict[str, str]] = []
-        if resume_step is not None and path.exists():
-            with path.open(newline="") as f:
-                kept = [row for row in csv.DictReader(f) if int(row["step"]) <= resume_step]
-        with path.open("w", newline="") as f:
-            writer = csv.DictWriter(f, fieldnames=EVAL_COLUMNS)
-            writer.writeheader()
-            writer.writerows(kept)
-        self.wall_time_offset = float(kept[-1]["wall_time_s"]) if kept else 0.0
-
-    def append(self, rows: list[dict[str, Any]]) -> None:
-        with self.path.open("a", newline="") as f:
-            csv.DictWriter(f, fieldnames=EVAL_COLUMNS).writerows(rows)
-
-
 class Trainer:
     """Runs `SAC.learn` with periodic evaluation, CSV logging, checkpoints and a progress bar."""
 
@@ -156,11 +126,10 @@ class Trainer:
         save_config(config, out_dir / CONFIG_FILE)
         self.threads = set_threads(config.train.num_threads)
         self.device = resolve_device(config.train.device)
-        select_taichi_arch(config.train.sim_arch)
+        taichi_runtime.select(config.train.sim_arch)
 
-        env_module = importlib.import_module(config.env_module)
-        self.env = env_module.make_env(modalities=config.modalities, seed=config.seed, **config.env_options)
-        self.eval_env = make_vec_env_for(config, config.train.eval_episodes, seed=config.train.eval_seed)
+        self.env = make_env(config)
+        self.eval_env = make_env(config, config.train.eval_episodes, seed=config.train.eval_seed)
         self.best: Optional[dict[str, Any]] = None
         self.best_policy_state: Optional[dict[str, Any]] = None
         if resume:
@@ -175,7 +144,7 @@ class Trainer:
             self.agent = SAC(self.env.observation_space.shape[0], space.low, space.high, config.sac,
                              seed=config.seed, observation_low=self.env.observation_space.low,
                              observation_high=self.env.observation_space.high, device=self.device)
-        self.log = EvalLog(out_dir / EVAL_FILE, self.agent.num_env_steps if resume else None)
+        self.log = EvalLog(out_dir, self.agent.num_env_steps if resume else None)
         self.tested = [("", [])] + [(m, blanked_columns(config.modalities, [m]))
                                     for m in config.train.eval_without]
         # the code each part of the run ran on (done.json "sources": one entry per start or resume)
@@ -223,7 +192,7 @@ class Trainer:
         """best_policy.pt and best.json from the best evaluation so far."""
         torch.save(self.best_policy_state, self.out_dir / (BEST_POLICY_FILE + ".tmp"))
         os.replace(self.out_dir / (BEST_POLICY_FILE + ".tmp"), self.out_dir / BEST_POLICY_FILE)
-        (self.out_dir / BEST_FILE).write_text(json.dumps(self.best) + "\n")
+        rundir.write_best(self.out_dir, self.best)
 
     def on_step(self, agent: SAC, result: StepResult) -> bool:
         self.bar.update(1)
@@ -273,7 +242,7 @@ class Trainer:
                 payload = {**result, "checkpoint": BEST_POLICY_FILE, "seed": cfg.test_seed,
                            "without": [without] if without else [], "modalities": self.config.modalities,
                            "env_steps": best.num_env_steps}
-                (self.out_dir / test_file(without)).write_text(json.dumps(payload, indent=2) + "\n")
+                rundir.write_test(self.out_dir, without, payload)
                 results[without] = payload
         finally:
             bar.close()
@@ -302,7 +271,7 @@ class Trainer:
                    "episodes": self.agent.num_episodes, "wall_time_s": round(self.wall_time(), 2),
                    "threads": self.threads, "last_eval": self.last_eval, "best_eval": self.best,
                    "test": test, "source": self.sources[0], "sources": self.sources}
-        (self.out_dir / DONE_FILE).write_text(json.dumps(summary, indent=2) + "\n")
+        rundir.write_done(self.out_dir, summary)
         return summary
 
 
@@ -362,8 +331,7 @@ def check_devices(config: RunConfig) -> None:
     starts Taichi on the asked backend (it falls back to the CPU silently otherwise)."""
     try:
         resolve_device(config.train.device)
-        select_taichi_arch(config.train.sim_arch)
-        init_taichi()
+        taichi_runtime.init(config.train.sim_arch)
     except ValueError as error:
         raise ConfigError(str(error)) from None
 

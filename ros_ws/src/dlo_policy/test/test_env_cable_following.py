@@ -96,3 +96,20 @@ def test_single_env_info_at_episode_end():
     assert isinstance(info["outcome"], str) and isinstance(info["outcome_code"], int)
     assert isinstance(info["outcome_authors"], str)
     assert {"time_at_end", "how_far", "episode_return"} <= set(info)
+
+
+def test_single_particle_grip_option_reaches_the_simulator_and_a_bad_value_is_a_one_line_error():
+    """env_options.single_particle_grip (docs/FIDELITY.md row 5): off by default; on, the env's simulator
+    runs the single-particle grip (dlo_sim test_rope_physics / test_kernel_rules test what it does), also
+    with a sim_config of one's own; anything but true or false is refused before a simulator is built."""
+    from dlo_policy.config import ConfigError, check_env_options, load_config
+    from dlo_sim import SimConfig
+    assert make_env("K", seed=0).sim.config.single_particle_grip is False
+    env = make_vec_env(1, "K", seed=0, sim_config=SimConfig(damping=3.0), single_particle_grip=True)
+    assert env.sim.config == SimConfig(damping=3.0, single_particle_grip=True) and env.sim._k.single_particle_grip
+    for bad in ("maybe", 1, None):
+        with pytest.raises(ValueError, match="single_particle_grip: expected true or false"):
+            make_env("K", single_particle_grip=bad)
+    with pytest.raises(ConfigError, match=r"^env_options: single_particle_grip: expected true or false, got 'maybe'$"):
+        check_env_options(load_config(None, ["env_options.single_particle_grip=maybe"]))
+    check_env_options(load_config(None, ["env_options.single_particle_grip=true"]))

@@ -9,7 +9,8 @@ from pathlib import Path
 import pytest
 
 from dlo_policy import experiments
-from dlo_policy.train import CHECKPOINT_FILE, DONE_FILE, EVAL_FILE
+from dlo_policy.config import load_config
+from dlo_policy.rundir import CHECKPOINT_FILE, DONE_FILE, EVAL_FILE
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # --import-mode=importlib: helper modules (spawned runs too)
 
@@ -90,7 +91,7 @@ def test_makespan_packs_longest_first_and_run_time_counts_evaluations():
     assert experiments.makespan([3, 3, 2, 2, 2], jobs=2) == 7
     assert experiments.makespan([5, 1], jobs=4) == 5
     cal = experiments.Calibration(step_s=0.1, eval_s=2.0)
-    config = experiments.load_config(None, ["train.total_steps=1000", "train.eval_every=200",
+    config = load_config(None, ["train.total_steps=1000", "train.eval_every=200",
                                             "train.eval_without=[T]", "train.test_episodes=100"])
     # 1000 steps + (5 evaluations + the one at step 0 + 10 test batches of 10) x 2 tested input sets
     assert cal.run_seconds(config) == pytest.approx(100 + (6 + 10) * 2 * 2.0)

@@ -11,11 +11,11 @@ import pytest
 import torch
 from matplotlib.collections import PolyCollection
 
-from dlo_policy import report
+from dlo_policy import report, report_data, report_plots, report_tables
 from dlo_policy.config import load_config, save_config
-from dlo_policy.evaluate import OUTCOMES_AUTHORS
-from dlo_policy.experiments import RunSpec, run_config
-from dlo_policy.train import EVAL_COLUMNS, train
+from dlo_policy.grid import RunSpec, run_config
+from dlo_policy.rundir import EVAL_COLUMNS, OUTCOMES_AUTHORS
+from dlo_policy.train import train
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # --import-mode=importlib: helper modules
 
@@ -83,48 +83,48 @@ FLAT = [0.5] * 12
 
 
 def test_smoothing_and_confidence_interval():
-    np.testing.assert_allclose(report.smooth(np.array([[0.0, 2, 4, 6, 8, 10, 12]]), window=5),
+    np.testing.assert_allclose(report_data.smooth(np.array([[0.0, 2, 4, 6, 8, 10, 12]]), window=5),
                                [[0, 1, 2, 3, 4, 6, 8]])
-    mean, ci = report.mean_and_ci(np.array([[1.0], [2.0], [3.0]]))
+    mean, ci = report_data.mean_and_ci(np.array([[1.0], [2.0], [3.0]]))
     assert mean[0] == pytest.approx(2.0) and ci[0] == pytest.approx(4.303 / np.sqrt(3))
-    assert report.mean_and_ci(np.array([[5.0]]))[1][0] == 0.0
-    single = report.stat_of([0.4])
+    assert report_data.mean_and_ci(np.array([[5.0]]))[1][0] == 0.0
+    single = report_data.stat_of([0.4])
     assert single.mean == pytest.approx(0.4) and single.n == 1 and math.isnan(single.ci)
 
 
 def test_last5_over_best_ratio_on_a_hand_made_curve():
     """Rises to 1.0 for 5 evaluations, sags to 0.5: best smoothed 1.0 at the 10th, last-5 0.5, ratio 0.5."""
     sag = [0, 0, 0, 0, 0, 1, 1, 1, 1, 1, 0.5, 0.5, 0.5, 0.5, 0.5]
-    curves = report.Curves(np.arange(len(sag)) * EVERY, {"hold_the_end": np.array([sag, sag])})
-    best, step = report.best_smoothed(curves)
+    curves = report_data.Curves(np.arange(len(sag)) * EVERY, {"hold_the_end": np.array([sag, sag])})
+    best, step = report_data.best_smoothed(curves)
     assert best.mean == pytest.approx(1.0) and step == 9 * EVERY and best.ci == pytest.approx(0.0)
-    last = report.last_mean(curves)
+    last = report_data.last_mean(curves)
     assert last.mean == pytest.approx(0.5)
-    assert report.level_ratio(last, best) == pytest.approx(0.5)
-    assert report.format_ratio(0.5) == "0.50 (sags)"
+    assert report_data.level_ratio(last, best) == pytest.approx(0.5)
+    assert report_tables.format_ratio(0.5) == "0.50 (sags)"
     # the threshold: 0.9 holds; 0.8999 sags and is not printed as "0.90"
-    assert report.format_ratio(0.45 / 0.5) == "0.90 (holds)" and report.format_ratio(0.8999) == "0.89 (sags)"
+    assert report_tables.format_ratio(0.45 / 0.5) == "0.90 (holds)" and report_tables.format_ratio(0.8999) == "0.89 (sags)"
     # two seeds, different levels: the ratio is of the seed means
     other = [x * 0.5 for x in sag[:10]] + [0.5] * 5  # best smoothed 0.5, last-5 0.5
-    curves = report.Curves(curves.steps, {"hold_the_end": np.array([sag, other])})
-    best, step = report.best_smoothed(curves)
+    curves = report_data.Curves(curves.steps, {"hold_the_end": np.array([sag, other])})
+    best, step = report_data.best_smoothed(curves)
     assert best.mean == pytest.approx(0.75) and step == 9 * EVERY
-    assert report.level_ratio(report.last_mean(curves), best) == pytest.approx(0.5 / 0.75)
+    assert report_data.level_ratio(report_data.last_mean(curves), best) == pytest.approx(0.5 / 0.75)
 
 
 def test_ratio_in_the_table_of_a_hand_made_run(tmp_path):
     write_run(tmp_path, "V", 0, [0, 0.2, 0.4, 0.6, 0.8, 1, 1, 1, 1, 1, 0.7, 0.7, 0.7, 0.7, 0.7])
-    row = table_rows(report.results_table(report.load_runs(tmp_path)))["V"]
+    row = table_rows(report_tables.results_table(report_data.load_runs(tmp_path)))["V"]
     assert row[2] == f"100% (1 seed) at {9 * EVERY:,}" and row[4] == "70% (1 seed)" and row[5] == "0.70 (sags)"
 
 
 def test_band_only_from_three_seeds():
-    assert not report.band_allowed(1) and not report.band_allowed(2)
-    assert report.band_allowed(3) and report.band_allowed(10)
+    assert not report_plots.band_allowed(1) and not report_plots.band_allowed(2)
+    assert report_plots.band_allowed(3) and report_plots.band_allowed(10)
     rng = np.random.default_rng(0)
     for seeds, bands in ((2, 0), (3, 1)):
         fig, ax = plt.subplots()
-        drawn = report.draw_curve(ax, np.arange(8), rng.random((seeds, 8)), "C0")
+        drawn = report_plots.draw_curve(ax, np.arange(8), rng.random((seeds, 8)), "C0")
         polys = [c for c in ax.collections if isinstance(c, PolyCollection)]
         assert drawn == bool(bands) and len(polys) == bands
         assert len(ax.lines) == seeds + 1  # a thin line per seed and the mean
@@ -153,30 +153,30 @@ def test_no_pairs_figure_without_pair_runs(tmp_path, capsys):
 def test_pairs_figures_hold_all_as_reference_when_pairs_exist(tmp_path):
     for label in ("V+K", "All"):
         write_run(tmp_path, label, 0, FLAT)
-    runs = report.load_runs(tmp_path)
-    figures = {name: draw for name, draw, _ in report.planned_figures(runs)}
+    runs = report_data.load_runs(tmp_path)
+    figures = {name: draw for name, draw, _ in report_plots.planned_figures(runs)}
     fig = figures["outcomes_pairs.png"]()
     titles = [ax.get_title() for ax in fig.axes if ax.get_title()]
     assert titles == ["V+K (1 seed)", "All (1 seed)"]
     plt.close(fig)
     assert figures["outcomes_single.png"]() is not None  # All
     write_run(tmp_path / "only_all", "All", 0, FLAT)
-    runs = report.load_runs(tmp_path / "only_all")
-    assert {n: d() for n, d, _ in report.planned_figures(runs)}["outcomes_pairs.png"] is None
+    runs = report_data.load_runs(tmp_path / "only_all")
+    assert {n: d() for n, d, _ in report_plots.planned_figures(runs)}["outcomes_pairs.png"] is None
 
 
 def test_figures_state_seeds_and_smoothing(tmp_path):
     for seed in range(3):
         write_run(tmp_path, "V", seed, FLAT, done=seed < 2)
     write_run(tmp_path, "T", 0, FLAT)
-    runs = report.load_runs(tmp_path)
-    fig = report.outcome_figure(runs, report.SINGLE)
+    runs = report_data.load_runs(tmp_path)
+    fig = report_plots.outcome_figure(runs, report_data.SINGLE)
     assert [ax.get_title() for ax in fig.axes[:2]] == ["T (1 seed)", "V (3 seeds, 2 finished)"]
     assert "trailing mean of 5 evaluations" in fig.get_suptitle()
     bands = [len([c for c in ax.collections if isinstance(c, PolyCollection)]) for ax in fig.axes[:2]]
     assert bands == [0, 1]  # the hold-the-end band: V only
     plt.close(fig)
-    fig = report.metrics_figure(runs, report.SINGLE)
+    fig = report_plots.metrics_figure(runs, report_data.SINGLE)
     assert "trailing mean of 5 evaluations" in fig.get_suptitle()
     assert all("seeds per configuration" in ax.get_title() for ax in fig.axes[:5])
     legend = [t.get_text() for t in fig.axes[5].get_legend().get_texts()]
@@ -188,7 +188,7 @@ def test_single_seed_rows_show_no_plus_minus(tmp_path):
     write_run(tmp_path, "T", 0, [0.1, 0.2, 0.3, 0.2, 0.2, 0.2], test=(0.25, 0.2))
     for seed in range(2):
         write_run(tmp_path, "V", seed, [0.5, 0.6, 0.7, 0.8, 0.8, 0.8 + 0.1 * seed], test=(0.8, 0.7))
-    rows = table_rows(report.results_table(report.load_runs(tmp_path)))
+    rows = table_rows(report_tables.results_table(report_data.load_runs(tmp_path)))
     assert not any("±" in cell for cell in rows["T"])
     assert rows["T"][1] == "1/1 × 500" and rows["T"][6:8] == ["25% (1 seed)", "20% (1 seed)"]
     assert "(1 seed)" in rows["T"][2] and rows["T"][-1] == "12%"
@@ -202,14 +202,14 @@ def test_held_out_test_means_come_from_test_json_of_finished_seeds(tmp_path):
     # a seed still training: a stray test.json of it does not count, its curve does
     write_run(tmp_path, "All", 3, FLAT[:8], done=False, test=(0.0, 0.0), without={"T": [0.2] * 8},
               total_steps=1100)
-    runs = report.load_runs(tmp_path)
+    runs = report_data.load_runs(tmp_path)
     curves = runs["All"][""]
     assert curves.seeds == 4 and curves.finished_seeds == 3 and list(curves.steps) == [k * EVERY for k in range(8)]
-    paper, authors = report.held_out_test(curves), report.held_out_test(curves, authors=True)
+    paper, authors = report_data.held_out_test(curves), report_data.held_out_test(curves, authors=True)
     half_width = 4.303 * 0.1 / math.sqrt(3)
     assert (paper.mean, paper.ci, paper.n) == pytest.approx((0.8, half_width, 3))
     assert (authors.mean, authors.ci) == pytest.approx((0.5, half_width))
-    rows = table_rows(report.results_table(runs))
+    rows = table_rows(report_tables.results_table(runs))
     assert rows["All"][1] == "3/4 × 700 (of 1,100)"
     assert rows["All"][6:8] == [f"80% ± {half_width:.0%}", f"50% ± {half_width:.0%}"]
     assert rows["All, tested without T"][6:8] == [f"30% ± {half_width:.0%}", f"20% ± {half_width:.0%}"]
@@ -221,7 +221,7 @@ def test_held_out_test_without_authors_rule_is_na(tmp_path):
         write_run(tmp_path, "K", seed, FLAT, test=(0.3, None))
     write_run(tmp_path, "V", 0, FLAT, test=(0.3, 0.2))
     (tmp_path / "V" / "seed0" / "test.json").unlink()
-    rows = table_rows(report.results_table(report.load_runs(tmp_path)))
+    rows = table_rows(report_tables.results_table(report_data.load_runs(tmp_path)))
     assert rows["K"][6].startswith("30% ± ") and rows["K"][7] == "n/a"
     assert rows["V"][6:8] == ["n/a", "n/a"]
 

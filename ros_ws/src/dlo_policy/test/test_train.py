@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 import torch
 
-from dlo_policy import evaluate, train
+from dlo_policy import evaluate, rundir, train
 from dlo_policy.config import ConfigError, load_config
 from dlo_policy.sac import SAC
 
@@ -30,7 +30,7 @@ def restore_threads():
 
 
 def read_eval(run: Path) -> list[dict[str, str]]:
-    with (run / train.EVAL_FILE).open(newline="") as f:
+    with (run / rundir.EVAL_FILE).open(newline="") as f:
         return list(csv.DictReader(f))
 
 
@@ -38,14 +38,14 @@ def test_eval_csv_has_documented_columns_and_ablation_rows(tmp_path):
     run = tmp_path / "run"
     assert train.main(["--out", str(run), "--steps", "300", "--modalities", "All", "--no-progress",
                        "train.eval_without=[T, V]", *TINY]) == 0
-    with (run / train.EVAL_FILE).open(newline="") as f:
-        assert next(csv.reader(f)) == list(train.EVAL_COLUMNS)
+    with (run / rundir.EVAL_FILE).open(newline="") as f:
+        assert next(csv.reader(f)) == list(rundir.EVAL_COLUMNS)
     rows = read_eval(run)
     assert [(int(r["step"]), r["tested_without"]) for r in rows] == [
         (step, without) for step in (0, 100, 200, 300) for without in ("", "T", "V")]
     for row in rows:
-        assert sum(float(row[o]) for o in evaluate.OUTCOMES) == pytest.approx(1.0)
-        assert sum(float(row[o]) for o in evaluate.OUTCOMES_AUTHORS) == pytest.approx(1.0)
+        assert sum(float(row[o]) for o in rundir.OUTCOMES) == pytest.approx(1.0)
+        assert sum(float(row[o]) for o in rundir.OUTCOMES_AUTHORS) == pytest.approx(1.0)
         assert int(row["episodes"]) == 10
     # fresh episodes at every evaluation, the same ones for every tested input set of an evaluation
     first_seeds = {int(r["step"]): int(r["eval_seed"]) for r in rows}
@@ -53,16 +53,16 @@ def test_eval_csv_has_documented_columns_and_ablation_rows(tmp_path):
     seeds = sorted(first_seeds.values())
     assert all(b - a >= 10 for a, b in zip(seeds, seeds[1:]))
     # held-out test of the best policy, once per tested input set, on seeds below every evaluation seed
-    for name in (train.TEST_FILE, train.test_file("T"), train.test_file("V")):
+    for name in (rundir.TEST_FILE, rundir.test_file("T"), rundir.test_file("V")):
         test = json.loads((run / name).read_text())
         assert test["episodes"] == 100 and test["seed"] + 100 <= seeds[0]
-        assert sum(test[o] for o in evaluate.OUTCOMES) == pytest.approx(1.0)
-        assert sum(test["authors_code"][o] for o in evaluate.OUTCOMES) == pytest.approx(1.0)
-    assert json.loads((run / train.TEST_FILE).read_text())["without"] == []
-    done = json.loads((run / train.DONE_FILE).read_text())
+        assert sum(test[o] for o in rundir.OUTCOMES) == pytest.approx(1.0)
+        assert sum(test["authors_code"][o] for o in rundir.OUTCOMES) == pytest.approx(1.0)
+    assert json.loads((run / rundir.TEST_FILE).read_text())["without"] == []
+    done = json.loads((run / rundir.DONE_FILE).read_text())
     assert done["env_steps"] == 300 and done["updates"] == 250
-    assert done["test"] == json.loads((run / train.TEST_FILE).read_text())
-    assert (run / train.POLICY_FILE).exists() and (run / train.CONFIG_FILE).exists()
+    assert done["test"] == json.loads((run / rundir.TEST_FILE).read_text())
+    assert (run / rundir.POLICY_FILE).exists() and (run / rundir.CONFIG_FILE).exists()
 
 
 def test_resume_after_interruption_continues_steps_and_buffer(tmp_path):
@@ -71,16 +71,16 @@ def test_resume_after_interruption_continues_steps_and_buffer(tmp_path):
                                 "train.total_steps=300", "train.checkpoint_every=200"])
     with pytest.raises(InterruptedError):
         train.train(config, run)
-    assert not (run / train.DONE_FILE).exists()
-    checkpoint = SAC.load(run / train.CHECKPOINT_FILE)
+    assert not (run / rundir.DONE_FILE).exists()
+    checkpoint = SAC.load(run / rundir.CHECKPOINT_FILE)
     assert (checkpoint.num_env_steps, len(checkpoint.replay)) == (200, 200)
     assert train.main(["--out", str(run), "--resume", "--steps", "400"]) == 0
-    agent = SAC.load(run / train.CHECKPOINT_FILE)
+    agent = SAC.load(run / rundir.CHECKPOINT_FILE)
     assert (agent.num_env_steps, agent.num_updates, len(agent.replay)) == (400, 350, 400)
     assert [int(r["step"]) for r in read_eval(run)] == [0, 100, 200, 300, 400]
     wall = [float(r["wall_time_s"]) for r in read_eval(run)]
     assert wall == sorted(wall)
-    sources = json.loads((run / train.DONE_FILE).read_text())["sources"]  # the code of each part of the run
+    sources = json.loads((run / rundir.DONE_FILE).read_text())["sources"]  # the code of each part of the run
     assert [s["from_step"] for s in sources] == [0, 200]
     assert all(len(s["commit"]) == 40 or s["commit"] == "unknown" for s in sources)
 
@@ -120,16 +120,16 @@ def test_evaluate_cli_prints_table_and_writes_json(tmp_path, capsys):
     assert train.main(["--out", str(run), "--steps", "100", "--no-progress", *TINY]) == 0
     capsys.readouterr()
     out = tmp_path / "eval.json"
-    assert evaluate.main(["--checkpoint", str(run / train.POLICY_FILE), "--episodes", "12", "--seed", "5",
+    assert evaluate.main(["--checkpoint", str(run / rundir.POLICY_FILE), "--episodes", "12", "--seed", "5",
                           "--json", str(out), "--without", "V", "--threads", "1"]) == 0
     printed = capsys.readouterr().out
     assert "hold_the_end" in printed and "authors rule" in printed and "without V" in printed
-    assert set(json.loads(out.read_text())["authors_code"]) == set(evaluate.OUTCOMES)
+    assert set(json.loads(out.read_text())["authors_code"]) == set(rundir.OUTCOMES)
     result = json.loads(out.read_text())
-    assert sum(result[o] for o in evaluate.OUTCOMES) == pytest.approx(1.0)
+    assert sum(result[o] for o in rundir.OUTCOMES) == pytest.approx(1.0)
     assert result["episodes"] == 12 and result["without"] == ["V"]
     (run / "config.yaml").unlink()
-    assert evaluate.main(["--checkpoint", str(run / train.POLICY_FILE)]) == 2
+    assert evaluate.main(["--checkpoint", str(run / rundir.POLICY_FILE)]) == 2
     assert "config.yaml not found" in capsys.readouterr().err
 
 
@@ -153,12 +153,12 @@ def test_best_policy_is_the_best_evaluation_so_far(tmp_path):
     assert train.main(["--out", str(run), "--steps", "300", "--modalities", "All", "--no-progress", *TINY]) == 0
     rows = [r for r in read_eval(run) if r["tested_without"] == ""]
     best_row = max(rows, key=lambda r: (float(r["hold_the_end"]), float(r["episode_reward"])))
-    best = json.loads((run / train.BEST_FILE).read_text())
+    best = json.loads((run / rundir.BEST_FILE).read_text())
     first_best = next(r for r in rows if (r["hold_the_end"], r["episode_reward"]) ==
                       (best_row["hold_the_end"], best_row["episode_reward"]))
     assert best["step"] == int(first_best["step"])
     assert best["episode_reward"] == pytest.approx(float(best_row["episode_reward"]))
-    assert SAC.load(run / train.BEST_POLICY_FILE).num_env_steps == best["step"]
+    assert SAC.load(run / rundir.BEST_POLICY_FILE).num_env_steps == best["step"]
 
 
 def test_evaluation_seeds_depend_on_run_seed_and_index_and_never_meet_the_test_seeds():
@@ -187,31 +187,31 @@ def test_resume_after_sigkill_reproduces_the_uninterrupted_run(tmp_path):
                                env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     deadline = time.monotonic() + 120
     while time.monotonic() < deadline and process.poll() is None:
-        if (killed / train.CHECKPOINT_FILE).exists() and len(read_eval(killed)) >= 9:  # past the checkpoint
+        if (killed / rundir.CHECKPOINT_FILE).exists() and len(read_eval(killed)) >= 9:  # past the checkpoint
             break
         time.sleep(0.05)
     assert process.poll() is None, "the run ended before it could be killed"
     os.kill(process.pid, signal.SIGKILL)
     process.wait()
-    interrupted_at = SAC.load(killed / train.CHECKPOINT_FILE).num_env_steps
-    assert 150 <= interrupted_at < 700 and not (killed / train.DONE_FILE).exists()
+    interrupted_at = SAC.load(killed / rundir.CHECKPOINT_FILE).num_env_steps
+    assert 150 <= interrupted_at < 700 and not (killed / rundir.DONE_FILE).exists()
     assert train.main(["--out", str(killed), "--resume"]) == 0
     assert eval_rows_without_wall_time(killed) == eval_rows_without_wall_time(whole)
-    assert (killed / train.BEST_FILE).read_text() == (whole / train.BEST_FILE).read_text()
-    for name in (train.POLICY_FILE, train.BEST_POLICY_FILE):
+    assert (killed / rundir.BEST_FILE).read_text() == (whole / rundir.BEST_FILE).read_text()
+    for name in (rundir.POLICY_FILE, rundir.BEST_POLICY_FILE):
         a, b = SAC.load(whole / name), SAC.load(killed / name)
         for p, q in zip(a.actor.parameters(), b.actor.parameters()):
             assert torch.equal(p, q), name
-    assert json.loads((killed / train.TEST_FILE).read_text()) == json.loads((whole / train.TEST_FILE).read_text())
+    assert json.loads((killed / rundir.TEST_FILE).read_text()) == json.loads((whole / rundir.TEST_FILE).read_text())
 
 
 def test_checkpoints_fall_on_episode_boundaries(tmp_path):
     run = tmp_path / "run"
     assert train.main(["--out", str(run), "--steps", "230", "--no-progress", *TINY, "train.checkpoint_every=110"]) == 0
-    agent = SAC.load(run / train.CHECKPOINT_FILE)
+    agent = SAC.load(run / rundir.CHECKPOINT_FILE)
     assert agent.num_env_steps == 230  # the final save
-    extra = SAC.extra_state(run / train.CHECKPOINT_FILE)
-    assert extra["best"] == json.loads((run / train.BEST_FILE).read_text())
+    extra = SAC.extra_state(run / rundir.CHECKPOINT_FILE)
+    assert extra["best"] == json.loads((run / rundir.BEST_FILE).read_text())
 
 
 @pytest.mark.parametrize("content", [b"", os.urandom(4096), b"PK\x03\x04 not a zip", b"\x80\x02}q\x00."])
@@ -269,7 +269,7 @@ def test_tensorboard_event_files_hold_losses_speed_episodes_and_both_rules(tmp_p
     run = tmp_path / "run"
     assert train.main(["--out", str(run), "--steps", "300", "--modalities", "All", "--no-progress",
                        "train.eval_without=[T]", *TINY]) == 0
-    events = EventAccumulator(str(run / train.TB_DIR))
+    events = EventAccumulator(str(run / rundir.TB_DIR))
     events.Reload()
     tags = set(events.Tags()["scalars"])
     for tag in ("loss/critic", "loss/actor", "loss/alpha", "speed/steps_per_s", "train/episode_return",

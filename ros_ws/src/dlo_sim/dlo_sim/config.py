@@ -57,6 +57,9 @@ class SimConfig:
     settle_steps: int = 100  # steps after the last drop
     max_speed: float = 20.0  # m/s, a faster particle flags the environment as exploded
     max_distance: float = 2.0  # m, |x|,|y|,|z| beyond this flags the environment as exploded
+    # the authors' grip (docs/FIDELITY.md row 5), off by default: the grip law acts on ONE particle, the
+    # held one nearest the finger axis in x (never particle 0), re-chosen every 0.01 s step (dlo_sim.grip)
+    single_particle_grip: bool = False
 
     def __post_init__(self):
         self.validate()
@@ -87,6 +90,8 @@ class SimConfig:
         for name in ("pick_moves", "pick_steps", "drop_steps", "settle_steps"):
             if int(getattr(self, name)) < 0:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
+        if not isinstance(self.single_particle_grip, bool):
+            raise ValueError(f"single_particle_grip must be true or false, got {self.single_particle_grip!r}")
 
     def stretch_compliance(self, stretch):
         """XPBD compliance [m/N] of the (i, i+1) distance constraint for a stretch stiffness."""

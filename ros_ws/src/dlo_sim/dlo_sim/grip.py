@@ -10,7 +10,14 @@ carried) may not pull a held particle further from the fixed end than its rest l
 cable (``taut_reach``); the part of the gripper's motion that would is removed
 (``stall_firm_grip``): the robot's force limit. The kernel (``RopeKernels.stall_firm_grip``) runs
 the same rule every sub-step; ``test/test_kernel_rules.py`` checks that the two agree. The driver
-template (``dlo_tools.mock_driver_node``) uses this function for its kinematic gripper.
+template (``dlo_driver_kit.mock_driver_node``) uses this function for its kinematic gripper.
+
+The authors' single-particle grip (``SimConfig.single_particle_grip``, off by default;
+docs/FIDELITY.md row 5): instead of every held particle, the grip law acts on ONE, the held particle
+nearest the finger axis measured along x (the direction of travel, |x_i - x_G|, as their
+``action_space_sliding.py`` measures it), never the fixed end (particle 0), ties to the lower index,
+re-chosen every 0.01 s step from the held set at its start (``single_grip_particle``; the kernel's
+``RopeKernels.single_grip_particle`` runs the same rule, ``test/test_kernel_rules.py`` checks they agree).
 """
 
 from __future__ import annotations
@@ -33,6 +40,20 @@ def inverse_mass(c, w_nom):
 def carried_fraction(c):
     """Fraction of the gripper's displacement a held particle follows at closure ``c``."""
     return 1.0 - inverse_mass(c, 1.0)
+
+
+def single_grip_particle(positions, held, gripper_x) -> int:
+    """The one particle the single-particle grip carries (module docstring), -1 if none.
+
+    positions: (P, 3) float32 cable particles [m]; held: (P,) bool, the physics' held set; gripper_x:
+    the gripper's x [m]. Computed in float32, as the kernel does, so that near-ties agree."""
+    x = np.asarray(positions, dtype=np.float32)[:, 0]
+    candidates = np.flatnonzero(np.asarray(held, dtype=bool))
+    candidates = candidates[candidates >= 1]
+    if candidates.size == 0:
+        return -1
+    distance = np.abs(x[candidates] - np.float32(gripper_x))
+    return int(candidates[np.argmin(distance)])  # argmin: the first (lowest index) of equal distances
 
 
 def taut_reach(index):

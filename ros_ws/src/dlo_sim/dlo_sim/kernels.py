@@ -6,12 +6,8 @@ runs serially (Gauss-Seidel), so an environment's result does not depend on the 
 Per-environment arrays are padded to ``P_MAX`` particles; loops stop at ``n[e]``.
 """
 
-import os
-
-os.environ.setdefault("ENABLE_TAICHI_HEADER_PRINT", "0")  # no "[Taichi] version" banner before --help/errors
-import taichi as ti  # noqa: E402
-
-from dlo_perception.vision import init_taichi  # noqa: E402
+from dlo_common.taichi_runtime import init as init_taichi  # before taichi: no "[Taichi] version" banner (see there)
+import taichi as ti
 
 from .config import (DT, FINGER_AXIS_OFFSET, FINGER_HALF_LENGTH, FINGER_RADIUS, FIXED_END, GRAVITY,
                      GRIPPER_HEIGHT, GRIPPER_START_BEHIND, IMAGE_CABLE, IMAGE_GRIPPER,
@@ -42,6 +38,7 @@ class RopeKernels:
         self.r = float(cfg.contact_radius)
         self.max_speed = float(cfg.max_speed)
         self.max_distance = float(cfg.max_distance)
+        self.single_particle_grip = bool(cfg.single_particle_grip)  # compile-time: off compiles today's kernel
         self.cam_f = (float(camera.fx), float(camera.fy))
         self.cam_c = (float(camera.cx), float(camera.cy))
         self.cam_pos = tuple(float(p) for p in camera.position)
@@ -104,11 +101,31 @@ class RopeKernels:
                 and dx * dx + dz * dz <= HELD_DISTANCE * HELD_DISTANCE and dz > 0.0)
 
     @ti.func
+    def single_grip_particle(self, e, g):
+        """The single-particle grip's particle (``dlo_sim.grip.single_grip_particle``): the held one
+        nearest the finger axis in x, never particle 0, ties to the lower index; -1 if none is held."""
+        chosen = -1
+        nearest = 0.0
+        for i in range(1, self.n[e]):
+            if self.is_held(e, i, g):
+                d = ti.abs(self.x[e, i].x - g.x)
+                if chosen < 0 or d < nearest:
+                    chosen = i
+                    nearest = d
+        return chosen
+
+    @ti.func
     def update_grip(self, e, g, c):
-        """Held rule + grip law: inverse mass and carried fraction of every particle for this step."""
+        """Held rule + grip law: inverse mass and carried fraction of every particle for this step.
+        With ``single_particle_grip`` the law acts on one held particle only (``single_grip_particle``)."""
         w_held = self.grip_inverse_mass(c)
+        chosen = -1
+        if ti.static(self.single_particle_grip):
+            chosen = self.single_grip_particle(e, g)
         for i in range(self.n[e]):
             inside = self.is_held(e, i, g)
+            if ti.static(self.single_particle_grip):
+                inside = i == chosen
             w = NOMINAL_INVERSE_MASS
             carry = 0.0
             if inside:

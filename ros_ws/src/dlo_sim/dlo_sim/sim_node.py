@@ -45,7 +45,7 @@ from dlo_msgs.srv import ResetEpisode
 from dlo_perception.camera import CAMERA_FRAME, TopCamera, camera_info
 from dlo_perception.cloud import particle_cloud
 from dlo_sim.command import CommandError, RejectionLog, command_mismatch, command_to_action, hold_action
-from dlo_sim.config import DT, FINGER_CLEARANCE, FINGER_HALF_LENGTH, FINGER_RADIUS, SUBSTEPS_PER_ACTION
+from dlo_sim.config import DT, FINGER_CLEARANCE, FINGER_HALF_LENGTH, FINGER_RADIUS, SUBSTEPS_PER_ACTION, SimConfig
 from dlo_sim.episode import TaskSim
 from dlo_sim.task import DEFAULT_TASK_RULES, HORIZON, TASK_RULES
 from dlo_common.node_util import NodeStartError, declare_parameters
@@ -60,6 +60,9 @@ PARAMETERS = (
     Param("horizon", HORIZON, "control steps per episode", at_least=1),
     Param("task_rules", DEFAULT_TASK_RULES, "which held set the reward, the episode's end and the tactile input (the "
                                       "particles' held flags) use, one of " + str(TASK_RULES), choices=TASK_RULES),
+    Param("single_particle_grip", False, "the grip carries ONE particle, the held one nearest the finger axis (never "
+                                         "particle 0), as the authors' code did (docs/FIDELITY.md row 5); false: "
+                                         "every held particle"),
     Param("rate_factor", 1.0, "real_time mode: simulation speed relative to wall time", above=0.0),
     Param("command_timeout", 0.5, "real_time mode: a command older than this [s] stops the gripper", above=0.0),
     Param("step_timeout", 1.0, "step_locked mode: republish the state after this long [s] without a command",
@@ -130,12 +133,14 @@ class SimNode(Node):
         self.get_logger().info(f"alone on ROS_DOMAIN_ID={os.environ.get('ROS_DOMAIN_ID') or '0'}: no other publisher "
                                f"of {self.pub_gripper.topic_name}; building the simulation")
         self.camera = TopCamera.covering_workspace(p["camera_resolution"])
-        self.task = TaskSim(1, horizon=p["horizon"], render=True, camera=self.camera, task_rules=p["task_rules"])
+        self.task = TaskSim(1, horizon=p["horizon"], render=True, camera=self.camera, task_rules=p["task_rules"],
+                            config=SimConfig(single_particle_grip=p["single_particle_grip"]))
 
         if p["mode"] == "real_time":
             self.create_timer(DT * SUBSTEPS_PER_ACTION / p["rate_factor"], self.on_real_time_tick)
         self.create_timer(0.05, self.on_watchdog)
         self.get_logger().info(f"{p['mode']} simulation, seed {p['seed']}, task rules {p['task_rules']}, "
+                               f"{'single-particle grip, ' if p['single_particle_grip'] else ''}"
                                f"{p['episodes'] or 'unlimited'} episodes of {p['horizon']} steps")
 
     # ------------------------------------------------------------------ episodes

@@ -196,3 +196,42 @@ def test_the_numpy_stall_rule_equals_the_kernel_on_these_states(sim):
         changed = np.linalg.norm(expected - np.asarray(dg)) > 1e-6
         stalled, free = stalled + changed, free + (not changed)
     assert stalled >= 5 and free >= 5  # both outcomes were compared, not only one
+
+
+def test_single_particle_grip_kernel_choice_equals_the_numpy_rule():
+    """SimConfig.single_particle_grip (docs/FIDELITY.md row 5): at every 0.01 s step the kernel gives the
+    grip law (inverse mass, carried fraction) to exactly the particle ``dlo_sim.grip.single_grip_particle``
+    names from the held set at the step's start: the held particle nearest the finger axis in x, never
+    particle 0; every other particle keeps w_nom and is not carried."""
+    from dlo_sim import SimConfig
+    from dlo_sim.grip import single_grip_particle
+    single = RopeSim(1, SimConfig(single_particle_grip=True))
+    rng = np.random.default_rng(17)
+    zero_nearest = several = not_lowest = 0
+    for seed in (0, 5, 11):
+        single.reset(np.array([seed]))
+        n = int(single.num_particles[0])
+        for _ in range(48):
+            before = single.snapshot(render=False)
+            held = before.held[0, :n]
+            chosen = single_grip_particle(before.positions[0, :n], held, before.gripper[0, 0])
+            c = float(rng.choice([0.6, 0.7, 0.8, 0.95, 1.0]))
+            single.step_physics(closure_action(c, rng.uniform(0.2, 1.0), rng.uniform(-0.4, 0.4)), 1)
+            c_kernel = float(single.gripper_state()[0, 3])
+            expected_w = np.full(n, NOMINAL_INVERSE_MASS)
+            expected_carry = np.zeros(n)
+            if chosen >= 0:
+                expected_w[chosen] = inverse_mass(c_kernel, NOMINAL_INVERSE_MASS)
+                expected_carry[chosen] = carried_fraction(c_kernel)
+            expected_w[0] = 0.0  # the fixed end is pinned
+            np.testing.assert_allclose(single._k.w.to_numpy()[0, :n], expected_w, atol=2e-6)
+            np.testing.assert_allclose(single._k.carry.to_numpy()[0, :n], expected_carry, atol=2e-6)
+            assert chosen != 0 and (chosen == -1 or held[chosen])
+            distance = np.abs(before.positions[0, :n, 0] - before.gripper[0, 0])
+            others = np.flatnonzero(held[1:]) + 1
+            zero_nearest += bool(held[0] and len(others) and distance[0] < distance[others].min())
+            several += len(others) >= 2
+            not_lowest += bool(len(others) and chosen != others[0])
+    # the cases that tell the rule apart: particle 0 nearest but skipped, a choice among several held
+    # particles, and one that is not simply the lowest held index
+    assert zero_nearest >= 3 and several >= 50 and not_lowest >= 20, (zero_nearest, several, not_lowest)

@@ -283,3 +283,40 @@ def test_render_top_view(sim):
         gu, gv = np.floor(cam.world_to_pixel(sim.gripper_state()[e, :3])).astype(int)
         assert img[e, gv, gu] == IMAGE_GRIPPER, "the gripper occludes the cable it holds"
         assert (img[e] == IMAGE_CABLE).sum() > 20
+
+
+def test_single_particle_grip_carries_one_particle_the_held_one_nearest_the_finger_axis(sim):
+    """SimConfig.single_particle_grip (the authors' grip, docs/FIDELITY.md row 5): with the gripper
+    mid-cable and a firm grip, ONE particle gets the grip's inverse mass (0) and moves exactly with the
+    finger: the held one nearest the finger axis in x, never particle 0; the other held particles keep
+    w_nom and are not all carried along. Off (the default), every held particle is."""
+    from dlo_sim.grip import single_grip_particle
+    single = RopeSim(N, SimConfig(single_particle_grip=True))
+    seeds = np.arange(N) + 30
+    followers = {}
+    for rope in (sim, single):
+        grip_mid_cable(rope, seeds)
+        rope.step(actions(dx=-1.0, c=1.0))  # back towards the fixed end: the cable to it is slack
+        held0, x0, g0 = rope.held_mask(), rope.positions(), rope.gripper_state()
+        rope.step_physics(actions(dy=1.0, c=1.0), 1)  # one 0.01 s step: one choice of the carried particles
+        moved = rope.gripper_state()[:, :3] - g0[:, :3]
+        assert np.allclose(moved[:, 1], MAX_DISPLACEMENT, atol=1e-7)
+        w = rope._k.w.to_numpy()
+        follows = np.abs(rope.positions() - x0 - moved[:, None, :]).max(axis=2) < 1e-6
+        followers[rope is single] = []
+        for e in range(N):
+            n = int(rope.num_particles[e])
+            held = np.flatnonzero(held0[e, :n])
+            held = held[held >= 1]
+            assert len(held) >= 3, "several particles between the fingers"
+            gripped = np.flatnonzero(w[e, 1:n] == 0.0) + 1  # the grip's inverse mass at c = 1
+            if rope is single:
+                chosen = single_grip_particle(x0[e, :n], held0[e, :n], g0[e, 0])
+                distance = np.abs(x0[e, held, 0] - g0[e, 0])
+                assert gripped.tolist() == [chosen] and chosen == held[np.argmin(distance)], e
+                assert follows[e, chosen] and not follows[e, held].all(), e
+            else:
+                assert gripped.tolist() == held.tolist() and follows[e, held].all(), e
+            assert np.all(w[e, np.setdiff1d(held, gripped)] == NOMINAL_INVERSE_MASS)  # the others: free
+            followers[rope is single].append(int(follows[e, held].sum()))
+    assert sum(followers[True]) < sum(followers[False])

@@ -1,0 +1,117 @@
+"""playback_node republishes a bag into a live graph; Pacer keeps relative timing."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import pytest
+from rclpy.serialization import serialize_message
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # --import-mode=importlib
+
+from dlo_bag_graph_helper import TOPICS, TYPE_NAMES, make_message  # noqa: E402
+from dlo_bag_testutil import ROS2RUN, helper_cmd  # noqa: E402
+
+from dlo_bag.bag import BagWriter, read_messages  # noqa: E402
+from dlo_bag.playback import Pacer, import_message_class  # noqa: E402
+
+N = 8
+PLAYED = ["/dlo/gripper/state", "/dlo/task/state", "/dlo/rope/particles", "/dlo/camera/image"]
+
+
+def write_bag(path: Path) -> dict[str, list[bytes]]:
+    """A bag of N messages per topic, 5 ms apart; returns the raw CDR of each per topic."""
+    sent: dict[str, list[bytes]] = {t: [] for t in TOPICS}
+    with BagWriter(path) as writer:
+        for topic in TOPICS:
+            writer.add_topic(topic, TYPE_NAMES[topic])
+        stamp = 1_000_000_000
+        for i in range(N):
+            for topic in TOPICS:
+                data = serialize_message(make_message(topic, i))
+                writer.write(topic, data, stamp)
+                sent[topic].append(bytes(data))
+                stamp += 5_000_000
+    return sent
+
+
+def test_playback_republishes_the_same_messages(procs, tmp_path):
+    bag = tmp_path / "run.bag"  # a '.bag' directory name is a rosbag2 bag too (not ROS 1)
+    sent = write_bag(bag)
+    assert [m.topic for m in read_messages(bag)][:len(TOPICS)] == list(TOPICS)
+    sub = procs("sub", helper_cmd("sub", "--topics", *PLAYED, "--expect", str(N),
+                                  "--timeout", "60"))
+    sub.wait_line("SUBSCRIBED")
+    play = procs("playback", [str(ROS2RUN), "dlo_bag", "playback_node", "--ros-args",
+                              "-p", f"bag:={bag}", "-p", "rate:=4.0",
+                              "-p", f"topics:={json.dumps(PLAYED)}",
+                              "-p", "wait_for_subscribers:=1"])
+    received = json.loads(sub.wait_line("RECEIVED ", timeout=90).split(" ", 1)[1])
+    assert play.wait(timeout=60) == 0, play.output()
+    assert f"published {N * len(PLAYED)} messages" in play.output()
+    for topic in PLAYED:  # same messages, same order
+        got = [bytes.fromhex(h) for h in received[topic]]
+        assert len(got) == N, topic
+        for want, have in zip(sent[topic], got):
+            assert same_cdr(want, have), topic
+
+
+def same_cdr(sent: bytes, received: bytes) -> bool:
+    """Equal CDR payloads; DDS may pad the end to 4 bytes (noted in the header's options)."""
+    return (received[:2] == sent[:2] and received[4:len(sent)] == sent[4:]
+            and 0 <= len(received) - len(sent) < 4)
+
+
+def test_playback_bad_parameters(procs, tmp_path):
+    play = procs("playback", [str(ROS2RUN), "dlo_bag", "playback_node", "--ros-args",
+                              "-p", f"bag:={tmp_path / 'missing'}"])
+    assert play.wait(timeout=60) == 2
+    assert "does not exist" in play.output() and "Traceback" not in play.output()
+    bag = tmp_path / "bag"
+    write_bag(bag)
+    killed = tmp_path / "killed"  # a recorder killed before closing: .mcap, no metadata.yaml
+    killed.mkdir()
+    (killed / "killed.mcap").write_bytes((bag / "bag.mcap").read_bytes()[:-200])
+    play = procs("playback", [str(ROS2RUN), "dlo_bag", "playback_node", "--ros-args",
+                              "-p", f"bag:={killed}"])
+    assert play.wait(timeout=60) == 2
+    lines = [line for line in play.output().splitlines() if line.strip()]
+    assert len(lines) == 1 and f"dlo-bag-recover {killed}" in lines[0], play.output()
+    for param, text in [("rate:=-1.0", "parameter 'rate'"),
+                        ("rate:=fast", "parameter 'rate': expected a number"),
+                        ("topics:=['/dlo/nope']", "parameter 'topics'")]:
+        play = procs("playback", [str(ROS2RUN), "dlo_bag", "playback_node", "--ros-args",
+                                  "-p", f"bag:={bag}", "-p", param])
+        assert play.wait(timeout=60) == 2, play.output()
+        assert text in play.output() and "Traceback" not in play.output()
+
+
+def test_pacer_keeps_relative_timing():
+    pacer = Pacer(2.0)
+    pacer.start(10_000_000_000, 100.0)
+    assert pacer.deadline(10_000_000_000) == pytest.approx(100.0)
+    assert pacer.deadline(11_000_000_000) == pytest.approx(100.5)
+    assert pacer.deadline(14_000_000_000) == pytest.approx(102.0)
+    one = Pacer(1.0)
+    one.start(0, 5.0)
+    assert one.deadline(250_000_000) == pytest.approx(5.25)
+    fast = Pacer(0.0)
+    fast.start(0, 5.0)
+    assert fast.deadline(10**12) == 5.0
+    with pytest.raises(ValueError):
+        Pacer(-1.0)
+
+
+def test_import_message_class():
+    from sensor_msgs.msg import Image
+
+    from dlo_msgs.msg import TaskState
+
+    assert import_message_class("sensor_msgs/msg/Image") is Image
+    assert import_message_class("dlo_msgs/msg/TaskState") is TaskState
+    with pytest.raises(ValueError):
+        import_message_class("no_such_pkg/msg/X")
+    with pytest.raises(ValueError):
+        import_message_class("sensor_msgs/msg/NoSuch")

@@ -1,0 +1,95 @@
+"""scripts/ros2run finds every console script every ament_python package declares."""
+
+from __future__ import annotations
+
+import ast
+import subprocess
+import sys
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # --import-mode=importlib
+
+from dlo_bag_testutil import REPO, ROS2RUN  # noqa: E402
+
+SRC = REPO / "ros_ws" / "src"
+
+
+def declared_executables() -> dict[str, list[str]]:
+    """package -> console_scripts names, read from each ros_ws/src/*/setup.py."""
+    out: dict[str, list[str]] = {}
+    for setup in sorted(SRC.glob("*/setup.py")):
+        names: list[str] = []
+        for node in ast.walk(ast.parse(setup.read_text())):
+            if isinstance(node, ast.Dict):
+                for key, value in zip(node.keys, node.values):
+                    if isinstance(key, ast.Constant) and key.value == "console_scripts":
+                        names += [e.value.split("=")[0].strip() for e in value.elts
+                                  if isinstance(e, ast.Constant)]
+        out[setup.parent.name] = names
+    return out
+
+
+def run(env, *args):
+    return subprocess.run([str(ROS2RUN), *args], env=env, capture_output=True, text=True,
+                          timeout=60)
+
+
+def test_finds_every_declared_executable(ros_env):
+    declared = declared_executables()
+    assert "recorder_node" in declared["dlo_bag"] and "foxglove_bridge" in declared["dlo_viz"]
+    assert "dlo-driver-check" in declared["dlo_driver_kit"]
+    listing = run(ros_env, "--list")
+    assert listing.returncode == 0, listing.stderr
+    pairs = set(listing.stdout.split("\n"))
+    for pkg, exes in declared.items():
+        for exe in exes:
+            assert f"{pkg} {exe}" in pairs, (
+                f"ros2run cannot find {pkg} {exe}: rebuild with scripts/setup.sh")
+            per_pkg = run(ros_env, pkg)
+            assert f"{pkg} {exe}" in per_pkg.stdout.split("\n")
+
+
+def test_runs_with_arguments_and_explains_misses(ros_env):
+    res = run(ros_env, "dlo_bag", "dlo-bag-info", "--help")
+    assert res.returncode == 0 and "usage: dlo-bag-info" in res.stdout
+    res = run(ros_env, "dlo_bag", "no_such_exe")
+    assert res.returncode == 1
+    assert "no executable 'no_such_exe'" in res.stderr and "recorder_node" in res.stderr
+    res = run(ros_env, "no_such_pkg", "x")
+    assert res.returncode == 1 and "dlo_bag" in res.stderr
+
+
+def test_sources_env_sh_when_not_sourced():
+    clean = {"PATH": "/usr/bin:/bin", "HOME": "/tmp"}
+    res = subprocess.run([str(ROS2RUN), "dlo_bag"], env=clean, capture_output=True, text=True,
+                         timeout=60)
+    assert res.returncode == 0, res.stderr
+    assert "dlo_bag recorder_node" in res.stdout.split("\n")
+
+
+def test_list_shows_the_projects_executables_and_all_of_them_with_all(ros_env):
+    own = {line.split()[0] for line in run(ros_env, "--list").stdout.splitlines() if line}
+    assert own == {pkg for pkg, exes in declared_executables().items() if exes}
+    assert not any(p.startswith(("rosidl", "tracetools")) for p in own)
+    every = {line.split()[0] for line in run(ros_env, "--list", "--all").stdout.splitlines() if line}
+    assert own < every and any(p.startswith("rosidl") for p in every)
+    bad = run(ros_env, "--list", "--bogus")
+    assert bad.returncode == 2 and "unknown option '--bogus'" in bad.stderr
+
+
+OLD = "dlo_tools"  # the package that was split into dlo_bag, dlo_viz and dlo_driver_kit (CHANGELOG.md)
+
+
+def test_the_old_package_name_runs_each_executable_from_its_new_package_with_a_notice(ros_env):
+    for pkg, exe in (("dlo_bag", "dlo-bag-info"), ("dlo_viz", "foxglove_bridge"), ("dlo_driver_kit", "dlo-driver-check")):
+        res = run(ros_env, OLD, exe, "--help")
+        assert res.returncode == 0, res.stderr
+        assert "usage" in res.stdout.lower() or "parameters" in res.stdout.lower(), res.stdout
+        notice = [line for line in res.stderr.splitlines() if line.startswith("ros2run:")]
+        assert len(notice) == 1 and f"(use: ros2run {pkg} {exe})" in notice[0], res.stderr
+    listed = run(ros_env, OLD)
+    assert listed.returncode == 0
+    assert {"dlo_bag recorder_node", "dlo_viz foxglove_bridge", "dlo_driver_kit mock_driver_node"} <= set(
+        listed.stdout.splitlines())
+    missing = run(ros_env, OLD, "no_such_exe")
+    assert missing.returncode == 1 and "no executable 'no_such_exe' in dlo_bag, dlo_viz or dlo_driver_kit" in missing.stderr

@@ -1,0 +1,73 @@
+"""The process's one Taichi runtime, shared by the vision kernel (``dlo_perception.vision``) and the
+simulator (``dlo_sim.kernels``), so every process (env, sim node, vision node) compiles its kernels
+with the same options.
+
+- ``select(name)``: ask for a backend before the first kernel runs (``dlo-train``'s
+  ``train.sim_arch``); ValueError for an unknown name or when Taichi already runs on another one.
+- ``init(arch=None)``: ``ti.init`` once per process (later calls return at once) on ``arch``, else
+  the selected backend, else the one named by the environment variable ``DLO_TI_ARCH``
+  (cpu/cuda/gpu/vulkan; the user's switch, read here only), else the CPU. Fast math: results are
+  bit-reproducible for a given build, and the simulator's NaN checks test exponent bits.
+- ``arch()``: the backend Taichi runs on, or the one ``init()`` would start.
+
+Taichi is imported inside ``init`` only, so importing ``dlo_common`` stays light. Importing this
+module keeps Taichi's "[Taichi] version ..." banner off stdout (it would precede a command's
+``--help`` text or its one-line error; ``ENABLE_TAICHI_HEADER_PRINT=1`` brings it back).
+"""
+from __future__ import annotations
+
+import os
+from typing import Optional
+
+os.environ.setdefault("ENABLE_TAICHI_HEADER_PRINT", "0")
+
+ENV_VAR = "DLO_TI_ARCH"  # the user's backend choice, read by init() (docs: dlo_sim/README.md)
+ARCHS = ("cpu", "cuda", "gpu", "vulkan")  # backend names, as Taichi calls them (ti.cpu, ...)
+DEFAULT_ARCH = "cpu"
+
+_selected: Optional[str] = None  # select(name)
+_running: Optional[str] = None  # the backend init() started
+
+
+def select(name: str) -> None:
+    """Ask for backend ``name`` before the first kernel runs (it overrides ``DLO_TI_ARCH``)."""
+    global _selected
+    if name not in ARCHS:
+        raise ValueError(f"Taichi arch: expected one of {', '.join(ARCHS)}, got {name!r}")
+    if _running is not None and _running != name:
+        raise ValueError(f"Taichi is already running on {_running} in this process")
+    _selected = name
+
+
+def arch() -> str:
+    """The backend Taichi runs on, or, before ``init``, the one it would start (not checked yet)."""
+    return _running if _running is not None else _wanted()
+
+
+def _wanted() -> str:
+    """The selected backend, else DLO_TI_ARCH's, else the CPU."""
+    if _selected is not None:
+        return _selected
+    return os.environ.get(ENV_VAR, DEFAULT_ARCH).lower()
+
+
+def init(arch: Optional[str] = None) -> None:
+    """``ti.init`` once per process on ``arch`` (``select(arch)`` first), else the selected backend, else
+    ``DLO_TI_ARCH``, else the CPU. ValueError for an unknown name, and when cuda was asked for but
+    Taichi found no CUDA device (it falls back to the CPU silently otherwise)."""
+    global _running
+    if arch is not None:
+        select(arch)
+    if _running is not None:
+        return
+    name = _wanted()
+    if name not in ARCHS:
+        raise ValueError(f"{ENV_VAR}={name!r}: expected one of {', '.join(ARCHS)}")
+    import taichi as ti  # noqa: PLC0415 (light dlo_common: Taichi only when a kernel is about to run)
+
+    ti.init(arch=getattr(ti, name), fast_math=True, default_fp=ti.f32, offline_cache=True,
+            log_level=ti.WARN if name == "cpu" else ti.ERROR)  # a missing GPU: our one line, not Taichi's three
+    _running = name
+    if name == "cuda" and ti.lang.impl.current_cfg().arch != ti.cuda:  # Taichi falls back to the CPU silently
+        raise ValueError(f"Taichi arch cuda asked for ({ENV_VAR} / train.sim_arch), but Taichi found no "
+                         "CUDA device and fell back to the CPU (use cpu)")

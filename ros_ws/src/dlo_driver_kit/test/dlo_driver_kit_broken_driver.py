@@ -1,0 +1,139 @@
+"""Test-only drivers that break one rule of the driver contract each (for test_driver_check.py).
+
+    python dlo_driver_kit_broken_driver.py FAULT [--ros-args ...]
+
+FAULT is one of FAULTS: the reference mock driver (dlo_driver_kit.mock_driver_node) with one defect.
+"""
+
+from __future__ import annotations
+
+import sys
+
+import numpy as np
+
+from dlo_driver_kit import mock_driver_node
+from dlo_driver_kit.mock_driver_node import MockDriver
+
+# fault -> the dlo-driver-check rule it must fail (and no other)
+FAULTS = {
+    "ignores_stale": "stale",  # keeps executing the last command forever
+    "accepts_invalid": "invalid",  # executes NaN and out-of-range commands unchecked
+    "leaves_workspace": "workspace",  # no workspace limits
+    "stamps_back": "stamps",  # every 5th state's stamp goes 1 s back
+    "no_camera_info": "camera",  # never publishes camera_info
+    "no_touch": "touch",  # no particle cloud, no tactile pose
+    "wrong_rate": "rate",  # 20 Hz instead of 12.5 Hz
+    "disobeys": "obey",  # moves at half the commanded speed
+    "state_own_clock": "sync",  # the state stamped with its own clock reading, image and cloud with the step's time
+    "frozen_stamps": "stamps",  # every message of every step carries the first step's stamp
+    "color_image": "camera",  # rgb8 images (the same segmentation in three channels)
+    "cloud_float64": "touch",  # particle clouds with FLOAT64 fields (32 bytes a point)
+}
+
+
+def broken_driver(fault: str):
+    class BrokenDriver(MockDriver):
+        first_stamp = None  # frozen_stamps: the stamp of the first state
+
+        def __init__(self):
+            super().__init__()
+            self.states_published = 0
+            if fault == "no_camera_info":  # the latched message goes with its publisher
+                self.destroy_publisher(self.pub_info)
+            if fault == "no_touch":
+                self.destroy_publisher(self.pub_cloud)
+                self.pub_cloud = _Null()
+            if fault == "state_own_clock":  # a few microseconds after the stamp its image and cloud carry
+                self.pub_state = _Altered(self.pub_state, restamp(lambda: self.get_clock().now().to_msg()))
+            if fault == "color_image":
+                self.pub_image = _Altered(self.pub_image, to_rgb8)
+            if fault == "cloud_float64":
+                self.pub_cloud = _Altered(self.pub_cloud, to_float64)
+
+        def on_command(self, msg):
+            if fault == "accepts_invalid" and int(msg.episode) == self.episode:
+                self.command = (msg.vx, msg.vy, msg.closure, mock_driver_node.time.monotonic())
+                return
+            super().on_command(msg)
+            if fault == "ignores_stale" and self.command is not None:
+                self.command = (*self.command[:3], float("inf"))  # never stale
+
+        def move(self, vx, vy, closure, dt):
+            if fault == "disobeys":
+                vx, vy = 0.5 * vx, 0.5 * vy
+            if fault == "leaves_workspace":
+                self.gripper = self.gripper + dt * np.array([vx, vy])
+                self.closure = float(closure)
+                return
+            super().move(vx, vy, closure, dt)
+
+        def state_stamp(self):
+            stamp = super().state_stamp()
+            if fault == "frozen_stamps":
+                if self.first_stamp is None:
+                    self.first_stamp = stamp
+                return self.first_stamp
+            if fault == "stamps_back":
+                self.states_published += 1
+                if self.states_published % 5 == 0:
+                    stamp.sec -= 1
+            return stamp
+
+    return BrokenDriver
+
+
+class _Null:
+    def publish(self, _msg):
+        pass
+
+
+class _Altered:
+    """A publisher that changes each message with ``alter(msg)`` just before publishing it."""
+
+    def __init__(self, publisher, alter):
+        self.publisher, self.alter = publisher, alter
+
+    def publish(self, msg):
+        self.alter(msg)
+        self.publisher.publish(msg)
+
+
+def restamp(stamp):
+    def alter(msg):
+        msg.header.stamp = stamp()
+    return alter
+
+
+def to_rgb8(image):
+    pixels = np.frombuffer(bytes(image.data), np.uint8).reshape(image.height, image.step)[:, :image.width]
+    image.data = np.repeat(pixels, 3, axis=1).tobytes()
+    image.encoding, image.step = "rgb8", 3 * image.width
+
+
+def to_float64(cloud):
+    from sensor_msgs.msg import PointField
+
+    from dlo_perception.cloud import unpack_particles
+
+    positions, held = unpack_particles(cloud)
+    points = np.concatenate([positions, held[:, None]], axis=1).astype("<f8")
+    cloud.fields = [PointField(name=f.name, offset=8 * i, datatype=PointField.FLOAT64, count=1)
+                    for i, f in enumerate(cloud.fields)]
+    cloud.point_step, cloud.row_step, cloud.data = 32, 32 * len(points), points.tobytes()
+
+
+def main() -> int:
+    if len(sys.argv) < 2 or sys.argv[1] not in FAULTS:
+        print(f"usage: {sys.argv[0]} FAULT [--ros-args ...], FAULT one of {sorted(FAULTS)}", file=sys.stderr)
+        return 2
+    fault = sys.argv.pop(1)
+    args = list(sys.argv)
+    if fault == "wrong_rate":
+        args += ["--ros-args", "-p", "rate:=20.0"]
+    from dlo_common.node_main import run_node
+
+    return run_node(broken_driver(fault), args)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

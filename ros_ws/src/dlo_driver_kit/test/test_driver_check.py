@@ -1,0 +1,360 @@
+"""dlo-driver-check against the real sim node (real_time), the reference mock driver, and drivers
+that break one rule each (dlo_driver_kit_broken_driver.py: each fails its rule and no other, and no rule
+line shows a nonsense number); the rules on synthetic recordings (no ROS), among them what the graph
+needs to run a step: one exact stamp on all of a step's inputs (sync), mono8 segmented images
+(camera), the particle cloud layout tactile_node reads (touch), and a stamp problem failing only
+'stamps' (rate and obey timed by arrival then)."""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # --import-mode=importlib
+
+from dlo_driver_kit_broken_driver import FAULTS  # noqa: E402
+from dlo_driver_kit_testutil import ROS2RUN  # noqa: E402
+
+from dlo_driver_kit.driver_check import (RULES, CloudSample, ImageSample, InfoSample, Recording,  # noqa: E402
+                                         Settings, StateSample, check_stale, check_workspace, cloud_layout_problem,
+                                         evaluate, schedule)
+
+HERE = Path(__file__).resolve().parent
+CHECK = [sys.executable, "-m", "dlo_driver_kit.driver_check"]
+TOPICS = ("/dlo/gripper/state", "/dlo/gripper/cmd", "/dlo/camera/image", "/dlo/camera/camera_info",
+          "/dlo/rope/particles", "/dlo/sim/reset")
+
+
+def verdicts(output: str) -> dict[str, str]:
+    """{rule: PASS/FAIL/SKIP} from the checker's lines."""
+    found = dict((rule, status) for status, rule in re.findall(r"^(PASS|FAIL|SKIP) (\w+) ", output, re.M))
+    assert set(found) == set(RULES), output
+    return found
+
+
+def run_check(env, *args, timeout=120) -> subprocess.CompletedProcess:
+    return subprocess.run([*CHECK, *args], env=env, capture_output=True, text=True, timeout=timeout)
+
+
+# ------------------------------------------------------------------------------------ with ROS
+def test_mock_driver_passes_every_rule_in_a_namespace(procs, ros_env):
+    remap = [arg for t in TOPICS for arg in ("-r", f"{t}:=/robot1{t}")]
+    driver = procs("mock", [str(ROS2RUN), "dlo_driver_kit", "mock_driver_node", "--ros-args", *remap])
+    driver.wait_line("real_time driver at 12.5 Hz", timeout=60)
+    result = run_check(ros_env, "--namespace", "robot1", "--timeout", "20")
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert set(verdicts(result.stdout).values()) == {"PASS"}
+    assert "stopped at the boundary" in result.stdout  # it really was driven to the workspace corner
+    out = driver.output()
+    for cause in ("non-finite", "speed out of range", "closure out of range", "command timed out"):
+        assert cause in out, out  # each rejection / the stale stop was logged
+
+
+def test_sim_node_in_real_time_passes_every_rule(procs, ros_env):
+    # paper_text: the check's sideways test moves end authors_code episodes every few steps (WRITE_YOUR_DRIVER.md)
+    sim = procs("sim", [str(ROS2RUN), "dlo_sim", "sim_node", "--ros-args", "-p", "mode:=real_time",
+                        "-p", "task_rules:=paper_text"])
+    sim.wait_line("real_time simulation", timeout=180)
+    result = run_check(ros_env, "--timeout", "60")
+    assert result.returncode == 0, result.stdout + result.stderr + sim.output()[-3000:]
+    assert set(verdicts(result.stdout).values()) == {"PASS"}
+
+
+@pytest.mark.parametrize("fault", sorted(FAULTS))
+def test_a_broken_driver_fails_exactly_its_rule(procs, ros_env, fault):
+    driver = procs(fault, [sys.executable, str(HERE / "dlo_driver_kit_broken_driver.py"), fault])
+    driver.wait_line("real_time driver at", timeout=60)
+    result = run_check(ros_env, "--timeout", "20", "--duration", "1")
+    assert result.returncode == 1, result.stdout + result.stderr
+    failed = {rule for rule, status in verdicts(result.stdout).items() if status == "FAIL"}
+    assert failed == {FAULTS[fault]}, result.stdout
+    assert f"failed: {FAULTS[fault]}" in result.stdout
+    rate_line = next(line for line in result.stdout.splitlines() if line.startswith(("PASS rate", "FAIL rate")))
+    assert all(float(hz) < 100 for hz in re.findall(r"([\d.]+) Hz", rate_line)), rate_line  # no 1e9 Hz "by stamps"
+
+
+FAKE_POLICY = """
+import rclpy
+from dlo_msgs.msg import GripperCommand
+rclpy.init()
+node = rclpy.create_node("fake_policy")
+node.create_publisher(GripperCommand, "/dlo/gripper/cmd", 10)
+print("publishing", flush=True)
+rclpy.spin(node)
+"""
+
+
+def test_the_check_refuses_while_another_node_commands_the_driver(procs, ros_env):
+    driver = procs("mock", [str(ROS2RUN), "dlo_driver_kit", "mock_driver_node"])
+    procs("policy", [sys.executable, "-c", FAKE_POLICY]).wait_line("publishing", timeout=60)
+    driver.wait_line("real_time driver at", timeout=60)
+    result = run_check(ros_env, "--timeout", "20")
+    assert result.returncode == 1 and "PASS" not in result.stdout, result.stdout + result.stderr
+    assert "another node commands the driver (/fake_policy publishes /dlo/gripper/cmd)" in result.stderr
+
+
+RESET_CLIENT = """
+import json, time
+import rclpy
+from dlo_msgs.msg import GripperCommand, GripperState
+from dlo_msgs.srv import ResetEpisode
+rclpy.init()
+node = rclpy.create_node("reset_client")
+pub = node.create_publisher(GripperCommand, "/dlo/gripper/cmd", 10)
+states = []
+def on_state(msg):
+    states.append((msg.episode, msg.step, msg.x))
+    if msg.episode == 0:
+        pub.publish(GripperCommand(vx=0.2, vy=0.0, closure=0.7, episode=msg.episode, step=msg.step))
+node.create_subscription(GripperState, "/dlo/gripper/state", on_state, 10)
+client = node.create_client(ResetEpisode, "/dlo/sim/reset")
+client.wait_for_service(timeout_sec=30)
+end = time.monotonic() + 1.0
+while time.monotonic() < end or len(states) < 5:
+    rclpy.spin_once(node, timeout_sec=0.05)
+moved_x = states[-1][2]
+future = client.call_async(ResetEpisode.Request(seed=7))
+rclpy.spin_until_future_complete(node, future, timeout_sec=10)
+while not any(s[0] == 1 for s in states):
+    rclpy.spin_once(node, timeout_sec=0.05)
+first = next(s for s in states if s[0] == 1)
+r = future.result()
+print(json.dumps({"moved_x": moved_x, "first": first, "episode": r.episode, "seed": r.seed, "ok": r.success}))
+"""
+
+
+def test_mock_driver_reset_service_starts_the_next_episode_at_the_start_pose(procs, ros_env):
+    from dlo_sim.config import FIXED_END, GRIPPER_START_BEHIND
+
+    driver = procs("mock", [str(ROS2RUN), "dlo_driver_kit", "mock_driver_node"])
+    driver.wait_line("real_time driver at", timeout=60)
+    client = subprocess.run([sys.executable, "-c", RESET_CLIENT], env=ros_env, capture_output=True, text=True,
+                            timeout=120)
+    assert client.returncode == 0, client.stdout + client.stderr
+    result = json.loads(client.stdout.strip().splitlines()[-1])
+    start = FIXED_END[0] - GRIPPER_START_BEHIND
+    assert result["moved_x"] > start + 0.05  # the commands moved it ...
+    assert result["ok"] and result["episode"] == 1 and result["seed"] == 7
+    episode, step, x = result["first"]
+    assert (episode, step) == (1, 0) and x == pytest.approx(start)  # ... and the reset brought it back
+
+
+def test_no_driver_is_one_clear_line_and_bad_usage_exits_2(ros_env):
+    result = run_check(ros_env, "--timeout", "1")
+    assert result.returncode == 1
+    assert result.stderr.strip().count("\n") == 0 and "no driver: nothing published /dlo/gripper/state" in result.stderr
+    assert "Traceback" not in result.stderr
+    bad = run_check(ros_env, "--skip", "nonsense")
+    assert bad.returncode == 2 and "invalid choice" in bad.stderr
+    bad = run_check(ros_env, "--speed", "1.0")
+    assert bad.returncode == 2 and "--speed must be <= 0.25" in bad.stderr
+    helped = subprocess.run([str(ROS2RUN), "dlo_driver_kit", "dlo-driver-check", "--help"], env=ros_env,
+                            capture_output=True, text=True, timeout=60)
+    assert helped.returncode == 0 and "--command-timeout" in helped.stdout and "Exit status" in helped.stdout
+
+
+# ------------------------------------------------------------------------------------ without ROS
+def ideal_recording(s: Settings, fault: str = "") -> Recording:
+    """What a perfect 12.5 Hz driver shows the checker (``fault``: 'late_stop', 'outside')."""
+    rec, t, x, y, closure, step, last_valid = Recording(), 0.0, -0.25, 0.0, 0.0, 0, None
+    period = 1.0 / s.rate
+    command = None
+    for phase in schedule(s):
+        start = t
+        while t < start + phase.duration - 1e-9:
+            if command is not None and (t - last_valid <= s.command_timeout or fault == "late_stop"):
+                vx, vy, c = command
+                if all(math.isfinite(v) for v in command) and abs(vx) <= 0.25 and abs(vy) <= 0.25 and 0 <= c <= 1:
+                    x, y, closure = x + vx * period, y + vy * period, c
+                    if fault != "outside":
+                        x, y = min(max(x, -s.workspace), s.workspace), min(max(y, -s.workspace), s.workspace)
+            rec.states.append(StateSample(t, t, 0, step, x, y, closure))
+            if phase.command is not None:
+                rec.answered[(0, step)] = phase.name
+                rec.last_command_wall = t
+                cmd = phase.command
+                valid = all(math.isfinite(v) for v in cmd) and abs(cmd[0]) <= 0.25 and 0 <= cmd[2] <= 1
+                command = cmd if valid else (0.0, 0.0, closure)
+                last_valid = t
+            step += 1
+            t += period
+        rec.phases.append((phase.name, start, t))
+        if phase.name == "lead-stale":
+            silent_from = rec.last_command_wall
+    rec.last_command_wall = silent_from
+    rec.images = []
+    return rec
+
+
+def test_the_rules_on_synthetic_recordings():
+    s = Settings()
+    rec = ideal_recording(s)
+    results = {r.rule: r for r in evaluate(rec, s)}
+    for rule in ("rate", "stamps", "obey", "invalid", "stale", "workspace"):
+        assert results[rule].status == "PASS", results[rule]
+    assert results["camera"].status == "FAIL" and "no camera_info" in results["camera"].reason
+    assert results["touch"].status == "FAIL"
+    late = check_stale(ideal_recording(s, "late_stop"), s)
+    assert late.status == "FAIL" and "still moving" in late.reason
+    outside = check_workspace(ideal_recording(s, "outside"), s)
+    assert outside.status == "FAIL" and "outside" in outside.reason
+    skipped = {r.rule: r.status for r in evaluate(rec, Settings(skip=("camera", "touch")))}
+    assert skipped["camera"] == skipped["touch"] == "SKIP"
+
+
+def test_analyze_of_a_driver_bag_says_it_has_no_task_state(tmp_path, capsys):
+    from rclpy.serialization import serialize_message
+
+    from dlo_msgs.msg import GripperState
+    from dlo_bag import analysis
+    from dlo_bag.bag import BagWriter
+
+    bag = tmp_path / "driver_bag"
+    with BagWriter(bag) as writer:  # what the recorder writes next to a driver: no /dlo/task/state
+        writer.add_topic("/dlo/gripper/state", "dlo_msgs/msg/GripperState")
+        for i in range(5):
+            writer.write("/dlo/gripper/state", serialize_message(GripperState(x=0.01 * i, step=i)), 1_000 + i)
+    assert analysis.main([str(bag)]) == analysis.EXIT_NO_TASK_STATE == 3
+    out, err = capsys.readouterr()
+    assert out == ""  # no empty outcome table
+    assert err.count("\n") == 1 and "has no /dlo/task/state: a driver bag (5 gripper states)" in err
+
+
+def test_a_reset_during_the_silence_is_not_motion():
+    """An episode that ends (the sim drops the cable) puts the gripper back to the start: a jump, not a move."""
+    s = Settings()
+    window_end = next(end for name, _, end in ideal_recording(s).phases if name == "silent")
+    t_reset = window_end - 0.2  # well after the allowed stop time
+
+    def with_jump(new_episode: bool) -> Recording:
+        rec = ideal_recording(s)
+        later = [x for x in rec.states if x.wall >= t_reset]
+        first_step = later[0].step
+        for x in later:
+            x.x -= 0.05
+            if new_episode:
+                x.episode, x.step = 1, x.step - first_step
+        rec.answered = {((1, k - first_step) if new_episode and k >= first_step else (e, k)): p
+                        for (e, k), p in rec.answered.items()}
+        return rec
+
+    assert check_stale(with_jump(True), s).status == "PASS"
+    moved_late = check_stale(with_jump(False), s)
+    assert moved_late.status == "FAIL" and "still moving" in moved_late.reason
+
+
+# ------------------------------------------------------------------- what the graph needs to run a step
+def complete_recording(s: Settings, state_offset_ns: int = 0, frozen: bool = False) -> Recording:
+    """``ideal_recording`` with what a good driver publishes beside each state: a segmented image, a
+    particle cloud, camera_info. ``state_offset_ns``: the states stamped that much later than the step's
+    image and cloud (a clock read per message); ``frozen``: every message carries the first stamp."""
+    rec = ideal_recording(s)
+    rec.infos = [InfoSample(128, 128, (213.3, 0.0, 64.0, 0.0, 213.3, 64.0, 0.0, 0.0, 1.0), "top_camera_optical")]
+    for x in rec.states:
+        stamp = rec.states[0].stamp_ns if frozen else x.stamp_ns
+        rec.images.append(ImageSample(128, 128, "mono8", 128, 128 * 128, "top_camera_optical", stamp, (0, 128, 255)))
+        rec.clouds.append(CloudSample(stamp, ["x", "y", "z", "held"]))
+        x.stamp_ns = stamp + state_offset_ns
+        x.stamp = x.stamp_ns / 1e9
+    return rec
+
+
+def results_of(rec: Recording, s: Settings | None = None) -> dict:
+    return {r.rule: r for r in evaluate(rec, s or Settings())}
+
+
+def test_a_complete_recording_passes_every_rule():
+    results = results_of(complete_recording(Settings()))
+    assert {rule: r.status for rule, r in results.items()} == dict.fromkeys(RULES, "PASS"), results
+    assert "each with an image and a particle cloud of its exact stamp" in results["sync"].reason
+
+
+def test_a_state_stamped_by_its_own_clock_fails_only_sync_and_names_the_stamps():
+    results = results_of(complete_recording(Settings(), state_offset_ns=400))
+    assert {rule for rule, r in results.items() if r.status == "FAIL"} == {"sync"}, results
+    reason = results["sync"].reason
+    n = len(complete_recording(Settings()).states)
+    assert f"{n} of {n} states have no image and no particle cloud with their exact stamp" in reason
+    assert "first: step 0 at 0.0000004 s, image and particle cloud stamps 0, 0.08 nearby (the nearest 0.4 us earlier)" \
+        in reason
+    assert "match a step's inputs by exact stamp" in reason
+
+
+def test_sync_leaves_an_input_the_driver_does_not_publish_to_its_own_rule():
+    rec = complete_recording(Settings())
+    rec.images = []
+    results = results_of(rec)
+    assert results["sync"].status == "PASS" and "no image to match: see camera" in results["sync"].reason
+    assert results["camera"].status == "FAIL" and "no image on /dlo/camera/image" in results["camera"].reason
+    rec = complete_recording(Settings())
+    rec.clouds, rec.tactile_stamps = [], [x.stamp_ns for x in rec.states]  # a driver with its own tactile pose
+    results = results_of(rec)
+    assert results["sync"].status == results["touch"].status == "PASS"
+    assert "a tactile pose of its exact stamp" in results["sync"].reason
+    rec.tactile_stamps = [t + 1 for t in rec.tactile_stamps]
+    assert results_of(rec)["sync"].status == "FAIL"
+
+
+def test_frozen_stamps_fail_only_stamps_and_no_rate_by_stamps_is_made_up():
+    results = results_of(complete_recording(Settings(), frozen=True))
+    assert {rule for rule, r in results.items() if r.status == "FAIL"} == {"stamps"}, results
+    assert "no rate by stamps: they do not strictly increase, see 'stamps'" in results["rate"].reason
+    assert "timed by arrival" in results["obey"].reason  # the motion measured by arrival time, still judged
+    assert "first: stamp 0 s after 0 s" in results["stamps"].reason
+
+
+@pytest.mark.parametrize("encoding, values, expected", [
+    ("rgb8", (), "encoding rgb8: vision_node reads mono8 segmentation images only"),
+    ("mono8", (0, 1), "pixel values [1]: a segmented image has only 0 (background), 128 (gripper), 255 (cable)"),
+    ("mono8", (0, 128), "no cable (255) in any of"),
+])
+def test_the_camera_rule_wants_what_vision_node_reads(encoding, values, expected):
+    rec = complete_recording(Settings())
+    for image in rec.images:
+        image.encoding, image.values = encoding, values
+        image.step = image.width * (3 if encoding == "rgb8" else 1)
+        image.size = image.step * image.height
+    results = results_of(rec)
+    assert {rule for rule, r in results.items() if r.status == "FAIL"} == {"camera"}, results
+    assert expected in results["camera"].reason
+
+
+def test_the_touch_rule_wants_the_cloud_layout_tactile_node_reads():
+    from sensor_msgs.msg import PointField
+
+    from dlo_perception.cloud import particle_cloud
+
+    points, held = [[0.0, 0.0, 0.1], [0.004, 0.0, 0.1]], [False, True]
+    assert cloud_layout_problem(particle_cloud(points, held)) is None
+    reordered = particle_cloud(points, held)
+    reordered.fields = [reordered.fields[i] for i in (0, 1, 3, 2)]
+    integer = particle_cloud(points, held)
+    integer.fields[3] = PointField(name="held", offset=12, datatype=PointField.INT32, count=1)
+    short = particle_cloud(points, held)
+    short.data = short.data[:20]
+    for cloud, expected in [(reordered, "fields ['x', 'y', 'held', 'z']"), (integer, "(12, 5, 1)"),
+                            (short, "20 bytes for 2 points of 16 bytes")]:
+        assert expected in cloud_layout_problem(cloud)
+    rec = complete_recording(Settings())
+    rec.clouds[3].problem = cloud_layout_problem(integer)
+    results = results_of(rec)
+    assert {rule for rule, r in results.items() if r.status == "FAIL"} == {"touch"}, results
+    assert "1 of" in results["touch"].reason and "unreadable for tactile_node" in results["touch"].reason
+
+
+def test_sync_judges_an_input_from_its_first_message_on():
+    """The checker's subscriptions match the driver's publishers one by one: the first clouds may be
+    published before its cloud subscription exists. A cloud missing later is a driver's fault."""
+    rec = complete_recording(Settings())
+    del rec.clouds[:2]
+    assert results_of(rec)["sync"].status == "PASS"
+    del rec.clouds[10]
+    result = results_of(rec)["sync"]
+    n = len(rec.states) - 2
+    assert result.status == "FAIL" and f"1 of {n} states have no particle cloud with their exact stamp" in result.reason

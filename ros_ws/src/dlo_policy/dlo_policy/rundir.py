@@ -1,0 +1,144 @@
+"""A dlo-train run directory: the names of its files, and the small helpers that read and write them.
+
+    config.yaml      the resolved run configuration (dlo_policy.config)
+    eval.csv         one row per evaluation and tested input set (EVAL_COLUMNS; dlo_policy.train)
+    best.json        {"step", "hold_the_end", "episode_reward"} of the best evaluation so far
+    best_policy.pt   that evaluation's policy
+    checkpoint.pt    everything, replay buffer included (resume; written every train.checkpoint_every steps)
+    policy.pt        the actor only, at the end
+    test.json        the held-out test of best_policy.pt (dlo-evaluate's JSON); test_without_X.json:
+                     the same with modality X blanked
+    done.json        the completion marker, with the run's summary
+    tb/              TensorBoard event files
+    train.log        stdout and stderr of a run that dlo-experiments started
+
+No torch and no Ray here: dlo-report, the dlo-experiments driver and the tools read runs through
+this module without loading the learner.
+"""
+from __future__ import annotations
+
+import csv
+import json
+from pathlib import Path
+from typing import Any, Optional
+
+from dlo_sim.task import LEGACY_TASK_RULES
+
+from .config import RunConfig, load_config, record_task_rules
+
+CONFIG_FILE = "config.yaml"
+EVAL_FILE = "eval.csv"
+BEST_FILE = "best.json"
+BEST_POLICY_FILE = "best_policy.pt"
+CHECKPOINT_FILE = "checkpoint.pt"
+POLICY_FILE = "policy.pt"
+TEST_FILE = "test.json"
+TEST_PATTERN = "test*.json"  # test.json and every test_without_X.json
+DONE_FILE = "done.json"
+TB_DIR = "tb"
+LOG_FILE = "train.log"
+
+# a run's record, a few kB: what dlo-experiments --collect copies (and test*.json)
+RECORD_FILES = (CONFIG_FILE, EVAL_FILE, DONE_FILE, BEST_FILE)
+# what a run on a Ray worker sends back (and test*.json before done.json): never checkpoint.pt (replay buffer)
+RESULT_FILES = (CONFIG_FILE, EVAL_FILE, BEST_FILE, BEST_POLICY_FILE, POLICY_FILE, LOG_FILE, DONE_FILE)
+
+OUTCOMES = ("hold_the_end", "stop_before", "reach_end_but_drop", "drop_before")  # paper-text rule (dlo_sim.task)
+AUTHORS_SUFFIX = "_authors"
+OUTCOMES_AUTHORS = tuple(name + AUTHORS_SUFFIX for name in OUTCOMES)  # authors'-code rule (dlo_sim.task)
+EVAL_COLUMNS = ("step", "tested_without", "episodes", "eval_seed", *OUTCOMES, *OUTCOMES_AUTHORS,
+                "episode_reward", "time_at_end", "how_far", "train_episodes", "wall_time_s",
+                "alpha", "entropy", "q_value", "saturated")
+
+
+def test_file(without: str = "") -> str:
+    """Name of the held-out test's JSON (all inputs, or with one modality blanked)."""
+    return f"test_without_{without}.json" if without else TEST_FILE
+
+
+def test_names(run_dir: Path) -> list[str]:
+    """Names of the held-out test JSONs in `run_dir`, sorted."""
+    return sorted(path.name for path in Path(run_dir).glob(TEST_PATTERN))
+
+
+def record_names(run_dir: Path) -> list[str]:
+    """The run's record present in `run_dir` (RECORD_FILES, then test*.json): what --collect copies."""
+    run_dir = Path(run_dir)
+    return [name for name in [*RECORD_FILES, *test_names(run_dir)] if (run_dir / name).is_file()]
+
+
+def result_names(run_dir: Path) -> list[str]:
+    """The result files present in `run_dir` that a remote run sends back, done.json last."""
+    run_dir = Path(run_dir)
+    names = [*RESULT_FILES[:-1], *test_names(run_dir), DONE_FILE]
+    return [name for name in names if (run_dir / name).is_file()]
+
+
+def is_done(run_dir: Path) -> bool:
+    """Whether the run finished (its done.json exists)."""
+    return (Path(run_dir) / DONE_FILE).exists()
+
+
+def run_status(run_dir: Path) -> str:
+    """'done' (done.json), 'partial' (a checkpoint to resume from) or 'todo'."""
+    if is_done(run_dir):
+        return "done"
+    return "partial" if (Path(run_dir) / CHECKPOINT_FILE).exists() else "todo"
+
+
+def read_config(run_dir: Path) -> RunConfig:
+    """config.yaml as written (ConfigError, OSError when it cannot be read)."""
+    return load_config(Path(run_dir) / CONFIG_FILE)
+
+
+def read_trained_config(run_dir: Path) -> RunConfig:
+    """config.yaml read as the run was trained: a run from before task_rules existed was trained on the
+    paper-text rules (dlo_sim.task.LEGACY_TASK_RULES) and reads so."""
+    return record_task_rules(read_config(run_dir), LEGACY_TASK_RULES)
+
+
+def read_eval_rows(run_dir: Path) -> list[dict[str, str]]:
+    """eval.csv's rows as text (csv.DictReader)."""
+    with (Path(run_dir) / EVAL_FILE).open(newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def read_done(run_dir: Path) -> dict[str, Any]:
+    return json.loads((Path(run_dir) / DONE_FILE).read_text())
+
+
+def write_done(run_dir: Path, summary: dict[str, Any]) -> None:
+    _write_json(Path(run_dir) / DONE_FILE, summary, indent=2)
+
+
+def write_best(run_dir: Path, best: Optional[dict[str, Any]]) -> None:
+    """best.json (one line)."""
+    _write_json(Path(run_dir) / BEST_FILE, best, indent=None)
+
+
+def write_test(run_dir: Path, without: str, payload: dict[str, Any]) -> None:
+    """test.json, or test_without_X.json for `without` = X."""
+    _write_json(Path(run_dir) / test_file(without), payload, indent=2)
+
+
+def _write_json(path: Path, data: Any, indent: Optional[int]) -> None:
+    path.write_text(json.dumps(data, indent=indent) + "\n")
+
+
+class EvalLog:
+    """eval.csv of a run directory: appends rows and keeps only rows up to the checkpoint step on resume."""
+
+    def __init__(self, run_dir: Path, resume_step: Optional[int]):
+        self.path = Path(run_dir) / EVAL_FILE
+        kept: list[dict[str, str]] = []
+        if resume_step is not None and self.path.exists():
+            kept = [row for row in read_eval_rows(run_dir) if int(row["step"]) <= resume_step]
+        with self.path.open("w", newline="") as f:
+            writer = csv.DictWriter(f, fieldnames=EVAL_COLUMNS)
+            writer.writeheader()
+            writer.writerows(kept)
+        self.wall_time_offset = float(kept[-1]["wall_time_s"]) if kept else 0.0
+
+    def append(self, rows: list[dict[str, Any]]) -> None:
+        with self.path.open("a", newline="") as f:
+            csv.DictWriter(f, fieldnames=EVAL_COLUMNS).writerows(rows)

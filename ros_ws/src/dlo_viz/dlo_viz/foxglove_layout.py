@@ -1,0 +1,171 @@
+"""The Foxglove layout of the dlo-vitac graph (docs/foxglove/dlo_vitac.json), generated here.
+
+    python -m dlo_viz.foxglove_layout [--out docs/foxglove/dlo_vitac.json] [--check]
+
+The file is a layout as the Foxglove app exports it (``configById`` + a ``layout`` tree of
+splits; import it with Layouts -> Import from file). The panel configurations are built with
+foxglove-sdk's typed layout classes (``foxglove.layouts``), so the keys are the app's own. It
+works on a live connection (``dlo_viz foxglove_bridge``) and on a recorded bag opened in
+Foxglove alike: every panel reads topics both carry, timed by receive time (the recorder's log
+time in a bag).
+
+Panels: 3D (fixed frame ``world``: the particle cloud coloured by its ``held`` field, the cable
+line and the two fingers from ``/dlo/markers``), the top camera image (with its camera_info),
+and plots over time: closure (measured, commanded, vision confidence), the distilled angles
+[rad] and offsets [m] of touch and vision (gripper frame), reward, the held particle index, and the
+outcome of both rules (a state-transitions panel: 0 none, 1 hold_the_end, 2 stop_before,
+3 reach_end_but_drop, 4 drop_before).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+LAYOUT_FILE = Path("docs") / "foxglove" / "dlo_vitac.json"
+TIMESTAMP = "receiveTime"  # live: when the bridge received it; bag: the recorder's receive time
+
+COLORS = ("#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd")
+
+
+def _plain(model: Any) -> Any:
+    """A foxglove.layouts model as plain JSON data (None fields dropped, as the SDK writes it)."""
+    return json.loads(model.to_json())
+
+
+def _series(path: str, label: str, i: int, **extra) -> Any:
+    import foxglove.layouts as fl
+
+    return fl.PlotSeries(value=path, label=label, enabled=True, timestamp_method=TIMESTAMP,
+                         color=COLORS[i % len(COLORS)], **extra)
+
+
+def _plot(title: str, series: list, **config) -> dict:
+    import foxglove.layouts as fl
+
+    cfg = _plain(fl.PlotConfig(paths=series, **config))
+    cfg["title"] = title
+    return cfg
+
+
+def panel_configs() -> dict[str, dict]:
+    """{panel id: config} of every panel (ids as the app writes them: 'Type!suffix')."""
+    import foxglove.layouts as fl
+
+    three_d = fl.ThreeDeeConfig(
+        follow_tf="world",
+        fixed_frame="world",
+        follow_mode="follow-none",
+        camera_state=fl.ThreeDeeCameraState(distance=0.9, perspective=True, phi=55.0, theta_offset=-90.0,
+                                            target=(0.0, 0.0, 0.05), target_offset=(0.0, 0.0, 0.0),
+                                            target_orientation=(0.0, 0.0, 0.0, 1.0), fovy=45.0, near=0.01,
+                                            far=100.0),
+        scene=fl.BaseRendererSceneSettings(background_color="#202020"),
+        layers={"grid": fl.BaseRendererGridLayerSettings(visible=True, frame_id="world", size=0.6, divisions=12,
+                                                         line_width=1.0, color="#ffffff40", position=(0.0, 0.0, 0.0),
+                                                         rotation=(0.0, 0.0, 0.0), layer_id="foxglove.Grid",
+                                                         order=1)},
+        topics={
+            "/dlo/rope/particles": fl.BaseRendererPointCloudTopicSettings(
+                visible=True, point_size=9.0, point_shape="circle", color_mode="colormap", color_field="held",
+                color_map="turbo", min_value=0.0, max_value=1.0),
+            "/dlo/markers": fl.BaseRendererRosMarkerTopicSettings(visible=True),
+        },
+    )
+    image = fl.ImageConfig(image_mode=fl.ImageModeConfig(image_topic="/dlo/camera/image",
+                                                         calibration_topic="/dlo/camera/camera_info"))
+    outcome = fl.StateTransitionsConfig(paths=[
+        fl.StateTransitionsSeries(value="/dlo/task/state.outcome", label="outcome, paper rule",
+                                  timestamp_method=TIMESTAMP, enabled=True),
+        fl.StateTransitionsSeries(value="/dlo/task/state.outcome_authors", label="outcome, authors' rule",
+                                  timestamp_method=TIMESTAMP, enabled=True),
+        fl.StateTransitionsSeries(value="/dlo/task/state.done", label="episode done",
+                                  timestamp_method=TIMESTAMP, enabled=True),
+    ])
+    configs = {
+        "3D!dlo_scene": {**_plain(three_d), "title": "rope, gripper and fingers (world frame)"},
+        "Image!dlo_camera": {**_plain(image), "title": "top camera"},
+        "Plot!dlo_closure": _plot("closure [-]", [
+            _series("/dlo/gripper/state.closure", "c_G measured", 0),
+            _series("/dlo/gripper/cmd.closure", "c_G commanded", 1, line_style="dashed"),
+            _series("/dlo/vision/pose.confidence", "q_V vision confidence", 2),
+        ], min_y_value=-0.05, max_y_value=1.05, y_axis_label="closure"),
+        "Plot!dlo_angles": _plot("pose angles [rad] (gripper frame)", [
+            _series("/dlo/tactile/pose.angle", "θ_T tactile", 0),
+            _series("/dlo/vision/pose.angle", "θ_V vision", 1),
+        ], y_axis_label="rad"),
+        "Plot!dlo_offsets": _plot("pose offsets [m] (gripper frame)", [
+            _series("/dlo/tactile/pose.y", "y_T tactile", 0),
+            _series("/dlo/vision/pose.y", "y_V vision", 1),
+        ], y_axis_label="m"),
+        "Plot!dlo_reward": _plot("reward [-]", [_series("/dlo/task/state.reward", "reward per step", 0)],
+                                 y_axis_label="reward"),
+        "Plot!dlo_held": _plot("held particle index (0 = fixed end)", [
+            _series("/dlo/task/state.mean_held_index", "mean held (paper rule)", 0),
+            _series("/dlo/task/state.mean_held_index_authors", "mean held (authors' rule)", 1),
+            _series("/dlo/task/state.num_particles", "n_c particles", 2, line_style="dotted"),
+        ], y_axis_label="particle index"),
+        "StateTransitions!dlo_outcome": {**_plain(outcome), "title": "outcome (both rules) and done"},
+    }
+    return configs
+
+
+def build_layout() -> dict:
+    """The layout as the Foxglove app exports it."""
+    def column(*ids: str) -> Any:  # equal heights
+        if len(ids) == 1:
+            return ids[0]
+        return {"direction": "column", "first": ids[0], "second": column(*ids[1:]),
+                "splitPercentage": round(100.0 / len(ids), 2)}
+
+    layout_tree = {
+        "direction": "row",
+        "first": {"direction": "column", "first": "3D!dlo_scene", "second": "Image!dlo_camera",
+                  "splitPercentage": 62},
+        "second": column("Plot!dlo_closure", "Plot!dlo_angles", "Plot!dlo_offsets", "Plot!dlo_reward",
+                         "Plot!dlo_held", "StateTransitions!dlo_outcome"),
+        "splitPercentage": 52,
+    }
+    return {"configById": panel_configs(), "globalVariables": {}, "userNodes": {},
+            "playbackConfig": {"speed": 1.0}, "layout": layout_tree}
+
+
+def layout_text() -> str:
+    return json.dumps(build_layout(), indent=2, ensure_ascii=False, sort_keys=False) + "\n"
+
+
+def layout_topics(layout: dict | None = None) -> set[str]:
+    """Every topic a panel of the layout reads."""
+    layout = layout or build_layout()
+    topics: set[str] = set()
+    for cfg in layout["configById"].values():
+        topics.update(cfg.get("topics", {}))
+        mode = cfg.get("imageMode", {})
+        topics.update(t for t in (mode.get("imageTopic"), mode.get("calibrationTopic")) if t)
+        for series in cfg.get("paths", []):
+            topics.add(series["value"].split(".", 1)[0])
+    return topics
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description="Write (or --check) the dlo-vitac Foxglove layout.")
+    parser.add_argument("--out", type=Path, default=None, help=f"output file (default: <repo>/{LAYOUT_FILE})")
+    parser.add_argument("--check", action="store_true", help="exit 1 if the file differs from the generated layout")
+    args = parser.parse_args(argv)
+    out = args.out or Path(__file__).resolve().parents[4] / LAYOUT_FILE
+    text = layout_text()
+    if args.check:
+        same = out.is_file() and out.read_text(encoding="utf-8") == text
+        print(f"{out}: {'up to date' if same else 'differs from the generated layout'}")
+        return 0 if same else 1
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(text, encoding="utf-8")
+    print(f"wrote {out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,29 @@
+from glob import glob
+
+from setuptools import find_packages, setup
+
+package_name = "dlo_viz"
+
+setup(
+    name=package_name,
+    version="0.1.0",
+    packages=find_packages(exclude=["test"]),
+    data_files=[
+        ("share/ament_index/resource_index/packages", ["resource/" + package_name]),
+        ("share/" + package_name, ["package.xml"]),
+        # parameters files of the nodes (tools/gen_node_configs.py): --ros-args --params-file
+        ("share/" + package_name + "/config", sorted(glob("config/*.yaml"))),
+    ],
+    install_requires=["setuptools"],
+    zip_safe=True,
+    maintainer="dlo-vitac maintainers",
+    maintainer_email="maintainers@dlo-vitac.dev",
+    description="Live view of the dlo-vitac graph: the Foxglove WebSocket bridge, its layout, and the launcher's "
+                "episode and status lines.",
+    license="Apache-2.0",
+    entry_points={
+        "console_scripts": [
+            "foxglove_bridge = dlo_viz.foxglove_bridge_node:main",
+        ],
+    },
+)

@@ -1,0 +1,437 @@
+"""The Foxglove bridge: a protocol-level client (foxglove_ws_client.py, not the SDK's) decodes what
+it serves, from the advertised ros2msg schemas only.
+
+- library (no ROS processes): schemas equal the recorder's bag definitions (one function), every
+  graph message type round-trips, late topics are advertised to connected clients, latched topics
+  reach late subscribers, clients connect and leave, a client that stops reading neither blocks
+  the publisher nor starves a second client, and stop() is bounded;
+- node: ``launch_graph.sh --foxglove 0`` (tactile-reactive policy): the printed URL serves every
+  /dlo topic + /clock (also those that appear after the client connected), decoded from the
+  schemas, with consistent frames; a second client joins mid-run; the bridge subscribes to a topic
+  in the ROS graph only while a client watches it (transient-local topics always); it stops
+  cleanly with the graph and logs its counts; a port in use is one line and exit 3.
+"""
+
+from __future__ import annotations
+
+import base64
+import json
+import os
+import re
+import signal
+import socket
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # --import-mode=importlib
+
+from dlo_viz_testutil import ROS2RUN, Proc  # noqa: E402
+from foxglove_ws_client import FoxgloveTestClient  # noqa: E402
+
+pytest.importorskip("foxglove")
+pytest.importorskip("websockets")
+
+# Every type the graph publishes (sim, perception, policy, markers, clock).
+GRAPH_TYPES = {
+    "/dlo/rope/particles": "sensor_msgs/msg/PointCloud2",
+    "/dlo/gripper/state": "dlo_msgs/msg/GripperState",
+    "/dlo/gripper/cmd": "dlo_msgs/msg/GripperCommand",
+    "/dlo/camera/image": "sensor_msgs/msg/Image",
+    "/dlo/camera/camera_info": "sensor_msgs/msg/CameraInfo",
+    "/dlo/tactile/pose": "dlo_msgs/msg/TactilePose",
+    "/dlo/vision/pose": "dlo_msgs/msg/VisualPose",
+    "/dlo/task/state": "dlo_msgs/msg/TaskState",
+    "/dlo/markers": "visualization_msgs/msg/MarkerArray",
+    "/dlo/sim/instance": "std_msgs/msg/String",
+    "/clock": "rosgraph_msgs/msg/Clock",
+}
+
+
+@pytest.fixture(scope="module")
+def typestore():
+    if "DLO_ROOT" not in os.environ:
+        pytest.skip("source scripts/env.sh first")
+    from dlo_bag.bag import make_typestore
+
+    return make_typestore()
+
+
+@pytest.fixture
+def bridge(typestore):
+    from dlo_viz.foxglove_bridge import FoxgloveBridge
+
+    lines = []
+    b = FoxgloveBridge(port=0, typestore=typestore, client_backlog=64,
+                       log=lambda level, text: lines.append(text)).start()
+    b.lines = lines
+    yield b
+    b.stop()
+
+
+def make_messages(ts) -> dict:
+    """One message per graph topic, built with the rosbags typestore (every field set)."""
+    T = ts.types
+    header = T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](sec=12, nanosec=345), frame_id="world")
+    fields = [T["sensor_msgs/msg/PointField"](name=n, offset=4 * i, datatype=7, count=1)
+              for i, n in enumerate(("x", "y", "z", "held"))]
+    points = np.arange(3 * 4, dtype="<f4").reshape(3, 4)
+    point = T["geometry_msgs/msg/Point"]
+    marker = T["visualization_msgs/msg/Marker"](
+        header=header, ns="cable", id=0, type=4, action=0,
+        pose=T["geometry_msgs/msg/Pose"](position=point(x=0.1, y=0.2, z=0.3),
+                                          orientation=T["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0)),
+        scale=T["geometry_msgs/msg/Vector3"](x=0.008, y=0.0, z=0.0),
+        color=T["std_msgs/msg/ColorRGBA"](r=0.9, g=0.5, b=0.1, a=1.0),
+        lifetime=T["builtin_interfaces/msg/Duration"](sec=0, nanosec=0), frame_locked=False,
+        points=[point(x=0.0, y=0.0, z=0.1), point(x=0.01, y=0.0, z=0.1)], colors=[], texture_resource="",
+        texture=T["sensor_msgs/msg/CompressedImage"](header=header, format="", data=np.zeros(0, np.uint8)),
+        uv_coordinates=[], text="", mesh_resource="",
+        mesh_file=T["visualization_msgs/msg/MeshFile"](filename="", data=np.zeros(0, np.uint8)),
+        mesh_use_embedded_materials=False)
+    roi = T["sensor_msgs/msg/RegionOfInterest"](x_offset=0, y_offset=0, height=0, width=0, do_rectify=False)
+    return {
+        "/dlo/rope/particles": T["sensor_msgs/msg/PointCloud2"](
+            header=header, height=1, width=3, fields=fields, is_bigendian=False, point_step=16, row_step=48,
+            data=np.frombuffer(points.tobytes(), np.uint8), is_dense=True),
+        "/dlo/gripper/state": T["dlo_msgs/msg/GripperState"](header=header, x=0.1, y=-0.2, z=0.1, closure=0.7,
+                                                             episode=2, step=17),
+        "/dlo/gripper/cmd": T["dlo_msgs/msg/GripperCommand"](header=header, vx=0.1, vy=-0.05, closure=1.0,
+                                                             episode=2, step=17),
+        "/dlo/camera/image": T["sensor_msgs/msg/Image"](header=header, height=4, width=5, encoding="mono8",
+                                                        is_bigendian=0, step=5,
+                                                        data=np.arange(20, dtype=np.uint8)),
+        "/dlo/camera/camera_info": T["sensor_msgs/msg/CameraInfo"](
+            header=header, height=4, width=5, distortion_model="plumb_bob", d=np.zeros(5), k=np.arange(9.0),
+            r=np.eye(3).ravel(), p=np.zeros(12), binning_x=0, binning_y=0, roi=roi),
+        "/dlo/tactile/pose": T["dlo_msgs/msg/TactilePose"](header=header, angle=0.1, y=0.002, contact=True,
+                                                           contact_count=3),
+        "/dlo/vision/pose": T["dlo_msgs/msg/VisualPose"](header=header, visible=True, confidence=0.8, angle=-0.2,
+                                                         y=0.004),
+        "/dlo/task/state": T["dlo_msgs/msg/TaskState"](
+            header=header, episode=2, seed=42, step=17, held_indices=np.array([3, 4], np.int32), n_held=2,
+            mean_held_index=3.5, num_particles=40, cable_length=0.4, reward=0.25, episode_return=1.5,
+            done=True, outcome=1, held_indices_authors=np.array([4], np.int32), mean_held_index_authors=4.0,
+            outcome_authors=2, task_rules="paper_text"),
+        "/dlo/markers": T["visualization_msgs/msg/MarkerArray"](markers=[marker]),
+        "/dlo/sim/instance": T["std_msgs/msg/String"](data='{"pid": 1}'),
+        "/clock": T["rosgraph_msgs/msg/Clock"](clock=T["builtin_interfaces/msg/Time"](sec=12, nanosec=345)),
+    }
+
+
+def test_schemas_are_the_recorders_definitions(bridge, typestore, tmp_path):
+    """The advertised schema of each topic is byte-for-byte what the recorder writes into a bag."""
+    from rosbags.rosbag2 import Reader
+
+    from dlo_bag.bag import BagWriter
+
+    with BagWriter(tmp_path / "bag", typestore, fsync=False) as writer:
+        for topic, msgtype in GRAPH_TYPES.items():
+            writer.add_topic(topic, msgtype)
+            bridge.add_topic(topic, msgtype)
+    with Reader(tmp_path / "bag") as reader:
+        in_bag = {c.topic: c.msgdef.data for c in reader.connections}
+    client = FoxgloveTestClient(bridge.ws_url).connect()
+    try:
+        client.wait(lambda: len(client.channels) == len(GRAPH_TYPES), 10, "every channel")
+        for ch in client.channels.values():
+            assert ch["encoding"] == "cdr" and ch["schemaEncoding"] == "ros2msg"
+            assert ch["schemaName"] == GRAPH_TYPES[ch["topic"]]
+            assert ch["schema"] == in_bag[ch["topic"]], ch["topic"]
+            assert "MSG: " in ch["schema"] or ch["topic"] == "/dlo/sim/instance"  # nested types included
+    finally:
+        client.close()
+
+
+def test_every_graph_type_round_trips_and_late_topics_are_advertised(bridge, typestore):
+    msgs = make_messages(typestore)
+    early = ["/dlo/gripper/state", "/dlo/camera/camera_info"]
+    for topic in early:
+        bridge.add_topic(topic, GRAPH_TYPES[topic], latched=topic.endswith("camera_info"))
+    # camera_info is latched: published before any client exists, it still reaches a late subscriber
+    bridge.forward("/dlo/camera/camera_info", typestore.serialize_cdr(msgs["/dlo/camera/camera_info"],
+                                                                      GRAPH_TYPES["/dlo/camera/camera_info"]))
+    client = FoxgloveTestClient(bridge.ws_url).connect()
+    try:
+        assert client.subprotocol in ("foxglove.sdk.v1", "foxglove.websocket.v1")
+        client.wait(lambda: len(client.channels) == 2, 10, "the first two channels")
+        for topic, msgtype in GRAPH_TYPES.items():  # the rest appear while the client is connected
+            bridge.add_topic(topic, msgtype)
+        client.wait(lambda: len(client.channels) == len(GRAPH_TYPES), 10, "late channels")
+        client.subscribe()
+        client.wait(lambda: bridge.stats.subscriptions >= len(GRAPH_TYPES), 10, "subscriptions")
+        bridge.resend_latched()
+        for topic, msg in msgs.items():
+            if topic != "/dlo/camera/camera_info":
+                bridge.forward(topic, typestore.serialize_cdr(msg, GRAPH_TYPES[topic]))
+        client.wait(lambda: client.topics_received() == set(GRAPH_TYPES), 10, "one message per topic")
+        for item in client.messages:
+            decoded = client.decode(item)
+            expected = msgs[item.topic]
+            assert typestore.serialize_cdr(decoded, GRAPH_TYPES[item.topic]) == \
+                typestore.serialize_cdr(expected, GRAPH_TYPES[item.topic]), item.topic
+            assert abs(item.log_time - time.time_ns()) < 60e9  # stamped with the receive (wall) time
+        task = client.decode(next(m for m in client.messages if m.topic == "/dlo/task/state"))
+        assert (task.outcome, task.outcome_authors, task.seed) == (1, 2, 42)
+    finally:
+        client.close()
+
+
+def test_clients_connect_and_leave(bridge, typestore):
+    data = typestore.serialize_cdr(make_messages(typestore)["/dlo/gripper/state"], GRAPH_TYPES["/dlo/gripper/state"])
+    bridge.add_topic("/dlo/gripper/state", GRAPH_TYPES["/dlo/gripper/state"])
+    for _round in range(3):
+        clients = [FoxgloveTestClient(bridge.ws_url).connect() for _ in range(2)]
+        for c in clients:
+            c.wait(lambda c=c: c.channel_by_topic("/dlo/gripper/state") is not None, 10, "advertise")
+            c.subscribe()
+        time.sleep(0.2)
+        for _ in range(5):
+            bridge.forward("/dlo/gripper/state", data)
+        for c in clients:
+            c.wait(lambda c=c: len(c.messages) == 5, 10, "5 messages")
+            assert c.error is None
+        clients[0].unsubscribe_all()  # one unsubscribes, then both leave (one abruptly)
+        clients[0].close()
+        clients[1]._ws.socket.close()
+        time.sleep(0.3)
+    bridge.forward("/dlo/gripper/state", data)  # nobody subscribed: not forwarded, no error
+    wait_until(lambda: bridge.stats.clients_now == 0, 10)
+    assert bridge.stats.clients_connected == 6
+    assert bridge.stats.forwarded["/dlo/gripper/state"] == 15
+
+
+def wait_until(condition, timeout):
+    end = time.monotonic() + timeout
+    while not condition():
+        assert time.monotonic() < end, "timed out"
+        time.sleep(0.02)
+
+
+def stalled_client(port: int, channel_id: int) -> socket.socket:
+    """A WebSocket client that completes the handshake, subscribes and then never reads again."""
+    s = socket.create_connection(("127.0.0.1", port))
+    s.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+    key = base64.b64encode(os.urandom(16)).decode()
+    s.sendall((f"GET / HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
+               f"Sec-WebSocket-Key: {key}\r\nSec-WebSocket-Version: 13\r\n"
+               "Sec-WebSocket-Protocol: foxglove.sdk.v1\r\n\r\n").encode())
+    head = b""
+    while b"\r\n\r\n" not in head:
+        head += s.recv(1)
+    assert b" 101 " in head.split(b"\r\n")[0], head
+    payload = json.dumps({"op": "subscribe", "subscriptions": [{"id": 1, "channelId": channel_id}]}).encode()
+    mask = os.urandom(4)
+    s.sendall(bytes([0x81, 0x80 | 126]) + len(payload).to_bytes(2, "big") + mask
+              + bytes(b ^ mask[i % 4] for i, b in enumerate(payload)))
+    return s
+
+
+def test_a_client_that_stops_reading_never_blocks(bridge, typestore):
+    """12 MB to a client that reads nothing (more than the socket buffers hold): forward() stays
+    fast, a reading client gets everything in order, and stop() returns in bounded time."""
+    topic, msgtype = "/dlo/camera/image", "sensor_msgs/msg/Image"
+    channel = bridge.add_topic(topic, msgtype)
+    T = typestore.types
+    n, size = 600, 20_000
+    images = []
+    for i in range(n):
+        header = T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](sec=0, nanosec=i), frame_id="cam")
+        images.append(typestore.serialize_cdr(T[msgtype](header=header, height=100, width=200, encoding="mono8",
+                                                         is_bigendian=0, step=200,
+                                                         data=np.full(size, i % 256, np.uint8)), msgtype))
+    slow = stalled_client(bridge.port, channel.id())
+    good = FoxgloveTestClient(bridge.ws_url).connect()
+    try:
+        good.wait(lambda: good.channel_by_topic(topic) is not None, 10, "advertise")
+        good.subscribe()
+        wait_until(lambda: bridge.stats.subscriptions >= 2, 10)
+        worst = 0.0
+        for i, data in enumerate(images):
+            t0 = time.perf_counter()
+            bridge.forward(topic, data)
+            worst = max(worst, time.perf_counter() - t0)
+            if i % 20 == 19:  # a 'graph' at a steady pace (the reading client keeps up; the other does not)
+                time.sleep(0.05)
+        assert worst < 0.1, f"forward() took {worst:.3f} s with a stalled client"
+        good.wait(lambda: len(good.messages) == n, 60, f"{n} messages at the reading client")
+        stamps = [good.decode(m).header.stamp.nanosec for m in good.messages]
+        assert stamps == list(range(n))  # nothing lost or reordered for the reading client
+        assert bridge.stats.forwarded[topic] == n
+    finally:
+        good.close()
+        t0 = time.monotonic()
+        assert bridge.stop(timeout=2.0) in (True, False)
+        assert time.monotonic() - t0 < 3.0
+        slow.close()
+
+
+# ---- the node in a running graph -------------------------------------------------------------
+
+@pytest.fixture
+def launcher(ros_env):
+    """Start ``launch_graph.sh`` (its own DDS domain); stopped with SIGINT afterwards if still running."""
+    started = []
+
+    def start(*args: str) -> Proc:
+        proc = Proc(["bash", str(ROS2RUN.parent / "launch_graph.sh"), *args],
+                    {**ros_env, "DLO_USE_ROS2RUN": "1"}, "launch",
+                    # bash cannot trap a signal ignored at its start (a test run started as a background
+                    # job ignores SIGINT): the launcher must stop its graph on the SIGINT sent to it
+                    preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+        started.append(proc)
+        return proc
+
+    yield start
+    for proc in started:
+        if proc.p.poll() is None:
+            proc.signal(signal.SIGINT)
+            try:
+                proc.wait(timeout=60)
+            except Exception:  # noqa: BLE001
+                proc.kill()
+
+
+class GraphObserver:
+    """A node of the test's own on the launcher's domain: who subscribes to what in the ROS graph."""
+
+    def __init__(self, domain_id: int) -> None:
+        import rclpy
+
+        self.rclpy = rclpy
+        self.context = rclpy.Context()
+        rclpy.init(context=self.context, domain_id=domain_id)
+        self.node = rclpy.create_node("foxglove_test_observer", context=self.context)
+
+    def subscribed_by(self, node_name: str, topics) -> set[str]:
+        """The ``topics`` that node ``node_name`` subscribes to, as discovery shows them now."""
+        return {t for t in topics
+                if any(i.node_name == node_name for i in self.node.get_subscriptions_info_by_topic(t))}
+
+    def close(self) -> None:
+        self.node.destroy_node()
+        self.rclpy.try_shutdown(context=self.context)
+
+
+def test_launch_graph_foxglove_serves_every_graph_topic_live(launcher, tmp_path, monkeypatch):
+    """``launch_graph.sh --foxglove 0``: the printed URL works; every /dlo topic + /clock is
+    advertised (perception/policy topics appear after the client connected) and decoded from the
+    advertised schemas; frames are consistent; a second client joins mid-run; the bridge is lazy:
+    it subscribes to every topic in the ROS graph while the clients watch them and, once both left,
+    to the transient-local ones only; it stops cleanly with the graph.
+
+    The run is unlimited and the test ends it (SIGINT, exit 130) once it has seen what it checks:
+    with a fixed number of episodes, a slow machine could end the graph while a client still
+    watches, or before the bridge has followed the clients' departure."""
+    logs = tmp_path / "logs"
+    launch = launcher("--foxglove", "0", "--episodes", "0", "--seed", "3", "--policy", "tactile_reactive",
+                      "--logs", str(logs))
+    launch.wait_line("Foxglove live view: open https://app.foxglove.dev/", timeout=180)
+    url = re.search(r"(ws://127\.0\.0\.1:\d+)", launch.wait_line("Foxglove WebSocket ->", timeout=10)).group(1)
+    domain = int(re.search(r"\[launch\] ROS_DOMAIN_ID=(\d+)", launch.output()).group(1))
+    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")  # as the graph's nodes (ros_env)
+    observer = GraphObserver(domain)
+    client = FoxgloveTestClient(url).connect()
+    second = None
+
+    def bridge_subscribes(wanted: set[str], what: str) -> None:
+        end = time.monotonic() + 120
+        while (now := observer.subscribed_by("foxglove_bridge", GRAPH_TYPES)) != wanted:
+            assert launch.p.poll() is None, "the launcher ended early"
+            assert time.monotonic() < end, f"{what}: the bridge subscribes to {sorted(now)}, not {sorted(wanted)}"
+            time.sleep(0.1)
+
+    try:
+        try:  # the sim builds its Taichi kernels first (minutes on a loaded 2-core machine)
+            client.wait(lambda: set(GRAPH_TYPES) <= {c["topic"] for c in client.channels.values()}
+                        or launch.p.poll() is not None, 480, "every graph topic advertised")
+            assert launch.p.poll() is None, "the launcher ended early"
+            for ch in client.channels.values():
+                assert ch["schemaName"] == GRAPH_TYPES.get(ch["topic"], ch["schemaName"])
+            client.subscribe()
+            client.wait(lambda: set(GRAPH_TYPES) <= client.topics_received(), 240, "a message on every topic")
+            second = FoxgloveTestClient(url).connect()  # joins mid-run
+            second.wait(lambda: {"/dlo/gripper/state", "/dlo/camera/camera_info"}
+                        <= {c["topic"] for c in second.channels.values()}, 30, "advertise")
+            second.subscribe(["/dlo/gripper/state", "/dlo/camera/camera_info"])
+            second.wait(lambda: {"/dlo/gripper/state", "/dlo/camera/camera_info"} <= second.topics_received(), 60,
+                        "state + latched camera_info at the second client")
+            bridge_subscribes(set(GRAPH_TYPES), "while every topic is watched")
+            decoded = {m.topic: client.decode(m) for m in client.messages}  # every message, from the schemas
+            for m in second.messages:
+                second.decode(m)
+            client.close()
+            second.close()
+            # lazy: with both clients gone, only the transient-local topics stay subscribed
+            latched = set(re.findall(r"advertising (\S+) \[[^]]+\] \([a-z_]+, transient_local",
+                                     (logs / "foxglove.log").read_text()))
+            assert "/dlo/camera/camera_info" in latched, latched
+            bridge_subscribes(latched & set(GRAPH_TYPES), "once both clients left")
+        except AssertionError as err:
+            logs_text = "\n".join(f"--- {f.name}:\n{f.read_text()[-1500:]}" for f in sorted(logs.glob("*.log")))
+            raise AssertionError(f"{err}\n--- launcher:\n{launch.output()[-2000:]}\n{logs_text}") from None
+    finally:
+        client.close()
+        if second is not None:
+            second.close()
+        observer.close()
+    launch.signal(signal.SIGINT)
+    assert launch.wait(timeout=600) == 130, launch.output()  # interrupted: no node failed before
+    assert "did not stop within" not in launch.output(), launch.output()
+    assert decoded["/dlo/camera/image"].encoding == "mono8"
+    # frames: each message names the frame its values are in (docs/ARCHITECTURE.md#world)
+    assert decoded["/dlo/camera/image"].header.frame_id == decoded["/dlo/camera/camera_info"].header.frame_id \
+        == "top_camera_optical"
+    assert decoded["/dlo/tactile/pose"].header.frame_id == decoded["/dlo/vision/pose"].header.frame_id == "gripper"
+    for topic in ("/dlo/rope/particles", "/dlo/gripper/state", "/dlo/task/state"):
+        assert decoded[topic].header.frame_id == "world", topic
+    assert {m.header.frame_id for m in decoded["/dlo/markers"].markers} == {"world"}
+    assert decoded["/dlo/camera/camera_info"].k[0] > 0
+    assert decoded["/dlo/task/state"].num_particles >= 30
+    assert len(decoded["/dlo/markers"].markers) == 3
+    assert decoded["/clock"].clock.sec >= 0
+    bridge_log = (logs / "foxglove.log").read_text()
+    assert "Traceback" not in bridge_log
+    assert re.search(r"bridge cpu [\d.]+ s over", bridge_log), bridge_log[-1500:]  # its shutdown ran to the end
+    forwarded = re.findall(r"forwarded (\d+)", bridge_log)
+    assert forwarded and int(forwarded[-1]) > 0, bridge_log[-1500:]
+    assert "client 127.0.0.1" in bridge_log  # connections are logged
+    # its counts at shutdown: every topic advertised, the transient-local ones still subscribed
+    topics, subscribed = map(int, re.findall(r"(\d+) topics \((\d+) subscribed\)", bridge_log)[-1])
+    assert topics >= len(GRAPH_TYPES) and subscribed == len(latched), bridge_log[-1500:]
+
+
+def test_bridge_node_port_in_use_is_one_line(procs):
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        s.listen()
+        port = s.getsockname()[1]
+        proc = procs("bridge", [str(ROS2RUN), "dlo_viz", "foxglove_bridge", "--ros-args", "-p", f"port:={port}"])
+        assert proc.wait(timeout=60) == 3
+    out = proc.output()
+    assert "Traceback" not in out and f"127.0.0.1:{port}" in out and "port:=" in out, out
+
+
+def test_layout_ships_and_reads_only_graph_topics():
+    """docs/foxglove/dlo_vitac.json is the generated layout (app export format), every panel of the
+    tree is configured, and every topic it reads is one the graph (and its bags) carry."""
+    from dlo_viz.foxglove_layout import LAYOUT_FILE, build_layout, layout_topics, main
+
+    shipped = Path(__file__).resolve().parents[4] / LAYOUT_FILE
+    assert main(["--check", "--out", str(shipped)]) == 0, "regenerate: python -m dlo_viz.foxglove_layout"
+    layout = json.loads(shipped.read_text(encoding="utf-8"))
+    assert layout == build_layout()
+
+    def leaves(node):
+        return [node] if isinstance(node, str) else leaves(node["first"]) + leaves(node["second"])
+
+    assert sorted(leaves(layout["layout"])) == sorted(layout["configById"])
+    types = {panel.split("!")[0] for panel in layout["configById"]}
+    assert {"3D", "Image", "Plot", "StateTransitions"} <= types
+    assert layout_topics(layout) <= set(GRAPH_TYPES)
+    scene = layout["configById"]["3D!dlo_scene"]
+    assert scene["topics"]["/dlo/rope/particles"]["colorField"] == "held"  # held particles coloured
+    assert "/dlo/markers" in scene["topics"] and scene["followTf"] == "world"
