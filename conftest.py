@@ -9,6 +9,9 @@ for the inner loop. Tiers, commands and measured times: tests/README.md#running-
 
 A list entry is a test file (every test in it) or ``file::test`` (every parametrization);
 tests/test_tiers.py checks that each entry still names a test.
+
+A pytest stopped by SIGTERM (a CI job's timeout, ``kill``) tears its fixtures down as on Ctrl-C, so a
+graph a module-scoped fixture started does not outlive the run (pytest_configure below).
 """
 
 from __future__ import annotations
@@ -59,6 +62,19 @@ def listed(nodeid: str, entries) -> bool:
     path, _, rest = nodeid.partition("::")
     test = f"{path}::{rest.split('[', 1)[0]}" if rest else path
     return any(entry in (path, test) for entry in entries)
+
+
+def pytest_configure(config):
+    """SIGTERM becomes KeyboardInterrupt: pytest then runs every fixture's teardown (stopping the node
+    processes and graphs tests started) and exits 2, instead of dying with them still running."""
+    import signal
+    import threading
+
+    def interrupt(signum, frame):
+        raise KeyboardInterrupt(f"pytest got signal {signum}")
+
+    if threading.current_thread() is threading.main_thread() and signal.getsignal(signal.SIGTERM) == signal.SIG_DFL:
+        signal.signal(signal.SIGTERM, interrupt)
 
 
 def pytest_collection_modifyitems(config, items):

@@ -1,10 +1,14 @@
-"""The test tiers stay true (conftest.py, tests/README.md#running-the-tests): the markers are
-registered, every listed file or test still exists, every fixture the graph rule names is still
-defined, and the markers are put on tests also when only ``ros_ws/src`` is collected."""
+"""The root conftest.py. Its test tiers stay true (tests/README.md#running-the-tests): the markers
+are registered, every listed file or test still exists, every fixture the graph rule names is still
+defined, and the markers are put on tests also when only ``ros_ws/src`` is collected. A pytest
+stopped by SIGTERM tears its fixtures down (no process a test started outlives it)."""
 
 from __future__ import annotations
 
 import ast
+import os
+import signal
+import time
 import configparser
 import importlib.util
 import pathlib
@@ -65,3 +69,41 @@ def test_markers_are_put_on_tests_when_only_ros_ws_is_collected():
     assert collected.returncode == 0, collected.stdout + collected.stderr
     graph = {line.split("::")[1] for line in collected.stdout.splitlines() if "::" in line}
     assert graph == {"test_playback_republishes_the_same_messages", "test_playback_bad_parameters"}, collected.stdout
+
+
+def test_sigterm_to_pytest_runs_fixture_teardown_so_no_child_outlives_it(tmp_path):
+    (tmp_path / "test_inner.py").write_text(
+        "import os, pathlib, subprocess, time\n"
+        "import pytest\n\n"
+        "@pytest.fixture\n"
+        "def child():\n"
+        "    p = subprocess.Popen(['sleep', '600'])\n"
+        "    pathlib.Path(os.environ['CHILD_PID']).write_text(str(p.pid))\n"
+        "    yield p\n"
+        "    p.terminate()\n"
+        "    p.wait()\n\n"
+        "def test_waits(child):\n"
+        "    time.sleep(600)\n")
+    pid_file = tmp_path / "child.pid"
+    env = dict(os.environ, CHILD_PID=str(pid_file), PYTHONPATH=f"{ROOT}{os.pathsep}{os.environ.get('PYTHONPATH', '')}")
+    pytest_run = subprocess.Popen([sys.executable, "-m", "pytest", "-q", "-p", "conftest", "-p", "no:cacheprovider",
+                                   "--rootdir", str(tmp_path), "-c", os.devnull, str(tmp_path / "test_inner.py")],
+                                  cwd=tmp_path, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        deadline = time.monotonic() + 120
+        while not pid_file.exists() and time.monotonic() < deadline and pytest_run.poll() is None:
+            time.sleep(0.1)
+        assert pid_file.exists(), pytest_run.communicate(timeout=60)[0][-2000:]
+        child = int(pid_file.read_text())
+        pytest_run.send_signal(signal.SIGTERM)
+        out = pytest_run.communicate(timeout=60)[0]
+        assert pytest_run.returncode == 2, out[-2000:]  # interrupted, as on Ctrl-C
+        try:
+            os.kill(child, 0)
+            alive = pathlib.Path(f"/proc/{child}/stat").read_text().split(")")[-1].split()[0] != "Z"
+        except ProcessLookupError:
+            alive = False
+        assert not alive, f"the fixture's child {child} outlived pytest:\n{out[-2000:]}"
+    finally:
+        if pytest_run.poll() is None:
+            pytest_run.kill()
