@@ -50,6 +50,8 @@ SLOW = (  # each about 3 s or more: a training, a long simulation, evaluation or
     "ros_ws/src/dlo_policy/test/test_ray_cluster.py",
     "ros_ws/src/dlo_policy/test/test_train.py::test_resume_after_sigkill_reproduces_the_uninterrupted_run",
     "ros_ws/src/dlo_policy/test/test_experiments.py::test_runner_skips_finished_runs_and_runs_the_rest_in_processes",
+    "ros_ws/src/dlo_policy/test/test_experiments.py::test_stopping_the_driver_stops_its_runs",
+    "ros_ws/src/dlo_policy/test/test_experiments.py::test_a_second_grid_on_the_same_runs_fails_that_run_in_one_line_and_leaves_the_first_alone",
     "ros_ws/src/dlo_policy/test/test_cli_errors.py::test_dlo_train_warns_when_no_update_will_happen",
     "ros_ws/src/dlo_policy/test/test_evaluate_scripted.py::test_the_same_episodes_as_run_episodes_seed_by_seed",
     "ros_ws/src/dlo_policy/test/test_evaluate_scripted.py::test_a_tiny_real_run_of_the_executable",

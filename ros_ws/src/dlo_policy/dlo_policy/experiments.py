@@ -12,7 +12,9 @@ Groups (paper, Results):
                  tactile input (V+K, V); "none" is the env's default, so it reuses All and T+V
 Runs are started seed by seed (all configurations of the first seed, then of the second, ...).
 A run whose directory has done.json is skipped, so re-running the command (or adding `--resume`,
-which says the same) continues an interrupted grid.
+which says the same) continues an interrupted grid. Stopping the driver (Ctrl-C, SIGTERM, even SIGKILL)
+stops its runs; each keeps its last checkpoint. A run directory is trained by one process at a time: a
+second grid on the same --out reports those runs as in use instead of writing into them.
 
 Local (default): each run trains in a fresh process into OUT/<label>/seed<k> (see dlo-train),
 `--jobs` at a time (`--jobs` x `--threads` <= cores: oversubscription costs ~4x); a run with a
@@ -56,9 +58,11 @@ import math
 import multiprocessing
 import os
 import shutil
+import signal
 import socket
 import sys
 import tempfile
+import threading
 import time
 import traceback
 from dataclasses import dataclass, field
@@ -71,7 +75,7 @@ from . import rundir
 from .config import ConfigError, RunConfig, check_env_options, make_env
 from .grid import GROUPS, RunSpec, experiment_grid, run_config
 from .rundir import CHECKPOINT_FILE, DONE_FILE, EVAL_FILE, LOG_FILE, run_status
-from .train import available_cores, set_threads, train
+from .train import Trainer, available_cores, set_threads
 
 
 class GridError(Exception):
@@ -102,14 +106,15 @@ def output_to(path: Path) -> Iterator[None]:
 
 
 def run_one(config_data: dict[str, Any], run_dir: str) -> dict[str, Any]:
-    """Train one run in this process (resuming it if it has a checkpoint); output to train.log."""
+    """Train one run in this process (resuming it if it has a checkpoint), holding the run directory's
+    lock from the first look at it (rundir.lock); output to train.log."""
     path = Path(run_dir)
-    path.mkdir(parents=True, exist_ok=True)
-    resume = (path / CHECKPOINT_FILE).exists()
-    if not resume:
-        (path / EVAL_FILE).unlink(missing_ok=True)  # evaluations of a run stopped before its first checkpoint
-    with output_to(path / LOG_FILE):
-        return train(RunConfig.from_dict(config_data), path, resume=resume)
+    with rundir.lock(path):
+        resume = (path / CHECKPOINT_FILE).exists()
+        if not resume:
+            (path / EVAL_FILE).unlink(missing_ok=True)  # evaluations of a run stopped before its first checkpoint
+        with output_to(path / LOG_FILE):
+            return Trainer(RunConfig.from_dict(config_data), path, resume=resume).run()
 
 
 def stamp_done(run_dir: Path, node: str, duration_s: float, attempts: int) -> None:
@@ -189,15 +194,32 @@ def _run_local_task(config_data: dict[str, Any], run_dir: str) -> tuple[str, Opt
         run_one(config_data, run_dir)
         stamp_done(Path(run_dir), LOCAL_NODE, time.monotonic() - start, attempts=1)
         return run_dir, None
+    except rundir.RunInUse as error:  # a user's mistake (two grids on one --out): one line, not a traceback
+        return run_dir, str(error)
     except Exception:  # noqa: BLE001 (reported by the parent; the other runs go on)
         return run_dir, traceback.format_exc()
+
+
+def _die_with_the_driver() -> None:
+    """Worker initializer: the kernel sends this worker SIGTERM when the driver dies, however it dies
+    (SIGKILL included), so no run goes on training unseen (Linux; elsewhere a no-op)."""
+    try:
+        import ctypes
+        import signal
+
+        ctypes.CDLL(None, use_errno=True).prctl(1, int(signal.SIGTERM))  # PR_SET_PDEATHSIG
+        if os.getppid() == 1:  # the driver died before prctl took effect
+            os._exit(1)
+    except (OSError, AttributeError):
+        pass
 
 
 def run_local(tasks: list[Task], jobs: int, progress: GridProgress) -> None:
     """Each task in a fresh spawned process, `jobs` at a time; sets each task's error."""
     context = multiprocessing.get_context("spawn")
-    with concurrent.futures.ProcessPoolExecutor(max_workers=jobs, mp_context=context,
-                                                max_tasks_per_child=1) as pool:
+    pool = concurrent.futures.ProcessPoolExecutor(max_workers=jobs, mp_context=context, max_tasks_per_child=1,
+                                                  initializer=_die_with_the_driver)
+    try:
         futures = {pool.submit(_run_local_task, task.config, str(task.run_dir)): task for task in tasks}
         for task in tasks:
             task.attempts, task.node = 1, LOCAL_NODE
@@ -213,6 +235,15 @@ def run_local(tasks: list[Task], jobs: int, progress: GridProgress) -> None:
             remaining -= 1
             progress.running = min(jobs, remaining)
             progress.done(task)
+    except BaseException:  # Ctrl-C, SIGTERM (main turns it into KeyboardInterrupt): stop the runs too
+        workers = list((getattr(pool, "_processes", None) or {}).values())
+        pool.shutdown(wait=False, cancel_futures=True)
+        for worker in workers:
+            worker.terminate()
+        for worker in workers:
+            worker.join(timeout=30)
+        raise
+    pool.shutdown(wait=True)
 
 
 def import_ray() -> Any:
@@ -523,8 +554,14 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _interrupt(signum: int, frame: Any) -> None:
+    raise KeyboardInterrupt(f"signal {signum}")
+
+
 def main(argv: Optional[Sequence[str]] = None) -> int:
     args = build_parser().parse_args(argv)
+    if threading.current_thread() is threading.main_thread():  # SIGTERM stops the runs like Ctrl-C does
+        signal.signal(signal.SIGTERM, _interrupt)
     if args.collect is not None:
         if not args.out.is_dir():
             return _usage_error(f"--collect: no directory {args.out}")

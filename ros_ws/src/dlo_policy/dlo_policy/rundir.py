@@ -11,14 +11,18 @@
     done.json        the completion marker, with the run's summary
     tb/              TensorBoard event files
     train.log        stdout and stderr of a run that dlo-experiments started
+    .lock            held (flock) by the one process training into the directory; holds its pid
 
 No torch and no Ray here: dlo-report, the dlo-experiments driver and the tools read runs through
 this module without loading the learner.
 """
 from __future__ import annotations
 
+import contextlib
 import csv
+import fcntl
 import json
+import os
 from pathlib import Path
 from typing import Any, Optional
 
@@ -37,6 +41,33 @@ TEST_PATTERN = "test*.json"  # test.json and every test_without_X.json
 DONE_FILE = "done.json"
 TB_DIR = "tb"
 LOG_FILE = "train.log"
+LOCK_FILE = ".lock"
+
+
+class RunInUse(RuntimeError):
+    """Another process is training into this run directory."""
+
+
+@contextlib.contextmanager
+def lock(run_dir: Path):
+    """Hold the run directory for one training process; a second one (a second dlo-train, a second
+    dlo-experiments on the same --out) gets RunInUse instead of writing the same files. The kernel
+    drops the lock when the holder exits, however it exits, so a killed run leaves nothing to clean."""
+    run_dir = Path(run_dir)
+    run_dir.mkdir(parents=True, exist_ok=True)
+    fd = os.open(run_dir / LOCK_FILE, os.O_RDWR | os.O_CREAT, 0o644)
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = os.pread(fd, 32, 0).decode(errors="replace").strip() or "?"
+            raise RunInUse(f"{run_dir} is in use by another training (pid {holder}): wait for it to end or "
+                           f"stop it, then resume") from None
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+        yield
+    finally:
+        os.close(fd)  # releases the lock
 
 # a run's record, a few kB: what dlo-experiments --collect copies (and test*.json)
 RECORD_FILES = (CONFIG_FILE, EVAL_FILE, DONE_FILE, BEST_FILE)

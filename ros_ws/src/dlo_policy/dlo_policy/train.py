@@ -337,8 +337,9 @@ def check_devices(config: RunConfig) -> None:
 
 
 def train(config: RunConfig, out_dir: str | Path, resume: bool = False) -> dict[str, Any]:
-    """Train (or resume) a run in `out_dir`; returns the done.json summary."""
-    return Trainer(config, Path(out_dir), resume).run()
+    """Train (or resume) a run in `out_dir`, holding its lock (rundir.lock); returns the done.json summary."""
+    with rundir.lock(Path(out_dir)):
+        return Trainer(config, Path(out_dir), resume).run()
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -386,7 +387,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
                   f"update will happen (random actions only); pass e.g. sac.learning_starts={steps // 3} "
                   f"or --steps above {starts}", file=sys.stderr)
         summary = train(config, args.out, resume=args.resume)
-    except (ConfigError, FileExistsError, FileNotFoundError) as error:
+    except (ConfigError, FileExistsError, FileNotFoundError, rundir.RunInUse) as error:
         print(f"dlo-train: error: {error}", file=sys.stderr)
         return 2
     print(json.dumps(summary))

@@ -1,16 +1,20 @@
 """dlo-experiments: the paper's grid, local parallel runs, skipping finished runs, Ray without Ray."""
+import contextlib
 import importlib.util
 import json
 import os
+import signal
 import socket
+import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
 
 from dlo_policy import experiments
 from dlo_policy.config import load_config
-from dlo_policy.rundir import CHECKPOINT_FILE, DONE_FILE, EVAL_FILE
+from dlo_policy.rundir import CHECKPOINT_FILE, DONE_FILE, EVAL_FILE, LOCK_FILE
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # --import-mode=importlib: helper modules (spawned runs too)
 
@@ -246,3 +250,73 @@ def test_ray_address_where_no_cluster_answers_is_a_one_line_error(tmp_path, caps
         err = capsys.readouterr().err
         assert message in err and len(err.strip().splitlines()) == 1
     assert not (tmp_path / "grid").exists()
+
+
+def _start_grid(out, *extra):
+    env = dict(os.environ, PYTHONPATH=f"{Path(__file__).resolve().parent}{os.pathsep}{os.environ.get('PYTHONPATH', '')}")
+    return subprocess.Popen([sys.executable, "-m", "dlo_policy.experiments", "--out", str(out), "--groups", "single",
+                             "--labels", "T", "--seeds", "1", "--steps", "1000000", "--jobs", "1", "--no-progress",
+                             *extra, *TINY], env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+
+
+def _worker_pid(run_dir, grid, timeout=120):
+    """The pid of the process training into run_dir (from its lock file), once it trains."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline and grid.poll() is None:
+        lock = run_dir / LOCK_FILE
+        if lock.exists() and lock.read_text().strip() and (run_dir / EVAL_FILE).exists():
+            return int(lock.read_text())
+        time.sleep(0.2)
+    raise AssertionError(f"no run started: {grid.communicate(timeout=30)[0][-2000:] if grid.poll() is not None else ''}")
+
+
+def _gone(pid, timeout=60):
+    """True once `pid` has exited (a zombie counts), checked at least once, for up to `timeout` s."""
+    deadline = time.monotonic() + timeout
+    while True:
+        try:
+            os.kill(pid, 0)
+            if Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[-1].split()[0] == "Z":
+                return True
+        except (ProcessLookupError, FileNotFoundError):
+            return True
+        if time.monotonic() >= deadline:
+            return False
+        time.sleep(0.2)
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGKILL])
+def test_stopping_the_driver_stops_its_runs(tmp_path, sig):
+    out = tmp_path / "grid"
+    grid = _start_grid(out)
+    worker = None
+    try:
+        worker = _worker_pid(out / "T" / "seed0", grid)
+        grid.send_signal(sig)
+        output = grid.communicate(timeout=90)[0]
+        if sig == signal.SIGTERM:
+            assert grid.returncode == 130 and "interrupted" in output, output[-2000:]
+        assert _gone(worker), f"the run (pid {worker}) trains on after the driver got {sig.name}"
+    finally:
+        if grid.poll() is None:
+            grid.kill()
+        if worker and not _gone(worker, timeout=0):
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(worker, signal.SIGKILL)
+
+
+def test_a_second_grid_on_the_same_runs_fails_that_run_in_one_line_and_leaves_the_first_alone(tmp_path, capsys):
+    out = tmp_path / "grid"
+    grid = _start_grid(out)
+    try:
+        worker = _worker_pid(out / "T" / "seed0", grid)
+        argv = ["--out", str(out), "--groups", "single", "--labels", "T", "--seeds", "1", "--steps", "1000000",
+                "--jobs", "1", "--no-progress", *TINY]
+        assert experiments.main(argv) == 1
+        captured = capsys.readouterr()
+        assert f"is in use by another training (pid {worker})" in captured.out + captured.err
+        assert "Traceback" not in captured.out + captured.err
+        assert grid.poll() is None and not _gone(worker, timeout=0)  # the first grid trains on
+    finally:
+        grid.terminate()
+        grid.communicate(timeout=90)
