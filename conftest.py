@@ -23,6 +23,7 @@ GRAPH_FIXTURES = frozenset({
     "procs",                 # ros_ws/src/dlo_{bag,viz,driver_kit}/test/conftest.py: node processes on a test domain
     "launcher",              # ros_ws/src/dlo_viz/test/test_foxglove_bridge.py: launch_graph.sh
     "probe",                 # tests/test_graph_faults.py: an in-process node next to node processes
+    "broken_checks",         # ros_ws/src/dlo_driver_kit/test/test_driver_check.py: broken drivers and checkers
 })
 
 GRAPH = (
@@ -52,6 +53,7 @@ SLOW = (  # each about 3 s or more: a training, a long simulation, evaluation or
     "ros_ws/src/dlo_policy/test/test_experiments.py::test_runner_skips_finished_runs_and_runs_the_rest_in_processes",
     "ros_ws/src/dlo_policy/test/test_experiments.py::test_stopping_the_driver_stops_its_runs",
     "ros_ws/src/dlo_policy/test/test_experiments.py::test_a_second_grid_on_the_same_runs_fails_that_run_in_one_line_and_leaves_the_first_alone",
+    "ros_ws/src/dlo_policy/test/test_experiments.py::test_a_partial_local_run_resumes_from_its_checkpoint_and_one_without_starts_afresh",
     "ros_ws/src/dlo_policy/test/test_cli_errors.py::test_dlo_train_warns_when_no_update_will_happen",
     "ros_ws/src/dlo_policy/test/test_evaluate_scripted.py::test_the_same_episodes_as_run_episodes_seed_by_seed",
     "ros_ws/src/dlo_policy/test/test_evaluate_scripted.py::test_a_tiny_real_run_of_the_executable",

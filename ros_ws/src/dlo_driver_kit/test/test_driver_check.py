@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 import math
 import re
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -19,7 +20,7 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # --import-mode=importlib
 
 from dlo_driver_kit_broken_driver import FAULTS  # noqa: E402
-from dlo_driver_kit_testutil import ROS2RUN  # noqa: E402
+from dlo_driver_kit_testutil import ROS2RUN, Proc  # noqa: E402
 
 from dlo_driver_kit.driver_check import (RULES, CloudSample, ImageSample, InfoSample, Recording,  # noqa: E402
                                          Settings, StateSample, check_stale, check_workspace, cloud_layout_problem,
@@ -66,11 +67,44 @@ def test_sim_node_in_real_time_passes_every_rule(procs, ros_env):
     assert set(verdicts(result.stdout).values()) == {"PASS"}
 
 
+BATCH = 4  # broken drivers checked at once, each with its checker on a ROS domain of its own
+
+
+@pytest.fixture(scope="module")
+def broken_checks(ros_env) -> dict[str, subprocess.CompletedProcess]:
+    """Every broken driver of FAULTS checked by dlo-driver-check, BATCH pairs at a time (a check holds
+    still and moves for ~12 s of fixed phases: one after the other they took minutes), each pair on a
+    domain of its own (the session's domain + 1 + its index) so that no two see each other."""
+    base, faults, results = int(ros_env["ROS_DOMAIN_ID"]), sorted(FAULTS), {}
+    for first in range(0, len(faults), BATCH):
+        batch = faults[first:first + BATCH]
+        envs = {fault: dict(ros_env, ROS_DOMAIN_ID=str(base + 1 + first + i)) for i, fault in enumerate(batch)}
+        drivers = {fault: Proc([sys.executable, str(HERE / "dlo_driver_kit_broken_driver.py"), fault], envs[fault], fault)
+                   for fault in batch}
+        try:
+            for driver in drivers.values():
+                driver.wait_line("real_time driver at", timeout=60)
+            checks = {fault: subprocess.Popen([*CHECK, "--timeout", "20", "--duration", "1"], env=envs[fault],
+                                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                      for fault in batch}
+            for fault, check in checks.items():
+                out, err = check.communicate(timeout=120)
+                results[fault] = subprocess.CompletedProcess(check.args, check.returncode, out, err)
+        finally:
+            for driver in drivers.values():
+                if driver.p.poll() is None:
+                    driver.signal(signal.SIGINT)
+            for driver in drivers.values():
+                try:
+                    driver.wait(timeout=10)
+                except subprocess.TimeoutExpired:
+                    driver.kill()
+    return results
+
+
 @pytest.mark.parametrize("fault", sorted(FAULTS))
-def test_a_broken_driver_fails_exactly_its_rule(procs, ros_env, fault):
-    driver = procs(fault, [sys.executable, str(HERE / "dlo_driver_kit_broken_driver.py"), fault])
-    driver.wait_line("real_time driver at", timeout=60)
-    result = run_check(ros_env, "--timeout", "20", "--duration", "1")
+def test_a_broken_driver_fails_exactly_its_rule(broken_checks, fault):
+    result = broken_checks[fault]
     assert result.returncode == 1, result.stdout + result.stderr
     failed = {rule for rule, status in verdicts(result.stdout).items() if status == "FAIL"}
     assert failed == {FAULTS[fault]}, result.stdout
@@ -358,3 +392,43 @@ def test_sync_judges_an_input_from_its_first_message_on():
     result = results_of(rec)["sync"]
     n = len(rec.states) - 2
     assert result.status == "FAIL" and f"1 of {n} states have no particle cloud with their exact stamp" in result.reason
+
+
+# ------------------------------------------------------------------ the exit status (no ROS: record() replaced)
+def run_main(monkeypatch, capsys, recording, *args):
+    """dlo-driver-check's main() on ``recording`` (what record() would have seen): (rc, stdout, stderr)."""
+    from dlo_driver_kit import driver_check
+
+    def record(settings, namespace, timeout):
+        if isinstance(recording, BaseException):
+            raise recording
+        return recording
+    monkeypatch.setattr(driver_check, "record", record)
+    rc = driver_check.main(list(args))
+    out = capsys.readouterr()
+    return rc, out.out, out.err
+
+
+def test_exit_0_only_if_every_rule_passes_and_a_skipped_rule_is_not_judged(monkeypatch, capsys):
+    """README / WRITE_YOUR_DRIVER.md section 4 / --help: exit 0 only if every rule passes, 1 if one fails;
+    --skip RULE (e.g. workspace on a robot whose corner is unsafe) prints SKIP and does not fail the check."""
+    s = Settings()
+    rc, out, _ = run_main(monkeypatch, capsys, complete_recording(s))
+    assert rc == 0 and set(verdicts(out).values()) == {"PASS"} and "9/9 rules passed" in out
+    outside = complete_recording(s)
+    for x in outside.states:  # a driver without workspace limits: the corner drive leaves the workspace
+        x.x += 0.5
+    rc, out, _ = run_main(monkeypatch, capsys, outside)
+    assert rc == 1 and {r for r, v in verdicts(out).items() if v == "FAIL"} == {"workspace"}
+    assert "failed: workspace" in out
+    rc, out, _ = run_main(monkeypatch, capsys, outside, "--skip", "workspace")
+    assert rc == 0 and verdicts(out)["workspace"] == "SKIP", out
+
+
+def test_no_driver_is_exit_1_and_an_interrupted_check_exit_130(monkeypatch, capsys):
+    """--help: exit 1 when no driver answered (one line naming the topic and the domain), 130 interrupted."""
+    rc, out, err = run_main(monkeypatch, capsys, None, "--namespace", "robot1", "--timeout", "2")
+    assert rc == 1 and out == "" and err.count("\n") == 1
+    assert "no driver: nothing published /robot1/dlo/gripper/state within 2 s" in err
+    rc, out, err = run_main(monkeypatch, capsys, KeyboardInterrupt())
+    assert rc == 130 and out == "" and err.strip() == "dlo-driver-check: interrupted"
