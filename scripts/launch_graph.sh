@@ -93,7 +93,6 @@ case "$mode" in step_locked|real_time) ;; *) bad "--mode must be step_locked or 
 case "$task_rules" in paper_text|authors_code) ;; *) bad "--task-rules must be paper_text or authors_code, got '$task_rules'" ;; esac
 case "$policy" in sac|tactile_reactive|oracle|random) ;;
   *) bad "--policy must be one of sac, tactile_reactive, oracle, random, got '$policy'" ;; esac
-[[ "$without" =~ ^([KTV](\+[KTV])*)?$ ]] || bad "--without must be empty or modalities joined by '+' (K, T, V), e.g. T or T+V, got '$without'"
 if [ -n "$checkpoint" ] && [ ! -f "$checkpoint" ]; then bad "--checkpoint $checkpoint: no such file"; fi
 [[ "$status_period" =~ ^[0-9]+([.][0-9]+)?$ ]] || bad "--status-period must be a number of seconds >= 0, got '$status_period'"
 if [ -n "$domain" ]; then
@@ -124,6 +123,10 @@ if ! noise_check="$("$PY" -m dlo_perception.tactile --check-noise="$noise" 2>&1)
   bad "--tactile-noise: ${noise_check#tactile noise: }"
 fi
 noise="${noise_check##*$'\n'}"  # its last line (stdout comes last)
+# --without: modalities of the registry (dlo_policy.modalities) joined by '+', checked before anything starts
+if [ -n "$without" ] && ! without_check="$("$PY" -m dlo_policy.modalities --check-without="$without" 2>&1)"; then
+  bad "${without_check##*$'\n'}"
+fi
 monitor_pid=""
 logs="${logs:-$(mktemp -d -t dlo-graph-XXXXXX)}"
 mkdir -p "$logs"
@@ -174,9 +177,10 @@ echo "[launch] ROS_DOMAIN_ID=$domain${namespace:+, topics under $prefix/} (to wa
 
 remap=()
 if [ -n "$namespace" ]; then
-  for t in /clock /dlo/rope/particles /dlo/gripper/state /dlo/gripper/cmd /dlo/camera/image \
-           /dlo/camera/camera_info /dlo/task/state /dlo/markers /dlo/tactile/pose /dlo/vision/pose /dlo/sim/reset \
-           /dlo/sim/instance; do
+  # every topic and service of the graph (the registry, dlo_common.topics)
+  mapfile -t graph_names < <("$PY" -m dlo_common.topics --names)
+  [ "${#graph_names[@]}" -gt 0 ] || { echo "launch_graph: python -m dlo_common.topics --names gave no names" >&2; exit 1; }
+  for t in "${graph_names[@]}"; do
     remap+=(-r "$t:=$prefix$t")
   done
 fi

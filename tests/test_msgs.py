@@ -14,6 +14,8 @@ from rclpy.serialization import deserialize_message, serialize_message  # noqa: 
 from dlo_msgs.msg import GripperCommand, GripperState, TactilePose, TaskState, VisualPose  # noqa: E402
 from dlo_msgs.srv import ResetEpisode  # noqa: E402
 
+from dlo_common.topics import TOPICS  # noqa: E402
+
 
 def sample_messages():
     """One message of every dlo_msgs type with distinctive, non-default field values."""
@@ -29,6 +31,26 @@ def sample_messages():
                      held_indices_authors=[11], mean_held_index_authors=11.0,
                      outcome_authors=TaskState.OUTCOME_STOP_BEFORE)
     return [state, command, tactile, visual, task]
+
+
+def registry_message_names():
+    """The dlo_msgs messages the graph's topics carry (the registry, dlo_common.topics), e.g. "GripperState"."""
+    return {t.type.rsplit("/", 1)[-1] for t in TOPICS if t.type.startswith("dlo_msgs/msg/")}
+
+
+def test_every_message_of_the_graph_has_a_sample_here():
+    """sample_messages covers every dlo_msgs type a topic of the registry carries (and only those), so the
+    round-trip and cross-process tests below see each one."""
+    assert {type(m).__name__ for m in sample_messages()} == registry_message_names()
+
+
+def test_every_topic_and_service_type_of_the_registry_is_built():
+    """Each type dlo_common.topics names resolves to its generated class (the nodes create their publishers
+    and subscriptions from it)."""
+    from dlo_common.topics import SERVICES, message_class
+
+    for name, msgtype in [(t.name, t.type) for t in TOPICS] + [(s.name, s.type) for s in SERVICES]:
+        assert message_class(msgtype).__name__ == msgtype.rsplit("/", 1)[-1], name
 
 
 def fields_equal(a, b):
@@ -59,7 +81,7 @@ def test_every_message_has_a_header_and_documented_fields():
 
     share = pathlib.Path(get_package_share_directory("dlo_msgs"))
     msg_files = sorted((share / "msg").glob("*.msg"))
-    assert {p.stem for p in msg_files} == {"GripperState", "GripperCommand", "TactilePose", "VisualPose", "TaskState"}
+    assert {p.stem for p in msg_files} == registry_message_names()  # every message is a topic's (dlo_common.topics)
     for path in msg_files:
         lines = [ln.strip() for ln in path.read_text().splitlines()]
         assert "std_msgs/Header header" in lines, path.name

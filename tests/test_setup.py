@@ -58,3 +58,37 @@ def test_env_sh_works_from_any_directory(tmp_path):
                             timeout=300)
     assert result.returncode == 0, result.stderr
     assert result.stdout.strip().endswith("ok")
+
+
+def prerequisites_only(tmp_path, headers=True, tools=()):
+    """A PATH holding a fake python3.11 (3.11 with venv; Python.h present or not), dirname and ``tools``:
+    the set-up's first checks see a machine that lacks what is left out."""
+    import shutil
+
+    bin_dir = tmp_path / "bin"
+    bin_dir.mkdir(parents=True)
+    fake = bin_dir / "python3.11"
+    fake.write_text('#!/bin/sh\ncase "$2" in *version_info*) echo 3.11 ;; *Python.h*) exit %d ;; esac\nexit 0\n'
+                    % (0 if headers else 1))
+    fake.chmod(0o755)
+    for tool in ("dirname", *tools):
+        (bin_dir / tool).symlink_to(shutil.which(tool))
+    return {"PATH": str(bin_dir), "DLO_PYTHON": "python3.11", "DLO_VENV": str(tmp_path / "venv")}
+
+
+def test_missing_headers_or_compiler_is_a_clear_error(tmp_path):
+    """README (The two commands): set-up stops with a one-line reason and a fix when Python 3.11's headers
+    or a C/C++ compiler are missing (before it creates or installs anything)."""
+    result = subprocess.run(["/bin/bash", str(SETUP)], capture_output=True, text=True, timeout=120,
+                            env=prerequisites_only(tmp_path / "a", headers=False))
+    assert result.returncode == 1 and result.stdout == ""
+    assert result.stderr.splitlines() == [
+        "[setup] ERROR: Python 3.11 development headers (Python.h) are missing; building dlo_msgs needs them",
+        "[setup] fix: install python3.11-dev"]
+    for present, missing in (((), "cc"), (("cc",), "c++"), (("cc", "c++"), "make")):
+        env = prerequisites_only(tmp_path / missing, tools=present)
+        result = subprocess.run(["/bin/bash", str(SETUP)], capture_output=True, text=True, timeout=120, env=env)
+        assert result.returncode == 1 and result.stderr.splitlines() == [
+            f"[setup] ERROR: no '{missing}' on PATH; building the dlo_msgs interfaces needs a C/C++ toolchain",
+            "[setup] fix: install one, e.g. 'apt install build-essential'"], result.stderr
+        assert not (tmp_path / missing / "venv").exists()

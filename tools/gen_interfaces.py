@@ -37,6 +37,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from dlo_common.topics import select
+
 ROOT = Path(__file__).resolve().parents[1]
 DOC = ROOT / "docs" / "INTERFACES.md"
 HOOK_DIR = ROOT / "tools" / "gen_interfaces_hook"
@@ -44,21 +46,22 @@ MSG_DIR = ROOT / "ros_ws" / "src" / "dlo_msgs"
 PROBE_NODE = "interfaces_probe"
 EXIT_STALE, EXIT_ERROR = 1, 2
 
-# Topics docs/ARCHITECTURE.md#topics lists (the contract); the live graph is compared with it.
-CONTRACT_TOPICS = ("/dlo/rope/particles", "/dlo/gripper/state", "/dlo/camera/image", "/dlo/camera/camera_info",
-                   "/dlo/tactile/pose", "/dlo/vision/pose", "/dlo/gripper/cmd", "/dlo/task/state", "/dlo/markers",
-                   "/clock")
+# Topics docs/ARCHITECTURE.md#topics lists (the contract): the registry's (dlo_common.topics) but the simulator's
+# internal ones; the live graph is compared with it.
+CONTRACT_TOPICS = tuple(t.name for t in select(exclude=("internal",)))
 INFRASTRUCTURE_TOPICS = ("/parameter_events", "/rosout")
 PARAMETER_SERVICES = ("describe_parameters", "get_parameters", "get_parameter_types", "list_parameters",
                       "set_parameters", "set_parameters_atomically", "get_type_description")
 
 
 def semantics() -> dict:
-    """The hand-written part: per topic its rate class, units/ranges and what a real robot does.
+    """Per topic of the registry (dlo_common.topics): its rate class, the driver's part (``role``) and
+    ``sim_only`` from its record, and the hand-written units/ranges and what a real robot does.
 
     ``rate``: "step" = one message per control step (the state of step k and everything computed
     from it), "latched" = published once, transient-local. ``driver``: what a real robot driver
-    must do about the topic. Numbers come from the code's constants.
+    must do about the topic. Numbers come from the code's constants. A topic without a hand-written
+    entry shows its record's description as its units.
     """
     from dlo_perception.camera import TopCamera
     from dlo_perception.tactile import Y_LIMIT
@@ -69,13 +72,11 @@ def semantics() -> dict:
 
     w = WORKSPACE_HALF_WIDTH
     cam = TopCamera.covering_workspace()
-    return {
+    prose = {
         "/clock": dict(
-            rate="step", units="simulation time of the state just published (0.08 s per control step)",
-            driver="not needed: no node runs with use_sim_time; a driver stamps with its own clock",
-            sim_only=True),
+            units="simulation time of the state just published (0.08 s per control step)",
+            driver="not needed: no node runs with use_sim_time; a driver stamps with its own clock"),
         "/dlo/gripper/state": dict(
-            rate="step", role="publishes",
             units=f"x, y [m] in the workspace [{-w}, {w}]; z [m] gripper height (sim: {GRIPPER_HEIGHT}, constant; "
                   "vision_node converts pixels to metres at this height); closure c_G [-] in [0, 1]; "
                   f"episode (0-based); step 0..{HORIZON} within the episode",
@@ -83,55 +84,52 @@ def semantics() -> dict:
                    "to the state); `step` +1 per control step (per executed command in step_locked, per tick in "
                    "real_time), `episode` +1 per reset"),
         "/dlo/gripper/cmd": dict(
-            rate="step", role="subscribes (as `sim_node` does)",
             units=f"vx, vy [m/s] with |vx|, |vy| <= {MAX_SPEED:g} (= {MAX_SPEED * 0.01:g} m per 0.01 s); closure "
                   "[-] in [0, 1]; episode, step = those of the state it answers; header = that state's header",
             driver="**must obey**: apply it from the next control step on until the next command; reject (warn, "
                    "hold) non-finite or out-of-range values and commands for another episode or a stale step; stop "
                    "and hold the closure when the last command is older than command_timeout"),
         "/dlo/camera/image": dict(
-            rate="step", role="publishes (or publishes `/dlo/vision/pose`)",
             units=f"mono8 segmentation, {cam.width} x {cam.height} px: {IMAGE_CABLE} cable, {IMAGE_GRIPPER} gripper, "
                   f"{IMAGE_BACKGROUND} background; top view (column u ~ world +x, row v ~ world -y)",
             driver="**must publish** (a segmented top-camera frame with the state's stamp), or publish "
                    "/dlo/vision/pose itself and not run vision_node"),
         "/dlo/camera/camera_info": dict(
-            rate="latched", role="publishes",
             units=f"K [px] of the top camera; sim: {cam.width} x {cam.height}, fx = fy = {cam.fx:g}, "
                   f"cx = cy = {cam.cx:g}, camera at {cam.position} m looking down -z (the position is vision_node's "
                   "camera_position parameter, CameraInfo has no pose)",
             driver="**must publish**, transient-local (latched), frame_id = the image's"),
         "/dlo/rope/particles": dict(
-            rate="step", role="publishes contact points, **or** `/dlo/tactile/pose`",
             units=f"points in index order (0 = fixed end at {FIXED_END} m): x, y, z [m] world; held 1.0 = between "
                   "the fingers, else 0.0",
             driver="ground truth in the sim; a driver may publish the tactile sensor's contact points here "
-                   "(held = 1 for points in contact) for tactile_node, or publish /dlo/tactile/pose itself",
-            sim_only=True),
+                   "(held = 1 for points in contact) for tactile_node, or publish /dlo/tactile/pose itself"),
         "/dlo/tactile/pose": dict(
-            rate="step", role="publishes, **or** `/dlo/rope/particles` contact points",
             units=f"angle theta_T [rad] in (-pi/2, pi/2]; y y_T [m], |y_T| <= {Y_LIMIT}; contact (>= 2 points "
                   "between the fingers; false: angle = y = 0); contact_count",
             driver="from tactile_node (particles), or from a tactile sensor driver directly (same stamp as the state)"),
         "/dlo/vision/pose": dict(
-            rate="step",
             units="visible v_V; confidence q_V in [0, 1]; angle theta_V [rad]; y y_V [m] (0 when not visible)",
             driver="from vision_node (image + camera_info + state)"),
         "/dlo/task/state": dict(
-            rate="step",
             units=f"episode, seed, step; held particle indices, n_h, p_i (mean held index, -1 = none); n_c, L_c [m]; "
                   f"reward and return; done and outcome (paper rule: any of the last {END_PARTICLES} held) and the "
                   "authors' rule's held set, mean index and outcome",
             driver="simulation only (needs the cable's ground truth): a driver publishes none; the policy needs it "
-                   "only for online training (train:=true); dlo-analyze of a driver bag has no outcomes",
-            sim_only=True),
+                   "only for online training (train:=true); dlo-analyze of a driver bag has no outcomes"),
         "/dlo/markers": dict(
-            rate="step", units="cable line strip (width 0.008 m) and the two finger cylinders, world frame",
-            driver="optional (visualisation only)", sim_only=True),
+            units="cable line strip (width 0.008 m) and the two finger cylinders, world frame",
+            driver="optional (visualisation only)"),
         "/dlo/sim/instance": dict(
-            rate="latched", units="JSON {host, pid, started_ns}: the simulator on this domain",
-            driver="simulator-internal (two simulators on one domain: the later one leaves)", sim_only=True),
+            units="JSON {host, pid, started_ns}: the simulator on this domain",
+            driver="simulator-internal (two simulators on one domain: the later one leaves)"),
     }
+    entries = {}
+    for t in select():
+        entry = {"rate": t.rate, "units": t.description, **({"role": t.driver} if t.driver else {}),
+                 **({"sim_only": True} if t.sim_only else {})}
+        entries[t.name] = {**entry, **prose.get(t.name, {})}
+    return entries
 
 
 # ----------------------------------------------------------------------------------- live capture

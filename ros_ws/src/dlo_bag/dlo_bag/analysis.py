@@ -29,14 +29,18 @@ from pathlib import Path
 
 import numpy as np
 
+from dlo_common.topics import select, topic
 from dlo_perception.cloud import unpack_particles
 from dlo_perception.sync import stamp_to_ns
 from dlo_sim.task import LEGACY_TASK_RULES, OUTCOME_NAMES, EpisodeTracker
 from dlo_bag.bag import EXIT_BAD_BAG, EXIT_NO_TASK_STATE, EXIT_USAGE, BagError, NotABagError, read_messages
 from dlo_bag.outcome_table import outcome_table
 
-TOPICS = {"/dlo/task/state": "task", "/dlo/gripper/state": "gripper", "/dlo/gripper/cmd": "command",
-          "/dlo/tactile/pose": "tactile", "/dlo/vision/pose": "vision", "/dlo/rope/particles": "particles"}
+# What an episode is read from, {topic: stream} (the registry, dlo_common.topics): the topics of a control step that
+# carry its episode and step (state, command, task), the observations (matched to a step by stamp) and the particle
+# cloud (the cable in the top-view plots); a stream is named by its topic's key.
+STEPPED = frozenset(t.key for t in select("state", "command", "task"))
+TOPICS = {t.name: t.key for t in (*select("state", "command", "task", "observation"), topic("particles"))}
 
 
 def read_run(path, extra: dict[str, str] | None = None) -> dict:
@@ -51,7 +55,7 @@ def read_run(path, extra: dict[str, str] | None = None) -> dict:
     for item in read_messages(path, topics=list(topics)):
         stream, msg = topics[item.topic], item.msg
         stamp = stamp_to_ns(msg.header.stamp)
-        if stream in ("task", "gripper", "command"):
+        if stream in STEPPED:
             episodes[msg.episode][stream][msg.step] = msg
             stamp_episode_step[stamp] = (msg.episode, msg.step)
         else:
@@ -254,7 +258,7 @@ class NoTaskState(ValueError):
 def analyse(path, plots: Path | None = None, video: dict | None = None) -> list:
     """Per-episode recomputed summaries of a bag (optionally writing one plot and one video per
     episode; ``video``: keyword arguments of :func:`write_videos`, ``out`` included)."""
-    run = read_run(path, extra={"/dlo/camera/image": "image"} if video else None)
+    run = read_run(path, extra={topic("image").name: "image"} if video else None)
     if not any("task" in streams for streams in run.values()):
         raise NoTaskState(path, sum(len(streams.get("gripper", {})) for streams in run.values()))
     summaries = []

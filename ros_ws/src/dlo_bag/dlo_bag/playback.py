@@ -2,32 +2,15 @@
 
 from __future__ import annotations
 
-import importlib
 from collections.abc import Sequence
 
 from rosbags.interfaces import Qos, QosDurability, QosReliability
 
+from dlo_common.topics import message_class
 
-def import_message_class(msgtype: str) -> type:
-    """The generated Python class of ``pkg/msg/Name`` (e.g. ``sensor_msgs/msg/Image``).
 
-    (rosidl_runtime_py.utilities.get_message is not in the Jazzy wheels; this is what it does.)
-    """
-    parts = msgtype.split("/")
-    if len(parts) == 2:
-        parts = [parts[0], "msg", parts[1]]
-    if len(parts) != 3 or not all(parts):
-        raise ValueError(f"'{msgtype}' is not a ROS 2 type name like 'pkg/msg/Name'")
-    pkg, kind, name = parts
-    try:
-        module = importlib.import_module(f"{pkg}.{kind}")
-    except ImportError as err:
-        raise ValueError(f"cannot import message package '{pkg}.{kind}' for '{msgtype}': "
-                         f"{err} (is it built and on PYTHONPATH? 'source scripts/env.sh')") from err
-    try:
-        return getattr(module, name)
-    except AttributeError:
-        raise ValueError(f"'{pkg}.{kind}' has no type '{name}'") from None
+# The generated Python class of ``pkg/msg/Name``: the one resolver lives with the topic registry.
+import_message_class = message_class
 
 
 def playback_qos(offered: Sequence[Qos]) -> tuple[QosReliability, QosDurability]:

@@ -21,11 +21,13 @@ from pathlib import Path
 from rosbags.interfaces import Qos
 from rosbags.typesys.store import Typestore
 
+from dlo_common.topics import topic as topic_record
+
 from .bag import BagError, BagWriteError, BagWriter, TopicSpec, make_typestore
 from .mcap_file import WRITER_NAME
 
-TASK_TOPIC = "/dlo/task/state"
-TASK_TYPE = "dlo_msgs/msg/TaskState"
+TASK_TOPIC = topic_record("task").name  # the topic that marks episodes (dlo_common.topics)
+TASK_TYPE = topic_record("task").type
 
 
 def default_output(root: str | os.PathLike = "bags") -> Path:

@@ -27,6 +27,8 @@ from rclpy.signals import SignalHandlerOptions
 from dlo_msgs.msg import GripperCommand, GripperState, TactilePose, TaskState, VisualPose
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2, PointField
 
+from dlo_common.topics import topic as topic_record
+
 TOPICS = {
     "/dlo/gripper/state": GripperState,
     "/dlo/gripper/cmd": GripperCommand,
@@ -36,15 +38,7 @@ TOPICS = {
     "/dlo/rope/particles": PointCloud2,
     "/dlo/camera/image": Image,
 }
-TYPE_NAMES = {
-    "/dlo/gripper/state": "dlo_msgs/msg/GripperState",
-    "/dlo/gripper/cmd": "dlo_msgs/msg/GripperCommand",
-    "/dlo/tactile/pose": "dlo_msgs/msg/TactilePose",
-    "/dlo/vision/pose": "dlo_msgs/msg/VisualPose",
-    "/dlo/task/state": "dlo_msgs/msg/TaskState",
-    "/dlo/rope/particles": "sensor_msgs/msg/PointCloud2",
-    "/dlo/camera/image": "sensor_msgs/msg/Image",
-}
+TYPE_NAMES = {name: topic_record(name).type for name in TOPICS}  # as the graph's topic registry names them
 QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000,
                  reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE)
 LATCHED_TOPIC = "/dlo/camera/camera_info"

@@ -29,3 +29,52 @@ def test_a_damaged_bag_is_exit_1_in_every_tool(tool, tmp_path, capsys):
     assert "Traceback" not in out.out + out.err
     if tool != "dlo-bag-recover":
         assert f"dlo-bag-recover {bag}" in out.err  # the fix is named
+
+
+@pytest.mark.parametrize("tool", sorted(TOOLS))
+def test_a_bad_option_is_exit_2_in_every_tool(tool, tmp_path, capsys):
+    with pytest.raises(SystemExit) as exit_:
+        TOOLS[tool]([str(tmp_path), "--no-such-option"])
+    assert exit_.value.code == EXIT_USAGE == 2
+    err = capsys.readouterr().err
+    assert "unrecognized arguments: --no-such-option" in err and "Traceback" not in err
+
+
+def _task_bag(path, recorded_outcome=None):
+    """A bag of one finished 3-step episode (a short cable held near its end, then dropped at step 2)
+    whose recorded outcome and return are what dlo_sim.task gives, or ``recorded_outcome`` instead."""
+    from rclpy.serialization import serialize_message
+
+    from dlo_msgs.msg import TaskState
+    from dlo_bag.analysis import recompute_episode
+    from dlo_bag.bag import BagWriter
+
+    held = {0: [1, 2], 1: [28, 29], 2: []}
+    states = {step: TaskState(episode=0, seed=42, step=step, held_indices=held[step], n_held=len(held[step]),
+                              held_indices_authors=held[step], num_particles=30, cable_length=0.1247,
+                              done=step == 2, task_rules="paper_text") for step in held}
+    summary = recompute_episode(states)
+    final = states[2]
+    final.outcome = final.outcome_authors = {"hold_the_end": 1, "stop_before": 2, "reach_end_but_drop": 3,
+                                             "drop_before": 4}[recorded_outcome or summary["outcome"]]
+    final.episode_return = summary["episode_return"]
+    with BagWriter(path) as writer:
+        writer.add_topic("/dlo/task/state", "dlo_msgs/msg/TaskState")
+        for step, msg in states.items():
+            msg.header.stamp.nanosec = step + 1
+            writer.write("/dlo/task/state", serialize_message(msg), 100 + step)
+    return summary
+
+
+def test_a_recomputed_outcome_that_differs_from_the_recorded_one_is_exit_1(tmp_path, capsys):
+    """README (Replay, analysis and video) and dlo-analyze --help: a mismatch with the recorded outcome
+    is reported and exits 1; an agreeing bag exits 0."""
+    summary = _task_bag(tmp_path / "agrees")
+    assert analysis.main([str(tmp_path / "agrees")]) == 0
+    out = capsys.readouterr()
+    assert "MISMATCH" not in out.err and summary["outcome"] == "reach_end_but_drop"
+    _task_bag(tmp_path / "differs", recorded_outcome="hold_the_end")
+    assert analysis.main([str(tmp_path / "differs")]) == EXIT_BAD_BAG == 1
+    err = capsys.readouterr().err
+    assert "MISMATCH episode 0: recomputed reach_end_but_drop / reach_end_but_drop" in err
+    assert "recorded hold_the_end / hold_the_end" in err and "Traceback" not in err

@@ -300,3 +300,18 @@ def test_bag_directory_named_dot_bag(tmp_path):
     from dlo_bag.analysis import read_run
 
     assert sorted(read_run(bag)[0]["task"]) == [0, 1, 2]
+
+
+def test_delete_original_recovers_in_place_and_keeps_no_damaged_copy(tmp_path):
+    """dlo_bag README (Crash safety) / dlo-bag-recover --help: --delete-original deletes the damaged
+    .mcap instead of keeping it as *.mcap.damaged; the recovered bag holds every flushed message."""
+    bag = tmp_path / "run"
+    writer = BagWriter(bag, chunk_size=2000)
+    writer.add_topic(STATE, "dlo_msgs/msg/GripperState")
+    for i in range(60):
+        writer.write(STATE, state(i), 1 + i)
+    writer.flush()  # then "killed": no metadata.yaml
+    result = in_process(recover_cli, str(bag), "--delete-original")
+    assert result.returncode == 0 and "recovered 60 messages" in one_line(result)
+    assert sorted(p.name for p in bag.iterdir()) == [METADATA, "run.mcap"]
+    assert seqs(bag) == list(range(60))

@@ -96,7 +96,7 @@ def test_records_every_topic_exact_counts_and_hashes(procs, tmp_bags, ros_env):
     assert f"Count: {N} |" in res.stdout
 
 
-@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM, signal.SIGHUP], ids=["SIGINT", "SIGTERM", "SIGHUP"])
 def test_signal_mid_stream_leaves_complete_bag(procs, tmp_bags, sig):
     bag = tmp_bags / "run"
     rec = procs("recorder", recorder_cmd(bag))
@@ -170,3 +170,36 @@ def test_existing_output_is_refused(procs, tmp_bags):
     rec = procs("recorder", recorder_cmd(bag))
     assert rec.wait(timeout=60) == 2
     assert "exists already" in rec.output()
+
+
+LOSES_MESSAGES = """
+import sys
+from types import SimpleNamespace
+from dlo_bag import recorder_node
+
+discover = recorder_node.RecorderNode.discover
+
+def discover_then_lose(self):  # the middleware reports 2 messages of a topic lost before delivery
+    discover(self)
+    if not self.stop.is_set():
+        self._on_lost("/dlo/gripper/state", SimpleNamespace(total_count_change=2, total_count=2))
+        self.stop.request()
+
+recorder_node.RecorderNode.discover = discover_then_lose
+sys.exit(recorder_node.main(sys.argv[1:]))
+"""
+
+
+def test_messages_lost_before_delivery_make_exit_status_1_with_a_closed_bag(procs, tmp_bags):
+    """dlo_bag README (recorder_node): dropped also counts messages the middleware reports lost; exit 1
+    when messages were dropped (the bag is still closed); the launcher then exits 4."""
+    bag = tmp_bags / "run"
+    summary_file = tmp_bags / "summary.json"
+    rec = procs("recorder", [sys.executable, "-c", LOSES_MESSAGES, "--ros-args", "-p", f"output:={bag}",
+                             "-p", f"summary_file:={summary_file}"])
+    assert rec.wait(timeout=60) == 1, rec.output()
+    out = rec.output()
+    assert "the middleware lost 2 message(s) before delivery" in out, out
+    assert "received 0, written 0, dropped 2" in out and "2 messages were not written" in out, out
+    assert json.loads(summary_file.read_text())["dropped"] == 2
+    assert (bag / "metadata.yaml").is_file() and "Traceback" not in out

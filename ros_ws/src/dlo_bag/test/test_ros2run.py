@@ -93,3 +93,13 @@ def test_the_old_package_name_runs_each_executable_from_its_new_package_with_a_n
         listed.stdout.splitlines())
     missing = run(ros_env, OLD, "no_such_exe")
     assert missing.returncode == 1 and "no executable 'no_such_exe' in dlo_bag, dlo_viz or dlo_driver_kit" in missing.stderr
+
+
+def test_help_is_the_usage_line_and_no_arguments_a_usage_error(ros_env):
+    """scripts/ros2run --help: the one usage line (exit 0); without arguments the same line, exit 2."""
+    usage = "usage: ros2run <package> <executable> [args...] | ros2run <package> | ros2run --list [--all]"
+    for flag in ("--help", "-h"):
+        res = run(ros_env, flag)
+        assert res.returncode == 0 and res.stderr.strip() == usage and res.stdout == "", res
+    res = run(ros_env)
+    assert res.returncode == 2 and res.stderr.strip() == usage and res.stdout == ""

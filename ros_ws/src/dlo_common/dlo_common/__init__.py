@@ -7,4 +7,6 @@
 - :mod:`dlo_common.node_main`: the shared ``main()`` body (``--help``, init, spin, shutdown, exit codes).
 - :mod:`dlo_common.taichi_runtime`: the process's one Taichi runtime (backend choice, ``ti.init`` once),
   shared by the vision kernel and the simulator; Taichi is imported only when it starts.
+- :mod:`dlo_common.topics`: the registry of the graph's topics and services (name, type, publisher,
+  role, ...) that nodes and tools read instead of lists of their own; plain data, no ROS imports.
 """

@@ -60,6 +60,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from dlo_common.topics import message_class, select
+from dlo_common.topics import topic as topic_record
 from dlo_perception.cloud import FIELD_NAMES, FLOAT32, POINT_STEP, unpack_particles
 from dlo_perception.sync import format_stamp
 from dlo_sim.command import MAX_SPEED
@@ -78,6 +80,9 @@ ENCODING_BYTES = {"mono8": 1, "8UC1": 1, "mono16": 2, "16UC1": 2, "rgb8": 3, "bg
                   "rgba8": 4, "bgra8": 4, "32FC1": 4}
 SEGMENTATION = (IMAGE_BACKGROUND, IMAGE_GRIPPER, IMAGE_CABLE)  # the pixel values vision_node reads
 QUEUE_DEPTH = 100  # the checker's subscriptions: no message lost while it is busy (sync needs every one)
+# The topics a robot driver publishes (those with a driver's part in dlo_common.topics, the command aside): the
+# checker records each of them
+DRIVER_TOPICS = tuple(t for t in select(exclude=("command",)) if t.driver)
 
 
 @dataclass(frozen=True)
@@ -570,10 +575,8 @@ def record(s: Settings, namespace: str, timeout: float, log=print) -> Recording 
     within ``timeout`` s."""
     import rclpy
     from rclpy.qos import DurabilityPolicy, QoSProfile
-    from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 
-    from dlo_msgs.msg import GripperCommand, GripperState, TactilePose
-
+    GripperCommand = message_class(topic_record("command").type)
     prefix = "/" + namespace.strip("/") if namespace.strip("/") else ""
     rec = Recording()
     phases = schedule(s)
@@ -584,7 +587,7 @@ def record(s: Settings, namespace: str, timeout: float, log=print) -> Recording 
     rclpy.init(args=[], signal_handler_options=SignalHandlerOptions.NO)  # Ctrl-C: KeyboardInterrupt, one line
     node = rclpy.create_node("dlo_driver_check")
     try:
-        pub = node.create_publisher(GripperCommand, f"{prefix}/dlo/gripper/cmd", 10)
+        pub = node.create_publisher(GripperCommand, prefix + topic_record("command").name, 10)
 
         def stamp_ns(msg) -> int:
             return int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)
@@ -618,13 +621,15 @@ def record(s: Settings, namespace: str, timeout: float, log=print) -> Recording 
             rec.infos.append(InfoSample(int(msg.width), int(msg.height), tuple(msg.k), msg.header.frame_id))
 
         latched = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
-        node.create_subscription(GripperState, f"{prefix}/dlo/gripper/state", on_state, QUEUE_DEPTH)
-        node.create_subscription(Image, f"{prefix}/dlo/camera/image", on_image, QUEUE_DEPTH)
-        node.create_subscription(CameraInfo, f"{prefix}/dlo/camera/camera_info", on_info, latched)
-        node.create_subscription(PointCloud2, f"{prefix}/dlo/rope/particles", lambda m: rec.clouds.append(
-            CloudSample(stamp_ns(m), [f.name for f in m.fields], cloud_layout_problem(m))), QUEUE_DEPTH)
-        node.create_subscription(TactilePose, f"{prefix}/dlo/tactile/pose",
-                                 lambda m: rec.tactile_stamps.append(stamp_ns(m)), QUEUE_DEPTH)
+        handlers = {
+            "gripper": on_state, "image": on_image, "camera_info": on_info,
+            "particles": lambda m: rec.clouds.append(CloudSample(stamp_ns(m), [f.name for f in m.fields],
+                                                                 cloud_layout_problem(m))),
+            "tactile": lambda m: rec.tactile_stamps.append(stamp_ns(m)),
+        }
+        for t in DRIVER_TOPICS:  # what a driver may publish, each with its recorder (one per driver topic)
+            node.create_subscription(message_class(t.type), prefix + t.name, handlers[t.key],
+                                     latched if t.rate == "latched" else QUEUE_DEPTH)
 
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline and (not rec.states or pub.get_subscription_count() == 0):
@@ -632,8 +637,9 @@ def record(s: Settings, namespace: str, timeout: float, log=print) -> Recording 
         if not rec.states:
             return None
         check_alone(node, pub.topic_name)
-        log(f"driver found: {len(node.get_publishers_info_by_topic(f'{prefix}/dlo/gripper/state'))} publisher(s) of "
-            f"{prefix}/dlo/gripper/state; checking for about {sum(p.duration for p in phases):.0f} s")
+        state_topic = prefix + topic_record("gripper").name
+        log(f"driver found: {len(node.get_publishers_info_by_topic(state_topic))} publisher(s) of "
+            f"{state_topic}; checking for about {sum(p.duration for p in phases):.0f} s")
         rec.states.clear()
         silent_from = None
         for i, phase in enumerate(phases):
@@ -693,7 +699,7 @@ def main(argv=None) -> int:
         print("dlo-driver-check: interrupted", file=sys.stderr)
         return 130
     if rec is None:
-        topic = ("/" + args.namespace.strip("/") if args.namespace.strip("/") else "") + "/dlo/gripper/state"
+        topic = ("/" + args.namespace.strip("/") if args.namespace.strip("/") else "") + topic_record("gripper").name
         print(f"dlo-driver-check: no driver: nothing published {topic} within {args.timeout:g} s on "
               f"ROS_DOMAIN_ID={os.environ.get('ROS_DOMAIN_ID') or '0'} (is the driver running, on this domain "
               "and namespace, in real_time mode?)", file=sys.stderr)

@@ -19,6 +19,7 @@ from dlo_perception.cloud import unpack_particles
 from dlo_perception.sync import IncompleteSteps, StampSync, stamp_to_ns
 from dlo_perception.tactile import TACTILE_NOISE, noise_label, noise_setting, noise_sigma, tactile_pose
 from dlo_common.node_util import declare_parameters
+from dlo_common.topics import topic
 from dlo_common.params import Param
 
 INPUT_TIMEOUT = 1.0  # s, a step's particles and state not matched by stamp after this long are reported
@@ -60,10 +61,10 @@ class TactileNode(Node):
         self.sync = StampSync(("particles", "gripper"))
         self.incomplete = IncompleteSteps(INPUT_TIMEOUT)  # a step whose inputs never share one stamp: reported
         self.last = (None, None)  # (stamp_ns, TactilePose): a republished step gets the same reading
-        self.publisher = self.create_publisher(TactilePose, "/dlo/tactile/pose", 10)
-        self.create_subscription(PointCloud2, "/dlo/rope/particles",
+        self.publisher = self.create_publisher(TactilePose, topic("tactile").name, 10)
+        self.create_subscription(PointCloud2, topic("particles").name,
                                  lambda m: self.on_input("particles", m), 10)
-        self.create_subscription(GripperState, "/dlo/gripper/state", lambda m: self.on_input("gripper", m), 10)
+        self.create_subscription(GripperState, topic("gripper").name, lambda m: self.on_input("gripper", m), 10)
 
     def on_input(self, key, msg):
         stamp = stamp_to_ns(msg.header.stamp)

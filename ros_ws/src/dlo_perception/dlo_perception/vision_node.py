@@ -18,6 +18,7 @@ from dlo_perception.camera import TopCamera
 from dlo_perception.sync import IncompleteSteps, StampSync, stamp_to_ns
 from dlo_perception.vision import visual_pose
 from dlo_common.node_util import declare_parameters
+from dlo_common.topics import topic
 from dlo_common.params import Param
 
 DEFAULT_CAMERA = TopCamera.covering_workspace()
@@ -42,11 +43,11 @@ class VisionNode(Node):
                     np.zeros((1, 2)), 0.1)
         self.sync = StampSync(("image", "gripper"))
         self.incomplete = IncompleteSteps(INPUT_TIMEOUT)  # a step whose inputs never share one stamp: reported
-        self.publisher = self.create_publisher(VisualPose, "/dlo/vision/pose", 10)
+        self.publisher = self.create_publisher(VisualPose, topic("vision").name, 10)
         latched = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
-        self.create_subscription(CameraInfo, "/dlo/camera/camera_info", self.on_camera_info, latched)
-        self.create_subscription(Image, "/dlo/camera/image", lambda m: self.on_input("image", m), 10)
-        self.create_subscription(GripperState, "/dlo/gripper/state", lambda m: self.on_input("gripper", m), 10)
+        self.create_subscription(CameraInfo, topic("camera_info").name, self.on_camera_info, latched)
+        self.create_subscription(Image, topic("image").name, lambda m: self.on_input("image", m), 10)
+        self.create_subscription(GripperState, topic("gripper").name, lambda m: self.on_input("gripper", m), 10)
 
     def on_camera_info(self, info):
         self.camera = TopCamera.from_camera_info(info.width, info.height, info.k, self.camera_position)

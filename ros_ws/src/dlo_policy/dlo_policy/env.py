@@ -5,9 +5,10 @@ N environments batched in ONE ``dlo_sim.RopeSim``, with same-step auto-reset of 
 ``make_env(modalities, seed, **options)``: a single ``gymnasium.Env`` (passes ``check_env``).
 
 Action: [-1, 1]^3 = [dx, dy, c] (dx, dy x 0.0025 m per 0.01 s step, closure c = (a2 + 1) / 2),
-held for one control step of 8 x 0.01 s. Observation: ``dlo_policy.observation`` (K, T, V in that
-order). Reward, ending and outcomes: ``dlo_sim.task``. An episode ends when the cable is dropped
-(terminated) or after ``horizon`` control steps (truncated).
+held for one control step of 8 x 0.01 s. Observation: ``dlo_policy.observation`` (the modalities of
+``dlo_policy.modalities``, K, T, V in that order, each read from the simulator by its record's
+``observe``). Reward, ending and outcomes: ``dlo_sim.task``. An episode ends when the cable is
+dropped (terminated) or after ``horizon`` control steps (truncated).
 
 Seeds: ``reset(seed=s)`` starts env i on episode seed s + i; every later episode (auto-reset or
 ``reset()`` without seed) takes the next unused seed s + N, s + N + 1, ... in order, so the same
@@ -47,12 +48,12 @@ import numpy as np
 from gymnasium.vector import AutoresetMode, VectorEnv
 
 from dlo_perception.camera import TopCamera
-from dlo_perception.tactile import noise_sigma, tactile_pose
-from dlo_perception.vision import visual_pose
+from dlo_perception.tactile import noise_sigma
+from dlo_policy.modalities import VISION_PLANE_Z, by_name  # noqa: F401 (VISION_PLANE_Z: its old home)
 from dlo_policy.observation import build_observation, observation_bounds, parse_modalities
 from dlo_sim import task
 from dlo_sim.episode import TaskSim
-from dlo_sim.config import GRIPPER_HEIGHT, SimConfig
+from dlo_sim.config import SimConfig
 
 def check_options(options) -> None:
     """Raise ValueError with a one-line reason for an unknown option or a bad value (module
@@ -79,11 +80,6 @@ def check_options(options) -> None:
             raise ValueError(f"{name}: expected an integer >= {low}, got {value!r}")
 
 
-# The gripper's height as the simulator stores (float32) and publishes it: the vision node computes
-# O_V at the published gripper z, so the same value here keeps graph and env bit-identical.
-VISION_PLANE_Z = float(np.float32(GRIPPER_HEIGHT))
-
-
 class CableFollowingVecEnv(VectorEnv):
     """N cable-following environments in one batched simulator (gymnasium 1.x VectorEnv)."""
 
@@ -106,7 +102,7 @@ class CableFollowingVecEnv(VectorEnv):
         self.action_space = gymnasium.vector.utils.batch_space(self.single_action_space, self.num_envs)
         self.task = TaskSim(self.num_envs, horizon=horizon, end_particles=end_particles, config=sim_config,
                             camera=TopCamera.covering_workspace(int(camera_resolution)),
-                            render=self._uses("V"), task_rules=task_rules)
+                            render=any(by_name(m).renders for m in self._observed()), task_rules=task_rules)
         self.sim, self.tracker = self.task.sim, self.task.tracker
         self.default_seed = int(seed)
         self.next_seed = None  # next unused episode seed; None until the first reset
@@ -158,22 +154,16 @@ class CableFollowingVecEnv(VectorEnv):
         self.task.reset(seeds, env_ids)
         self.episode_seed[env_ids] = seeds
 
-    def _uses(self, modality) -> bool:
-        """True if the observation computes ``modality`` (selected and not ablated)."""
-        return modality in self.modalities and modality not in self.without
+    def _observed(self) -> tuple:
+        """The modalities the observation computes (selected and not ablated), in registry order."""
+        return tuple(m for m in self.modalities if m not in self.without)
 
     def _observe(self):
-        """Observation (N, D) of the current simulator state (the task's snapshot) and the held-particle summary."""
-        snapshot = self.task.state
-        gripper = snapshot.gripper
+        """Observation (N, D) of the current simulator state (the task's snapshot) and the held-particle summary:
+        each observed modality's reading from its record's ``observe`` (dlo_policy.modalities), in order."""
         state = {"n_held": self.task.n_held, "p_i": self.task.mean_held_index}
-        tactile = visual = None
-        if self._uses("T"):
-            tactile = tactile_pose(snapshot.positions, self.task.held_task, gripper[:, :2], gripper[:, 3],
-                                   sigma=self.tactile_sigma, rng=self.noise_rng)
-        if self._uses("V"):
-            visual = visual_pose(snapshot.image, self.sim.camera, gripper[:, :2], VISION_PLANE_Z)
-        observation = build_observation(self.modalities, gripper[:, [0, 1, 3]], tactile, visual, without=self.without)
+        readings = {by_name(m).title: by_name(m).observe(self) for m in self._observed()}
+        observation = build_observation(self.modalities, without=self.without, **readings)
         return observation, state
 
     def _episode_end_info(self, done, unstable):
@@ -209,6 +199,11 @@ class CableFollowingEnv(gymnasium.Env):
     def sim(self):
         """The underlying batched simulator (one environment)."""
         return self.vec.sim
+
+    @property
+    def modalities(self) -> tuple:
+        """The observed modalities, expanded and in order (e.g. ("K", "T", "V"))."""
+        return self.vec.modalities
 
     def reset(self, *, seed=None, options=None):
         super().reset(seed=seed)

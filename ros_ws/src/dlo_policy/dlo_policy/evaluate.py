@@ -30,7 +30,7 @@ from dlo_sim.task import DEFAULT_TASK_RULES, TASK_RULES
 
 from .cli import OneLineErrorParser
 from .config import RunConfig, make_env
-from .observation import MODALITY_ORDER, MODALITY_SIZES, parse_modalities
+from .modalities import by_name, names, parse_modalities
 from .rundir import AUTHORS_SUFFIX, CONFIG_FILE, OUTCOMES, read_trained_config
 from .sac import SAC
 
@@ -69,7 +69,7 @@ def blanked_columns(modalities: str, without: Sequence[str]) -> list[int]:
     """Observation columns of the modalities in `without`, for an agent observing `modalities`."""
     columns, start = [], 0
     for modality in parse_modalities(modalities):
-        size = MODALITY_SIZES[modality]
+        size = by_name(modality).size
         if modality in without:
             columns += range(start, start + size)
         start += size
@@ -89,6 +89,8 @@ def evaluate_agent(agent: SAC, vec_env: Any, first_seed: int, episodes: int,
     `time_at_end`, `how_far`); later episodes of an env (auto-reset) are ignored. `progress(n)` is called
     with the number of counted episodes that just ended (e.g. a progress bar's update).
     """
+    if hasattr(agent, "note_modalities"):  # the modalities the agent acts on, saved with its checkpoints
+        agent.note_modalities(vec_env)
     n_envs = vec_env.num_envs
     rewards: list[float] = []
     ends: list[dict[str, Any]] = []
@@ -234,7 +236,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--episodes", type=int, default=100, help="number of episodes (default 100)")
     parser.add_argument("--seed", type=int, default=0, help="first episode seed (default 0)")
     parser.add_argument("--json", type=Path, help="also write the results to this JSON file")
-    parser.add_argument("--without", choices=MODALITY_ORDER, action="append", default=[],
+    parser.add_argument("--without", choices=names(), action="append", default=[],
                         help="blank this modality's observations (repeatable)")
     parser.add_argument("--num-envs", type=int, default=10, help="environments stepped together (default 10)")
     parser.add_argument("--threads", type=int, default=0, help="torch threads (default: all cores)")

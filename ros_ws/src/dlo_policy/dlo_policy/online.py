@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from dlo_policy.config import RunConfig, save_config
+from dlo_policy.config import RunConfig, check_modalities, save_config
 from dlo_policy.sac import SAC
 from dlo_policy.rundir import CHECKPOINT_FILE, CONFIG_FILE, POLICY_FILE
 
@@ -28,7 +28,8 @@ class OnlineLearner:
         if checkpoint.exists():
             self.agent = SAC.load(checkpoint)  # continue an earlier online run
         else:
-            self.agent = SAC(obs_dim, -np.ones(3, np.float32), np.ones(3, np.float32), config.sac, seed=config.seed)
+            self.agent = SAC(obs_dim, -np.ones(3, np.float32), np.ones(3, np.float32), config.sac, seed=config.seed,
+                             modalities=check_modalities(config.modalities))  # stored with its checkpoints
             save_config(config, self.run_dir / CONFIG_FILE)
         self.checkpoint_every = int(checkpoint_every)
         self.previous = None  # (episode, step, observation, action) awaiting its successor

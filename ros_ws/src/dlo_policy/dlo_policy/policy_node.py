@@ -5,7 +5,9 @@
 ``/dlo/rope/particles``: simulation only) or ``random``. With ``train:=true`` the node learns
 online from the graph's steps (``dlo_policy.online``: same SAC and checkpoints as dlo-train), its
 reward and episode ends taken from ``/dlo/task/state``. The observation is
-assembled by ``dlo_policy.observation.build_observation``, exactly as in the gym environment.
+assembled by ``dlo_policy.observation.build_observation``, exactly as in the gym environment: the node
+subscribes to the topic of each observed modality and converts its message with the modality's record
+(``dlo_policy.modalities``; topics and types from ``dlo_common.topics``).
 Inputs that a step does not deliver within ``input_timeout`` s are reported as an error naming the
 missing topic; the sim node then republishes the step, so nothing deadlocks.
 """
@@ -18,16 +20,14 @@ from pathlib import Path
 import numpy as np
 from rclpy.node import Node
 
-from sensor_msgs.msg import PointCloud2
-
 from dlo_common.node_util import ParameterError, declare_parameters
 from dlo_common.params import Param
-from dlo_msgs.msg import GripperCommand, GripperState, TactilePose, TaskState, VisualPose
+from dlo_common.topics import message_class, topic
+from dlo_msgs.msg import GripperCommand
 from dlo_perception.cloud import unpack_particles
 from dlo_perception.sync import IncompleteSteps, StampSync, stamp_to_ns
-from dlo_perception.tactile import TactilePose as Tactile
-from dlo_perception.vision import VisualPose as Visual
-from dlo_policy.observation import build_observation, parse_modalities
+from dlo_policy.modalities import ALL, ALL_NAME, by_name, names
+from dlo_policy.observation import build_observation, observation_size, parse_modalities
 from dlo_sim.command import action_to_command
 from dlo_sim.task import LEGACY_TASK_RULES, dropped
 
@@ -66,8 +66,9 @@ def modalities_parameter(name: str, value: str) -> tuple:
     try:
         return parse_modalities(value)
     except ValueError:
-        takes = ("'' (none) or the modalities to zero: K, T, V or several joined by '+', e.g. T or T+V"
-                 if name == "without" else "All or a '+'-joined subset of K, T, V, e.g. V+K")
+        known = ", ".join(names())
+        takes = (f"'' (none) or the modalities to zero: {known} or several joined by '+', e.g. T or T+V"
+                 if name == "without" else f"{ALL_NAME} or a '+'-joined subset of {known}, e.g. V+K")
         raise ParameterError(f"parameter '{name}': expected {takes}, got {value!r}") from None
 
 
@@ -106,19 +107,20 @@ def load_policy(kind: str, checkpoint: str, modalities: str, seed: int):
             agent = SAC.load(path)
         except CheckpointError as error:  # "not a dlo-vitac policy file: PATH (why)"
             raise ParameterError(f"parameter 'checkpoint': {error}") from None
-        trained_on = load_run_config(path).modalities
+        # the modalities the checkpoint stores; a checkpoint from before: its run's config.yaml ("All" = K+T+V)
+        trained_on = agent.modalities or load_run_config(path).modalities
         return (lambda obs, new_episode, truth: agent.predict(obs, deterministic=True).reshape(1, 3)), trained_on
     if kind == "tactile_reactive":
         from dlo_policy.scripted import TactileReactive
 
         controller = TactileReactive()
-        layout = type("ObservationLayout", (), {"modalities": parse_modalities("All")})()
+        layout = type("ObservationLayout", (), {"modalities": ALL})()
 
         def act(obs, new_episode, truth):
             if new_episode:
                 controller.reset()
             return controller(obs, layout)
-        return act, "All"
+        return act, ALL
     if kind == "oracle":
         from dlo_policy.scripted import OracleFollow
 
@@ -147,14 +149,15 @@ class PolicyNode(Node):
             if ablated_absent:
                 raise ParameterError(f"parameter 'without': cannot ablate {'+'.join(ablated_absent)}: the policy "
                                      f"observes only {'+'.join(self.modalities)}")
-            build_observation(self.modalities, np.zeros((1, 3)), Tactile(*np.zeros((4, 1))),
-                              Visual(*np.zeros((4, 1))), without=self.without)
+            self.observed = [by_name(m) for m in self.modalities if m not in self.without]
+            self.observation({m.input_key: message_class(m.message_type)() for m in self.observed})  # it builds
             self.learner = self.make_learner(p) if p["train"] else None
         except (ValueError, OSError) as error:
             raise ParameterError(str(error)) from None
         self.input_timeout = p["input_timeout"]
-        inputs = ["gripper"] + [key for key, m in (("tactile", "T"), ("vision", "V"))
-                                if m in self.modalities and m not in self.without]
+        # the gripper state (episode, step) always, then each observed modality's topic, the task state to learn
+        # from, the particles for the oracle: input keys of dlo_common.topics
+        inputs = list(dict.fromkeys(["gripper"] + [m.input_key for m in self.observed]))
         inputs += ["task"] if self.learner else []
         inputs += ["particles"] if p["policy"] == "oracle" else []
         self.truth = GroundTruthView()
@@ -162,16 +165,10 @@ class PolicyNode(Node):
         self.first_seen = {}  # stamp_ns -> wall time of its first input
         self.incomplete = IncompleteSteps(self.input_timeout, first_seen=self.first_seen)  # check_missing_inputs
         self.last = (None, None)  # (stamp_ns, GripperCommand): a republished step gets the same answer
-        self.publisher = self.create_publisher(GripperCommand, "/dlo/gripper/cmd", 10)
-        self.create_subscription(GripperState, "/dlo/gripper/state", lambda m: self.on_input("gripper", m), 10)
-        if "tactile" in inputs:
-            self.create_subscription(TactilePose, "/dlo/tactile/pose", lambda m: self.on_input("tactile", m), 10)
-        if "vision" in inputs:
-            self.create_subscription(VisualPose, "/dlo/vision/pose", lambda m: self.on_input("vision", m), 10)
-        if "task" in inputs:
-            self.create_subscription(TaskState, "/dlo/task/state", lambda m: self.on_input("task", m), 10)
-        if "particles" in inputs:
-            self.create_subscription(PointCloud2, "/dlo/rope/particles", lambda m: self.on_input("particles", m), 10)
+        self.publisher = self.create_publisher(GripperCommand, topic("command").name, 10)
+        for key in inputs:
+            t = topic(key)
+            self.create_subscription(message_class(t.type), t.name, lambda m, key=key: self.on_input(key, m), 10)
         self.create_timer(0.25, self.check_missing_inputs)
         self.get_logger().info(f"policy {p['policy']} on {'+'.join(self.modalities)}"
                                + (f" without {'+'.join(self.without)}" if self.without else "")
@@ -189,15 +186,7 @@ class PolicyNode(Node):
             return
         values = dict(zip(self.sync.keys, matched))
         gripper = values["gripper"]
-        tactile = values.get("tactile")
-        vision = values.get("vision")
-        observation = build_observation(
-            self.modalities, np.array([[gripper.x, gripper.y, gripper.closure]]),
-            Tactile(np.array([tactile.angle]), np.array([tactile.y]), np.array([tactile.contact]),
-                    np.array([tactile.contact_count])) if tactile else None,
-            Visual(np.array([vision.visible]), np.array([vision.confidence]), np.array([vision.angle]),
-                   np.array([vision.y])) if vision else None,
-            without=self.without)
+        observation = self.observation(values)
         if self.learner is not None:
             task = values["task"]
             terminated = task.done and bool(dropped(task.task_rules or LEGACY_TASK_RULES, task.n_held,
@@ -213,15 +202,19 @@ class PolicyNode(Node):
         self.last = (stamp, command)
         self.publisher.publish(command)
 
+    def observation(self, messages: dict) -> np.ndarray:
+        """(1, D) observation from one step's messages {input key: message}: each observed modality's
+        ``from_message`` (dlo_policy.modalities), assembled by build_observation as in the gym env."""
+        readings = {m.title: m.from_message(messages[m.input_key]) for m in self.observed}
+        return build_observation(self.modalities, without=self.without, **readings)
+
     @staticmethod
     def make_learner(p):
         from dlo_policy.config import load_config
-        from dlo_policy.observation import MODALITY_SIZES
         from dlo_policy.online import OnlineLearner
 
         config = load_config(p["train_config"] or None, values={"modalities": p["modalities"], "seed": p["seed"]})
-        obs_dim = sum(MODALITY_SIZES[m] for m in parse_modalities(p["modalities"]))
-        return OnlineLearner(config, obs_dim, p["train_out"], p["checkpoint_every"])
+        return OnlineLearner(config, observation_size(p["modalities"]), p["train_out"], p["checkpoint_every"])
 
     def destroy_node(self):
         if getattr(self, "learner", None) is not None:

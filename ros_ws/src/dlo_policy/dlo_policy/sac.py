@@ -23,7 +23,7 @@ import dataclasses
 import math
 import os
 from pathlib import Path
-from typing import Any, Callable, Iterator, NamedTuple, Optional
+from typing import Any, Callable, Iterator, NamedTuple, Optional, Sequence
 
 import numpy as np
 import torch
@@ -236,8 +236,11 @@ class SAC:
     def __init__(self, obs_dim: int, action_low: np.ndarray, action_high: np.ndarray,
                  config: Optional[SACConfig] = None, seed: int = 0,
                  observation_low: Optional[np.ndarray] = None, observation_high: Optional[np.ndarray] = None,
-                 device: str | torch.device = "cpu"):
+                 device: str | torch.device = "cpu", modalities: Optional[Sequence[str]] = None):
         self.config = config = config or SACConfig()
+        # The observation's modalities, expanded ("K", "T", "V"): given, or noted from the first env the agent acts
+        # on (`note_modalities`); saved with every checkpoint, None when unknown (a checkpoint from before).
+        self.modalities: Optional[tuple[str, ...]] = tuple(modalities) if modalities else None
         self.device = resolve_device(device)
         self.obs_dim, self.act_dim = int(obs_dim), len(action_low)
         self.action_low = np.asarray(action_low, dtype=np.float32)
@@ -271,6 +274,18 @@ class SAC:
         self.num_env_steps = 0
         self.num_updates = 0
         self.num_episodes = 0
+
+    def note_modalities(self, env: Any) -> None:
+        """Note the modalities of the observation this agent acts on: the env's ``modalities`` (the dlo_policy
+        envs' expanded tuple, e.g. ("K", "T", "V"); an env without them: nothing), so that its checkpoints
+        store them. ValueError when the agent already observes other modalities."""
+        theirs = getattr(env, "modalities", None)
+        if not isinstance(theirs, (tuple, list)) or not all(isinstance(m, str) for m in theirs):
+            return
+        if self.modalities is None:
+            self.modalities = tuple(theirs)
+        elif self.modalities != tuple(theirs):
+            raise ValueError(f"the agent observes {'+'.join(self.modalities)}, the env gives {'+'.join(theirs)}")
 
     # ---------------------------------------------------------------- acting
     @property
@@ -392,6 +407,7 @@ class SAC:
         episodes bootstrap (unless `config.cutoff_as_terminal`); terminated ones do not.
         `callback(agent, result)` runs after every step; returning False stops learning.
         """
+        self.note_modalities(env)
         obs, _ = env.reset(seed=self.episode_seed(self.num_episodes))
         while self.num_env_steps < total_steps:
             action = self.explore(obs)
@@ -415,6 +431,7 @@ class SAC:
             "format": CHECKPOINT_FORMAT,
             "config": _plain_config(self.config),
             "obs_dim": self.obs_dim,
+            "modalities": list(self.modalities) if self.modalities else None,
             "action_low": torch.from_numpy(self.action_low),
             "action_high": torch.from_numpy(self.action_high),
             "seed": self.seed,
@@ -471,6 +488,7 @@ class SAC:
         agent = cls(state["obs_dim"], state["action_low"].numpy(), state["action_high"].numpy(),
                     config, seed=state["seed"], device=device)
         agent.config = dataclasses.replace(agent.config, observation_scaling=values.get("observation_scaling", "running"))
+        agent.modalities = tuple(state["modalities"]) if state.get("modalities") else None  # None: from before
         agent.load_state_dict(state)
         return agent
 

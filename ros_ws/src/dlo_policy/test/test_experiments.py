@@ -320,3 +320,38 @@ def test_a_second_grid_on_the_same_runs_fails_that_run_in_one_line_and_leaves_th
     finally:
         grid.terminate()
         grid.communicate(timeout=90)
+
+
+def test_a_partial_local_run_resumes_from_its_checkpoint_and_one_without_starts_afresh(tmp_path):
+    """dlo-experiments --help (Local): a run with a checkpoint under OUT resumes from it (the same run,
+    continued: done.json names both parts); a run stopped before its first checkpoint starts again
+    from step 0 (its evaluations so far are not kept twice)."""
+    import csv
+
+    from dlo_policy import train
+    from dlo_policy.rundir import read_done
+
+    tiny = ["env_module=sac_reach_env", "sac.hidden_sizes=[32,32]", "sac.batch_size=32", "sac.learning_starts=50",
+            "sac.buffer_size=2000", "train.eval_every=100", "train.num_threads=1", "train.test_episodes=10",
+            "train.progress=false", "train.total_steps=300", "train.checkpoint_every=200"]
+    crashing = load_config(None, [*tiny, "env_options.crash_after=250"])
+    partial = tmp_path / "partial"
+    with pytest.raises(InterruptedError):
+        train.train(crashing, partial)
+    assert (partial / CHECKPOINT_FILE).exists() and not (partial / DONE_FILE).exists()
+    experiments.run_one(crashing.to_dict(), str(partial))
+
+    def steps(run):
+        with (run / EVAL_FILE).open(newline="") as f:
+            return [int(row["step"]) for row in csv.DictReader(f)]
+    assert [s["from_step"] for s in read_done(partial)["sources"]] == [0, 200]
+    assert steps(partial) == [0, 100, 200, 300]
+
+    fresh = tmp_path / "fresh"  # stopped after its first evaluation, before any checkpoint
+    early = load_config(None, [*tiny, "env_options.crash_after=120"])
+    with pytest.raises(InterruptedError):
+        train.train(early, fresh)
+    assert not (fresh / CHECKPOINT_FILE).exists() and steps(fresh) == [0, 100]
+    experiments.run_one(load_config(None, tiny).to_dict(), str(fresh))
+    assert [s["from_step"] for s in read_done(fresh)["sources"]] == [0]
+    assert steps(fresh) == [0, 100, 200, 300]

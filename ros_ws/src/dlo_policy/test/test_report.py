@@ -331,3 +331,19 @@ def test_report_reads_what_dlo_train_writes(tmp_path, capsys):
     assert "All, tested without T" in rows and rows["All, tested without T"][6] != "n/a"
     assert (out / "ablation.png").read_bytes().startswith(PNG_MAGIC)
     assert "warning" not in capsys.readouterr().err
+
+
+def test_reading_runs_loads_no_learner():
+    """docs/ARCHITECTURE.md#dependencies: the modules that read runs (rundir, grid, config) import
+    neither torch nor Ray, and dlo-report imports only them, numpy and matplotlib (a results directory
+    can be reported on a machine without the learner)."""
+    import subprocess
+
+    code = ("import sys\n"
+            "import dlo_policy.rundir, dlo_policy.grid, dlo_policy.config\n"
+            "light = {'torch', 'ray'} & set(sys.modules)\n"
+            "import dlo_policy.report\n"
+            "print(sorted(light), sorted({'torch', 'ray', 'taichi', 'gymnasium'} & set(sys.modules)))\n")
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.split("\n")[0] == "[] []", result.stdout

@@ -35,3 +35,22 @@ def test_a_lock_held_by_a_process_that_was_killed_is_free(tmp_path):
         holder.wait()
     with rundir.lock(run):  # SIGKILL left a stale file but no lock
         pass
+
+
+def test_a_run_directory_from_before_task_rules_reads_as_paper_text(tmp_path):
+    """docs/ARCHITECTURE.md#task (Task variants), dlo-evaluate --help: a checkpoint is evaluated under the
+    task rules of its run's config.yaml; run directories from before the switch (no task_rules there)
+    read as paper_text, the rules they were trained on."""
+    from dlo_policy.config import load_config, save_config
+    from dlo_policy.evaluate import load_run_config
+
+    old, new = tmp_path / "old", tmp_path / "new"
+    old.mkdir()
+    new.mkdir()
+    save_config(load_config(), old / rundir.CONFIG_FILE)  # the cable env, no task_rules named
+    save_config(load_config(None, ["env_options.task_rules=authors_code"]), new / rundir.CONFIG_FILE)
+    assert "task_rules" not in (old / rundir.CONFIG_FILE).read_text()
+    assert rundir.read_trained_config(old).env_options["task_rules"] == "paper_text"
+    assert rundir.read_trained_config(new).env_options["task_rules"] == "authors_code"
+    assert load_run_config(old / "policy.pt").env_options["task_rules"] == "paper_text"
+    assert load_run_config(new / "best_policy.pt").env_options["task_rules"] == "authors_code"

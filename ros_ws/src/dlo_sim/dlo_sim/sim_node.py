@@ -36,10 +36,11 @@ from geometry_msgs.msg import Point
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile
 from rosgraph_msgs.msg import Clock
-from sensor_msgs.msg import CameraInfo, Image, PointCloud2
+from sensor_msgs.msg import Image
 from std_msgs.msg import String
 from visualization_msgs.msg import Marker, MarkerArray
 
+from dlo_common.topics import message_class, select, topic
 from dlo_msgs.msg import GripperCommand, GripperState, TaskState
 from dlo_msgs.srv import ResetEpisode
 from dlo_perception.camera import CAMERA_FRAME, TopCamera, camera_info
@@ -76,7 +77,7 @@ PARAMETERS = (
     Param("summary_file", "", "write the per-episode outcomes as JSON lines here (empty = off)"),
 )
 DISCOVERY_GRACE = 1.0  # s: look for another simulator on the domain this long before building the simulation
-INSTANCE_TOPIC = "/dlo/sim/instance"  # latched: who runs here since when (the later of two simulators leaves)
+INSTANCE_TOPIC = topic("instance").name  # latched: who runs here since when (the later of two simulators leaves)
 WAIT_REPORT_PERIOD = 5.0  # s between "waiting for ..." lines
 NO_COMMAND_WARNING = 1.0  # s: real_time warns this often while no command (or no command publisher) is there
 
@@ -110,18 +111,16 @@ class SimNode(Node):
 
         qos = QoSProfile(depth=10)
         latched = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
-        self.pub_clock = self.create_publisher(Clock, "/clock", 10)
-        self.pub_particles = self.create_publisher(PointCloud2, "/dlo/rope/particles", qos)
-        self.pub_gripper = self.create_publisher(GripperState, "/dlo/gripper/state", qos)
-        self.pub_image = self.create_publisher(Image, "/dlo/camera/image", qos)
-        self.pub_info = self.create_publisher(CameraInfo, "/dlo/camera/camera_info", latched)
-        self.pub_task = self.create_publisher(TaskState, "/dlo/task/state", qos)
-        self.pub_markers = self.create_publisher(MarkerArray, "/dlo/markers", qos) if p["publish_markers"] else None
-        self.sub_command = self.create_subscription(GripperCommand, "/dlo/gripper/cmd", self.on_command, qos)
+        # one publisher per topic of the registry that sim_node publishes (dlo_common.topics), by its key
+        self.pubs = {t.key: self.create_publisher(message_class(t.type), t.name, latched if t.rate == "latched" else qos)
+                     for t in select(publisher="sim_node") if t.key != "markers" or p["publish_markers"]}
+        self.pub_clock, self.pub_particles, self.pub_gripper, self.pub_image, self.pub_info, self.pub_task = (
+            self.pubs[key] for key in ("clock", "particles", "gripper", "image", "camera_info", "task"))
+        self.pub_markers, self.pub_instance = self.pubs.get("markers"), self.pubs["instance"]
+        self.sub_command = self.create_subscription(GripperCommand, topic("command").name, self.on_command, qos)
         self.last_command_wall = None  # real_time: when the last command arrived (or the episode clock started)
         self.create_service(ResetEpisode, "/dlo/sim/reset", self.on_reset_service)
         self.instance = {"host": socket.gethostname(), "pid": os.getpid(), "started_ns": time.time_ns()}
-        self.pub_instance = self.create_publisher(String, INSTANCE_TOPIC, latched)
         self.create_subscription(String, INSTANCE_TOPIC, self.on_instance,  # several publishers: more than 1 deep
                                  QoSProfile(depth=10, durability=DurabilityPolicy.TRANSIENT_LOCAL))
 
@@ -266,8 +265,7 @@ class SimNode(Node):
             self.publish_state(new_stamp=False)
 
     def own_publishers(self):
-        return [pub for pub in (self.pub_clock, self.pub_particles, self.pub_gripper, self.pub_image, self.pub_info,
-                                self.pub_task, self.pub_markers, getattr(self, "pub_instance", None)) if pub is not None]
+        return list(self.pubs.values())
 
     def other_publishers(self, topic: str) -> list:
         """Names of the nodes publishing ``topic`` besides this one."""

@@ -25,10 +25,22 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from dlo_common.topics import topic
+
 LAYOUT_FILE = Path("docs") / "foxglove" / "dlo_vitac.json"
 TIMESTAMP = "receiveTime"  # live: when the bridge received it; bag: the recorder's receive time
 
 COLORS = ("#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd")
+
+
+def _topic(key: str) -> str:
+    """A topic's name from the registry (dlo_common.topics) by its key: a panel reads only topics of the graph."""
+    return topic(key).name
+
+
+def _field(key: str, field: str) -> str:
+    """A message path for a plot, ``/dlo/gripper/state.closure``."""
+    return f"{_topic(key)}.{field}"
 
 
 def _plain(model: Any) -> Any:
@@ -69,44 +81,44 @@ def panel_configs() -> dict[str, dict]:
                                                          rotation=(0.0, 0.0, 0.0), layer_id="foxglove.Grid",
                                                          order=1)},
         topics={
-            "/dlo/rope/particles": fl.BaseRendererPointCloudTopicSettings(
+            _topic("particles"): fl.BaseRendererPointCloudTopicSettings(
                 visible=True, point_size=9.0, point_shape="circle", color_mode="colormap", color_field="held",
                 color_map="turbo", min_value=0.0, max_value=1.0),
-            "/dlo/markers": fl.BaseRendererRosMarkerTopicSettings(visible=True),
+            _topic("markers"): fl.BaseRendererRosMarkerTopicSettings(visible=True),
         },
     )
-    image = fl.ImageConfig(image_mode=fl.ImageModeConfig(image_topic="/dlo/camera/image",
-                                                         calibration_topic="/dlo/camera/camera_info"))
+    image = fl.ImageConfig(image_mode=fl.ImageModeConfig(image_topic=_topic("image"),
+                                                         calibration_topic=_topic("camera_info")))
     outcome = fl.StateTransitionsConfig(paths=[
-        fl.StateTransitionsSeries(value="/dlo/task/state.outcome", label="outcome, paper rule",
+        fl.StateTransitionsSeries(value=_field("task", "outcome"), label="outcome, paper rule",
                                   timestamp_method=TIMESTAMP, enabled=True),
-        fl.StateTransitionsSeries(value="/dlo/task/state.outcome_authors", label="outcome, authors' rule",
+        fl.StateTransitionsSeries(value=_field("task", "outcome_authors"), label="outcome, authors' rule",
                                   timestamp_method=TIMESTAMP, enabled=True),
-        fl.StateTransitionsSeries(value="/dlo/task/state.done", label="episode done",
+        fl.StateTransitionsSeries(value=_field("task", "done"), label="episode done",
                                   timestamp_method=TIMESTAMP, enabled=True),
     ])
     configs = {
         "3D!dlo_scene": {**_plain(three_d), "title": "rope, gripper and fingers (world frame)"},
         "Image!dlo_camera": {**_plain(image), "title": "top camera"},
         "Plot!dlo_closure": _plot("closure [-]", [
-            _series("/dlo/gripper/state.closure", "c_G measured", 0),
-            _series("/dlo/gripper/cmd.closure", "c_G commanded", 1, line_style="dashed"),
-            _series("/dlo/vision/pose.confidence", "q_V vision confidence", 2),
+            _series(_field("gripper", "closure"), "c_G measured", 0),
+            _series(_field("command", "closure"), "c_G commanded", 1, line_style="dashed"),
+            _series(_field("vision", "confidence"), "q_V vision confidence", 2),
         ], min_y_value=-0.05, max_y_value=1.05, y_axis_label="closure"),
         "Plot!dlo_angles": _plot("pose angles [rad] (gripper frame)", [
-            _series("/dlo/tactile/pose.angle", "θ_T tactile", 0),
-            _series("/dlo/vision/pose.angle", "θ_V vision", 1),
+            _series(_field("tactile", "angle"), "θ_T tactile", 0),
+            _series(_field("vision", "angle"), "θ_V vision", 1),
         ], y_axis_label="rad"),
         "Plot!dlo_offsets": _plot("pose offsets [m] (gripper frame)", [
-            _series("/dlo/tactile/pose.y", "y_T tactile", 0),
-            _series("/dlo/vision/pose.y", "y_V vision", 1),
+            _series(_field("tactile", "y"), "y_T tactile", 0),
+            _series(_field("vision", "y"), "y_V vision", 1),
         ], y_axis_label="m"),
-        "Plot!dlo_reward": _plot("reward [-]", [_series("/dlo/task/state.reward", "reward per step", 0)],
+        "Plot!dlo_reward": _plot("reward [-]", [_series(_field("task", "reward"), "reward per step", 0)],
                                  y_axis_label="reward"),
         "Plot!dlo_held": _plot("held particle index (0 = fixed end)", [
-            _series("/dlo/task/state.mean_held_index", "mean held (paper rule)", 0),
-            _series("/dlo/task/state.mean_held_index_authors", "mean held (authors' rule)", 1),
-            _series("/dlo/task/state.num_particles", "n_c particles", 2, line_style="dotted"),
+            _series(_field("task", "mean_held_index"), "mean held (paper rule)", 0),
+            _series(_field("task", "mean_held_index_authors"), "mean held (authors' rule)", 1),
+            _series(_field("task", "num_particles"), "n_c particles", 2, line_style="dotted"),
         ], y_axis_label="particle index"),
         "StateTransitions!dlo_outcome": {**_plain(outcome), "title": "outcome (both rules) and done"},
     }

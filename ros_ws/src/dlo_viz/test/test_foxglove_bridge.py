@@ -29,26 +29,15 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # --import-mode=importlib
 
+from dlo_common.topics import TOPICS  # noqa: E402
 from dlo_viz_testutil import ROS2RUN, Proc  # noqa: E402
 from foxglove_ws_client import FoxgloveTestClient  # noqa: E402
 
 pytest.importorskip("foxglove")
 pytest.importorskip("websockets")
 
-# Every type the graph publishes (sim, perception, policy, markers, clock).
-GRAPH_TYPES = {
-    "/dlo/rope/particles": "sensor_msgs/msg/PointCloud2",
-    "/dlo/gripper/state": "dlo_msgs/msg/GripperState",
-    "/dlo/gripper/cmd": "dlo_msgs/msg/GripperCommand",
-    "/dlo/camera/image": "sensor_msgs/msg/Image",
-    "/dlo/camera/camera_info": "sensor_msgs/msg/CameraInfo",
-    "/dlo/tactile/pose": "dlo_msgs/msg/TactilePose",
-    "/dlo/vision/pose": "dlo_msgs/msg/VisualPose",
-    "/dlo/task/state": "dlo_msgs/msg/TaskState",
-    "/dlo/markers": "visualization_msgs/msg/MarkerArray",
-    "/dlo/sim/instance": "std_msgs/msg/String",
-    "/clock": "rosgraph_msgs/msg/Clock",
-}
+# Every topic and type the graph publishes (sim, perception, policy, markers, clock): the registry's.
+GRAPH_TYPES = {t.name: t.type for t in TOPICS}
 
 
 @pytest.fixture(scope="module")
@@ -435,3 +424,77 @@ def test_layout_ships_and_reads_only_graph_topics():
     scene = layout["configById"]["3D!dlo_scene"]
     assert scene["topics"]["/dlo/rope/particles"]["colorField"] == "held"  # held particles coloured
     assert "/dlo/markers" in scene["topics"] and scene["followTf"] == "world"
+
+
+def test_a_late_client_gets_the_last_latched_message_and_no_old_volatile_ones(bridge, typestore):
+    """dlo_viz README (foxglove_bridge): transient-local topics (camera_info) are sent again to each new
+    subscriber (their LAST message), as a ROS subscriber joining late would get it; what volatile topics
+    published before a client subscribed is not replayed to it (it gets what comes after)."""
+    msgs = make_messages(typestore)
+    info_type, state_type = GRAPH_TYPES["/dlo/camera/camera_info"], GRAPH_TYPES["/dlo/gripper/state"]
+    bridge.add_topic("/dlo/camera/camera_info", info_type, latched=True)
+    bridge.add_topic("/dlo/gripper/state", state_type)
+    info = msgs["/dlo/camera/camera_info"]
+    for width in (5, 7):  # two camera_infos before any client: the last one is the latched one
+        info.width = width
+        bridge.forward("/dlo/camera/camera_info", typestore.serialize_cdr(info, info_type))
+    state = msgs["/dlo/gripper/state"]
+    state.step = 1
+    bridge.forward("/dlo/gripper/state", typestore.serialize_cdr(state, state_type))  # before any client
+    first = FoxgloveTestClient(bridge.ws_url).connect()
+    second = None
+    try:
+        first.wait(lambda: len(first.channels) == 2, 10, "both channels")
+        first.subscribe()
+        wait_until(lambda: bridge.stats.subscriptions >= 2, 10)
+        assert bridge.resend_latched() == 1  # what the node does on its timer (foxglove_bridge_node)
+        state.step = 2
+        bridge.forward("/dlo/gripper/state", typestore.serialize_cdr(state, state_type))
+        first.wait(lambda: first.topics_received() == {"/dlo/camera/camera_info", "/dlo/gripper/state"}, 10,
+                   "camera_info and the new state")
+        infos = [first.decode(m) for m in first.messages if m.topic == "/dlo/camera/camera_info"]
+        assert [m.width for m in infos] == [7]
+        assert [first.decode(m).step for m in first.messages if m.topic == "/dlo/gripper/state"] == [2]
+        assert bridge.resend_latched() == 0  # nobody new: nothing resent
+        second = FoxgloveTestClient(bridge.ws_url).connect()  # joins later still
+        second.wait(lambda: second.channel_by_topic("/dlo/camera/camera_info") is not None, 10, "advertise")
+        second.subscribe(["/dlo/camera/camera_info"])
+        wait_until(lambda: bridge.stats.subscriptions >= 3, 10)
+        assert bridge.resend_latched() == 1
+        second.wait(lambda: second.topics_received() == {"/dlo/camera/camera_info"}, 10, "latched camera_info")
+        assert [second.decode(m).width for m in second.messages] == [7]
+    finally:
+        first.close()
+        if second is not None:
+            second.close()
+
+
+def listening_addresses(port: int) -> set[str]:
+    """The local addresses of the TCP sockets listening on ``port`` (/proc/net/tcp, tcp6)."""
+    found = set()
+    for name in ("/proc/net/tcp", "/proc/net/tcp6"):
+        with open(name) as f:
+            for line in f.readlines()[1:]:
+                local, state = line.split()[1], line.split()[3]
+                address, _, hex_port = local.partition(":")
+                if state == "0A" and int(hex_port, 16) == port:
+                    found.add(socket.inet_ntop(socket.AF_INET if len(address) == 8 else socket.AF_INET6,
+                                               bytes.fromhex(address)[::-1] if len(address) == 8 else
+                                               b"".join(bytes.fromhex(address[i:i + 8])[::-1] for i in range(0, 32, 8))))
+    return found
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+def test_bridge_node_exits_0_on_a_signal_after_writing_its_counts(procs, tmp_path, sig):
+    """dlo_viz README (foxglove_bridge): exit status 0 after SIGINT/SIGTERM (it closes its server and
+    writes summary_file); it binds 127.0.0.1 unless told otherwise."""
+    summary = tmp_path / "bridge.json"
+    proc = procs("bridge", [str(ROS2RUN), "dlo_viz", "foxglove_bridge", "--ros-args", "-p", "port:=0",
+                            "-p", f"summary_file:={summary}"])
+    port = int(re.search(r"ws://[\d.]+:(\d+)", proc.wait_line("Foxglove bridge on ws://", timeout=120)).group(1))
+    assert listening_addresses(port) == {"127.0.0.1"}
+    client = FoxgloveTestClient(f"ws://127.0.0.1:{port}").connect()  # it serves
+    client.close()
+    proc.signal(sig)
+    assert proc.wait(timeout=60) == 0, proc.output()
+    assert "Traceback" not in proc.output() and json.loads(summary.read_text()) is not None

@@ -1,0 +1,40 @@
+"""dlo-bag-info BAG (dlo_bag.bag_info): like `ros2 bag info`; -v adds type hashes and QoS, --json one
+object. Exit statuses: test_bag_exit_codes.py."""
+
+import json
+
+from rclpy.serialization import serialize_message
+
+from dlo_msgs.msg import GripperState
+from dlo_bag import bag_info as bag_info_cli
+from dlo_bag.bag import BagWriter
+
+
+def write_bag(path):
+    with BagWriter(path) as writer:
+        writer.add_topic("/dlo/gripper/state", "dlo_msgs/msg/GripperState")
+        writer.add_topic("/dlo/rope/particles", "sensor_msgs/msg/PointCloud2")
+        for i in range(4):
+            writer.write("/dlo/gripper/state", serialize_message(GripperState(step=i)), 1_000_000_000 + 250_000_000 * i)
+        return writer.topics["/dlo/gripper/state"].rihs01
+
+
+def test_topics_types_counts_and_duration_plain_verbose_and_as_json(tmp_path, capsys):
+    """dlo_bag README: dlo-bag-info BAG prints topics, types, counts, duration; -v hashes/QoS; --json."""
+    bag = tmp_path / "run"
+    rihs01 = write_bag(bag)
+    assert bag_info_cli.main([str(bag)]) == 0
+    plain = capsys.readouterr().out
+    assert "Messages:          4" in plain and "dlo_msgs/msg/GripperState | Count: 4 |" in plain
+    assert "sensor_msgs/msg/PointCloud2 | Count: 0 |" in plain and "RIHS01_" not in plain
+    assert bag_info_cli.main([str(bag), "-v"]) == 0
+    assert rihs01 in capsys.readouterr().out
+    assert bag_info_cli.main([str(bag), "--json"]) == 0
+    out = capsys.readouterr().out
+    assert out.count("\n") == 1  # one JSON object
+    info = json.loads(out)
+    assert info["message_count"] == 4 and info["duration_s"] == 0.75 and info["path"] == str(bag)
+    assert info["topics"] == {
+        "/dlo/gripper/state": {"type": "dlo_msgs/msg/GripperState", "count": 4, "type_hash": rihs01},
+        "/dlo/rope/particles": {"type": "sensor_msgs/msg/PointCloud2", "count": 0,
+                                "type_hash": info["topics"]["/dlo/rope/particles"]["type_hash"]}}

@@ -1,0 +1,241 @@
+"""scripts/launch_graph.sh's exit status in every combination of failures its --help and the README
+name (0 every episode ran and the bag is complete; 2 a bad option or a node rejecting its parameters;
+3 a node died or exited early, the sim interrupted on its own or refusing to start; 4 the recording
+failed: a write error, the recorder died or dropped messages, a bag left unclosed; 130 interrupted),
+and the one line that names the cause.
+
+The graph's nodes are stand-ins here (a fake ``ros2`` on PATH, which the launcher uses like a real ROS 2
+install's): each behaves as a real node does in that failure (exit status, the log line the launcher
+reads, the bag files it leaves), so each case runs in seconds. The real faults behind them are in
+tests/test_graph_isolation.py (a recorder killed with SIGKILL, a full disk, the sim interrupted, a
+second simulator) and tests/test_graph.py (Ctrl-C mid-run)."""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+LAUNCH = ROOT / "scripts" / "launch_graph.sh"
+NODES = {"sim_node": "sim", "recorder_node": "recorder", "tactile_node": "tactile", "vision_node": "vision",
+         "policy_node": "policy"}
+
+# What a node does, from FAKE_GRAPH (JSON, by launcher name): "exit" its status (default 0; "SIGKILL": killed),
+# "when" "start" (at once), "signal" (on SIGINT/SIGTERM, the default) or, for the sim, "episodes" (after
+# writing "episodes" outcome lines, once the whole graph has started); "say" lines to print first; the
+# recorder creates its bag directory with a .mcap and writes metadata.yaml when it closes ("closes": true).
+FAKE_ROS2 = r'''#!{python}
+import json, os, signal, sys, time
+from pathlib import Path
+
+_, pkg, exe, *rest = sys.argv[1:]
+name = {nodes}[exe]
+plan = json.loads(os.environ["FAKE_GRAPH"]).get(name, {{}})
+params = dict(rest[i + 1].split(":=", 1) for i, arg in enumerate(rest) if arg == "-p")
+bag = Path(params["output"]) if name == "recorder" else None
+
+
+def finish(*_):
+    for line in plan.get("say", []):
+        print(line, flush=True)
+    if bag is not None and plan.get("closes", True):
+        (bag / "metadata.yaml").write_text("rosbag2_bagfile_information: {{}}\n")
+    if plan.get("exit") == "SIGKILL":
+        os.kill(os.getpid(), signal.SIGKILL)
+    os._exit(plan.get("exit", 130 if name == "sim" else 0))
+
+
+for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):  # a background job of bash starts with SIGINT ignored
+    signal.signal(sig, finish)
+if bag is not None:
+    bag.mkdir(parents=True)
+    (bag / (bag.name + "_0.mcap")).write_bytes(b"\x89MCAP0\r\n")
+if name == "sim":
+    print(f"[INFO] [sim_node]: alone on ROS_DOMAIN_ID={{os.environ['ROS_DOMAIN_ID']}}", flush=True)
+when = plan.get("when", "signal")
+if when == "start":
+    finish()
+if when == "episodes":  # the sim: once every node of the graph runs, its episodes, then it ends
+    outcomes = Path(params["summary_file"])
+    while not (outcomes.parent / "policy.log").exists():
+        time.sleep(0.05)
+    seed = int(params["seed"])
+    with outcomes.open("a") as f:
+        for k in range(plan["episodes"]):
+            f.write(json.dumps({{"episode": k, "seed": seed + k, "outcome": "hold_the_end", "outcome_code": 1,
+                                "outcome_authors": "stop_before", "time_at_end": 140, "how_far": 0,
+                                "episode_return": 100.5, "episode_length": 150, "task_rules": "authors_code"}}) + "\n")
+    finish()
+while True:
+    time.sleep(1)
+'''
+
+
+def ran(plan, *args):
+    return plan, args
+
+
+def episodes(n, status=0):
+    return {"when": "episodes", "episodes": n, "exit": status}
+
+
+FAILED = "recording failed: no space left on device (write to run_0.mcap: [Errno 28] No space left on device)"
+CASES = {
+    # every episode ran
+    "complete": (ran({"sim": episodes(2)}, "--episodes", 2, "--record", "BAG"), 0,
+                 ["[launch] bag: BAG (inspect: dlo-bag-info BAG)"]),
+    "complete_without_a_bag": (ran({"sim": episodes(2)}, "--episodes", 2), 0, []),
+    "recorder_dropped_messages": (ran({"sim": episodes(2), "recorder": {"exit": 1}}, "--episodes", 2, "--record", "BAG"), 4,
+                                  ["[launch] recording incomplete: the recorder dropped messages (see LOGS/recorder.log)"]),
+    "recording_failed_at_the_end": (ran({"sim": episodes(2), "recorder": {"exit": 3, "say": [FAILED]}},
+                                        "--episodes", 2, "--record", "BAG"), 4,
+                                    ["[launch] recording failed: no space left on device (see LOGS/recorder.log)"]),
+    "bag_left_unclosed": (ran({"sim": episodes(2), "recorder": {"closes": False}}, "--episodes", 2, "--record", "BAG"), 4,
+                          ["[launch] the bag BAG is incomplete: recover it with: dlo-bag-recover BAG"]),
+    "recorder_ended_oddly": (ran({"sim": episodes(2), "recorder": {"exit": 5}}, "--episodes", 2, "--record", "BAG"), 4,
+                             ["[launch] the recorder ended with status 5; the end of its log:"]),
+    # a node of the graph fails while it runs
+    "recorder_died": (ran({"recorder": {"when": "start", "exit": 1, "closes": False}}, "--episodes", 2, "--record", "BAG"),
+                      4, ["[launch] recorder exited early (status 1); the end of its log:",
+                          "[launch] the bag BAG is incomplete: recover it with: dlo-bag-recover BAG"]),
+    "recorder_killed": (ran({"recorder": {"when": "start", "exit": "SIGKILL", "closes": False}}, "--episodes", 2,
+                            "--record", "BAG"), 4,
+                        ["[launch] recorder exited early (status 137: killed by SIGKILL); the end of its log:"]),
+    "recorder_stopped_early": (ran({"recorder": {"when": "start"}}, "--episodes", 2, "--record", "BAG"), 4,
+                               ["[launch] recorder exited early (status 0); the end of its log:",
+                                "[launch] bag: BAG (inspect: dlo-bag-info BAG)"]),  # closed, but not every episode
+    "recording_failed_mid_run": (ran({"recorder": {"when": "start", "exit": 3, "say": [FAILED]}}, "--episodes", 2,
+                                     "--record", "BAG"), 4,
+                                 ["[launch] recording failed: no space left on device: the recorder stopped "
+                                  "(status 3); graph stopped", "[launch] bag: BAG (inspect: dlo-bag-info BAG)"]),
+    "policy_died": (ran({"policy": {"when": "start", "exit": 1}}, "--episodes", 2), 3,
+                    ["[launch] policy exited early (status 1); the end of its log:"]),
+    "vision_killed": (ran({"vision": {"when": "start", "exit": "SIGKILL"}}, "--episodes", 2), 3,
+                      ["[launch] vision exited early (status 137: killed by SIGKILL); the end of its log:"]),
+    "tactile_rejected_its_parameters": (ran({"tactile": {"when": "start", "exit": 2}}, "--episodes", 2), 2,
+                                        ["[launch] tactile exited early (status 2); the end of its log:"]),
+    "policy_died_and_recorder_dropped": (ran({"policy": {"when": "start", "exit": 1}, "recorder": {"exit": 1}},
+                                             "--episodes", 2, "--record", "BAG"), 4,
+                                         ["[launch] policy exited early (status 1); the end of its log:",
+                                          "[launch] recording incomplete: the recorder dropped messages (see "
+                                          "LOGS/recorder.log)"]),
+    # the sim ends early
+    "sim_ended_short": (ran({"sim": episodes(1)}, "--episodes", 2), 3,
+                        ["[launch] sim exited early (status 0, 1 of 2 episodes done); the end of its log:"]),
+    "sim_interrupted_alone": (ran({"sim": episodes(1, 130)}, "--episodes", 3), 3,
+                              ["[launch] sim exited early (status 130: interrupted by SIGINT, 1 of 3 episodes done); "
+                               "the end of its log:"]),
+    "unlimited_sim_ended": (ran({"sim": episodes(1)}, "--episodes", 0), 3,
+                            ["[launch] sim exited early (status 0, 1 of unlimited episodes done); the end of its log:"]),
+    "sim_rejected_its_parameters": (ran({"sim": {"when": "start", "exit": 2}}, "--episodes", 2), 2,
+                                    ["[launch] sim exited early (status 2, 0 of 2 episodes done); the end of its log:"]),
+    "sim_refused_to_start": (ran({"sim": {"when": "start", "exit": 3}}, "--episodes", 2, "--record", "BAG"), 3,
+                             ["[launch] sim exited early (status 3, 0 of 2 episodes done); the end of its log:"]),
+}
+INTERRUPTS = {  # the launcher gets the signal while the graph runs (unlimited episodes)
+    "interrupted": (signal.SIGINT, {}, 130, ["[launch] interrupted: stopping the graph",
+                                             "[launch] bag: BAG (inspect: dlo-bag-info BAG)"]),
+    "terminated": (signal.SIGTERM, {}, 130, ["[launch] interrupted: stopping the graph"]),
+    "interrupted_and_the_recording_failed": (
+        signal.SIGINT, {"recorder": {"exit": 3, "say": [FAILED]}}, 130,
+        ["[launch] interrupted: stopping the graph",
+         "[launch] recording failed: no space left on device (see LOGS/recorder.log)"]),
+    "interrupted_and_the_recorder_dropped": (
+        signal.SIGINT, {"recorder": {"exit": 1}}, 130,
+        ["[launch] recording incomplete: the recorder dropped messages (see LOGS/recorder.log)"]),
+}
+
+
+def start(tmp_path, plan, args, own_groups):
+    """launch_graph.sh with the fake nodes of ``plan``, in its own session; (process, out file, logs, bag)."""
+    bin_dir, logs, bag = tmp_path / "bin", tmp_path / "logs", tmp_path / "bag"
+    bin_dir.mkdir()
+    fake = bin_dir / "ros2"
+    fake.write_text(FAKE_ROS2.format(python=sys.executable, nodes=NODES))
+    fake.chmod(0o755)
+    env = {k: v for k, v in os.environ.items() if k != "DLO_USE_ROS2RUN"}  # a ROS 2 install: `ros2 run`
+    env.update(PATH=f"{bin_dir}{os.pathsep}{env['PATH']}", FAKE_GRAPH=json.dumps(plan))
+    argv = [str(bag) if a == "BAG" else str(a) for a in args]
+    out = tmp_path / "launch.out"
+    with out.open("w") as f:
+        proc = subprocess.Popen(["bash", str(LAUNCH), *argv, "--logs", str(logs), "--status-period", "0"],
+                                stdout=f, stderr=subprocess.STDOUT, env=env, start_new_session=True,
+                                preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    own_groups(proc.pid)
+    return proc, out, logs, bag
+
+
+def check(proc, out, logs, bag, rc, lines):
+    try:
+        status = proc.wait(timeout=300)
+    except subprocess.TimeoutExpired:
+        raise AssertionError(f"the launcher did not end:\n{out.read_text()}") from None
+    text = out.read_text()
+    assert status == rc, text
+    printed = text.splitlines()
+    for line in lines:
+        line = line.replace("LOGS", str(logs)).replace("BAG", str(bag))
+        assert line in printed, f"no line {line!r} in:\n{text}"
+    assert "Traceback" not in text
+    return text
+
+
+@pytest.mark.parametrize("case", sorted(CASES))
+def test_the_exit_status_and_its_cause(case, tmp_path, own_groups):
+    (plan, args), rc, lines = CASES[case]
+    proc, out, logs, bag = start(tmp_path, plan, args, own_groups)
+    text = check(proc, out, logs, bag, rc, lines)
+    if case.startswith("sim_rejected"):  # the graph stopped at the sim: nothing else was started
+        assert not any((logs / f"{node}.log").exists() for node in ("recorder", "tactile", "vision", "policy")), text
+    if rc == 0:  # the run's outcome table follows (both rules), and no node was reported
+        assert "hold_the_end            2/2    100.0%    0/2      0.0%" in text and "exited early" not in text
+
+
+@pytest.mark.parametrize("case", sorted(INTERRUPTS))
+def test_an_interrupted_run_is_130_whatever_else_failed(case, tmp_path, own_groups):
+    sig, plan, rc, lines = INTERRUPTS[case]
+    proc, out, logs, bag = start(tmp_path, plan, ("--episodes", 0, "--record", "BAG"), own_groups)
+    deadline = time.monotonic() + 120
+    while "[launch] policy (pid" not in out.read_text():  # the whole graph runs
+        assert proc.poll() is None and time.monotonic() < deadline, out.read_text()
+        time.sleep(0.1)
+    proc.send_signal(sig)
+    check(proc, out, logs, bag, rc, lines)
+
+
+BAD_OPTIONS = {
+    "episodes": (["--episodes", "-1"], "launch_graph: --episodes must be a number >= 0, got '-1'"),
+    "seed": (["--seed", "x"], "launch_graph: --seed must be a number >= 0, got 'x'"),
+    "mode": (["--mode", "fast"], "launch_graph: --mode must be step_locked or real_time"),
+    "status_period": (["--status-period", "soon"],
+                      "launch_graph: --status-period must be a number of seconds >= 0, got 'soon'"),
+    "domain_id": (["--domain-id", "300"], "launch_graph: --domain-id must be a number in 0..232, got '300'"),
+    "namespace": (["--namespace", "9lives"], "launch_graph: --namespace must be a ROS name like 'robot1' or "
+                                             "'lab/robot1', got '9lives'"),
+    "foxglove_port": (["--foxglove", "70000"], "launch_graph: --foxglove PORT must be in 0..65535, got '70000'"),
+    "record_exists": (["--record", "EXISTING"], "launch_graph: --record EXISTING already exists; choose a new directory"),
+    "unknown": (["--bogus"], "launch_graph: unknown option '--bogus'"),
+    "no_value": (["--seed"], "launch_graph: --seed needs a value"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(BAD_OPTIONS))
+def test_a_bad_option_is_exit_2_in_one_line_before_anything_starts(case, tmp_path):
+    """launch_graph.sh --help (exit status 2: bad option): one line naming the option, nothing started.
+    (--policy, --without, --checkpoint, --task-rules: tests/test_launch_feedback.py; --tactile-noise:
+    tests/test_tactile_noise_setting.py.)"""
+    args, message = BAD_OPTIONS[case]
+    existing = tmp_path / "existing_bag"
+    existing.mkdir()
+    args = [str(existing) if a == "EXISTING" else a for a in args]
+    logs = tmp_path / "logs"
+    result = subprocess.run(["bash", str(LAUNCH), "--logs", str(logs), *args], capture_output=True, text=True,
+                            timeout=120)
+    assert result.returncode == 2, result.stdout + result.stderr
+    assert result.stderr.splitlines()[0] == message.replace("EXISTING", str(existing)), result.stderr
+    assert result.stdout == "" and not logs.exists()  # no domain chosen, no node started
