@@ -4,12 +4,8 @@ from __future__ import annotations
 
 import ast
 import subprocess
-import sys
-from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))  # --import-mode=importlib
-
-from dlo_bag_testutil import REPO, ROS2RUN  # noqa: E402
+from dlo_common.testing import REPO, ROS2RUN
 
 SRC = REPO / "ros_ws" / "src"
 

@@ -9,4 +9,6 @@
   shared by the vision kernel and the simulator; Taichi is imported only when it starts.
 - :mod:`dlo_common.topics`: the registry of the graph's topics and services (name, type, publisher,
   role, ...) that nodes and tools read instead of lists of their own; plain data, no ROS imports.
+- :mod:`dlo_common.testing`: what the packages' tests share to run nodes as processes (``Proc``, an
+  isolated test domain, ``Procs`` that stops every process it started); standard library only.
 """

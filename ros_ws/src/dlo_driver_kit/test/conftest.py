@@ -1,54 +1,20 @@
-"""Fixtures for the dlo_driver_kit tests: processes on an isolated ROS domain."""
+"""Fixtures for the dlo_driver_kit tests: processes on an isolated ROS domain (dlo_common.testing)."""
 
 from __future__ import annotations
 
-import os
-import random
-import signal
-import subprocess
-import sys
-from pathlib import Path
-
 import pytest
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))  # --import-mode=importlib
-
-from dlo_driver_kit_testutil import ROS2RUN, Proc  # noqa: E402
+from dlo_common.testing import Procs, package_test_env
 
 
 @pytest.fixture(scope="session")
 def ros_env() -> dict[str, str]:
     """Environment of env.sh with a random ROS_DOMAIN_ID (100..200) and localhost discovery."""
-    if not ROS2RUN.exists():
-        pytest.skip("scripts/ros2run missing")
-    env = dict(os.environ)
-    if "DLO_ROOT" not in env:
-        pytest.skip("source scripts/env.sh first")
-    env["ROS_DOMAIN_ID"] = str(random.randint(100, 200))
-    env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
-    env["PYTHONUNBUFFERED"] = "1"
-    env.pop("ROS_LOCALHOST_ONLY", None)
-    check = subprocess.run([str(ROS2RUN), "dlo_driver_kit"], env=env, capture_output=True, text=True)
-    if "mock_driver_node" not in check.stdout:
-        pytest.skip("dlo_driver_kit is not built (run scripts/setup.sh): " + check.stderr)
-    return env
+    return package_test_env("dlo_driver_kit", "mock_driver_node")
 
 
 @pytest.fixture
 def procs(ros_env):
-    """Start processes with ``start(name, cmd)``; every one still running is killed afterwards."""
-    started: list[Proc] = []
-
-    def start(name: str, cmd: list[str], **popen) -> Proc:
-        proc = Proc(cmd, ros_env, name, **popen)
-        started.append(proc)
-        return proc
-
-    yield start
-    for proc in started:
-        if proc.p.poll() is None:
-            proc.signal(signal.SIGINT)
-            try:
-                proc.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                proc.kill()
+    """Start processes with ``procs(name, cmd)``; every one still running is stopped afterwards."""
+    with Procs(ros_env) as start:
+        yield start

@@ -10,7 +10,6 @@ from __future__ import annotations
 import json
 import math
 import re
-import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -20,11 +19,11 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # --import-mode=importlib
 
 from dlo_driver_kit_broken_driver import FAULTS  # noqa: E402
-from dlo_driver_kit_testutil import ROS2RUN, Proc  # noqa: E402
 
 from dlo_driver_kit.driver_check import (RULES, CloudSample, ImageSample, InfoSample, Recording,  # noqa: E402
                                          Settings, StateSample, check_stale, check_workspace, cloud_layout_problem,
                                          evaluate, schedule)
+from dlo_common.testing import ROS2RUN, Procs  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 CHECK = [sys.executable, "-m", "dlo_driver_kit.driver_check"]
@@ -79,9 +78,10 @@ def broken_checks(ros_env) -> dict[str, subprocess.CompletedProcess]:
     for first in range(0, len(faults), BATCH):
         batch = faults[first:first + BATCH]
         envs = {fault: dict(ros_env, ROS_DOMAIN_ID=str(base + 1 + first + i)) for i, fault in enumerate(batch)}
-        drivers = {fault: Proc([sys.executable, str(HERE / "dlo_driver_kit_broken_driver.py"), fault], envs[fault], fault)
-                   for fault in batch}
-        try:
+        with Procs(ros_env) as start:
+            drivers = {fault: start(fault, [sys.executable, str(HERE / "dlo_driver_kit_broken_driver.py"), fault],
+                                    env=envs[fault])
+                       for fault in batch}
             for driver in drivers.values():
                 driver.wait_line("real_time driver at", timeout=60)
             checks = {fault: subprocess.Popen([*CHECK, "--timeout", "20", "--duration", "1"], env=envs[fault],
@@ -90,15 +90,6 @@ def broken_checks(ros_env) -> dict[str, subprocess.CompletedProcess]:
             for fault, check in checks.items():
                 out, err = check.communicate(timeout=120)
                 results[fault] = subprocess.CompletedProcess(check.args, check.returncode, out, err)
-        finally:
-            for driver in drivers.values():
-                if driver.p.poll() is None:
-                    driver.signal(signal.SIGINT)
-            for driver in drivers.values():
-                try:
-                    driver.wait(timeout=10)
-                except subprocess.TimeoutExpired:
-                    driver.kill()
     return results
 
 

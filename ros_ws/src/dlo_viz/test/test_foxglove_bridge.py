@@ -30,7 +30,7 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # --import-mode=importlib
 
 from dlo_common.topics import TOPICS  # noqa: E402
-from dlo_viz_testutil import ROS2RUN, Proc  # noqa: E402
+from dlo_common.testing import ROS2RUN, Proc, Procs  # noqa: E402
 from foxglove_ws_client import FoxgloveTestClient  # noqa: E402
 
 pytest.importorskip("foxglove")
@@ -263,25 +263,14 @@ def test_a_client_that_stops_reading_never_blocks(bridge, typestore):
 @pytest.fixture
 def launcher(ros_env):
     """Start ``launch_graph.sh`` (its own DDS domain); stopped with SIGINT afterwards if still running."""
-    started = []
+    with Procs({**ros_env, "DLO_USE_ROS2RUN": "1"}, stop_timeout=60) as started:
+        def start(*args: str) -> Proc:
+            return started("launch", ["bash", str(ROS2RUN.parent / "launch_graph.sh"), *args],
+                           # bash cannot trap a signal ignored at its start (a test run started as a background
+                           # job ignores SIGINT): the launcher must stop its graph on the SIGINT sent to it
+                           preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
 
-    def start(*args: str) -> Proc:
-        proc = Proc(["bash", str(ROS2RUN.parent / "launch_graph.sh"), *args],
-                    {**ros_env, "DLO_USE_ROS2RUN": "1"}, "launch",
-                    # bash cannot trap a signal ignored at its start (a test run started as a background
-                    # job ignores SIGINT): the launcher must stop its graph on the SIGINT sent to it
-                    preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
-        started.append(proc)
-        return proc
-
-    yield start
-    for proc in started:
-        if proc.p.poll() is None:
-            proc.signal(signal.SIGINT)
-            try:
-                proc.wait(timeout=60)
-            except Exception:  # noqa: BLE001
-                proc.kill()
+        yield start
 
 
 class GraphObserver:

@@ -1,0 +1,142 @@
+"""Helpers for the packages' graph tests: node processes on an isolated ROS domain.
+
+The tests of dlo_bag, dlo_viz and dlo_driver_kit define their fixtures over these in a few lines:
+
+- :class:`Proc`: a child process whose merged stdout/stderr is collected line by line (``wait_line``).
+- :data:`REPO`, :data:`ROS2RUN`: the repository (``DLO_ROOT``, set by ``scripts/env.sh``) and its
+  ``scripts/ros2run``.
+- :func:`isolated_env`: a copy of the environment on a random ROS domain with localhost discovery;
+  :func:`package_test_env` the same, skipping the test when the package's executable is not built.
+- :class:`Procs`: starts processes and stops every one still running at the end (SIGINT, wait, kill).
+
+Standard library only: no rclpy; pytest is imported inside :func:`package_test_env` only.
+"""
+
+from __future__ import annotations
+
+import os
+import queue
+import random
+import signal
+import subprocess
+import threading
+import time
+from pathlib import Path
+
+# DLO_ROOT is set by scripts/env.sh; without it, the source tree this file lies in (ros_ws/src/dlo_common/dlo_common/).
+REPO = Path(os.environ.get("DLO_ROOT") or Path(__file__).resolve().parents[4])
+ROS2RUN = REPO / "scripts" / "ros2run"
+
+
+class Proc:
+    """A child process whose merged stdout/stderr is collected line by line."""
+
+    def __init__(self, cmd: list[str], env: dict[str, str], name: str, **popen) -> None:
+        self.name = name
+        self.cmd = cmd
+        self.p = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                                  text=True, bufsize=1, start_new_session=True, **popen)
+        self.lines: list[str] = []
+        self._q: queue.Queue[str | None] = queue.Queue()
+        self._t = threading.Thread(target=self._pump, daemon=True)
+        self._t.start()
+
+    def _pump(self) -> None:
+        assert self.p.stdout is not None
+        for line in self.p.stdout:
+            self.lines.append(line.rstrip("\n"))
+            self._q.put(line.rstrip("\n"))
+        self._q.put(None)
+
+    def output(self) -> str:
+        return "\n".join(self.lines)
+
+    def wait_line(self, prefix: str, timeout: float = 60.0) -> str:
+        """The first new line containing ``prefix``; fails if the process ends first."""
+        end = time.monotonic() + timeout
+        while True:
+            left = end - time.monotonic()
+            if left <= 0:
+                raise AssertionError(f"{self.name}: no '{prefix}' within {timeout} s:\n"
+                                     + self.output())
+            try:
+                line = self._q.get(timeout=left)
+            except queue.Empty:
+                continue
+            if line is None:
+                raise AssertionError(f"{self.name} exited ({self.p.wait()}) before '{prefix}':\n"
+                                     + self.output())
+            if prefix in line:
+                return line
+
+    def signal(self, sig: int) -> None:
+        self.p.send_signal(sig)
+
+    def wait(self, timeout: float = 30.0) -> int:
+        rc = self.p.wait(timeout=timeout)
+        self._t.join(timeout=5)
+        return rc
+
+    def kill(self) -> None:
+        if self.p.poll() is None:
+            self.p.kill()
+            self.p.wait(timeout=10)
+
+
+def isolated_env(base: dict[str, str] | None = None, domain_id: int | None = None) -> dict[str, str]:
+    """A copy of ``base`` (default: ``os.environ``) on ROS domain ``domain_id`` (default: random, 100..200)
+    with localhost-only discovery and unbuffered Python output."""
+    env = dict(os.environ if base is None else base)
+    env["ROS_DOMAIN_ID"] = str(random.randint(100, 200) if domain_id is None else domain_id)
+    env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    env["PYTHONUNBUFFERED"] = "1"
+    env.pop("ROS_LOCALHOST_ONLY", None)
+    return env
+
+
+def package_test_env(package: str, executable: str) -> dict[str, str]:
+    """:func:`isolated_env` for the tests of ``package``; skips the test (pytest.skip) when scripts/env.sh
+    is not sourced, scripts/ros2run is missing or ``ros2run <package>`` does not list ``executable``."""
+    import pytest
+
+    if "DLO_ROOT" not in os.environ:
+        pytest.skip("source scripts/env.sh first")
+    if not ROS2RUN.exists():
+        pytest.skip(f"{ROS2RUN} missing")
+    env = isolated_env()
+    check = subprocess.run([str(ROS2RUN), package], env=env, capture_output=True, text=True, timeout=60)
+    if f"{package} {executable}" not in check.stdout.splitlines():
+        pytest.skip(f"{package} is not built (run scripts/setup.sh): " + check.stderr)
+    return env
+
+
+class Procs:
+    """Processes started with ``procs(name, cmd, env=None, **popen)`` (a :class:`Proc` in ``env``, default
+    the one given here); :meth:`stop_all` (also on leaving a ``with`` block) sends SIGINT to every one still
+    running, waits up to ``stop_timeout`` s for each and kills the ones that did not stop."""
+
+    def __init__(self, env: dict[str, str], stop_timeout: float = 10.0) -> None:
+        self.env = env
+        self.stop_timeout = stop_timeout
+        self.started: list[Proc] = []
+
+    def __call__(self, name: str, cmd: list[str], env: dict[str, str] | None = None, **popen) -> Proc:
+        proc = Proc(cmd, self.env if env is None else env, name, **popen)
+        self.started.append(proc)
+        return proc
+
+    def stop_all(self) -> None:
+        running = [proc for proc in self.started if proc.p.poll() is None]
+        for proc in running:
+            proc.signal(signal.SIGINT)
+        for proc in running:
+            try:
+                proc.wait(timeout=self.stop_timeout)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+
+    def __enter__(self) -> Procs:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.stop_all()
