@@ -228,8 +228,12 @@ def test_the_sim_names_the_topics_a_recorder_lacks(probe, tmp_path):
     recorder = start("dlo_bag", "recorder_node", f"output:={tmp_path / 'bag'}", "namespace:=/dlo/camera")
     sim = start("dlo_sim", "sim_node", "wait_for_recorder:=recorder", "publish_markers:=false", log=open(sim_log, "w"))
     try:
-        assert probe.spin_until(lambda: "waiting for the recorder 'recorder' to subscribe to" in sim_log.read_text(), 120)
-        waiting = next(line for line in sim_log.read_text().splitlines() if "waiting for the recorder" in line)
+        def waiting_lines():  # once the sim sees the recorder node (before that it lists every topic: "no node")
+            return [line for line in sim_log.read_text().splitlines()
+                    if "waiting for the recorder 'recorder' to subscribe to" in line and "no node 'recorder'" not in line]
+
+        assert probe.spin_until(lambda: waiting_lines(), 120), sim_log.read_text()
+        waiting = waiting_lines()[0]
         for topic in ("/dlo/gripper/state", "/dlo/task/state", "/dlo/rope/particles"):
             assert topic in waiting
         assert "/dlo/camera/image" not in waiting  # that one it records
