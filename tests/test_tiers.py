@@ -15,6 +15,8 @@ import pathlib
 import subprocess
 import sys
 
+from dlo_common.testing import exited
+
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 _spec = importlib.util.spec_from_file_location("dlo_test_tiers", ROOT / "conftest.py")
 tiers = importlib.util.module_from_spec(_spec)
@@ -98,12 +100,7 @@ def test_sigterm_to_pytest_runs_fixture_teardown_so_no_child_outlives_it(tmp_pat
         pytest_run.send_signal(signal.SIGTERM)
         out = pytest_run.communicate(timeout=60)[0]
         assert pytest_run.returncode == 2, out[-2000:]  # interrupted, as on Ctrl-C
-        try:
-            os.kill(child, 0)
-            alive = pathlib.Path(f"/proc/{child}/stat").read_text().split(")")[-1].split()[0] != "Z"
-        except ProcessLookupError:
-            alive = False
-        assert not alive, f"the fixture's child {child} outlived pytest:\n{out[-2000:]}"
+        assert exited(child), f"the fixture's child {child} outlived pytest:\n{out[-2000:]}"
     finally:
         if pytest_run.poll() is None:
             pytest_run.kill()

@@ -83,6 +83,15 @@ class Proc:
             self.p.wait(timeout=10)
 
 
+def exited(pid: int) -> bool:
+    """True when process ``pid`` has ended: gone, or a zombie its parent has not reaped yet."""
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().rsplit(")", 1)[-1].split()[0] == "Z"  # after "pid (comm)": comm may hold spaces
+    except (FileNotFoundError, ProcessLookupError):
+        return True
+
+
 def isolated_env(base: dict[str, str] | None = None, domain_id: int | None = None) -> dict[str, str]:
     """A copy of ``base`` (default: ``os.environ``) on ROS domain ``domain_id`` (default: random, 100..200)
     with localhost-only discovery and unbuffered Python output."""

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import pytest
 
+from dlo_common.testing import exited
 from dlo_policy import experiments
 from dlo_policy.config import load_config
 from dlo_policy.rundir import CHECKPOINT_FILE, DONE_FILE, EVAL_FILE, LOCK_FILE
@@ -273,16 +274,11 @@ def _worker_pid(run_dir, grid, timeout=120):
 def _gone(pid, timeout=60):
     """True once `pid` has exited (a zombie counts), checked at least once, for up to `timeout` s."""
     deadline = time.monotonic() + timeout
-    while True:
-        try:
-            os.kill(pid, 0)
-            if Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[-1].split()[0] == "Z":
-                return True
-        except (ProcessLookupError, FileNotFoundError):
-            return True
+    while not exited(pid):
         if time.monotonic() >= deadline:
             return False
         time.sleep(0.2)
+    return True
 
 
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGKILL])
