@@ -76,15 +76,19 @@ def test_each_recorded_number_was_computed_on_the_documented_episodes(run):
 
 
 def test_each_study_trained_on_its_documented_task_rules():
-    """docs/FIDELITY.md, docs/RESULTS.md: results/study trained under authors_code, results/study_paper_text
-    under paper_text (its runs predate the field: no task_rules in config.yaml reads as paper_text)."""
+    """docs/FIDELITY.md, docs/RESULTS.md: results/study trained under authors_code with the one-particle grip,
+    results/study_authors_code under authors_code with our grip, results/study_paper_text under paper_text (its
+    runs predate the field: no task_rules in config.yaml reads as paper_text; a run without
+    single_particle_grip predates that option: our grip)."""
     from dlo_policy.rundir import read_trained_config
 
-    for study, rules in (("study", "authors_code"), ("study_paper_text", "paper_text")):
+    for study, rules, one_particle in (("study", "authors_code", True), ("study_authors_code", "authors_code", False),
+                                       ("study_paper_text", "paper_text", False)):
         runs = sorted((RESULTS / study).glob("*/seed*"))
         assert runs, study
         for run in runs:
-            assert read_trained_config(run).env_options["task_rules"] == rules, run
+            options = read_trained_config(run).env_options
+            assert (options["task_rules"], options.get("single_particle_grip", False)) == (rules, one_particle), run
 
 
 def fractions(episodes, key):
