@@ -29,6 +29,9 @@ Options (keywords of both entry points):
     single_particle_grip=False  true: the grip carries ONE particle, the held one nearest the finger axis
                           (never particle 0), as the authors' code did (dlo_sim.grip, docs/FIDELITY.md
                           row 5); false: every held particle (or what a given sim_config says)
+    physics_seed=-1       >= 0: every episode gets the stretch, bending and friction drawn from this seed
+                          (the authors' one physics draw, docs/FIDELITY.md row 8; particle count and start
+                          shape still per episode); -1: drawn per episode (or what a given sim_config says)
 
 Info: every step carries "n_held" and "mean_held_index"; an env whose episode ended in this step
 has "outcome" (name; paper-text rule), "outcome_code", "outcome_authors" (name; the authors'-code
@@ -59,7 +62,7 @@ def check_options(options) -> None:
     """Raise ValueError with a one-line reason for an unknown option or a bad value (module
     docstring), before any simulator is built: what dlo-train checks its ``env_options`` with."""
     known = ("without", "tactile_noise", "horizon", "end_particles", "camera_resolution", "sim_config", "task_rules",
-             "single_particle_grip")
+             "single_particle_grip", "physics_seed")
     unknown = sorted(set(options) - set(known))
     if unknown:
         raise ValueError(f"unknown option(s) {', '.join(unknown)}; known: {', '.join(known)}")
@@ -74,6 +77,9 @@ def check_options(options) -> None:
         task.check_task_rules(options["task_rules"])
     if not isinstance(options.get("single_particle_grip", False), bool):
         raise ValueError(f"single_particle_grip: expected true or false, got {options['single_particle_grip']!r}")
+    seed = options.get("physics_seed", -1)
+    if isinstance(seed, bool) or not isinstance(seed, int) or seed < -1:
+        raise ValueError(f"physics_seed: expected an integer >= 0 (or -1: drawn per episode), got {seed!r}")
     for name, low in (("horizon", 1), ("end_particles", 1), ("camera_resolution", 16)):
         value = options.get(name, low)
         if isinstance(value, bool) or not isinstance(value, int) or value < low:
@@ -85,10 +91,13 @@ class CableFollowingVecEnv(VectorEnv):
 
     def __init__(self, num_envs, modalities="All", seed=0, without=(), tactile_noise="none",
                  horizon=task.HORIZON, end_particles=task.END_PARTICLES, camera_resolution=128,
-                 sim_config=None, autoreset=True, task_rules=task.DEFAULT_TASK_RULES, single_particle_grip=False):
-        check_options({"single_particle_grip": single_particle_grip})
+                 sim_config=None, autoreset=True, task_rules=task.DEFAULT_TASK_RULES, single_particle_grip=False,
+                 physics_seed=-1):
+        check_options({"single_particle_grip": single_particle_grip, "physics_seed": physics_seed})
         if single_particle_grip:
             sim_config = dataclasses.replace(sim_config or SimConfig(), single_particle_grip=True)
+        if physics_seed >= 0:
+            sim_config = dataclasses.replace(sim_config or SimConfig(), physics_seed=physics_seed)
         self.num_envs = int(num_envs)
         self.modalities = parse_modalities(modalities)
         self.without = parse_modalities(without) if without else ()

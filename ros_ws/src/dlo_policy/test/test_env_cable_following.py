@@ -113,3 +113,21 @@ def test_single_particle_grip_option_reaches_the_simulator_and_a_bad_value_is_a_
     with pytest.raises(ConfigError, match=r"^env_options: single_particle_grip: expected true or false, got 'maybe'$"):
         check_env_options(load_config(None, ["env_options.single_particle_grip=maybe"]))
     check_env_options(load_config(None, ["env_options.single_particle_grip=true"]))
+
+
+def test_physics_seed_option_reaches_the_simulator_and_a_bad_value_is_a_one_line_error():
+    """env_options.physics_seed (docs/FIDELITY.md row 8): absent or -1, physics drawn per episode; >= 0, the
+    env's simulator gives every episode the physics of that seed (test_rope_physics tests what it does), also
+    with a sim_config of one's own; anything else is refused before a simulator is built."""
+    from dlo_policy.config import ConfigError, check_env_options, load_config
+    from dlo_sim import SimConfig
+    assert make_env("K", seed=0).sim.config.physics_seed == -1
+    env = make_vec_env(1, "K", seed=0, sim_config=SimConfig(damping=3.0), physics_seed=3)
+    assert env.sim.config == SimConfig(damping=3.0, physics_seed=3)
+    for bad in ("x", -2, 1.5, True):
+        with pytest.raises(ValueError, match="physics_seed: expected an integer >= 0"):
+            make_env("K", physics_seed=bad)
+    with pytest.raises(ConfigError, match=r"^env_options: physics_seed: expected an integer >= 0 \(or -1: drawn per "
+                                          r"episode\), got -5$"):
+        check_env_options(load_config(None, ["env_options.physics_seed=-5"]))
+    check_env_options(load_config(None, ["env_options.physics_seed=0"]))

@@ -60,6 +60,10 @@ class SimConfig:
     # the authors' grip (docs/FIDELITY.md row 5), off by default: the grip law acts on ONE particle, the
     # held one nearest the finger axis in x (never particle 0), re-chosen every 0.01 s step (dlo_sim.grip)
     single_particle_grip: bool = False
+    # the authors' one physics draw (docs/FIDELITY.md row 8), off (-1) by default: >= 0 gives every episode the
+    # stretch, bending and friction drawn from this seed; the particle count and the start shape still come
+    # from the episode's seed (their cached start configurations vary only those)
+    physics_seed: int = -1
 
     def __post_init__(self):
         self.validate()
@@ -90,6 +94,8 @@ class SimConfig:
         for name in ("pick_moves", "pick_steps", "drop_steps", "settle_steps"):
             if int(getattr(self, name)) < 0:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
+        if isinstance(self.physics_seed, bool) or not isinstance(self.physics_seed, int) or self.physics_seed < -1:
+            raise ValueError(f"physics_seed must be an integer >= 0 (or -1: drawn per episode), got {self.physics_seed!r}")
         if not isinstance(self.single_particle_grip, bool):
             raise ValueError(f"single_particle_grip must be true or false, got {self.single_particle_grip!r}")
 

@@ -27,6 +27,14 @@ from .kernels import RopeKernels
 PARAM_KEYS = ("stretch", "bending", "friction", "num_particles")
 
 
+def physics_draw(config: SimConfig) -> dict:
+    """The stretch, bending and friction every episode gets under ``config.physics_seed`` >= 0 (the authors'
+    one physics draw): uniform in the config's ranges, from the generator of that seed alone."""
+    rng = np.random.default_rng(config.physics_seed)
+    return {"stretch": rng.uniform(*config.stretch_range), "bending": rng.uniform(*config.bending_range),
+            "friction": rng.uniform(*config.friction_range)}
+
+
 @dataclass
 class Snapshot:
     """What the task and the observations read of the current state, from one kernel launch."""
@@ -230,6 +238,8 @@ class RopeSim:
         n = int(rng.integers(cfg.num_particles_range[0], cfg.num_particles_range[1] + 1))
         draw = {"num_particles": n, "stretch": rng.uniform(*cfg.stretch_range),
                 "bending": rng.uniform(*cfg.bending_range), "friction": rng.uniform(*cfg.friction_range)}
+        if cfg.physics_seed >= 0:  # one physics for every episode; the episode's stream is drawn as without
+            draw.update(physics_draw(cfg))
         picks = rng.integers(n // 2, n, size=cfg.pick_moves)
         azimuth = rng.uniform(0.0, 2.0 * np.pi, size=cfg.pick_moves)
         rise = rng.uniform(0.2, 1.0, size=cfg.pick_moves)  # upward bias: sine of the elevation

@@ -64,6 +64,9 @@ PARAMETERS = (
     Param("single_particle_grip", False, "the grip carries ONE particle, the held one nearest the finger axis (never "
                                          "particle 0), as the authors' code did (docs/FIDELITY.md row 5); false: "
                                          "every held particle"),
+    Param("physics_seed", -1, "-1: stretch, bending and friction drawn per episode; >= 0: every episode gets those "
+                              "drawn from this seed (the authors' one physics draw, docs/FIDELITY.md row 8)",
+          at_least=-1),
     Param("rate_factor", 1.0, "real_time mode: simulation speed relative to wall time", above=0.0),
     Param("command_timeout", 0.5, "real_time mode: a command older than this [s] stops the gripper", above=0.0),
     Param("step_timeout", 1.0, "step_locked mode: republish the state after this long [s] without a command",
@@ -133,13 +136,15 @@ class SimNode(Node):
                                f"of {self.pub_gripper.topic_name}; building the simulation")
         self.camera = TopCamera.covering_workspace(p["camera_resolution"])
         self.task = TaskSim(1, horizon=p["horizon"], render=True, camera=self.camera, task_rules=p["task_rules"],
-                            config=SimConfig(single_particle_grip=p["single_particle_grip"]))
+                            config=SimConfig(single_particle_grip=p["single_particle_grip"],
+                                             physics_seed=p["physics_seed"]))
 
         if p["mode"] == "real_time":
             self.create_timer(DT * SUBSTEPS_PER_ACTION / p["rate_factor"], self.on_real_time_tick)
         self.create_timer(0.05, self.on_watchdog)
         self.get_logger().info(f"{p['mode']} simulation, seed {p['seed']}, task rules {p['task_rules']}, "
                                f"{'single-particle grip, ' if p['single_particle_grip'] else ''}"
+                               f"{'one physics draw (seed %d), ' % p['physics_seed'] if p['physics_seed'] >= 0 else ''}"
                                f"{p['episodes'] or 'unlimited'} episodes of {p['horizon']} steps")
 
     # ------------------------------------------------------------------ episodes

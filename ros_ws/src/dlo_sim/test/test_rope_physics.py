@@ -320,3 +320,27 @@ def test_single_particle_grip_carries_one_particle_the_held_one_nearest_the_fing
             assert np.all(w[e, np.setdiff1d(held, gripped)] == NOMINAL_INVERSE_MASS)  # the others: free
             followers[rope is single].append(int(follows[e, held].sum()))
     assert sum(followers[True]) < sum(followers[False])
+
+
+def test_physics_seed_gives_every_episode_one_physics_and_keeps_the_rest_of_the_draw(sim):
+    """SimConfig.physics_seed (the authors' one physics draw, docs/FIDELITY.md row 8): every episode gets the
+    stretch, bending and friction drawn from that seed, in the config's ranges; the particle count (and the
+    rest of the episode's draw) is the episode seed's, as without it; -1 (the default) draws per episode;
+    anything else is refused with one line."""
+    from dlo_sim.rope import physics_draw
+    one = RopeSim(N, SimConfig(physics_seed=7))
+    seeds = np.arange(100, 100 + N)
+    one.reset(seeds)
+    sim.reset(seeds)
+    theirs, ours = one.params, sim.params
+    drawn = physics_draw(one.config)
+    for key in ("stretch", "bending", "friction"):
+        assert np.all(theirs[key] == np.float32(drawn[key])), key
+        assert len(set(ours[key])) == N, key  # per episode without the option
+    assert 0.8 <= drawn["stretch"] <= 1.4 and 0.8 <= drawn["bending"] <= 2.4 and 0.04 <= drawn["friction"] <= 0.3
+    assert physics_draw(SimConfig(physics_seed=8)) != drawn
+    assert np.array_equal(theirs["num_particles"], ours["num_particles"]) and len(set(ours["num_particles"])) > 1
+    assert SimConfig().physics_seed == -1
+    for bad in (-2, 1.5, True, "0"):
+        with pytest.raises(ValueError, match="physics_seed must be an integer >= 0"):
+            SimConfig(physics_seed=bad)
