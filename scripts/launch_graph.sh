@@ -15,7 +15,7 @@ usage: scripts/launch_graph.sh [options]
   --seed S             episode k uses seed S + k (default 0)
   --mode MODE          step_locked (default, deterministic) or real_time
   --rate-factor F      real_time: simulation speed relative to wall time (default 1.0)
-  --policy P           sac (default: the shipped All policy), tactile_reactive or random
+  --policy P           sac (default: the shipped All policy), tactile_reactive, oracle or random
   --checkpoint PATH    policy file for --policy sac (default: the shipped policy)
   --without M          test-time ablation: zero modality M (T or V) for the policy
   --train-out DIR      learn online (SAC) while running; checkpoints and policy.pt go to DIR
@@ -61,7 +61,8 @@ while [ $# -gt 0 ]; do
   case "$1" in
     --episodes|--seed|--mode|--rate-factor|--policy|--checkpoint|--without|--tactile-noise|--record|\
     --task-rules|--train-out|--train-config|--logs|--domain-id|--namespace|--status-period)
-      [ $# -ge 2 ] || { echo "launch_graph: $1 needs a value" >&2; usage >&2; exit $EXIT_USAGE; } ;;
+      [ $# -ge 2 ] || { echo "launch_graph: $1 needs a value (options: scripts/launch_graph.sh --help)" >&2
+                        exit $EXIT_USAGE; } ;;
   esac
   case "$1" in
     --episodes) episodes="$2"; shift 2 ;;
@@ -83,7 +84,7 @@ while [ $# -gt 0 ]; do
     --foxglove)
       if [[ "${2:-}" =~ ^[0-9]+$ ]]; then foxglove="$2"; shift 2; else foxglove=8765; shift; fi ;;
     -h|--help) usage; exit 0 ;;
-    *) echo "launch_graph: unknown option '$1'" >&2; usage >&2; exit $EXIT_USAGE ;;
+    *) echo "launch_graph: unknown option '$1' (options: scripts/launch_graph.sh --help)" >&2; exit $EXIT_USAGE ;;
   esac
 done
 bad() { echo "launch_graph: $*" >&2; exit $EXIT_USAGE; }

@@ -53,6 +53,9 @@ def test_runs_with_arguments_and_explains_misses(ros_env):
     assert "no executable 'no_such_exe'" in res.stderr and "recorder_node" in res.stderr
     res = run(ros_env, "no_such_pkg", "x")
     assert res.returncode == 1 and "dlo_bag" in res.stderr
+    assert "rosidl" not in res.stderr and "--list --all" in res.stderr  # the project's packages only
+    res = run(ros_env, "--bogus")
+    assert res.returncode == 2 and "ros2run: unknown option '--bogus'" in res.stderr and "usage:" in res.stderr
 
 
 def test_sources_env_sh_when_not_sourced():

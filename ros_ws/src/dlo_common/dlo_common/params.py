@@ -22,6 +22,7 @@ import difflib
 import inspect
 import json
 import math
+import re
 import textwrap
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
@@ -131,7 +132,8 @@ def ros_type_name(value: Any) -> str:
 
 def example(param: Param) -> str:
     """A value that fits ``param``, as set on the command line: ``-p horizon:=150``,
-    ``-p mode:=step_locked``, ``-p camera_position:=[0.0,0.0,1.0]``, ``-p topics:=/dlo/a,/dlo/b``."""
+    ``-p mode:=step_locked``, ``-p camera_position:=[0.0,0.0,1.0]``, ``-p topics:=/dlo/a,/dlo/b``;
+    a string whose default is empty: the description's ``e.g. 'T'`` (``-p without:=T``), else ``text``."""
     default = param.default
     if param.choices:
         value = param.choices[0]
@@ -144,8 +146,9 @@ def example(param: Param) -> str:
     elif isinstance(default, (list, tuple)):
         items = [str(v) for v in default] or ["/dlo/a", "/dlo/b"][: param.length or 2]
         value = ",".join(items)
-    else:
-        value = str(default) or "text"
+    else:  # an empty default: the description's own example ("..., e.g. 'T' or 'V'"), else a word
+        shown = re.search(r"e\.g\. '([^'\s]+)'", param.description)
+        value = str(default) or (shown.group(1) if shown else "text")
     return f"-p {param.name}:={value}"
 
 

@@ -111,6 +111,7 @@ def test_a_list_of_numbers_is_a_double_array_of_fixed_length():
     (FLAG, "-p flag:=true"), (INT, "-p n:=1"), (ABOVE, "-p rate:=1.0"), (TEXT, "-p name:=a"),
     (TOPICS, "-p topics:=/a"), (EMPTY_TOPICS, "-p extra:=/dlo/a,/dlo/b"), (MODE, "-p mode:=x"),
     (POSITION, "-p position:=[0.0,0.0,1.0]"), (Param("path", "", "a file"), "-p path:=text"),
+    (Param("without", "", "test-time ablation: zero these modalities, e.g. 'T' or 'V'"), "-p without:=T"),
 ])
 def test_each_type_error_shows_an_example_that_fits_the_parameter(param, shown):
     assert example(param) == shown

@@ -24,8 +24,11 @@ so one defect fails one rule:
   starts at step 0;
 - ``sync``: every state's exact stamp (to the nanosecond) is carried by the step's other inputs:
   an image and the tactile source (particle cloud or tactile pose), as the perception and policy
-  nodes match them; a clock read separately for each message fails it. An input the driver does
-  not publish at all is left to ``camera`` / ``touch``;
+  nodes match them; a clock read separately for each message fails it. The message carrying a
+  state's stamp must also be that step's: it arrives with the state (within half a control period;
+  a cloud stamped with the previous step's stamp arrives a period after the state it matches, and
+  the nodes would then pair a state with the next step's touch). An input the driver does not
+  publish at all is left to ``camera`` / ``touch``;
 - ``camera``: ``camera_info`` (latched) exists with a valid pinhole K; the images are what
   vision_node reads: ``mono8``, segmented (pixel values 0, 128 gripper, 255 cable, and the cable
   in view), the camera_info's size and frame_id, data of height x step bytes;
@@ -56,6 +59,7 @@ import math
 import os
 import sys
 import time
+from collections import Counter
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -73,6 +77,9 @@ RATE_TOLERANCE = 0.2  # relative
 SPEED_TOLERANCE = 0.2  # relative
 ANGLE_TOLERANCE = 15.0  # deg
 CLOSURE_TOLERANCE = 0.05
+STEP_AWAY = 0.5  # control periods: an input carrying a state's stamp arriving this far from the state belongs to
+# another step (a driver publishes a step's messages together, the state last)
+STEP_AWAY_SHARE = 0.25  # of the matched states: more than this many such arrivals fail 'sync' (not one hiccup)
 STILL = 0.0005  # m per step: the gripper counts as not moving below this
 WORKSPACE_SLACK = 0.001  # m
 PIPELINE_SLACK = 0.1  # s of delivery on top of two control periods for the stale stop
@@ -163,6 +170,7 @@ class ImageSample:
     frame_id: str
     stamp_ns: int = 0
     values: tuple = ()  # the distinct pixel values of a mono8 image (empty for other encodings)
+    wall: float | None = None  # arrival time [s] (None: unknown)
 
 
 @dataclass
@@ -172,6 +180,7 @@ class CloudSample:
     stamp_ns: int
     fields: list
     problem: str | None = None
+    wall: float | None = None  # arrival time [s] (None: unknown)
 
 
 @dataclass
@@ -195,6 +204,7 @@ class Recording:
     phases: list = field(default_factory=list)
     clouds: list = field(default_factory=list)  # CloudSample of each particle cloud received
     tactile_stamps: list = field(default_factory=list)  # stamp [ns] of each tactile pose received
+    tactile_walls: list = field(default_factory=list)  # its arrival time [s] (empty: unknown)
     last_command_wall: float | None = None
 
 
@@ -505,6 +515,8 @@ def check_sync(rec: Recording, s: Settings) -> Result:
         return Result("sync", "FAIL", "no state received before the end of the check")
     inputs = [("image", [im.stamp_ns for im in rec.images]), ("particle cloud", [c.stamp_ns for c in rec.clouds]),
               ("tactile pose", rec.tactile_stamps)]
+    walls = {"image": [im.wall for im in rec.images], "particle cloud": [c.wall for c in rec.clouds],
+             "tactile pose": rec.tactile_walls}
     present = [(name, stamps) for name, stamps in inputs if stamps]
     absent = [("image", "camera")] if not rec.images else []  # an input never published is another rule's
     absent += [("tactile source", "touch")] if not rec.clouds and not rec.tactile_stamps else []
@@ -527,6 +539,7 @@ def check_sync(rec: Recording, s: Settings) -> Result:
                         f"first: step {step} at {format_stamp(first_ns)} s, {what} stamps "
                         f"{', '.join(format_stamp(t) for t in near)} nearby (the nearest {abs(off) / 1e3:g} us "
                         f"{'later' if off > 0 else 'earlier'})")
+    problems += [p for name, stamps in present if (p := step_away(name, stamps, walls[name], states, rec))]
     if problems:
         return Result("sync", "FAIL", "; ".join(problems) + ": stamp every message of a step with its state's "
                                       "stamp (tactile_node, vision_node and policy_node match a step's inputs by exact "
@@ -536,6 +549,27 @@ def check_sync(rec: Recording, s: Settings) -> Result:
         return Result("sync", "PASS", f"{len(states)} states, nothing else to match{note}")
     return Result("sync", "PASS", f"{len(states)} states, each with {names} of its exact stamp (the perception "
                                   f"and policy nodes match a step by stamp){note}")
+
+
+def step_away(name: str, stamps: list, walls: list, states: list, rec: Recording) -> str | None:
+    """What is wrong when the ``name`` messages carrying the states' stamps arrive a step away from their
+    states (stamped with another step's stamp: the nodes would pair a state with another step's input), or None.
+    ``walls``: the arrival time of each message (None: unknown, not judged). A stamp carried by several
+    states or messages is not judged here (repeated stamps are 'stamps'' to judge)."""
+    once = Counter(stamps)
+    arrival = {stamp: wall for stamp, wall in zip(stamps, walls) if wall is not None and once[stamp] == 1}
+    states_once = Counter(x.stamp_ns for x in states)
+    offsets = [arrival[x.stamp_ns] - x.wall for x in states if x.stamp_ns in arrival and states_once[x.stamp_ns] == 1]
+    if not offsets:
+        return None
+    period = typical_period(rec, "wall")
+    away = [off for off in offsets if abs(off) > STEP_AWAY * period]
+    if len(away) <= STEP_AWAY_SHARE * len(offsets):
+        return None
+    median = float(np.median(away))
+    return (f"{len(away)} of {len(offsets)} states get the {name} carrying their stamp a step away: it arrives "
+            f"{abs(median) * 1e3:.0f} ms {'after' if median > 0 else 'before'} the state (median; the control "
+            f"period is {period * 1e3:.0f} ms), so it was measured in another step")
 
 
 CHECKS = {"rate": check_rate, "stamps": check_stamps, "sync": check_sync, "camera": check_camera, "obey": check_obey,
@@ -615,7 +649,7 @@ def record(s: Settings, namespace: str, timeout: float, log=print) -> Recording 
                     data = data.reshape(msg.height, msg.step)[:, :msg.width]
                 values = tuple(int(v) for v in np.unique(data))
             rec.images.append(ImageSample(int(msg.width), int(msg.height), msg.encoding, int(msg.step), len(msg.data),
-                                          msg.header.frame_id, stamp_ns(msg), values))
+                                          msg.header.frame_id, stamp_ns(msg), values, time.monotonic()))
 
         def on_info(msg):
             rec.infos.append(InfoSample(int(msg.width), int(msg.height), tuple(msg.k), msg.header.frame_id))
@@ -624,8 +658,8 @@ def record(s: Settings, namespace: str, timeout: float, log=print) -> Recording 
         handlers = {
             "gripper": on_state, "image": on_image, "camera_info": on_info,
             "particles": lambda m: rec.clouds.append(CloudSample(stamp_ns(m), [f.name for f in m.fields],
-                                                                 cloud_layout_problem(m))),
-            "tactile": lambda m: rec.tactile_stamps.append(stamp_ns(m)),
+                                                                 cloud_layout_problem(m), time.monotonic())),
+            "tactile": lambda m: (rec.tactile_stamps.append(stamp_ns(m)), rec.tactile_walls.append(time.monotonic())),
         }
         for t in DRIVER_TOPICS:  # what a driver may publish, each with its recorder (one per driver topic)
             node.create_subscription(message_class(t.type), prefix + t.name, handlers[t.key],

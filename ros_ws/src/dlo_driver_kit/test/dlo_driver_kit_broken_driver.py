@@ -28,6 +28,9 @@ FAULTS = {
     "frozen_stamps": "stamps",  # every message of every step carries the first step's stamp
     "color_image": "camera",  # rgb8 images (the same segmentation in three channels)
     "cloud_float64": "touch",  # particle clouds with FLOAT64 fields (32 bytes a point)
+    "cloud_one_step_late": "sync",  # each particle cloud stamped with the previous step's stamp
+    "image_float_stamp": "sync",  # the image stamp passed through float seconds (off by up to ~0.2 us)
+    "state_offset": "sync",  # the state stamped 1 ms after its image and cloud ("latency compensation")
 }
 
 
@@ -45,6 +48,12 @@ def broken_driver(fault: str):
                 self.pub_cloud = _Null()
             if fault == "state_own_clock":  # a few microseconds after the stamp its image and cloud carry
                 self.pub_state = _Altered(self.pub_state, restamp(lambda: self.get_clock().now().to_msg()))
+            if fault == "cloud_one_step_late":
+                self.pub_cloud = _Altered(self.pub_cloud, one_step_late())
+            if fault == "image_float_stamp":
+                self.pub_image = _Altered(self.pub_image, through_float)
+            if fault == "state_offset":
+                self.pub_state = _Altered(self.pub_state, shifted(1_000_000))
             if fault == "color_image":
                 self.pub_image = _Altered(self.pub_image, to_rgb8)
             if fault == "cloud_float64":
@@ -102,6 +111,37 @@ def restamp(stamp):
     def alter(msg):
         msg.header.stamp = stamp()
     return alter
+
+
+def one_step_late():
+    """Stamp each message with the stamp the previous one carried (the first keeps its own)."""
+    previous = []
+
+    def alter(msg):
+        stamp = msg.header.stamp
+        if previous:
+            msg.header.stamp = previous.pop()
+        previous.append(stamp)
+    return alter
+
+
+def through_float(msg):
+    """The stamp as float seconds and back (rclpy.time.Time(seconds=...)): float64 rounds it to ~0.2 us."""
+    seconds = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
+    msg.header.stamp = ns_stamp(int(seconds * 1e9))  # a new Time: the step's messages share one object
+
+
+def shifted(offset_ns: int):
+    def alter(msg):
+        msg.header.stamp = ns_stamp(msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec + offset_ns)
+    return alter
+
+
+def ns_stamp(nanoseconds: int):
+    from builtin_interfaces.msg import Time
+
+    sec, nanosec = divmod(nanoseconds, 1_000_000_000)
+    return Time(sec=sec, nanosec=nanosec)
 
 
 def to_rgb8(image):

@@ -326,6 +326,27 @@ def test_sync_leaves_an_input_the_driver_does_not_publish_to_its_own_rule():
     assert results_of(rec)["sync"].status == "FAIL"
 
 
+def test_an_input_carrying_another_steps_stamp_fails_only_sync():
+    """Issue 20: a cloud stamped with the previous step's stamp still carries every state's stamp (one step
+    later): the message with a state's stamp must also arrive with that state, as the step's own input."""
+    s = Settings()
+    rec = complete_recording(s)
+    for im, cloud, x in zip(rec.images, rec.clouds, rec.states):
+        im.wall = cloud.wall = x.wall  # published together with the state
+    assert results_of(rec)["sync"].status == "PASS"
+    for cloud in rec.clouds:
+        cloud.wall += 1.0 / s.rate  # published with the next step, stamped with the previous one's stamp
+    results = results_of(rec)
+    assert {rule for rule, r in results.items() if r.status == "FAIL"} == {"sync"}, results
+    n = len(rec.states)
+    assert (f"{n} of {n} states get the particle cloud carrying their stamp a step away: it arrives 80 ms after "
+            "the state") in results["sync"].reason
+    hiccups = complete_recording(s)
+    for k, (im, cloud, x) in enumerate(zip(hiccups.images, hiccups.clouds, hiccups.states)):
+        im.wall, cloud.wall = x.wall, x.wall + (0.07 if k % 10 == 0 else 0.0)  # one in ten delivered late
+    assert results_of(hiccups)["sync"].status == "PASS"
+
+
 def test_frozen_stamps_fail_only_stamps_and_no_rate_by_stamps_is_made_up():
     results = results_of(complete_recording(Settings(), frozen=True))
     assert {rule for rule, r in results.items() if r.status == "FAIL"} == {"stamps"}, results
