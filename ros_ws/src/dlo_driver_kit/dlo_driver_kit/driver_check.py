@@ -5,7 +5,8 @@
 
 It acts as the policy would: it answers every ``/dlo/gripper/state`` with a ``/dlo/gripper/cmd``
 stamped with that state's episode and step, following a fixed schedule of phases (hold still,
-close, open, move +x / +y / -y, go silent, drive to the workspace corner, send invalid commands),
+close, open, move +x / +y / -y, go silent, drive to the workspace corner, send invalid commands,
+start a new episode through ``/dlo/sim/reset`` when the driver serves it),
 records what the driver publishes and judges it rule by rule (DESIGN.md section 6; the driver
 guide docs/WRITE_YOUR_DRIVER.md). The rules are what the unchanged graph needs to run a step:
 tactile_node, vision_node and policy_node match a step's inputs by their exact header stamp
@@ -19,9 +20,11 @@ so one defect fails one rule:
 - ``rate``: the state arrives at the control rate (``--rate``, 12.5 Hz = one per 0.08 s, within
   20 %) while the driver is commanded to hold still (by arrival time; the stamps are judged by
   ``stamps``);
-- ``stamps``: header stamps strictly increase (the policy answers a stamp it has seen again as a
-  republished step); the step counter goes +1 per state within an episode, and a new episode
-  starts at step 0;
+- ``stamps``: header stamps strictly increase, also across an episode start (the policy answers a
+  stamp it has seen again as a republished step: a driver whose stamps restart with each episode
+  stalls the graph at its second episode); the step counter goes +1 per state within an episode,
+  and a new episode starts at step 0. The check starts one episode through ``/dlo/sim/reset``
+  (optional for a driver: without it, an episode start is judged only if the driver starts one);
 - ``sync``: every state's exact stamp (to the nanosecond) is carried by the step's other inputs:
   an image and the tactile source (particle cloud or tactile pose), as the perception and policy
   nodes match them; a clock read separately for each message fails it. The message carrying a
@@ -49,7 +52,7 @@ The rules are plain functions of a :class:`Recording` (no rclpy: testable withou
 that makes the recording is :func:`record`. Exit status: 0 every rule passed (or was skipped),
 1 a rule failed, no driver answered within ``--timeout`` or another node commands the driver,
 2 bad usage, 130 interrupted. The whole check takes
-about ``--duration`` + 11 s.
+about ``--duration`` + 12 s.
 """
 
 from __future__ import annotations
@@ -64,7 +67,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from dlo_common.topics import message_class, select
+from dlo_common.topics import SERVICES, message_class, select
 from dlo_common.topics import topic as topic_record
 from dlo_perception.cloud import FIELD_NAMES, FLOAT32, POINT_STEP, unpack_particles
 from dlo_perception.sync import format_stamp
@@ -80,6 +83,7 @@ CLOSURE_TOLERANCE = 0.05
 STEP_AWAY = 0.5  # control periods: an input carrying a state's stamp arriving this far from the state belongs to
 # another step (a driver publishes a step's messages together, the state last)
 STEP_AWAY_SHARE = 0.25  # of the matched states: more than this many such arrivals fail 'sync' (not one hiccup)
+SERVICE_RESET = next(sv for sv in SERVICES if sv.name == "/dlo/sim/reset")
 STILL = 0.0005  # m per step: the gripper counts as not moving below this
 WORKSPACE_SLACK = 0.001  # m
 PIPELINE_SLACK = 0.1  # s of delivery on top of two control periods for the stale stop
@@ -138,6 +142,7 @@ def schedule(s: Settings) -> list[Phase]:
         Phase("speed", "invalid", 0.6, (-3.0 * fast, 0.0, 0.0)),
         Phase("lead-closure", "lead", 0.4, (-v, -v, 0.0)),
         Phase("closure", "invalid", 0.6, (0.0, 0.0, 1.5)),
+        Phase("reset", "reset", 0.8, (0.0, 0.0, 0.0)),  # /dlo/sim/reset at its start, then hold still
     ]
 
 
@@ -206,6 +211,8 @@ class Recording:
     tactile_stamps: list = field(default_factory=list)  # stamp [ns] of each tactile pose received
     tactile_walls: list = field(default_factory=list)  # its arrival time [s] (empty: unknown)
     last_command_wall: float | None = None
+    reset: str | None = None  # the episode start the checker asked for: None not asked (no /dlo/sim/reset),
+    # "started" (the service said so), else what went wrong
 
 
 @dataclass(frozen=True)
@@ -340,8 +347,15 @@ def check_stamps(rec: Recording, s: Settings) -> Result:
     if back or jumps or bad_episode:
         return Result("stamps", "FAIL", f"{back} non-increasing stamp(s), {jumps} step jump(s), {bad_episode} bad "
                                         f"episode change(s) in {n} states; first: {first_bad}")
+    if rec.reset == "started" and not episodes:
+        return Result("stamps", "FAIL", f"{n} states, none of a new episode after /dlo/sim/reset said it started one "
+                                        "(publish the new episode's step 0 state)")
+    if rec.reset not in (None, "started"):
+        return Result("stamps", "FAIL", f"/dlo/sim/reset: {rec.reset}")
+    note = "" if episodes else " (no new episode seen: the driver serves no /dlo/sim/reset, so stamps across an " \
+                               "episode start were not judged)"
     return Result("stamps", "PASS", f"{n} states: stamps strictly increasing, step +1 each "
-                                    f"({episodes} new episode(s) from step 0)")
+                                    f"({episodes} new episode(s) from step 0){note}")
 
 
 def check_camera(rec: Recording, s: Settings) -> Result:
@@ -676,9 +690,13 @@ def record(s: Settings, namespace: str, timeout: float, log=print) -> Recording 
             f"{state_topic}; checking for about {sum(p.duration for p in phases):.0f} s")
         rec.states.clear()
         silent_from = None
+        ResetEpisode = message_class(SERVICE_RESET.type)
+        reset_client = node.create_client(ResetEpisode, prefix + SERVICE_RESET.name)
         for i, phase in enumerate(phases):
             current["index"] = i
             start = time.monotonic()
+            if phase.kind == "reset" and reset_client.service_is_ready():
+                rec.reset = start_episode(node, reset_client, ResetEpisode.Request(seed=-1))
             end = start + phase.duration
             while time.monotonic() < end:
                 rclpy.spin_once(node, timeout_sec=0.01)
@@ -695,6 +713,24 @@ def record(s: Settings, namespace: str, timeout: float, log=print) -> Recording 
     finally:
         node.destroy_node()
         rclpy.try_shutdown()
+
+
+def start_episode(node, client, request, timeout: float = 5.0) -> str:
+    """Ask the driver for a new episode (``/dlo/sim/reset``), spinning ``node`` meanwhile (states keep being
+    answered): "started", or what went wrong."""
+    import rclpy
+
+    future = client.call_async(request)
+    deadline = time.monotonic() + timeout
+    while not future.done() and time.monotonic() < deadline:
+        rclpy.spin_once(node, timeout_sec=0.01)
+    if not future.done():
+        future.cancel()
+        return f"no answer within {timeout:g} s"
+    response = future.result()
+    if response is None or not response.success:
+        return f"refused ({getattr(response, 'message', '') or 'no reason given'})"
+    return "started"
 
 
 def main(argv=None) -> int:

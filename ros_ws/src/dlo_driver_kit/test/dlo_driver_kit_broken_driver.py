@@ -31,12 +31,14 @@ FAULTS = {
     "cloud_one_step_late": "sync",  # each particle cloud stamped with the previous step's stamp
     "image_float_stamp": "sync",  # the image stamp passed through float seconds (off by up to ~0.2 us)
     "state_offset": "sync",  # the state stamped 1 ms after its image and cloud ("latency compensation")
+    "stamps_per_episode": "stamps",  # every message stamped with the time since its episode began
 }
 
 
 def broken_driver(fault: str):
     class BrokenDriver(MockDriver):
         first_stamp = None  # frozen_stamps: the stamp of the first state
+        stamp_episode, episode_start = -1, 0  # stamps_per_episode: the episode and its first stamp [ns]
 
         def __init__(self):
             super().__init__()
@@ -82,6 +84,11 @@ def broken_driver(fault: str):
                 if self.first_stamp is None:
                     self.first_stamp = stamp
                 return self.first_stamp
+            if fault == "stamps_per_episode":  # 1 s + the time since the episode began: restarts at a reset
+                now = stamp.sec * 1_000_000_000 + stamp.nanosec
+                if self.episode != self.stamp_episode:
+                    self.stamp_episode, self.episode_start = self.episode, now
+                return ns_stamp(1_000_000_000 + now - self.episode_start)
             if fault == "stamps_back":
                 self.states_published += 1
                 if self.states_published % 5 == 0:

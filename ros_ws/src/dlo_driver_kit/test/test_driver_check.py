@@ -233,6 +233,24 @@ def test_the_rules_on_synthetic_recordings():
     assert skipped["camera"] == skipped["touch"] == "SKIP"
 
 
+def recording_through(*positions) -> Recording:
+    """The gripper states of a driver that moves through ``positions`` ((x, y) per step)."""
+    rec = Recording()
+    for step, (x, y) in enumerate(positions):
+        rec.states.append(StateSample(0.08 * step, 0.08 * step, 0, step, x, y, 0.5))
+    return rec
+
+
+@pytest.mark.parametrize("beyond, status", [(0.0, "PASS"), (0.0009, "PASS"), (0.0015, "FAIL"), (0.005, "FAIL")])
+def test_the_workspace_has_one_millimetre_of_slack(beyond, status):
+    """The workspace rule (driver_check module docstring): every gripper position lies in
+    |x|, |y| <= --workspace + 1 mm; 1.5 mm beyond fails."""
+    s = Settings()
+    for x, y in ((s.workspace + beyond, 0.0), (0.0, -(s.workspace + beyond))):
+        result = check_workspace(recording_through((0.0, 0.0), (x, y), (0.0, 0.0)), s)
+        assert result.status == status, result
+
+
 def test_analyze_of_a_driver_bag_says_it_has_no_task_state(tmp_path, capsys):
     from rclpy.serialization import serialize_message
 
@@ -298,6 +316,45 @@ def test_a_complete_recording_passes_every_rule():
     results = results_of(complete_recording(Settings()))
     assert {rule: r.status for rule, r in results.items()} == dict.fromkeys(RULES, "PASS"), results
     assert "each with an image and a particle cloud of its exact stamp" in results["sync"].reason
+
+
+def with_new_episode(s: Settings, restart_stamps: bool = False, reset: str | None = "started") -> Recording:
+    """``complete_recording`` whose last phase ('reset') is a new episode the checker started (``reset``: what
+    /dlo/sim/reset answered); ``restart_stamps``: the driver stamps each episode from its own start (the
+    new episode's stamps begin again at the recording's first stamp), images and clouds alike."""
+    rec = complete_recording(s)
+    rec.reset = reset
+    start = next(begin for name, begin, _ in rec.phases if name == "reset")
+    later = [i for i, x in enumerate(rec.states) if x.wall >= start]
+    first_step = rec.states[later[0]].step
+    for k, i in enumerate(later):
+        x = rec.states[i]
+        x.episode, x.step = 1, x.step - first_step
+        if restart_stamps:
+            x.stamp_ns = rec.states[k].stamp_ns
+            x.stamp = x.stamp_ns / 1e9
+            rec.images[i].stamp_ns = rec.clouds[i].stamp_ns = x.stamp_ns
+    return rec
+
+
+def test_stamps_must_keep_increasing_across_the_episode_the_check_starts():
+    """Issue 20: the policy answers a stamp it has seen as a republished step, so a driver whose stamps restart
+    with each episode stalls the graph at its second episode; the check starts one (/dlo/sim/reset) and only
+    'stamps' fails. Without the service the note says that an episode start was not judged."""
+    s = Settings()
+    good = results_of(with_new_episode(s), s)
+    assert {rule: r.status for rule, r in good.items()} == dict.fromkeys(RULES, "PASS"), good
+    assert "1 new episode(s) from step 0)" in good["stamps"].reason and "not judged" not in good["stamps"].reason
+    restarted = results_of(with_new_episode(s, restart_stamps=True), s)
+    assert {rule for rule, r in restarted.items() if r.status != "PASS"} == {"stamps"}, restarted
+    assert "non-increasing stamp(s)" in restarted["stamps"].reason
+    no_episode = complete_recording(s)
+    no_episode.reset = "started"
+    assert "none of a new episode after /dlo/sim/reset" in results_of(no_episode, s)["stamps"].reason
+    refused = results_of(with_new_episode(s, reset="no answer within 5 s"), s)["stamps"]
+    assert refused.status == "FAIL" and "/dlo/sim/reset: no answer within 5 s" in refused.reason
+    without_service = results_of(complete_recording(s), s)["stamps"]
+    assert without_service.status == "PASS" and "episode start were not judged" in without_service.reason
 
 
 def test_a_state_stamped_by_its_own_clock_fails_only_sync_and_names_the_stamps():
