@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import json
+import os
 
 import pytest
+from mcap.reader import make_reader
 from rclpy.duration import Infinite
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.serialization import serialize_message
@@ -100,6 +102,46 @@ def test_writer_roundtrip_and_info(tmp_path):
     assert "dlo_msgs/msg/GripperState | Count: 5" in text and "RIHS01_" in text
     with pytest.raises(BagError, match="exists already"):
         BagWriter(bag)
+
+
+def synced_files(monkeypatch) -> list[str]:
+    """The paths os.fsync is called on from now on (the call still happens)."""
+    synced, real = [], os.fsync
+
+    def spy(fd):
+        synced.append(os.readlink(f"/proc/self/fd/{fd}"))
+        return real(fd)
+    monkeypatch.setattr(os, "fsync", spy)
+    return synced
+
+
+def test_a_flush_syncs_the_mcap_file_unless_fsync_is_off(tmp_path, monkeypatch):
+    """BagWriter.flush: 'put every message written so far on disk (a complete chunk; fsync if enabled)'."""
+    synced = synced_files(monkeypatch)
+    for fsync in (True, False):
+        bag = tmp_path / f"run_{fsync}"
+        with BagWriter(bag, fsync=fsync) as writer:
+            writer.add_topic("/dlo/gripper/state", "dlo_msgs/msg/GripperState")
+            writer.write("/dlo/gripper/state", state(1), 1)
+            synced.clear()
+            writer.flush()
+            mcaps = [path for path in synced if path.endswith(".mcap")]
+            assert mcaps == ([os.path.realpath(bag / f"{bag.name}.mcap")] if fsync else []), synced
+
+
+def test_a_bag_of_many_chunks_starts_at_its_first_message(tmp_path):
+    """metadata.yaml, dlo-bag-info and the MCAP statistics: the time range of all chunks, not of the last."""
+    bag = tmp_path / "run"
+    with BagWriter(bag, chunk_size=2000) as writer:
+        writer.add_topic("/dlo/gripper/state", "dlo_msgs/msg/GripperState")
+        for i in range(1, 51):
+            writer.write("/dlo/gripper/state", state(i), i)
+    info = bag_info(bag)
+    assert (info.start_ns, info.end_ns, info.message_count) == (1, 50, 50)
+    with (bag / "run.mcap").open("rb") as f:
+        summary = make_reader(f).get_summary()
+    assert len(summary.chunk_indexes) > 2  # the case: several chunks
+    assert (summary.statistics.message_start_time, summary.statistics.message_end_time) == (1, 50)
 
 
 def test_writer_errors(tmp_path):

@@ -27,6 +27,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))  # --import-mode=import
 from dlo_bag_faults import file_size_limit, small_disk  # noqa: E402
 
 from dlo_bag.bag import (  # noqa: E402
+    EXIT_OK,
+    EXIT_USAGE,
     METADATA,
     BagError,
     BagWriter,
@@ -187,6 +189,42 @@ def test_recover_leaves_the_original_untouched_with_output(tmp_path):
     assert mcap.read_bytes() == before and not (bag / METADATA).exists()
     assert seqs(tmp_path / "fixed") == list(range(len(seqs(tmp_path / "fixed"))))
     assert 0 < len(seqs(tmp_path / "fixed")) < 50
+
+
+def write_bag(path, messages: int = 50, chunk_size: int = 2000):
+    """A complete bag of `messages` gripper states, log times 1..messages ns, in chunks of `chunk_size` bytes."""
+    with BagWriter(path, chunk_size=chunk_size) as writer:
+        writer.add_topic(STATE, "dlo_msgs/msg/GripperState")
+        for i in range(1, messages + 1):
+            writer.write(STATE, state(i), i)
+    return path
+
+
+def test_recover_with_output_copies_an_intact_bag(tmp_path, capsys):
+    """dlo-bag-recover BAG --output DIR: 'write the recovered bag here and leave BAG untouched', also for a bag
+    that reads completely (in place such a bag is left alone)."""
+    bag = write_bag(tmp_path / "run")
+    before = {p.name: p.read_bytes() for p in bag.iterdir()}
+    assert recover_cli([str(bag), "--output", str(tmp_path / "copy")]) == EXIT_OK
+    assert "recovered 50 messages" in capsys.readouterr().out
+    assert [m.timestamp for m in read_messages(tmp_path / "copy", raw=True)] == list(range(1, 51))
+    assert {p.name: p.read_bytes() for p in bag.iterdir()} == before
+    assert recover_cli([str(bag)]) == EXIT_OK
+    assert "nothing to recover" in capsys.readouterr().out
+
+
+def test_recover_refuses_an_output_directory_that_exists(tmp_path, capsys):
+    """dlo-bag-recover BAG --output DIR refuses a DIR that exists (one line, exit 2) and leaves it as it was."""
+    bag = write_bag(tmp_path / "run")
+    os.truncate(bag / "run.mcap", (bag / "run.mcap").stat().st_size // 2)
+    (bag / METADATA).unlink()
+    existing = tmp_path / "existing"
+    existing.mkdir()
+    (existing / "keep.txt").write_text("mine\n")
+    assert recover_cli([str(bag), "--output", str(existing)]) == EXIT_USAGE
+    err = capsys.readouterr().err
+    assert "exists already" in err and len(err.strip().splitlines()) == 1
+    assert sorted(p.name for p in existing.iterdir()) == ["keep.txt"]
 
 
 def test_split_bag_with_a_killed_last_part(tmp_path):

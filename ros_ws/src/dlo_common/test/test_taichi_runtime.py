@@ -47,3 +47,22 @@ def test_taichi_starts_once_on_the_cpu_only_when_asked_and_refuses_a_second_back
         "unknown": "Taichi arch: expected one of cpu, cuda, gpu, vulkan, got 'tpu'",
         "env": "DLO_TI_ARCH='warp': expected one of cpu, cuda, gpu, vulkan",
         "other": "Taichi is already running on cpu in this process"}
+
+
+CAPITALS_PROBE = """
+import json
+import dlo_common.taichi_runtime as runtime
+before = runtime.arch()
+runtime.init()
+print(json.dumps({"before": before, "after": runtime.arch()}))
+"""
+
+
+def test_the_backend_named_in_capitals_is_the_same_backend():
+    """DLO_TI_ARCH, the user's switch (dlo_sim/README.md), is read case-insensitively: DLO_TI_ARCH=CPU is
+    the CPU backend, not a one-line error."""
+    env = {**os.environ, "DLO_TI_ARCH": "CPU"}
+    result = subprocess.run([sys.executable, "-c", CAPITALS_PROBE], capture_output=True, text=True, timeout=300,
+                            env=env)
+    assert result.returncode == 0, result.stderr
+    assert json.loads(result.stdout.splitlines()[-1]) == {"before": "cpu", "after": "cpu"}

@@ -15,7 +15,7 @@ import pytest
 from dlo_common.testing import exited
 from dlo_policy import experiments
 from dlo_policy.config import load_config
-from dlo_policy.rundir import CHECKPOINT_FILE, DONE_FILE, EVAL_FILE, LOCK_FILE
+from dlo_policy.rundir import CHECKPOINT_FILE, DONE_FILE, EVAL_COLUMNS, EVAL_FILE, LOCK_FILE
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # --import-mode=importlib: helper modules (spawned runs too)
 
@@ -101,6 +101,30 @@ def test_makespan_packs_longest_first_and_run_time_counts_evaluations():
     # 1000 steps + (5 evaluations + the one at step 0 + 10 test batches of 10) x 2 tested input sets
     assert cal.run_seconds(config) == pytest.approx(100 + (6 + 10) * 2 * 2.0)
     assert cal.run_seconds(config, done_steps=600) == pytest.approx(40 + (2 + 10) * 2 * 2.0)
+
+
+def test_the_estimate_counts_a_last_partial_batch_of_held_out_test_episodes():
+    """Calibration.run_seconds: the held-out test of 15 episodes in batches of 10 is 2 evaluations, not 1."""
+    cal = experiments.Calibration(step_s=0.0, eval_s=1.0)
+    config = load_config(None, ["train.total_steps=1000", "train.eval_every=500", "train.eval_episodes=10",
+                                "train.test_episodes=15"])
+    assert cal.run_seconds(config) == pytest.approx(3 + 2)  # evaluations at 0, 500, 1000 + 2 test batches
+    config = load_config(None, ["train.total_steps=1000", "train.eval_every=500", "train.eval_episodes=10",
+                                "train.test_episodes=5", "train.eval_without=[T]"])
+    assert cal.run_seconds(config) == pytest.approx((3 + 1) * 2)
+
+
+def test_a_run_without_a_checkpoint_has_done_no_steps(tmp_path):
+    """done_steps: the last evaluation's step of a partial run (checkpoint.pt present); a run without a
+    checkpoint starts from step 0 again (dlo-experiments deletes its eval.csv), so it has done none."""
+    run = tmp_path / "run"
+    run.mkdir()
+    header = ",".join(EVAL_COLUMNS)
+    (run / EVAL_FILE).write_text(f"{header}\n0,,10\n200,,10\n400,,10\n")
+    assert experiments.done_steps(run) == 0
+    (run / CHECKPOINT_FILE).write_bytes(b"")
+    assert experiments.done_steps(run) == 400
+    assert experiments.done_steps(tmp_path / "missing") == 0
 
 
 def test_dry_run_estimates_from_a_measured_calibration(tmp_path, capsys):

@@ -2,6 +2,7 @@
 files of every finished run, the same layout, copied only when they differ, the run directories
 added or updated printed; unfinished runs and big files never; a missing RUNS is one line, exit 2."""
 
+import os
 from pathlib import Path
 
 from dlo_policy import experiments
@@ -47,3 +48,23 @@ def test_collect_from_a_missing_directory_is_one_line(tmp_path, capsys):
     assert captured.out == ""
     assert captured.err.strip() == f"dlo-experiments: error: --collect: no directory {tmp_path / 'nothing'}"
     assert not (tmp_path / "results").exists()
+
+
+def test_collect_copies_a_changed_file_of_the_same_size_and_time(tmp_path, capsys):
+    """--collect copies a file 'only when it differs': by content, so an edit that keeps the size and
+    the modification time is still copied."""
+    runs, results = tmp_path / "runs", tmp_path / "results"
+    run = runs / "V" / "seed0"
+    run.mkdir(parents=True)
+    for name in ("config.yaml", "eval.csv", "done.json"):
+        (run / name).write_text(f"{name} first\n")
+    assert experiments.main(["--out", str(runs), "--collect", str(results)]) == 0
+    assert capsys.readouterr().out.split() == [str(results / "V" / "seed0")]
+    copied = results / "V" / "seed0" / "eval.csv"
+    stat = copied.stat()
+    (run / "eval.csv").write_text("eval.csv fixed\n")  # same length
+    os.utime(run / "eval.csv", ns=(stat.st_atime_ns, stat.st_mtime_ns))
+    assert (run / "eval.csv").stat().st_size == stat.st_size
+    assert experiments.main(["--out", str(runs), "--collect", str(results)]) == 0
+    assert capsys.readouterr().out.split() == [str(results / "V" / "seed0")]
+    assert copied.read_text() == "eval.csv fixed\n"

@@ -92,6 +92,15 @@ def test_smoothing_and_confidence_interval():
     assert single.mean == pytest.approx(0.4) and single.n == 1 and math.isnan(single.ci)
 
 
+@pytest.mark.parametrize("n, quantile", [(2, 12.706), (3, 4.303), (30, 2.045), (31, 2.042), (32, 1.96), (100, 1.96)])
+def test_the_confidence_half_width_uses_t_with_n_minus_1_degrees_of_freedom_up_to_30_then_the_normal(n, quantile):
+    """report_data.T_975 holds df = 1..30: n = 31 samples (df 30) still take the table's last entry."""
+    samples = np.array([0.0, 1.0] * (n // 2) + [0.5] * (n % 2))
+    stat = report_data.stat_of(samples)
+    assert stat.n == n
+    assert stat.ci == pytest.approx(quantile * samples.std(ddof=1) / math.sqrt(n))
+
+
 def test_last5_over_best_ratio_on_a_hand_made_curve():
     """Rises to 1.0 for 5 evaluations, sags to 0.5: best smoothed 1.0 at the 10th, last-5 0.5, ratio 0.5."""
     sag = [0, 0, 0, 0, 0, 1, 1, 1, 1, 1, 0.5, 0.5, 0.5, 0.5, 0.5]
@@ -263,6 +272,31 @@ def test_compare_writes_both_settings_with_their_numbers(tmp_path, capsys):
     assert running[7:9] == [f"70% ± {4.303 * 0.1 / math.sqrt(3):.0%}", "50% ± 0%"]
     assert (out / "compare.png").read_bytes().startswith(PNG_MAGIC)
     assert not (out / "results.md").exists()
+
+
+def test_seeds_of_different_lengths_count_up_to_the_longest_configured_run(tmp_path):
+    """Curves.total_steps is the configured run length over all seeds (the table's "of N"), not the first seed's."""
+    write_run(tmp_path, "V", 0, [0.2] * 5, total_steps=4 * EVERY)  # finished at 400
+    write_run(tmp_path, "V", 1, [0.2] * 5, total_steps=8 * EVERY)  # configured for 800 (train.total_steps: no warning)
+    curves = report_data.load_runs(tmp_path)["V"][""]
+    assert curves.seed_ids == (0, 1) and curves.total_steps == 8 * EVERY
+    row = next(line for line in report_tables.results_table(report_data.load_runs(tmp_path)).splitlines()
+               if line.startswith("| V |"))
+    assert "2/2 × 400 (of 800)" in row
+
+
+def test_a_setting_without_a_configuration_gets_a_full_row_in_compare_md(tmp_path):
+    """compare.md: the row of a setting that lacks a configuration has as many cells as the header."""
+    write_run(tmp_path / "a", "V", 0, [0.2] * 6, total_steps=5 * EVERY)
+    write_run(tmp_path / "a", "K", 0, [0.1] * 6, total_steps=5 * EVERY)
+    write_run(tmp_path / "b", "V", 0, [0.4] * 6, total_steps=5 * EVERY)
+    text = report_tables.compare_table([("a", report_data.load_runs(tmp_path / "a")),
+                                        ("b", report_data.load_runs(tmp_path / "b"))])
+    lines = [line for line in text.splitlines() if line.startswith("|")]
+    header = lines[0].count("|")
+    assert all(line.count("|") == header for line in lines), text
+    missing = [line for line in lines if line.startswith("| K | b |")]
+    assert len(missing) == 1 and "no runs" in missing[0]
 
 
 # --------------------------------------------------------------------------------------- command line

@@ -19,6 +19,18 @@ def test_a_second_holder_is_refused_with_the_first_ones_pid_and_the_lock_is_rele
         pass
 
 
+def test_the_lock_file_names_the_holder_even_over_a_longer_stale_pid(tmp_path):
+    """rundir.lock: the file holds the holder's pid and nothing of an earlier holder's longer pid."""
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / rundir.LOCK_FILE).write_text("123456789012345\n")  # left by an earlier holder (a lock file stays)
+    with rundir.lock(run):
+        assert (run / rundir.LOCK_FILE).read_text() == f"{os.getpid()}\n"
+        with pytest.raises(rundir.RunInUse, match=rf"\(pid {os.getpid()}\)"):
+            with rundir.lock(run):
+                pass
+
+
 def test_a_lock_held_by_a_process_that_was_killed_is_free(tmp_path):
     run = tmp_path / "run"
     holder = subprocess.Popen([sys.executable, "-c",

@@ -1,5 +1,6 @@
 """dlo-train / dlo-evaluate: eval CSV protocol, checkpoints, resume, config errors."""
 import csv
+import importlib
 import json
 import os
 import signal
@@ -10,10 +11,13 @@ from pathlib import Path
 
 import pytest
 import torch
+import yaml
 
+from dlo_policy import config as config_module
 from dlo_policy import evaluate, rundir, train
 from dlo_policy.config import ConfigError, load_config
 from dlo_policy.sac import SAC
+from dlo_sim.task import DEFAULT_TASK_RULES, LEGACY_TASK_RULES
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # --import-mode=importlib: helper modules
 
@@ -113,6 +117,23 @@ def test_yaml_file_then_overrides_then_flags(tmp_path):
     path.write_text("seed: 4\nsac: {batch_size: 64, actor_lr: 3e-4}\ntrain: {eval_every: 500}\n")
     config = load_config(path, ["train.eval_every=1000"], {"seed": 7})
     assert (config.seed, config.sac.batch_size, config.sac.actor_lr, config.train.eval_every) == (7, 64, 3e-4, 1000)
+
+
+def test_held_out_test_seeds_may_end_right_below_the_evaluation_seeds():
+    """train.test_seed: in [0, eval_seed - test_episodes] (config.py), both ends included."""
+    config = load_config(None, ["train.test_seed=900", "train.test_episodes=100", "train.eval_seed=1000"])
+    assert config.train.test_seed + config.train.test_episodes == config.train.eval_seed
+    assert load_config(None, ["train.test_seed=0"]).train.test_seed == 0
+    with pytest.raises(ConfigError, match="train.test_seed"):
+        load_config(None, ["train.test_seed=901", "train.test_episodes=100", "train.eval_seed=1000"])
+    with pytest.raises(ConfigError, match="train.test_seed"):
+        load_config(None, ["train.test_seed=-1"])
+
+
+def test_an_override_with_nothing_after_the_equals_sign_is_the_empty_string():
+    """load_config: 'label=' sets the label to '' (the modalities name the run), not YAML's null."""
+    config = load_config(None, ["label=The label", "label="])
+    assert config.label == "" and config.name == config.modalities
 
 
 def test_evaluate_cli_prints_table_and_writes_json(tmp_path, capsys):
@@ -283,6 +304,56 @@ def test_tensorboard_event_files_hold_losses_speed_episodes_and_both_rules(tmp_p
     assert [e.step for e in events.Scalars("loss/critic")] == [100, 200, 300]  # updates start after step 50
 
 
+class RecordingWriter:
+    """Stands in for torch's SummaryWriter: records the calls dlo-train makes on it, writes nothing."""
+
+    made: list["RecordingWriter"] = []
+
+    def __init__(self, log_dir=None, **kwargs):
+        self.calls: list[tuple] = []
+        RecordingWriter.made.append(self)
+
+    def add_scalar(self, tag, value, global_step=None, *args, **kwargs):
+        self.calls.append(("add_scalar", tag, global_step))
+
+    def flush(self):
+        self.calls.append(("flush",))
+
+    def close(self):
+        self.calls.append(("close",))
+
+
+def test_every_evaluation_is_flushed_to_tensorboard_at_once(tmp_path, monkeypatch):
+    """dlo-train: each evaluation row's scalars are flushed to the event file as soon as they are written
+    (TensorBoardLog.evaluation), so a TensorBoard watching a long run shows it then, not at the next
+    flush of SummaryWriter's own timer or at close."""
+    monkeypatch.setattr(RecordingWriter, "made", [])
+    monkeypatch.setattr("torch.utils.tensorboard.SummaryWriter", RecordingWriter)
+    run = tmp_path / "run"
+    assert train.main(["--out", str(run), "--steps", "100", "--no-progress", *TINY, "train.eval_without=[T]",
+                       "train.test_episodes=2"]) == 0
+    (writer,) = RecordingWriter.made
+    calls = writer.calls
+    blocks = []  # one per evaluation row: (prefix, step, the call right after its scalars)
+    i = 0
+    while i < len(calls):
+        prefix = calls[i][1].split("/")[0] if calls[i][0] == "add_scalar" else ""
+        if not prefix.startswith("eval"):
+            i += 1
+            continue
+        step, j = calls[i][2], i
+        while j < len(calls) and calls[j][0] == "add_scalar" and calls[j][1].split("/")[0] == prefix \
+                and calls[j][2] == step:
+            j += 1
+        blocks.append((prefix, step, calls[j] if j < len(calls) else None))
+        i = j
+    rows = read_eval(run)
+    assert len(rows) == 4  # evaluations at steps 0 and 100, each with and without T
+    assert blocks == [("eval_without_T" if r["tested_without"] else "eval", int(r["step"]), ("flush",))
+                      for r in rows], calls
+    assert calls[-1] == ("close",)
+
+
 def test_the_held_out_test_shows_progress(tmp_path, capsys):
     run = tmp_path / "run"
     assert train.main(["--out", str(run), "--steps", "100", "--modalities", "All", *TINY,
@@ -344,3 +415,43 @@ def test_resume_takes_the_saved_config_and_refuses_anything_but_steps(tmp_path, 
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and f"--resume: no {run / rundir.CHECKPOINT_FILE} to resume from" in err
     assert {p.name for p in run.iterdir()} <= {rundir.CONFIG_FILE, rundir.LOCK_FILE}  # nothing trained, nothing written
+
+
+RULES_ENV = '''"""A tiny env module that takes the cable env's task_rules option and notes what it was given."""
+import sac_reach_env
+
+GIVEN = []
+
+
+def make_env(modalities="All", seed=0, task_rules=None, **options):
+    GIVEN.append(task_rules)
+    return sac_reach_env.make_env(modalities, seed, **options)
+
+
+def make_vec_env(num_envs, modalities="All", seed=0, task_rules=None, **options):
+    GIVEN.append(task_rules)
+    return sac_reach_env.make_vec_env(num_envs, modalities, seed, **options)
+'''
+
+
+def test_a_run_from_before_task_rules_resumes_on_the_rules_it_was_trained_on(tmp_path, monkeypatch):
+    """dlo-train: "the task rules are always recorded: a new run's are the default, an older run resumed
+    keeps paper_text" (dlo_sim.task.LEGACY_TASK_RULES), in config.yaml and in the env it trains on."""
+    (tmp_path / "audit_rules_env.py").write_text(RULES_ENV)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    env_module = importlib.import_module("audit_rules_env")
+    monkeypatch.setattr(config_module, "CABLE_ENV", "audit_rules_env")  # it takes task_rules like the cable env
+    tiny = [o for o in TINY if not o.startswith("env_module")]
+    run = tmp_path / "run"
+    assert train.main(["--out", str(run), "--steps", "60", "env_module=audit_rules_env", *tiny, "train.progress=false",
+                       "train.eval_episodes=3", "train.test_episodes=2"]) == 0
+    saved = yaml.safe_load((run / rundir.CONFIG_FILE).read_text())
+    assert saved["env_options"] == {"task_rules": DEFAULT_TASK_RULES}
+    assert set(env_module.GIVEN) == {DEFAULT_TASK_RULES}
+
+    del saved["env_options"]["task_rules"]  # a run directory written before the option existed
+    (run / rundir.CONFIG_FILE).write_text(yaml.safe_dump(saved, sort_keys=False))
+    env_module.GIVEN.clear()
+    assert train.main(["--out", str(run), "--resume", "--steps", "120"]) == 0
+    assert yaml.safe_load((run / rundir.CONFIG_FILE).read_text())["env_options"] == {"task_rules": LEGACY_TASK_RULES}
+    assert env_module.GIVEN and set(env_module.GIVEN) == {LEGACY_TASK_RULES}

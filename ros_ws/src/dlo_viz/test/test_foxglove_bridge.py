@@ -23,6 +23,7 @@ import socket
 import sys
 import time
 from pathlib import Path
+from urllib.parse import parse_qs, urlparse
 
 import numpy as np
 import pytest
@@ -32,6 +33,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))  # --import-mode=import
 from dlo_common.topics import TOPICS  # noqa: E402
 from dlo_common.testing import ROS2RUN, Proc, Procs  # noqa: E402
 from foxglove_ws_client import FoxgloveTestClient  # noqa: E402
+from dlo_viz.foxglove_bridge import foxglove_url, topic_matches  # noqa: E402
 
 pytest.importorskip("foxglove")
 pytest.importorskip("websockets")
@@ -256,6 +258,30 @@ def test_a_client_that_stops_reading_never_blocks(bridge, typestore):
         assert bridge.stop(timeout=2.0) in (True, False)
         assert time.monotonic() - t0 < 3.0
         slow.close()
+
+
+@pytest.mark.parametrize("topic, patterns, matches", [
+    ("/dlo/gripper/state", ["/dlo"], True),
+    ("/dlo", ["/dlo"], True),
+    ("/dlo/gripper/state", ["dlo/gripper/"], True),
+    ("/dlox/state", ["/dlo"], False),
+    ("/dlo/gripper/stateful", ["/dlo/gripper/state"], False),
+    ("/clock", ["/dlo", "/tf"], False),
+    ("/clock", ["/dlo", "/"], True),
+    ("/clock", [], False),
+])
+def test_a_pattern_matches_its_topic_and_what_lies_under_it(topic, patterns, matches):
+    """topic_matches: a pattern matches the topic and what lies under it, never a topic that only starts
+    with the same letters."""
+    assert topic_matches(topic, patterns) is matches
+
+
+@pytest.mark.parametrize("host, ws", [("0.0.0.0", "ws://127.0.0.1:8765"), ("", "ws://127.0.0.1:8765"),
+                                      ("192.168.1.7", "ws://192.168.1.7:8765")])
+def test_the_app_url_opens_a_reachable_address(host, ws):
+    """foxglove_url: the app URL of a bridge that listens on every address (0.0.0.0) points at this machine."""
+    url = urlparse(foxglove_url(host, 8765))
+    assert parse_qs(url.query) == {"ds": ["foxglove-websocket"], "ds.url": [ws]}
 
 
 # ---- the node in a running graph -------------------------------------------------------------
