@@ -61,10 +61,12 @@ if name == "sim":
 when = plan.get("when", "signal")
 if when == "start":
     finish()
-if when == "episodes":  # the sim: once every node of the graph runs, its episodes, then it ends
+if when == "episodes":  # the sim: once every node of the graph runs and handles signals, its episodes, then it ends
     outcomes = Path(params["summary_file"])
-    while not (outcomes.parent / "policy.log").exists():
-        time.sleep(0.05)
+    others = ["tactile", "vision", "policy"] + (["recorder"] if params.get("wait_for_recorder") else [])
+    deadline = time.monotonic() + 120  # a loaded machine starts Python slowly: a SIGINT before a node's handler
+    while time.monotonic() < deadline and not all((Path(os.environ["FAKE_READY"]) / n).exists() for n in others):
+        time.sleep(0.05)  # is ignored (a bash background job), and the launcher would kill that node after 10 s
     seed = int(params["seed"])
     with outcomes.open("a") as f:
         for k in range(plan["episodes"]):
