@@ -15,10 +15,15 @@ from dlo_sim import RopeSim
 from dlo_sim.config import REST_SPACING
 
 
-def pull(seed, closure, actions=60, command=(1.0, 0.0), lead_in=0):
+@pytest.fixture(scope="module")
+def sim():
+    """One simulator for the module (its kernels compile once); every test resets it to its seed."""
+    return RopeSim(1)
+
+
+def pull(sim, seed, closure, actions=60, command=(1.0, 0.0), lead_in=0):
     """``lead_in`` actions sliding at c = 0.7 along +x, then ``command`` [dx, dy] at ``closure``;
     yields (held indices, positions, gripper x-y) after every action of the pull."""
-    sim = RopeSim(1)
     sim.reset(np.array([seed]))
     n = int(sim.num_particles[0])
     for _ in range(lead_in):
@@ -32,9 +37,9 @@ def pull(seed, closure, actions=60, command=(1.0, 0.0), lead_in=0):
 @pytest.mark.parametrize("closure, command, lead_in", [(1.0, (1.0, 0.0), 0), (0.85, (1.0, 0.0), 0),
                                                        (1.0, (0.3, 1.0), 4), (0.7, (0.0, -1.0), 4)])
 @pytest.mark.parametrize("seed", [3, 4])
-def test_pulling_a_gripped_cable_does_not_stretch_it(seed, closure, command, lead_in):
+def test_pulling_a_gripped_cable_does_not_stretch_it(sim, seed, closure, command, lead_in):
     worst_span, worst_length, worst_segment, steps_held = 0.0, 0.0, 0.0, 0
-    for held, x, _ in pull(seed, closure, 40, command, lead_in):
+    for held, x, _ in pull(sim, seed, closure, 40, command, lead_in):
         segments = np.linalg.norm(np.diff(x, axis=0), axis=1) / REST_SPACING
         worst_length = max(worst_length, segments.mean())
         worst_segment = max(worst_segment, segments.max())
@@ -48,15 +53,15 @@ def test_pulling_a_gripped_cable_does_not_stretch_it(seed, closure, command, lea
     assert worst_segment <= 1.5  # no segment torn open (before the fix: 130x), measured <= 1.26
 
 
-def test_a_sliding_grip_on_a_taut_cable_slides_along_it():
-    farthest = [held.max() for held, _, _ in pull(3, 0.85, actions=10) if len(held)]
+def test_a_sliding_grip_on_a_taut_cable_slides_along_it(sim):
+    farthest = [held.max() for held, _, _ in pull(sim, 3, 0.85, actions=10) if len(held)]
     assert farthest[-1] >= farthest[0] + 20  # the fingers moved on along the cable
 
 
-def test_a_firm_grip_on_a_taut_cable_stops_the_gripper():
+def test_a_firm_grip_on_a_taut_cable_stops_the_gripper(sim):
     """Gripped mid-cable at c = 1 and pulled straight away: the gripper stays put (within 1 cm of
     the 0.24 m commanded) and holds the same particles."""
-    trace = list(pull(3, 1.0, actions=12, lead_in=4))
+    trace = list(pull(sim, 3, 1.0, actions=12, lead_in=4))
     (held0, _, g0), (held1, _, g1) = trace[0], trace[-1]
     assert np.linalg.norm(g1 - g0) < 0.01
     assert abs(held1.mean() - held0.mean()) <= 1.0
@@ -64,11 +69,10 @@ def test_a_firm_grip_on_a_taut_cable_stops_the_gripper():
 
 @pytest.mark.parametrize("closure, command, lead_in", [(1.0, (1.0, 0.0), 4), (1.0, (0.3, 1.0), 4),
                                                        (1.0, (1.0, 0.0), 0), (0.95, (0.7, -0.7), 8)])
-def test_a_stalled_gripper_stays_at_its_height(closure, command, lead_in):
+def test_a_stalled_gripper_stays_at_its_height(sim, closure, command, lead_in):
     """The gripper moves in the horizontal plane only (docs/ARCHITECTURE.md#world): the stall removes the
     horizontal part of the motion away from the fixed end and never lifts or lowers the gripper
     (before: up to 4 mm up within an episode, which also made vision differ between graph and env)."""
-    sim = RopeSim(1)
     sim.reset(np.array([3]))
     height = sim.gripper_state()[0, 2]
     for _ in range(lead_in):
