@@ -62,3 +62,19 @@ def test_ablation_zeroes_exactly_the_ablated_block_and_never_reads_it(without, z
     keep = [c for c in range(9) if c not in zero]
     assert np.all(ablated[:, zero] == 0.0)
     np.testing.assert_array_equal(ablated[:, keep], full[:, keep])
+
+
+def test_readings_by_keyword_and_calls_that_do_not_fit():
+    """build_observation: a reading may be given by keyword (the record's title), also beside positional
+    ones; more readings than modalities, an unknown keyword or a reading given twice is a TypeError."""
+    kinematic = np.array([[0.1, -0.2, 0.7]])
+    tactile = TactilePose(np.array([0.3]), np.array([0.004]), np.array([True]), np.array([3]))
+    visual = VisualPose(np.array([True]), np.array([0.5]), np.array([-0.2]), np.array([0.01]))
+    assert build_observation("K+T", kinematic=kinematic, tactile=tactile)[0] == pytest.approx([0.1, -0.2, 0.7, 0.3, 0.004])
+    assert build_observation("T+V", None, tactile, visual=visual)[0] == pytest.approx([0.3, 0.004, 1.0, 0.5, -0.2, 0.01])
+    with pytest.raises(TypeError, match="at most 3 readings, got 4"):
+        build_observation("K", kinematic, tactile, visual, visual)
+    with pytest.raises(TypeError, match=r"unknown or repeated reading\(s\) \['force'\]"):
+        build_observation("K", kinematic, force=kinematic)
+    with pytest.raises(TypeError, match=r"unknown or repeated reading\(s\) \['kinematic'\]"):
+        build_observation("K", kinematic, kinematic=kinematic)
