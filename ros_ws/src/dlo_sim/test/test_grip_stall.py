@@ -81,3 +81,17 @@ def test_inputs_are_not_modified():
     cable, dg = straight(), np.array([STEP, 0.0, 0.0])
     stall_firm_grip(cable, held([20]), dg)
     assert dg[0] == STEP and cable[20, 0] == pytest.approx(FIXED_END[0] + 20 * REST_SPACING)
+
+
+def test_the_single_particle_grip_picks_the_held_particle_nearest_the_finger_never_the_fixed_end():
+    """dlo_sim.grip.single_grip_particle (docs/FIDELITY.md row 5): the held particle nearest the gripper in x,
+    the lower index on a tie, never particle 0; -1 when nothing but particle 0 (or nothing) is held."""
+    from dlo_sim.grip import single_grip_particle
+    x = np.array([[0.0, 0, 0], [0.25, 0, 0], [0.5, 0, 0], [0.75, 0, 0], [1.0, 0, 0]], np.float32)  # exact in binary
+    held = np.array([True, True, True, True, False])
+    assert single_grip_particle(x, held, 0.7) == 3
+    assert single_grip_particle(x, held, 0.95) == 3  # particle 4 is nearer, but not held
+    assert single_grip_particle(x, held, 0.0) == 1  # particle 0 is nearer, but never carried
+    assert single_grip_particle(x, held, 0.375) == 1  # an exact tie: the lower index
+    assert single_grip_particle(x, [True, False, False, False, False], 0.0) == -1
+    assert single_grip_particle(x, np.zeros(5, bool), 0.02) == -1
