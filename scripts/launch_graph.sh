@@ -24,6 +24,9 @@ usage: scripts/launch_graph.sh [options]
                        partial, full, or sigma_theta,sigma_y [rad, m] such as 0.1,0.001 (or [0.1,0.001])
   --task-rules R       authors_code (default) or paper_text: the held set the reward, the episode's
                        end and the tactile input use (the sim's task_rules parameter)
+  --single-particle-grip  the grip carries one particle, as the authors' code did (the sim's
+                       single_particle_grip parameter; for a policy trained with
+                       env_options.single_particle_grip=true, as the study's are)
   --record DIR         record every /dlo topic to the rosbag2 (MCAP) directory DIR
   --foxglove [PORT]    live view: also start the Foxglove bridge (dlo_viz foxglove_bridge) on
                        127.0.0.1:PORT (default 8765; 0 = any free port) and print the URL to open;
@@ -55,7 +58,7 @@ EOF
 }
 
 episodes=5 seed=0 mode=step_locked rate=1.0 policy=sac checkpoint="" without="" noise=none record="" logs=""
-task_rules=authors_code
+task_rules=authors_code single_grip=false
 train_out="" train_config="" domain="" namespace="" foxglove="" status_period=10
 while [ $# -gt 0 ]; do
   case "$1" in
@@ -74,6 +77,7 @@ while [ $# -gt 0 ]; do
     --without) without="$2"; shift 2 ;;
     --tactile-noise) noise="$2"; shift 2 ;;
     --task-rules) task_rules="$2"; shift 2 ;;
+    --single-particle-grip) single_grip=true; shift ;;
     --record) record="$2"; shift 2 ;;
     --train-out) train_out="$2"; shift 2 ;;
     --train-config) train_config="$2"; shift 2 ;;
@@ -259,6 +263,7 @@ subscribers=3 sim_extra=()
 # starts before it has looked (no second graph's nodes answering, publishing or recording into the first).
 start sim dlo_sim sim_node --ros-args -p mode:="$mode" -p seed:="$seed" -p episodes:="$episodes" \
   -p rate_factor:="$rate" -p min_subscribers:="$subscribers" -p summary_file:="$outcomes" -p task_rules:="$task_rules" \
+  -p single_particle_grip:="$single_grip" \
   ${sim_extra[@]+"${sim_extra[@]}"} ${remap[@]+"${remap[@]}"}
 sim_index=0
 sim_pid="${pids[0]}"

@@ -52,6 +52,7 @@ def finish(*_):
 
 for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):  # a background job of bash starts with SIGINT ignored
     signal.signal(sig, finish)
+(Path(os.environ["FAKE_READY"]) / (name + ".args")).write_text(json.dumps(rest))  # what the launcher passed
 (Path(os.environ["FAKE_READY"]) / name).touch()  # from here on a signal is handled, not ignored
 if bag is not None:
     bag.mkdir(parents=True)
@@ -243,3 +244,13 @@ def test_a_bad_option_is_exit_2_in_one_line_before_anything_starts(case, tmp_pat
     assert result.returncode == 2, result.stdout + result.stderr
     assert result.stderr.splitlines() == [message.replace("EXISTING", str(existing))], result.stderr  # no usage dump
     assert result.stdout == "" and not logs.exists()  # no domain chosen, no node started
+
+
+@pytest.mark.parametrize("flag, value", [((), "false"), (("--single-particle-grip",), "true")])
+def test_the_sim_gets_the_grip_the_launcher_was_asked_for(flag, value, tmp_path, own_groups):
+    """launch_graph.sh --single-particle-grip (docs/FIDELITY.md): the sim runs the authors' one-particle grip,
+    which a policy trained with env_options.single_particle_grip=true (the study's) expects; without it, ours."""
+    proc, out, logs, bag = start(tmp_path, {"sim": episodes(1)}, ["--episodes", "1", *flag], own_groups)
+    check(proc, out, logs, bag, 0, [])
+    args = json.loads((tmp_path / "ready" / "sim.args").read_text())
+    assert f"single_particle_grip:={value}" in args and args[args.index(f"single_particle_grip:={value}") - 1] == "-p"
