@@ -95,3 +95,11 @@ def test_the_single_particle_grip_picks_the_held_particle_nearest_the_finger_nev
     assert single_grip_particle(x, held, 0.375) == 1  # an exact tie: the lower index
     assert single_grip_particle(x, [True, False, False, False, False], 0.0) == -1
     assert single_grip_particle(x, np.zeros(5, bool), 0.02) == -1
+
+
+def test_a_firm_grip_on_the_first_free_particle_stalls_too():
+    """stall_firm_grip: particle 1 (the first after the fixed end) held firmly on a taut cable stops the
+    gripper's outward motion like any other; particle 0 (the fixed end) never stalls anything."""
+    x = np.array([FIXED_END, np.add(FIXED_END, [REST_SPACING, 0.0, 0.0]), np.add(FIXED_END, [2 * REST_SPACING, 0.0, 0.0])])
+    assert np.allclose(stall_firm_grip(x, [0.0, 1.0, 0.0], [0.001, 0.0005, 0.0]), [0.0, 0.0005, 0.0])
+    assert np.allclose(stall_firm_grip(x, [1.0, 0.0, 0.0], [0.001, 0.0005, 0.0]), [0.001, 0.0005, 0.0])
