@@ -52,7 +52,7 @@ def finish(*_):
 
 for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):  # a background job of bash starts with SIGINT ignored
     signal.signal(sig, finish)
-(Path(os.environ["FAKE_READY"]) / (name + ".args")).write_text(json.dumps(rest))  # what the launcher passed
+Path(os.environ["FAKE_READY"]).with_name(f"args_{{name}}.json").write_text(json.dumps(rest))  # what the launcher passed
 (Path(os.environ["FAKE_READY"]) / name).touch()  # from here on a signal is handled, not ignored
 if bag is not None:
     bag.mkdir(parents=True)
@@ -252,5 +252,5 @@ def test_the_sim_gets_the_grip_the_launcher_was_asked_for(flag, value, tmp_path,
     which a policy trained with env_options.single_particle_grip=true (the study's) expects; without it, ours."""
     proc, out, logs, bag = start(tmp_path, {"sim": episodes(1)}, ["--episodes", "1", *flag], own_groups)
     check(proc, out, logs, bag, 0, [])
-    args = json.loads((tmp_path / "ready" / "sim.args").read_text())
+    args = json.loads((tmp_path / "args_sim.json").read_text())
     assert f"single_particle_grip:={value}" in args and args[args.index(f"single_particle_grip:={value}") - 1] == "-p"
