@@ -272,13 +272,21 @@ class SimNode(Node):
     def own_publishers(self):
         return list(self.pubs.values())
 
-    def other_publishers(self, topic: str) -> list:
-        """Names of the nodes publishing ``topic`` besides this one."""
-        names = [f"{i.node_namespace.rstrip('/')}/{i.node_name}" for i in self.get_publishers_info_by_topic(topic)]
+    def other_publishers(self, topic: str, wait_for_names: float = 2.0) -> list:
+        """Names of the nodes publishing ``topic`` besides this one. Discovery can show a publisher before its
+        node's name (rmw reports it as _NODE_NAME_UNKNOWN_): wait up to ``wait_for_names`` s for the names."""
         mine = f"{self.get_namespace().rstrip('/')}/{self.get_name()}"
+        deadline = time.monotonic() + wait_for_names
+        while True:
+            infos = self.get_publishers_info_by_topic(topic)
+            unnamed = [i for i in infos if "_UNKNOWN_" in i.node_name or "_UNKNOWN_" in i.node_namespace]
+            if not unnamed or time.monotonic() >= deadline:
+                break
+            time.sleep(0.05)
+        names = [f"{i.node_namespace.rstrip('/')}/{i.node_name}" for i in infos if i not in unnamed]
         if mine in names:
             names.remove(mine)
-        return names or ["unknown"]
+        return names + ["a node discovery has not named yet"] * bool(unnamed) or ["unknown"]
 
     def on_instance(self, msg: String):
         """Another simulator announced itself (discovery can take seconds): the later one of the two leaves."""

@@ -226,3 +226,24 @@ def test_the_reset_service_starts_the_asked_episode(node, clock, executed):
     assert node.rejections.total == rejected and node.step_index == 0
     response = node.on_reset_service(ResetEpisode.Request(seed=-1), ResetEpisode.Response())  # the node's sequence
     assert response.seed == node.p["seed"] + old[0] + 2 == node.episode_seed and response.episode == old[0] + 2
+
+
+def test_a_refusal_names_the_other_publisher_once_discovery_knows_it(monkeypatch):
+    """Discovery can show another publisher before its node's name (_NODE_NAME_UNKNOWN_, seen in CI): the
+    refusal waits for the name instead of printing the placeholder, and says so if the name never comes."""
+    from types import SimpleNamespace
+
+    def info(name, namespace="/"):
+        return SimpleNamespace(node_name=name, node_namespace=namespace)
+
+    answers = [[info("sim_node"), info("_NODE_NAME_UNKNOWN_", "_NODE_NAMESPACE_UNKNOWN_")]] * 3 + \
+        [[info("sim_node"), info("sim_node", "/other")]]
+    stub = SimpleNamespace(get_namespace=lambda: "/", get_name=lambda: "sim_node",
+                           get_publishers_info_by_topic=lambda topic: answers.pop(0) if len(answers) > 1 else answers[0])
+    monkeypatch.setattr(sim_node_module.time, "sleep", lambda s: None)
+    assert sim_node_module.SimNode.other_publishers(stub, "/clock") == ["/other/sim_node"]
+    stub.get_publishers_info_by_topic = lambda topic: [info("_NODE_NAME_UNKNOWN_", "_NODE_NAMESPACE_UNKNOWN_")]
+    assert sim_node_module.SimNode.other_publishers(stub, "/clock", wait_for_names=0.0) == [
+        "a node discovery has not named yet"]
+    stub.get_publishers_info_by_topic = lambda topic: [info("sim_node")]
+    assert sim_node_module.SimNode.other_publishers(stub, "/clock") == ["unknown"]
