@@ -20,7 +20,8 @@ same DDS domain would mix two graphs: it exits with a one-line reason), at least
 published /dlo topic (the topics it still lacks are named while it waits) and, in real_time, a node
 publishes ``/dlo/gripper/cmd`` (warned once a second until one does; later, once a second while no
 command arrives: "no command for N s"). Exit status: 0 after
-``episodes`` episodes, 130 when interrupted (SIGINT/SIGTERM), 2 bad parameter, 3 refused to start.
+``episodes`` episodes (in step_locked once the policy has answered the final state, so every node has
+handled it; at most 10 s later), 130 when interrupted (SIGINT/SIGTERM), 2 bad parameter, 3 refused to start.
 """
 
 from __future__ import annotations
@@ -79,6 +80,7 @@ PARAMETERS = (
     Param("publish_markers", True, "publish /dlo/markers for RViz/Foxglove"),
     Param("summary_file", "", "write the per-episode outcomes as JSON lines here (empty = off)"),
 )
+FINAL_ANSWER_WAIT = 10.0  # s: step_locked, after the last episode: wait this long at most for the final answer
 DISCOVERY_GRACE = 1.0  # s: look for another simulator on the domain this long before building the simulation
 INSTANCE_TOPIC = topic("instance").name  # latched: who runs here since when (the later of two simulators leaves)
 WAIT_REPORT_PERIOD = 5.0  # s between "waiting for ..." lines
@@ -109,6 +111,7 @@ class SimNode(Node):
         self.created_wall = time.monotonic()
         self.info_published = False
         self.previous_final = None  # (episode, step) of the last state of the previous episode
+        self.closing_since = None  # step_locked, last episode done: waiting for the answer to its final state
         self.rejections = RejectionLog(interval=1.0)
         self.period_wall = DT * SUBSTEPS_PER_ACTION / p["rate_factor"]
 
@@ -181,9 +184,25 @@ class SimNode(Node):
         self.previous_final = (self.episode, self.step_index)
         self.episode += 1
         if self.p["episodes"] and self.episode >= self.p["episodes"]:
+            if self.p["mode"] != "step_locked":
+                self.get_logger().info(f"ran {self.episode} episodes: exiting")
+                raise SystemExit(0)
+            # step_locked: the graph is still working on the final state (tactile, vision, the policy's last
+            # transition, the recorder): exit once the policy has answered it (on_command), or after a while
+            self.closing_since = time.monotonic()
+            return
+        self.start_episode(self.p["seed"] + self.episode)
+
+    def exit_when_answered(self, answered: bool) -> None:
+        """After the last episode (step_locked): exit once its final state is answered, or FINAL_ANSWER_WAIT
+        s without an answer (a policy that does not answer final states; the graph stopped meanwhile)."""
+        if answered:
             self.get_logger().info(f"ran {self.episode} episodes: exiting")
             raise SystemExit(0)
-        self.start_episode(self.p["seed"] + self.episode)
+        if time.monotonic() - self.closing_since > FINAL_ANSWER_WAIT:
+            self.get_logger().info(f"ran {self.episode} episodes: exiting (no answer to the final state in "
+                                   f"{FINAL_ANSWER_WAIT:g} s)")
+            raise SystemExit(0)
 
     # ------------------------------------------------------------------ inputs
     def reject(self, cause: str, text: str):
@@ -195,6 +214,9 @@ class SimNode(Node):
     def on_command(self, msg: GripperCommand):
         if not self.started:
             self.get_logger().debug(f"ignoring command for episode {msg.episode} step {msg.step}: not started")
+            return
+        if self.closing_since is not None:
+            self.exit_when_answered((int(msg.episode), int(msg.step)) == tuple(self.previous_final))
             return
         self.last_command_wall = time.monotonic()
         mismatch = command_mismatch(self.p["mode"], self.episode, self.step_index, int(msg.episode), int(msg.step),
@@ -260,6 +282,9 @@ class SimNode(Node):
                 self.start_episode(self.p["seed"])
             return
         if self.p["mode"] != "step_locked":
+            return
+        if self.closing_since is not None:
+            self.exit_when_answered(False)
             return
         waited = time.monotonic() - self.last_publish_wall
         if self.step_index == 0 and self.episode == 0 and waited > 0.25:  # start-up: nodes still joining
@@ -354,6 +379,7 @@ class SimNode(Node):
         self.previous_final = (self.episode, self.step_index)
         self.episode += 1
         self.started = True
+        self.closing_since = None
         if not self.info_published:
             self.pub_info.publish(camera_info(self.camera))
             self.info_published = True

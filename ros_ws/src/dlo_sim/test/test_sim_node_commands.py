@@ -228,6 +228,34 @@ def test_the_reset_service_starts_the_asked_episode(node, clock, executed):
     assert response.seed == node.p["seed"] + old[0] + 2 == node.episode_seed and response.episode == old[0] + 2
 
 
+def test_step_locked_exits_after_its_last_episode_once_the_final_state_is_answered(node, clock, executed):
+    """The graph still works on the last episode's final state when the sim has run its episodes (the tactile
+    and vision readings, the policy's last transition for online training, the recorder): in step_locked the
+    sim exits once the policy answers that state, or FINAL_ANSWER_WAIT s later without an answer (seen in a
+    rehearsal: online training stored 5 of 6 transitions because the graph was stopped before it)."""
+    episode = start(node, "step_locked", seed=3)
+    node.p["episodes"] = episode + 1  # this episode is the last
+    try:
+        while node.closing_since is None:
+            assert node.step_index < node.p["horizon"]
+            node.on_command(command(node, vx=0.0, closure=0.0))  # an open gripper drops the cable
+        final = (episode, node.step_index)
+        assert node.previous_final == final and node.task.tracker.steps[0] == final[1]
+        clock.now += sim_node_module.FINAL_ANSWER_WAIT - 0.5
+        node.on_watchdog()  # not answered yet and within the wait: still running, no new episode
+        node.on_command(command(node, episode=episode, step=final[1] - 1))  # not the final state's answer
+        node.on_command(command(node, episode=episode + 1, step=0))
+        assert (node.episode, len(executed)) == (episode + 1, final[1])
+        with pytest.raises(SystemExit) as exiting:
+            node.on_command(command(node, episode=episode, step=final[1]))
+        assert exiting.value.code == 0 and len(executed) == final[1]
+        with pytest.raises(SystemExit):  # never answered: it exits after the wait all the same
+            clock.now += 1.0
+            node.on_watchdog()
+    finally:
+        node.p["episodes"], node.closing_since = 0, None
+
+
 def test_a_refusal_names_the_other_publisher_once_discovery_knows_it(monkeypatch):
     """Discovery can show another publisher before its node's name (_NODE_NAME_UNKNOWN_, seen in CI): the
     refusal waits for the name instead of printing the placeholder, and says so if the name never comes."""
