@@ -353,3 +353,302 @@ def test_delete_original_recovers_in_place_and_keeps_no_damaged_copy(tmp_path):
     assert result.returncode == 0 and "recovered 60 messages" in one_line(result)
     assert sorted(p.name for p in bag.iterdir()) == [METADATA, "run.mcap"]
     assert seqs(bag) == list(range(60))
+
+
+# ---- dlo-bag-recover, case by case ---------------------------------------------------------
+
+def killed_bag(path, messages: int = 60):
+    """A bag whose writer was "killed" after flushing `messages` gripper states: no metadata.yaml."""
+    writer = BagWriter(path, chunk_size=2000)
+    writer.add_topic(STATE, "dlo_msgs/msg/GripperState")
+    for i in range(messages):
+        writer.write(STATE, state(i), 1 + i)
+    writer.flush()
+    return path
+
+
+def listing(path) -> list[str]:
+    return sorted(str(p.relative_to(path)) for p in Path(path).rglob("*"))
+
+
+def test_the_report_line_of_each_outcome():
+    from dlo_bag.recover import RecoverReport
+
+    part = Path("bags/run")
+    assert RecoverReport(part, "intact", messages=7).line() == \
+        "bags/run: complete and readable (7 messages); nothing to recover"
+    assert RecoverReport(part, "failed", error="why").line() == "bags/run: cannot be recovered: why"
+    full = RecoverReport(part, "recovered", messages=5, topics={"/a": 3, "/b": 2}, discarded_bytes=17,
+                         original=part / "run.mcap.damaged", output=Path("bags/fixed"))
+    assert full.line() == ("bags/run: recovered 5 messages on 2 topics into bags/fixed (metadata.yaml rebuilt; "
+                           "the last 17 byte(s), an incomplete record, discarded; original kept as run.mcap.damaged)")
+    in_place = RecoverReport(part, "recovered", messages=5, topics={"/a": 5}, output=part)
+    assert in_place.line() == "bags/run: recovered 5 messages on 1 topics (metadata.yaml rebuilt)"
+    assert RecoverReport(part, "recovered", messages=5, topics={"/a": 5}).line() == in_place.line()
+
+
+def test_a_channel_without_a_recorded_hash_gets_it_from_its_definition_in_either_encoding():
+    from dlo_bag.recover import _hash_from_definition
+
+    idl = "module test_msgs {\n  module msg {\n    struct Simple {\n      int32 a;\n    };\n  };\n};\n"
+    from_msg = _hash_from_definition("test_msgs/msg/Simple", "ros2msg", "int32 a\n")
+    assert from_msg.startswith("RIHS01_") and _hash_from_definition("test_msgs/msg/Simple", "ros2idl", idl) == from_msg
+    assert _hash_from_definition("test_msgs/msg/Simple", "ros2msg", idl) == ""  # unparsable: no hash
+    assert _hash_from_definition("test_msgs/msg/Simple", "ros2idl", "int32 a\n") == ""
+
+
+def test_topic_specs_of_scanned_channels(tmp_path):
+    """A channel's spec keeps its recorded QoS and hash (or computes the hash from the definition), decodes a
+    definition with bad bytes leniently; a channel without a schema is skipped with a problem, an unknown one
+    quietly."""
+    from types import SimpleNamespace
+
+    from mcap.records import Channel, Schema
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+
+    from dlo_bag.bag import qos_from_profile, qos_yaml
+    from dlo_bag.recover import _topic_spec
+
+    with BagWriter(tmp_path / "reference") as writer:
+        reference = writer.add_topic(STATE, "dlo_msgs/msg/GripperState")
+    qos = qos_from_profile(QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT,
+                                      durability=DurabilityPolicy.TRANSIENT_LOCAL))
+    scan = SimpleNamespace(problems=[], schemas={
+        1: Schema(id=1, name="dlo_msgs/msg/GripperState", encoding="ros2msg", data=reference.msgdef.encode()),
+        2: Schema(id=2, name="dlo_msgs/msg/GripperState", encoding="ros2msg", data=b"int32 a\n# \xff\n")},
+        channels={
+        1: Channel(id=1, topic=STATE, schema_id=1, message_encoding="cdr",
+                   metadata={"offered_qos_profiles": qos_yaml([qos]), "topic_type_hash": "RIHS01_recorded"}),
+        2: Channel(id=2, topic="/no/hash", schema_id=1, message_encoding="cdr", metadata={}),
+        3: Channel(id=3, topic="/bad/bytes", schema_id=2, message_encoding="cdr",
+                   metadata={"topic_type_hash": "RIHS01_x"}),
+        4: Channel(id=4, topic="/lost", schema_id=9, message_encoding="cdr", metadata={})})
+    recorded = _topic_spec(scan, 1)
+    assert (recorded.topic, recorded.msgtype, recorded.rihs01) == (STATE, "dlo_msgs/msg/GripperState", "RIHS01_recorded")
+    assert recorded.qos == [qos] and recorded.msgdef == reference.msgdef
+    computed = _topic_spec(scan, 2)
+    assert computed.rihs01 == reference.rihs01 and computed.qos == []
+    assert _topic_spec(scan, 3).msgdef == "int32 a\n# \ufffd\n"
+    assert scan.problems == []
+    assert _topic_spec(scan, 99) is None and scan.problems == []
+    assert _topic_spec(scan, 4) is None
+    assert scan.problems == ["channel /lost has no schema: its messages are skipped"]
+
+
+def test_only_sub_directories_with_an_mcap_are_parts_and_output_keeps_the_layout(tmp_path, capsys):
+    from dlo_bag.recover import bag_dirs
+
+    out = tmp_path / "run"
+    writer = BagWriter(out, split=True, chunk_size=1000)
+    writer.add_topic(STATE, "dlo_msgs/msg/GripperState")
+    for i in range(20):
+        writer.write(STATE, state(i), 1 + i)
+        if i == 9:
+            writer.roll()
+    writer.close()
+    (out / "notes").mkdir()
+    (out / "notes" / "todo.txt").write_text("x\n")
+    (out / "README.txt").write_text("x\n")
+    assert bag_dirs(out) == [out / "run_0000", out / "run_0001"]
+    assert [r.action for r in recover_bag(out)] == ["intact", "intact"]
+    reports = recover_bag(out, output=tmp_path / "copy")  # parts: one directory each under DIR
+    assert [(r.action, r.output) for r in reports] == [("recovered", tmp_path / "copy" / "run_0000"),
+                                                      ("recovered", tmp_path / "copy" / "run_0001")]
+    assert sorted(p.name for p in (tmp_path / "copy").iterdir()) == ["run_0000", "run_0001"]
+    assert seqs(tmp_path / "copy") == list(range(20))
+    single = write_bag(tmp_path / "single")  # one bag: DIR is the bag
+    assert recover_cli([str(single), "--output", str(tmp_path / "one")]) == EXIT_OK
+    assert capsys.readouterr().out == (f"{single}: recovered 50 messages on 1 topics into {tmp_path / 'one'} "
+                                       f"({METADATA} rebuilt)\n")
+    assert sorted(p.name for p in (tmp_path / "one").iterdir()) == [METADATA, "one.mcap"]
+
+
+def test_an_intact_bag_is_checked_without_decoding_its_messages(tmp_path, capsys):
+    """'A bag that reads completely is left alone': the check reads the container (every record), not the
+    payloads, and names how many messages it holds."""
+    bag = write_bag(tmp_path / "run")
+    assert recover_cli([str(bag)]) == EXIT_OK
+    assert capsys.readouterr().out == f"{bag}: complete and readable (50 messages); nothing to recover\n"
+    odd = tmp_path / "odd"
+    with BagWriter(odd) as writer:
+        writer.add_topic(STATE, "dlo_msgs/msg/GripperState")
+        writer.write(STATE, b"\x00\x01", 5)  # not a CDR GripperState: the bag itself is complete
+    before = listing(odd)
+    assert recover_cli([str(odd)]) == EXIT_OK
+    assert capsys.readouterr().out == f"{odd}: complete and readable (1 messages); nothing to recover\n"
+    assert listing(odd) == before
+
+
+def test_a_part_without_one_mcap_cannot_be_recovered(tmp_path, capsys):
+    source = write_bag(tmp_path / "source")
+    none = tmp_path / "none"
+    none.mkdir()
+    shutil.copy(source / METADATA, none / METADATA)  # the data file is gone
+    assert recover_cli([str(none)]) == 1
+    assert capsys.readouterr().out == f"{none}: cannot be recovered: no .mcap file in it\n"
+    two = tmp_path / "two"
+    two.mkdir()
+    shutil.copy(source / "source.mcap", two / "a.mcap")
+    shutil.copy(source / "source.mcap", two / "b.mcap")
+    assert recover_cli([str(two)]) == 1
+    assert capsys.readouterr().out == (f"{two}: cannot be recovered: 2 .mcap files; recover a bag of one file "
+                                       "(copy each into its own directory)\n")
+    assert listing(two) == ["a.mcap", "b.mcap"]
+
+
+def test_a_work_directory_left_by_an_interrupted_recovery_is_replaced(tmp_path):
+    bag = killed_bag(tmp_path / "run")
+    stale = bag / ".dlo_recovering" / "run"
+    stale.mkdir(parents=True)
+    (stale / "run.mcap").write_bytes(b"half")
+    (stale / METADATA).write_text("half\n")
+    report = recover_bag(bag)[0]
+    assert report.action == "recovered", report.line()
+    assert seqs(bag) == list(range(60))
+    assert listing(bag) == [METADATA, "run.mcap", "run.mcap.damaged"]
+
+
+def test_recovery_holds_no_disk_space_in_reserve(tmp_path):
+    """The recovered bag is written without the recorder's reserve (at least 256 KiB): a small bag recovers
+    where a file may grow to 200 kB only (a per-file size limit stands in for a nearly full disk)."""
+    bag = killed_bag(tmp_path / "run")
+    result = subprocess.run([sys.executable, "-m", "dlo_bag.recover", str(bag)], capture_output=True, text=True,
+                            timeout=120, preexec_fn=file_size_limit(200_000))
+    assert result.returncode == 0 and "recovered 60 messages" in one_line(result)
+    assert seqs(bag) == list(range(60))
+
+
+def test_custom_data_is_kept_and_the_recovery_is_noted(tmp_path):
+    import re
+
+    from dlo_bag.mcap_file import WRITER_NAME
+
+    bag = tmp_path / "run"
+    with BagWriter(bag, chunk_size=2000) as writer:
+        writer.custom_data["dlo.episode"] = "3"
+        writer.add_topic(STATE, "dlo_msgs/msg/GripperState")
+        for i in range(50):
+            writer.write(STATE, state(i), 1 + i)
+    assert recover_bag(bag, output=tmp_path / "copy")[0].action == "recovered"
+    custom = bag_info(tmp_path / "copy").custom_data[0]
+    assert sorted(custom) == ["dlo.episode", f"{WRITER_NAME}.recovered"] and custom["dlo.episode"] == "3"
+    assert re.fullmatch(r"\d{4}-\d\d-\d\d \d\d:\d\d:\d\d by dlo-bag-recover from run\.mcap: 50 messages, "
+                        r"0 bytes discarded", custom[f"{WRITER_NAME}.recovered"])
+
+
+def test_a_recovered_bag_that_cannot_be_written_is_one_line_and_leaves_the_bag_as_it_was(tmp_path, monkeypatch):
+    """A write failure (the writer's short cause, or the OSError) is the failed report's one line; in place
+    the work directory is removed, whether the writer had made it or not; the damaged bag is untouched."""
+    from dlo_bag import recover
+    from dlo_bag.bag import BagWriteError
+
+    bag = killed_bag(tmp_path / "run")
+    before = {name: (bag / name).read_bytes() for name in listing(bag) if name != ".dlo_reserve"}  # the killed
+    # writer's reserve is freed first, whatever follows
+
+    def full_disk(path, *args, **kwargs):
+        Path(path).mkdir(parents=True)
+        raise BagWriteError(f"cannot create the bag '{path}': no space left on device", "no space left on device")
+
+    def denied(path, *args, **kwargs):
+        raise PermissionError(13, "Permission denied", str(path))
+
+    for writer, cause in ((full_disk, "no space left on device"),
+                          (denied, f"[Errno 13] Permission denied: '{bag / '.dlo_recovering' / 'run'}'")):
+        monkeypatch.setattr(recover, "BagWriter", writer)
+        report = recover.recover_bag(bag)[0]
+        assert (report.action, report.error) == (
+            "failed", f"cannot write the recovered bag: {cause} (free some space, or use --output DIR elsewhere)")
+        assert {name: (bag / name).read_bytes() for name in listing(bag)} == before
+
+
+def test_nothing_to_salvage_fails_and_leaves_nothing_behind(tmp_path, capsys):
+    bag = killed_bag(tmp_path / "run")
+    os.truncate(bag / "run.mcap", 60)  # the first chunk's header is cut: not one record
+    before = ["run.mcap"]  # (the killed writer's .dlo_reserve is freed first)
+    assert recover_cli([str(bag), "-v"]) == 1
+    assert capsys.readouterr().out == (f"{bag}: cannot be recovered: run.mcap holds no complete record to salvage\n"
+                                       "  chunk cut at byte 51 (its header is incomplete)\n")
+    assert listing(bag) == before
+    assert recover_cli([str(bag), "--output", str(tmp_path / "copy")]) == 1
+    assert "holds no complete record" in capsys.readouterr().out
+    assert not (tmp_path / "copy").exists() and listing(bag) == before
+
+
+def test_a_bag_of_topics_without_messages_is_recovered_with_its_topics(tmp_path, capsys):
+    bag = tmp_path / "run"
+    with BagWriter(bag) as writer:
+        writer.add_topic(STATE, "dlo_msgs/msg/GripperState")
+        writer.add_topic(IMAGE, "sensor_msgs/msg/Image")
+    assert recover_cli([str(bag), "--output", str(tmp_path / "copy")]) == EXIT_OK
+    assert "recovered 0 messages on 0 topics" in capsys.readouterr().out
+    info = bag_info(tmp_path / "copy")
+    assert {t: i.count for t, i in info.topics.items()} == {STATE: 0, IMAGE: 0}
+
+
+def test_a_cut_bag_reports_its_topics_and_the_bytes_discarded(tmp_path, capsys):
+    bag = write_bag(tmp_path / "run", messages=200)
+    size = (bag / "run.mcap").stat().st_size
+    os.truncate(bag / "run.mcap", size * 2 // 3)
+    report = recover_bag(bag)[0]
+    kept = len(seqs(bag))
+    assert report.action == "recovered" and 0 < kept < 200
+    assert report.messages == kept and report.topics == {STATE: kept}
+    assert 0 < report.discarded_bytes < size * 2 // 3
+    assert f"on 1 topics ({METADATA} rebuilt; the last {report.discarded_bytes} byte(s), an incomplete record, " \
+           f"discarded; original kept as run.mcap.damaged)" in report.line()
+
+
+def test_a_data_file_named_otherwise_keeps_its_name(tmp_path):
+    """ros2 bag record names the file run_0.mcap in the directory run: metadata.yaml names that file."""
+    bag = killed_bag(tmp_path / "run")
+    (bag / "run.mcap").rename(bag / "run_0.mcap")
+    assert recover_bag(bag)[0].action == "recovered"
+    info = bag_info(bag)
+    assert info.files == [bag / "run_0.mcap"] and info.message_count == 60
+    import yaml
+
+    meta = yaml.safe_load((bag / METADATA).read_text())["rosbag2_bagfile_information"]
+    assert meta["relative_file_paths"] == ["run_0.mcap"] and [f["path"] for f in meta["files"]] == ["run_0.mcap"]
+
+
+def test_the_command_line_errors_help_and_exit_status(tmp_path, capsys, monkeypatch):
+    from dlo_bag import recover
+
+    bag = write_bag(tmp_path / "run")
+    assert recover_cli([str(bag / "run.mcap")]) == EXIT_USAGE
+    assert capsys.readouterr().err == (f"dlo-bag-recover: error: '{bag / 'run.mcap'}' is not a directory "
+                                       "(give the bag directory, not a file)\n")
+    # a split bag with one part beyond recovery: exit 1, the good part still reported
+    out = tmp_path / "split"
+    writer = BagWriter(out, split=True, chunk_size=1000)
+    writer.add_topic(STATE, "dlo_msgs/msg/GripperState")
+    writer.write(STATE, state(0), 1)
+    writer.close()
+    (out / "split_0001").mkdir()
+    (out / "split_0001" / "split_0001.mcap").write_bytes(b"not an mcap" * 50)
+    assert recover_cli([str(out)]) == 1
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0] == f"{out / 'split_0000'}: complete and readable (1 messages); nothing to recover"
+    assert lines[1].startswith(f"{out / 'split_0001'}: cannot be recovered:") and len(lines) == 2
+
+    def io_error(*args, **kwargs):
+        raise OSError(5, "Input/output error")
+
+    monkeypatch.setattr(recover, "recover_bag", io_error)
+    assert recover_cli([str(bag)]) == 1  # a read error is a bad bag, not a usage error
+    assert capsys.readouterr().err == "dlo-bag-recover: error: [Errno 5] Input/output error\n"
+    monkeypatch.undo()
+    with pytest.raises(SystemExit) as exit_info:
+        recover_cli(["--help"])
+    assert exit_info.value.code == 0
+    text = " ".join(capsys.readouterr().out.split())
+    assert text.startswith("usage: dlo-bag-recover [-h] [--output OUTPUT] [--delete-original] [-v] bag")
+    for words in ("Recover a rosbag2 MCAP bag whose recorder was killed (no metadata.yaml) or whose .mcap was cut "
+                  "short: salvage every complete message into a valid, indexed bag and rebuild metadata.yaml "
+                  "(like 'ros2 bag reindex' + 'mcap recover').",
+                  "bag bag directory (or a directory of rolled parts)",
+                  "--output OUTPUT, -o OUTPUT write the recovered bag here and leave BAG untouched",
+                  "--delete-original in place: delete the damaged .mcap instead of keeping it as *.mcap.damaged",
+                  "-v, --verbose also list what was damaged"):
+        assert words in text, words

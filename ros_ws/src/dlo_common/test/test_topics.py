@@ -55,3 +55,28 @@ def test_message_class_names_a_bad_type_in_one_line():
         topics.message_class("nonsense")
     with pytest.raises(ValueError, match="cannot import message package 'no_such_pkg.msg'"):
         topics.message_class("no_such_pkg/msg/X")
+
+
+def test_message_class_takes_the_short_form_and_refuses_an_empty_part():
+    """message_class: "pkg/Name" is read as "pkg/msg/Name"; a type with an empty part is not a type name."""
+    from std_msgs.msg import String
+
+    assert topics.message_class("std_msgs/String") is String
+    assert topics.message_class("std_msgs/msg/String") is String
+    for bad in ("std_msgs/msg/", "/msg/String", "std_msgs//String", "std_msgs/"):
+        with pytest.raises(ValueError, match="not a ROS 2 type name"):
+            topics.message_class(bad)
+
+
+def test_help_names_the_module_its_summary_and_the_names_option(capsys):
+    """python -m dlo_common.topics --help: the usage names how it is run, the description is the module doc's
+    first paragraph (and no more), --names is explained."""
+    with pytest.raises(SystemExit) as exit_info:
+        topics.main(["--help"])
+    assert exit_info.value.code == 0
+    out = " ".join(capsys.readouterr().out.split())
+    assert out.startswith("usage: python -m dlo_common.topics [-h] [--names]")
+    summary = " ".join(topics.__doc__.split("\n\n")[0].split())
+    assert summary.startswith("The graph's topics and services") and summary in out
+    assert "Every tool that needs" not in out
+    assert "--names print every topic and service name, one a line" in out

@@ -211,3 +211,19 @@ def test_check_noise_command(capsys):
     assert capsys.readouterr() == ("[0.1,0.001]\npartial\n", "")
     assert main(["--check-noise=-0.1,0.001"]) == 2
     assert capsys.readouterr() == ("", f"tactile noise: expected {NOISE_FORMS}, got '-0.1,0.001'\n")
+
+
+def test_check_noise_is_required_and_its_help_names_the_forms(capsys):
+    """python -m dlo_perception.tactile: --check-noise VALUE is required (a usage error, exit 2, not a check of
+    nothing); --help names the command, every form of a setting and how to write a value that starts with '-'."""
+    with pytest.raises(SystemExit) as exit_info:
+        main([])
+    assert exit_info.value.code == 2
+    assert "the following arguments are required: --check-noise" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exit_info:
+        main(["--help"])
+    assert exit_info.value.code == 0
+    out = " ".join(capsys.readouterr().out.split())
+    assert out.startswith("usage: python -m dlo_perception.tactile [-h] --check-noise VALUE")
+    assert f"Check a tactile noise setting ({NOISE_FORMS})." in out
+    assert "--check-noise VALUE the setting; write --check-noise=VALUE for a value that starts with '-'" in out

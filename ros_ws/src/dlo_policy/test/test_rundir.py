@@ -66,3 +66,121 @@ def test_a_run_directory_from_before_task_rules_reads_as_paper_text(tmp_path):
     assert rundir.read_trained_config(new).env_options["task_rules"] == "authors_code"
     assert load_run_config(old / "policy.pt").env_options["task_rules"] == "paper_text"
     assert load_run_config(new / "best_policy.pt").env_options["task_rules"] == "authors_code"
+
+
+def test_the_lock_makes_the_directory_and_a_0644_lock_file(tmp_path):
+    run = tmp_path / "grid" / "K" / "seed_1"  # dlo-experiments' layout: parents that do not exist yet
+    with rundir.lock(run):
+        mode = (run / rundir.LOCK_FILE).stat().st_mode & 0o777
+    umask = os.umask(0)
+    os.umask(umask)
+    assert mode == 0o644 & ~umask
+
+
+def test_a_holder_that_has_not_written_its_pid_is_named_as_it_reads(tmp_path):
+    """The refusal names what the lock file holds: '?' for nothing yet, undecodable bytes replaced, at most 32
+    bytes of it (one line); a refused process writes nothing into the file."""
+    import fcntl
+
+    run = tmp_path / "run"
+    run.mkdir()
+    path = run / rundir.LOCK_FILE
+    for content, named in ((b"", "?"), (b"\xff\xfe\n", "\ufffd\ufffd"), (b"x" * 100, "x" * 32)):
+        path.write_bytes(content)
+        fd = os.open(path, os.O_RDWR)  # another holder: locked, its pid not (yet) written
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            with pytest.raises(rundir.RunInUse) as refused:
+                with rundir.lock(run):
+                    pass
+            assert f"(pid {named})" in str(refused.value)
+            assert path.read_bytes() == content
+        finally:
+            os.close(fd)
+
+
+def make_files(run, names):
+    run.mkdir(parents=True, exist_ok=True)
+    for name in names:
+        (run / name).write_text("x")
+
+
+def test_result_and_record_names_are_the_files_present_done_json_last(tmp_path):
+    run = tmp_path / "run"
+    make_files(run, ["done.json", "test_without_T.json", "test.json", "train.log", "policy.pt", "best_policy.pt",
+                     "best.json", "eval.csv", "config.yaml", "checkpoint.pt", "other.txt"])
+    (run / rundir.TB_DIR).mkdir()
+    assert rundir.result_names(run) == ["config.yaml", "eval.csv", "best.json", "best_policy.pt", "policy.pt",
+                                        "train.log", "test.json", "test_without_T.json", "done.json"]
+    assert rundir.record_names(run) == ["config.yaml", "eval.csv", "done.json", "best.json", "test.json",
+                                        "test_without_T.json"]
+    for name in ("policy.pt", "done.json", "eval.csv"):
+        (run / name).unlink()
+    assert rundir.result_names(run) == ["config.yaml", "best.json", "best_policy.pt", "train.log", "test.json",
+                                        "test_without_T.json"]
+    assert rundir.record_names(run) == ["config.yaml", "best.json", "test.json", "test_without_T.json"]
+
+
+def test_run_status_is_done_partial_or_todo(tmp_path):
+    run = tmp_path / "run"
+    run.mkdir()
+    assert rundir.run_status(run) == "todo" and not rundir.is_done(run)
+    make_files(run, ["checkpoint.pt"])
+    assert rundir.run_status(run) == "partial"
+    make_files(run, ["done.json"])
+    assert rundir.run_status(run) == "done" and rundir.is_done(run)
+    (run / "checkpoint.pt").unlink()
+    assert rundir.run_status(run) == "done"
+
+
+def test_done_best_and_test_json_are_written_as_documented(tmp_path):
+    """done.json and test*.json indented by 2, best.json one line; each ends with a newline."""
+    run = tmp_path / "run"
+    run.mkdir()
+    summary = {"steps": 300, "outcomes": [0.5, 0.25]}
+    rundir.write_done(run, summary)
+    assert (run / "done.json").read_text() == '{\n  "steps": 300,\n  "outcomes": [\n    0.5,\n    0.25\n  ]\n}\n'
+    assert rundir.read_done(run) == summary
+    rundir.write_best(run, {"step": 200, "hold_the_end": 0.5, "episode_reward": 1.25})
+    assert (run / "best.json").read_text() == '{"step": 200, "hold_the_end": 0.5, "episode_reward": 1.25}\n'
+    rundir.write_best(run, None)
+    assert (run / "best.json").read_text() == "null\n"
+    rundir.write_test(run, "", {"episodes": 2})
+    rundir.write_test(run, "T", {"episodes": 3})
+    assert (run / "test.json").read_text() == '{\n  "episodes": 2\n}\n'
+    assert (run / "test_without_T.json").read_text() == '{\n  "episodes": 3\n}\n'
+    assert rundir.test_names(run) == ["test.json", "test_without_T.json"]
+
+
+def eval_row(step, wall_time):
+    return {"step": step, "tested_without": "", "episodes": 10, "wall_time_s": wall_time}
+
+
+def test_eval_log_keeps_the_rows_up_to_the_resume_step_and_their_wall_time(tmp_path):
+    """EvalLog: a fresh run starts eval.csv afresh (header only); a resumed run keeps the rows up to and including
+    its checkpoint step, and its wall time goes on from the last kept row's."""
+    run = tmp_path / "run"
+    run.mkdir()
+    log = rundir.EvalLog(run, None)
+    assert log.wall_time_offset == 0.0
+    log.append([eval_row(step, 1.5 * step) for step in (10, 20, 30, 40)])
+    rows = rundir.read_eval_rows(run)
+    assert [row["step"] for row in rows] == ["10", "20", "30", "40"] and list(rows[0]) == list(rundir.EVAL_COLUMNS)
+    assert rows[1]["wall_time_s"] == "30.0" and rows[1]["alpha"] == ""
+
+    resumed = rundir.EvalLog(run, 30)
+    assert [row["step"] for row in rundir.read_eval_rows(run)] == ["10", "20", "30"]
+    assert resumed.wall_time_offset == 45.0
+    resumed.append([eval_row(40, 70.0)])
+    assert [(row["step"], row["wall_time_s"]) for row in rundir.read_eval_rows(run)] == [
+        ("10", "15.0"), ("20", "30.0"), ("30", "45.0"), ("40", "70.0")]
+
+    assert rundir.EvalLog(run, 5).wall_time_offset == 0.0  # resumed before the first evaluation: nothing kept
+    assert rundir.read_eval_rows(run) == []
+    rundir.EvalLog(run, None).append([eval_row(10, 15.0)])
+    fresh = rundir.EvalLog(run, None)  # a new run in a directory with an old eval.csv
+    assert fresh.wall_time_offset == 0.0 and rundir.read_eval_rows(run) == []
+    assert (run / "eval.csv").read_bytes() == (",".join(rundir.EVAL_COLUMNS) + "\r\n").encode()
+    other = tmp_path / "other"
+    other.mkdir()
+    assert rundir.EvalLog(other, 30).wall_time_offset == 0.0 and rundir.read_eval_rows(other) == []

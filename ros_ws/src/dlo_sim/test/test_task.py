@@ -297,3 +297,24 @@ def test_authors_rules_end_the_episode_when_their_set_holds_one_particle_while_t
     paper = EpisodeTracker(1, horizon=10, task_rules="paper_text")
     paper.reset(None, [3.0], [4], [40], [3.0])
     assert not paper.step([5.0], [3], [6], [40], [0.16], [5.0], [1])[1][0]
+
+
+def test_authors_rewards_when_particle_0_was_held_before():
+    """The authors' reward, like the paper-text one: a mean held index of 0 before the step is held (only -1 is
+    'nothing held'), so a move from it is rewarded."""
+    n_c, L_c = 41, 40 * 0.004
+    assert task.step_reward_authors(0.0, 2.0, 2, n_c, L_c) == pytest.approx(10 * 2 * 0.004)
+    assert task.step_reward_authors(0.5, 1.5, 2, n_c, L_c) == pytest.approx(10 * 1 * 0.004)
+
+
+def test_an_authors_code_tracker_rewards_each_step_from_the_previous_one():
+    """Under the authors' task rules the move reward of every step is measured from the authors' mean held index
+    of the step before (not from the reset's), and a new tracker counts nothing held before its first step."""
+    n_c, L_c = 41, 40 * 0.004
+    tracker = EpisodeTracker(1, horizon=10, task_rules="authors_code")
+    tracker.reset(None, [3.0], [4], [n_c], [3.0])
+    rewards = [tracker.step([p], [3], [int(p) + 1], [n_c], [L_c], [p], [3])[0][0] for p in (4.0, 6.0, 5.0)]
+    assert rewards == pytest.approx([10 * 1 * 0.004, 10 * 2 * 0.004, -10 * 1 * 0.004])
+    new = EpisodeTracker(2, task_rules="authors_code")
+    reward, terminated, _ = new.step([3.0, 3.0], [2, 2], [4, 4], [n_c, n_c], [L_c, L_c], [3.0, 0.0], [2, 2])
+    assert reward.tolist() == [0.0, 0.0] and not terminated.any()
