@@ -140,6 +140,35 @@ def test_json_layout_keeps_the_authors_rule_apart():
     assert {"episodes", "episode_reward", "time_at_end", "how_far"} <= set(payload)
 
 
+def test_progress_ticks_only_for_the_counted_envs_of_a_batch():
+    """4 envs, 7 episodes: batch 2 counts envs 0-2; its env 3 ends together with env 0 and is not ticked."""
+    ticks = []
+    result = evaluate.evaluate_agent(Agent(), ScriptedVecEnv(4), first_seed=0, episodes=7, progress=ticks.append)
+    # batch 1 (seeds 0-3, lengths 2 3 4 2): 2 at t=2, then 1, 1; batch 2 (seeds 4-7, lengths 3 4 2 3): 1 (env 2),
+    # 1 (env 0; env 3 too but it is beyond the 7th episode), 1 (env 1)
+    assert ticks == [2, 1, 1, 1, 1, 1] and result.episodes == 7
+
+
+class NotingVecEnv(ScriptedVecEnv):
+    modalities = ("K", "T", "V")
+
+
+def test_evaluate_agent_notes_the_modalities_of_the_env_and_refuses_other_ones():
+    from dlo_policy.config import SACConfig
+    from dlo_policy.sac import SAC
+
+    def agent(modalities):
+        return SAC(9, -np.ones(3, np.float32), np.ones(3, np.float32), SACConfig(hidden_sizes=(8, 8)),
+                   modalities=modalities)
+    unknown = agent(None)  # a checkpoint from before modalities were saved: learns them from the env
+    evaluate.evaluate_agent(unknown, NotingVecEnv(2), first_seed=0, episodes=2)
+    assert unknown.modalities == ("K", "T", "V")
+    env = NotingVecEnv(2)
+    with pytest.raises(ValueError, match="the agent observes K\\+T, the env gives K\\+T\\+V"):
+        evaluate.evaluate_agent(agent(("K", "T")), env, first_seed=0, episodes=2)
+    assert env.resets == []  # refused before any episode
+
+
 # ---------------------------------------------------------------- --without: blanked columns
 class RecordingAgent:
     """Stands in for a trained SAC: acts 0 and records every observation it is shown."""
@@ -231,9 +260,9 @@ def test_cli_one_episode_json_threads_and_the_env_it_builds(monkeypatch, tmp_pat
     previous = torch.get_num_threads()
     out = tmp_path / "eval.json"
     try:
-        rc, built = cli(monkeypatch, tmp_path, ["--episodes", "1", "--num-envs", "1", "--seed", "7", "--threads", "1",
+        rc, built = cli(monkeypatch, tmp_path, ["--episodes", "1", "--num-envs", "1", "--seed", "7", "--threads", "2",
                                                 "--json", str(out)])
-        assert torch.get_num_threads() == 1
+        assert torch.get_num_threads() == 2  # the fixture set 1
     finally:
         torch.set_num_threads(previous)
     assert rc == 0

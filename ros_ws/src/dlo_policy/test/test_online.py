@@ -54,3 +54,17 @@ def test_online_learning_updates_after_learning_starts_and_checkpoints(tmp_path)
     assert len(learner.agent.replay) == 2
     resumed = OnlineLearner(config, 9, tmp_path / "online", checkpoint_every=2)  # continues the saved run
     assert resumed.agent.num_env_steps == 2 and len(resumed.agent.replay) == 2
+
+
+def test_with_cutoff_as_terminal_only_the_last_step_of_an_episode_is_stored_terminal(tmp_path):
+    """cutoff_as_terminal: the horizon cut-off is stored terminal as well, a step inside an episode never is."""
+    config = RunConfig(sac=SACConfig(**{**TINY, "learning_starts": 1000, "cutoff_as_terminal": True}))
+    learner = OnlineLearner(config, 9, tmp_path / "online", checkpoint_every=10_000)
+    obs = lambda v: np.full(9, float(v), np.float32)  # noqa: E731
+    for step, done in ((0, False), (1, False), (2, True)):  # episode 0: ended by the horizon
+        learner.act(obs(step), reward=0.1, done=done, dropped=False, episode=0, step=step)
+    for step, done in ((0, False), (1, False), (2, True)):  # episode 1: dropped at step 2
+        learner.act(obs(10 + step), reward=0.1, done=done, dropped=done, episode=1, step=step)
+    replay = learner.agent.replay
+    assert len(replay) == 4
+    assert replay.terminated[:4].tolist() == [0.0, 1.0, 0.0, 1.0]

@@ -248,6 +248,10 @@ def test_a_client_that_stops_reading_never_blocks(bridge, typestore):
             if i % 20 == 19:  # a 'graph' at a steady pace (the reading client keeps up; the other does not)
                 time.sleep(0.05)
         assert worst < 0.1, f"forward() took {worst:.3f} s with a stalled client"
+        # 12 MB is more than the socket buffers and a queue of 64 images hold: the SDK reports the stalled client
+        wait_until(lambda: any("reads slower than the graph publishes" in line for line in bridge.lines), 30)
+        slow_lines = [line for line in bridge.lines if "reads slower than the graph publishes" in line]
+        assert "its queue of 64 messages is full" in slow_lines[0] and bridge.stats.slow_client_reports, bridge.lines
         good.wait(lambda: len(good.messages) == n, 60, f"{n} messages at the reading client")
         stamps = [good.decode(m).header.stamp.nanosec for m in good.messages]
         assert stamps == list(range(n))  # nothing lost or reordered for the reading client
@@ -513,3 +517,190 @@ def test_bridge_node_exits_0_on_a_signal_after_writing_its_counts(procs, tmp_pat
     proc.signal(sig)
     assert proc.wait(timeout=60) == 0, proc.output()
     assert "Traceback" not in proc.output() and json.loads(summary.read_text()) is not None
+
+
+# ---- the library's contract, case by case (mutation testing, issue 14) -------------------------------
+
+def test_the_summary_counts_every_topic_received_or_forwarded():
+    """BridgeStats.to_dict (the node's summary_file): totals, and per topic 0 for what it never had."""
+    from dlo_viz.foxglove_bridge import BridgeStats
+
+    stats = BridgeStats(clients_connected=3, clients_now=1, subscriptions=4, slow_client_reports=["c1"])
+    stats.received.update({"/a": 3, "/b": 1})
+    stats.forwarded.update({"/a": 2, "/c": 1})  # /c: a latched resend of a message received before
+    stats.lost.update({"/b": 4})
+    assert stats.to_dict() == {
+        "received": 4, "forwarded": 3, "lost": 4, "clients_connected": 3, "clients_now": 1, "subscriptions": 4,
+        "slow_client_reports": ["c1"],
+        "topics": {"/a": {"received": 3, "forwarded": 2, "lost": 0}, "/b": {"received": 1, "forwarded": 0, "lost": 4},
+                   "/c": {"received": 0, "forwarded": 1, "lost": 0}}}
+
+
+def test_port_and_backlog_are_checked_and_the_address_before_start(typestore):
+    from dlo_viz.foxglove_bridge import FoxgloveBridge
+
+    for bad in (dict(port=-1), dict(port=65536), dict(client_backlog=0)):
+        with pytest.raises(ValueError, match="port must be in 0..65535|client_backlog must be >= 1"):
+            FoxgloveBridge(typestore=typestore, **bad)
+    edge = FoxgloveBridge(port=65535, client_backlog=1, typestore=typestore)  # the edges are allowed, nothing bound
+    assert edge.typestore is typestore and edge.port == 65535 and edge.ws_url == "ws://127.0.0.1:65535"
+    assert edge.stop() is True and edge.stop() is True  # never started: nothing to wait for
+    everywhere = FoxgloveBridge(port=9000, address="0.0.0.0", typestore=typestore)
+    assert everywhere.ws_url == "ws://127.0.0.1:9000" and everywhere.app_url == foxglove_url("0.0.0.0", 9000)
+    assert FoxgloveBridge(port=9000, address="192.168.1.7", typestore=typestore).ws_url == "ws://192.168.1.7:9000"
+    own = FoxgloveBridge()  # no typestore given: its own, with the project's messages
+    from dlo_bag.bag import message_definition
+
+    assert "float64 closure" in message_definition(own.typestore, "dlo_msgs/msg/GripperState")[0]
+
+
+def test_a_port_in_use_is_an_oserror_naming_it(typestore):
+    from dlo_viz.foxglove_bridge import FoxgloveBridge
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        s.listen()
+        port = s.getsockname()[1]
+        with pytest.raises(OSError, match=f"cannot serve on 127.0.0.1:{port}: "):
+            FoxgloveBridge(port=port, typestore=typestore).start()
+
+
+def test_the_server_names_itself_and_each_bridge_serves_only_its_own_topics(bridge, typestore):
+    from dlo_viz.foxglove_bridge import FoxgloveBridge
+
+    other = FoxgloveBridge(port=0, typestore=typestore, name="second").start()
+    clients = []
+    try:
+        bridge.add_topic("/dlo/gripper/state", GRAPH_TYPES["/dlo/gripper/state"])
+        other.add_topic("/dlo/gripper/cmd", GRAPH_TYPES["/dlo/gripper/cmd"])
+        clients = [FoxgloveTestClient(b.ws_url).connect() for b in (bridge, other)]
+        for client, topic in zip(clients, ("/dlo/gripper/state", "/dlo/gripper/cmd")):
+            client.wait(lambda c=client, t=topic: c.channel_by_topic(t) is not None, 10, topic)
+        assert [c.server_info["name"] for c in clients] == ["dlo-vitac", "second"]
+        assert [sorted(ch["topic"] for ch in c.channels.values()) for c in clients] == [
+            ["/dlo/gripper/state"], ["/dlo/gripper/cmd"]]
+    finally:
+        for client in clients:
+            client.close()
+        other.stop()
+
+
+def test_add_topic_is_idempotent_and_forward_counts_and_stamps(bridge, typestore):
+    topic, msgtype = "/dlo/gripper/state", GRAPH_TYPES["/dlo/gripper/state"]
+    data = typestore.serialize_cdr(make_messages(typestore)[topic], msgtype)
+    channel = bridge.add_topic(topic, msgtype)
+    assert bridge.add_topic(topic, msgtype) is channel and bridge.types == {topic: msgtype}
+    assert bridge.forward(topic, data) is False and bridge.forward("/dlo/not/added", data) is False  # nobody watches
+    assert (bridge.stats.received[topic], bridge.stats.forwarded[topic]) == (1, 0)
+    client = FoxgloveTestClient(bridge.ws_url).connect()
+    try:
+        client.wait(lambda: client.channel_by_topic(topic) is not None, 10, "advertise")
+        assert [ch["topic"] for ch in client.channels.values()] == [topic]  # one channel, not one per add_topic
+        client.subscribe()
+        wait_until(lambda: bridge.watched(topic), 10)
+        assert bridge.forward(topic, data, log_time=123_456_789) is True
+        client.wait(lambda: len(client.messages) == 1, 10, "the message")
+        assert client.messages[0].log_time == 123_456_789 and client.messages[0].payload == data
+        assert (bridge.stats.received[topic], bridge.stats.forwarded[topic]) == (2, 1)
+    finally:
+        client.close()
+
+
+def test_stop_closes_the_server_and_detaches_from_the_sdk_log(typestore):
+    import logging
+
+    from dlo_viz.foxglove_bridge import SDK_LOGGER, FoxgloveBridge
+
+    b = FoxgloveBridge(port=0, typestore=typestore).start()
+    sdk = logging.getLogger(SDK_LOGGER)
+    assert sdk.propagate is False  # the SDK's records are the bridge's to report, not the root logger's
+    client = FoxgloveTestClient(b.ws_url).connect()
+    client.close()
+    assert b.stop(timeout=60) is True  # a client that reads: stopped, not left to finish in the background
+
+    def refused():
+        try:
+            socket.create_connection(("127.0.0.1", b.port), timeout=10).close()
+        except ConnectionRefusedError:
+            return True
+        return False
+    wait_until(refused, 10)  # the SDK closes its listening socket as it shuts down
+    before = b.stats.clients_connected
+    sdk.info("Registered client 127.0.0.1:1")  # a later bridge's client: not counted by this stopped one
+    assert b.stats.clients_connected == before
+
+
+def test_subscriptions_are_counted_per_topic_and_reported_as_changes(bridge, typestore):
+    """watched / changed_topics / resend_latched as the node uses them: a topic is watched while at least one
+    client subscribes; each subscribe and unsubscribe marks its topic changed once; a latched topic that has no
+    message yet resends nothing."""
+    msgs = make_messages(typestore)
+    info, state, image = "/dlo/camera/camera_info", "/dlo/gripper/state", "/dlo/camera/image"
+    bridge.add_topic(info, GRAPH_TYPES[info], latched=True)
+    bridge.add_topic(image, GRAPH_TYPES[image], latched=True)  # latched, but nothing published yet
+    bridge.add_topic(state, GRAPH_TYPES[state])
+    bridge.forward(info, typestore.serialize_cdr(msgs[info], GRAPH_TYPES[info]))
+    assert bridge.changed_topics() == set() and not bridge.watched(state) and not bridge.watched("/dlo/never")
+    first, second = FoxgloveTestClient(bridge.ws_url).connect(), None
+    try:
+        first.wait(lambda: len(first.channels) == 3, 10, "three channels")
+        first.subscribe()
+        wait_until(lambda: all(bridge.watched(t) for t in (info, state, image)), 10)
+        changed = set()
+        wait_until(lambda: changed.update(bridge.changed_topics()) or changed == {info, state, image}, 10)
+        assert bridge.changed_topics() == set()  # each change reported once
+        resent = []
+        wait_until(lambda: resent.append(bridge.resend_latched()) or sum(resent) == 1, 10)  # camera_info only
+        assert bridge.resend_latched() == 0 and bridge.stats.forwarded[info] == 1
+        second = FoxgloveTestClient(bridge.ws_url).connect()
+        second.wait(lambda: second.channel_by_topic(state) is not None, 10, "advertise")
+        second.subscribe([state])
+        wait_until(lambda: bridge.subscribers[state] == 2, 10)
+        first.unsubscribe_all()
+        wait_until(lambda: not bridge.watched(info), 10)
+        wait_until(lambda: not bridge.watched(image), 10)
+        wait_until(lambda: bridge.subscribers[state] == 1, 10)
+        assert bridge.watched(state)  # the second client still watches
+        changed = set()
+        wait_until(lambda: changed.update(bridge.changed_topics()) or changed == {info, state, image}, 10)
+    finally:
+        first.close()
+        if second is not None:
+            second.close()
+
+
+def test_clients_are_counted_and_logged_as_they_come_and_go(bridge):
+    first = FoxgloveTestClient(bridge.ws_url).connect()
+    second = FoxgloveTestClient(bridge.ws_url).connect()
+    try:
+        wait_until(lambda: bridge.stats.clients_now == 2, 10)
+        first.close()
+        wait_until(lambda: bridge.stats.clients_now == 1, 10)
+    finally:
+        first.close()
+        second.close()
+    wait_until(lambda: sum(" left (" in line for line in bridge.lines) == 2, 10)
+    assert bridge.stats.clients_connected == 2 and bridge.stats.clients_now == 0
+    connected = [line for line in bridge.lines if " connected (" in line]
+    left = [line for line in bridge.lines if " left (" in line]
+    assert [line.split(" connected ")[1] for line in connected] == ["(1 now)", "(2 now)"], bridge.lines
+    assert [line.split(" left ")[1] for line in left] == ["(1 now)", "(0 now)"], bridge.lines
+    assert all(re.fullmatch(r"client 127\.0\.0\.1:\d+ (connected|left) \(\d now\)", line) for line in connected + left)
+
+
+def test_sdk_reports_become_counts_and_lines(bridge):
+    """What the SDK logs (Python logging, logger "foxglove"): a full outbox is a slow client (counted, one
+    warning naming it), any other warning or error is passed on, other info is not."""
+    import logging
+
+    from dlo_viz.foxglove_bridge import SDK_LOGGER
+
+    sdk = logging.getLogger(SDK_LOGGER)
+    sdk.warning("outbox for client 127.0.0.1:4242 full; dropping message")
+    sdk.warning("something the SDK warns about")
+    sdk.error("something that failed")
+    sdk.info("an info line of the SDK")
+    assert bridge.stats.slow_client_reports == ["127.0.0.1:4242"]
+    assert bridge.lines[0].startswith("client 127.0.0.1:4242 reads slower than the graph publishes: its queue of "
+                                      "64 messages is full"), bridge.lines
+    assert bridge.lines[1:] == ["foxglove-sdk: something the SDK warns about", "foxglove-sdk: something that failed"]
