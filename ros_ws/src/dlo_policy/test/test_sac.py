@@ -414,6 +414,20 @@ def test_learn_stops_when_the_callback_says_so():
     assert agent.num_env_steps == 6 and len(seen) == 6 and seen[3] == (0.5, False, True)
 
 
+def test_learn_notes_the_env_modalities_and_refuses_other_ones():
+    class ModalEnv(CountingEnv):
+        modalities = ("K", "T")
+    agent = SAC(9, -np.ones(3), np.ones(3), SACConfig(**{**TINY, "learning_starts": 100}), seed=2)
+    assert agent.modalities is None
+    agent.learn(ModalEnv(), total_steps=2)
+    assert agent.modalities == ("K", "T")  # saved with its checkpoints
+    other = SAC(9, -np.ones(3), np.ones(3), SACConfig(**{**TINY, "learning_starts": 100}), seed=2, modalities=("V",))
+    env = ModalEnv()
+    with pytest.raises(ValueError, match="observes V"):
+        other.learn(env, total_steps=2)
+    assert env.seeds == [] and other.num_env_steps == 0  # refused before the first reset
+
+
 class ScriptedEnv(gym.Env):
     """Episodes of 3 steps cut by the horizon (truncated); the 7th step of the run ends one in a
     terminal state instead. Observations count the steps, so stored transitions can be checked."""
