@@ -22,11 +22,13 @@ usage: scripts/launch_graph.sh [options]
   --train-config YAML  online training: dlo-train config file (SAC hyperparameters)
   --tactile-noise N    tactile noise (the tactile node's tactile_noise parameter): none (default),
                        partial, full, or sigma_theta,sigma_y [rad, m] such as 0.1,0.001 (or [0.1,0.001])
-  --task-rules R       authors_code (default) or paper_text: the held set the reward, the episode's
-                       end and the tactile input use (the sim's task_rules parameter)
-  --single-particle-grip  the grip carries one particle, as the authors' code did (the sim's
-                       single_particle_grip parameter; for a policy trained with
-                       env_options.single_particle_grip=true, as the study's are)
+  --task-rules R       authors_code or paper_text: the held set the reward, the episode's end and
+                       the tactile input use (the sim's task_rules parameter). Default: what the
+                       --policy sac checkpoint was trained on (its run's config.yaml), else authors_code
+  --single-particle-grip [true|false]  the grip carries one particle, as the authors' code did (the
+                       sim's single_particle_grip parameter; alone = true). Default: what the --policy sac
+                       checkpoint was trained on (env_options.single_particle_grip), else false.
+                       Settings that differ from the checkpoint's training are run as asked, with a note
   --record DIR         record every /dlo topic to the rosbag2 (MCAP) directory DIR
   --foxglove [PORT]    live view: also start the Foxglove bridge (dlo_viz foxglove_bridge) on
                        127.0.0.1:PORT (default 8765; 0 = any free port) and print the URL to open;
@@ -58,7 +60,7 @@ EOF
 }
 
 episodes=5 seed=0 mode=step_locked rate=1.0 policy=sac checkpoint="" without="" noise=none record="" logs=""
-task_rules=authors_code single_grip=false
+task_rules="" single_grip=""  # "" = as the sac checkpoint was trained (else authors_code, false)
 train_out="" train_config="" domain="" namespace="" foxglove="" status_period=10
 while [ $# -gt 0 ]; do
   case "$1" in
@@ -77,7 +79,8 @@ while [ $# -gt 0 ]; do
     --without) without="$2"; shift 2 ;;
     --tactile-noise) noise="$2"; shift 2 ;;
     --task-rules) task_rules="$2"; shift 2 ;;
-    --single-particle-grip) single_grip=true; shift ;;
+    --single-particle-grip)
+      if [[ "${2:-}" =~ ^(true|false)$ ]]; then single_grip="$2"; shift 2; else single_grip=true; shift; fi ;;
     --record) record="$2"; shift 2 ;;
     --train-out) train_out="$2"; shift 2 ;;
     --train-config) train_config="$2"; shift 2 ;;
@@ -95,7 +98,7 @@ bad() { echo "launch_graph: $*" >&2; exit $EXIT_USAGE; }
 [[ "$episodes" =~ ^[0-9]+$ ]] || bad "--episodes must be a number >= 0, got '$episodes'"
 [[ "$seed" =~ ^[0-9]+$ ]] || bad "--seed must be a number >= 0, got '$seed'"
 case "$mode" in step_locked|real_time) ;; *) bad "--mode must be step_locked or real_time" ;; esac
-case "$task_rules" in paper_text|authors_code) ;; *) bad "--task-rules must be paper_text or authors_code, got '$task_rules'" ;; esac
+case "$task_rules" in ""|paper_text|authors_code) ;; *) bad "--task-rules must be paper_text or authors_code, got '$task_rules'" ;; esac
 case "$policy" in sac|tactile_reactive|oracle|random) ;;
   *) bad "--policy must be one of sac, tactile_reactive, oracle, random, got '$policy'" ;; esac
 if [ -n "$checkpoint" ] && [ ! -f "$checkpoint" ]; then bad "--checkpoint $checkpoint: no such file"; fi
@@ -132,6 +135,20 @@ noise="${noise_check##*$'\n'}"  # its last line (stdout comes last)
 if [ -n "$without" ] && ! without_check="$("$PY" -m dlo_policy.modalities --check-without="$without" 2>&1)"; then
   bad "${without_check##*$'\n'}"
 fi
+# --policy sac: the sim runs the task the checkpoint was trained on (task rules, grip: its run's config.yaml)
+# unless told otherwise; a setting that differs from its training is run as asked and said
+if [ "$policy" = sac ] && [ -z "$train_out" ]; then
+  trained="$("$PY" -m dlo_policy.rundir --sim-settings "$checkpoint" 2>&1)" || bad "--checkpoint: ${trained##*$'\n'}"
+  trained="${trained##*$'\n'}"
+  if [ "$trained" != unknown ]; then
+    read -r trained_rules trained_grip <<<"$trained"
+    task_rules="${task_rules:-$trained_rules}" single_grip="${single_grip:-$trained_grip}"
+    if [ "$task_rules" != "$trained_rules" ] || [ "$single_grip" != "$trained_grip" ]; then
+      echo "[launch] note: the policy was trained with task_rules=$trained_rules, single_particle_grip=$trained_grip; this graph runs task_rules=$task_rules, single_particle_grip=$single_grip (as asked)" >&2
+    fi
+  fi
+fi
+task_rules="${task_rules:-authors_code}" single_grip="${single_grip:-false}"
 monitor_pid=""
 logs="${logs:-$(mktemp -d -t dlo-graph-XXXXXX)}"
 mkdir -p "$logs"

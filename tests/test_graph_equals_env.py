@@ -38,6 +38,7 @@ def test_shipped_policy_episodes_in_the_graph_equal_the_in_process_env(graph_epi
     env = make_env("All", seed=SEED, task_rules=rules)
     assert [e["seed"] for e in episodes] == list(range(SEED, SEED + EPISODES[rules]))
     assert {e["task_rules"] for e in episodes} == {rules}
+    assert {e["single_particle_grip"] for e in episodes} == {False}  # the sim notes its grip: the shipped policy's
     for live in episodes:
         observation, _ = env.reset(seed=live["seed"])
         done, info = False, {}

@@ -246,11 +246,64 @@ def test_a_bad_option_is_exit_2_in_one_line_before_anything_starts(case, tmp_pat
     assert result.stdout == "" and not logs.exists()  # no domain chosen, no node started
 
 
-@pytest.mark.parametrize("flag, value", [((), "false"), (("--single-particle-grip",), "true")])
-def test_the_sim_gets_the_grip_the_launcher_was_asked_for(flag, value, tmp_path, own_groups):
-    """launch_graph.sh --single-particle-grip (docs/FIDELITY.md): the sim runs the authors' one-particle grip,
-    which a policy trained with env_options.single_particle_grip=true (the study's) expects; without it, ours."""
-    proc, out, logs, bag = start(tmp_path, {"sim": episodes(1)}, ["--episodes", "1", *flag], own_groups)
-    check(proc, out, logs, bag, 0, [])
-    args = json.loads((tmp_path / "args_sim.json").read_text())
-    assert f"single_particle_grip:={value}" in args and args[args.index(f"single_particle_grip:={value}") - 1] == "-p"
+NOTE = ("[launch] note: the policy was trained with task_rules={}, single_particle_grip={}; this graph runs "
+        "task_rules={}, single_particle_grip={} (as asked)")
+SIM_SETTINGS = {  # launcher options (SPG: a copy of the shipped policy's run trained with the one-particle grip)
+    # -> the sim's task_rules and single_particle_grip, and the note on settings that differ from the training
+    "shipped": ([], "authors_code", "false", None),
+    "shipped_asked_for_the_authors_grip": (["--single-particle-grip"], "authors_code", "true",
+                                           NOTE.format("authors_code", "false", "authors_code", "true")),
+    "trained_with_the_authors_grip": (["--checkpoint", "SPG"], "authors_code", "true", None),
+    "trained_with_it_asked_otherwise": (["--checkpoint", "SPG", "--single-particle-grip", "false", "--task-rules",
+                                         "paper_text"], "paper_text", "false",
+                                        NOTE.format("authors_code", "true", "paper_text", "false")),
+    "scripted_policy": (["--policy", "tactile_reactive"], "authors_code", "false", None),
+    "scripted_policy_asked": (["--policy", "tactile_reactive", "--single-particle-grip", "true"], "authors_code",
+                              "true", None),
+    "learning_online": (["--train-out", "OUT"], "authors_code", "false", None),  # from scratch: no trained task
+}
+
+
+@pytest.mark.parametrize("case", sorted(SIM_SETTINGS))
+def test_the_sim_runs_the_task_the_policy_was_trained_on_unless_asked(case, tmp_path, own_groups):
+    """launch_graph.sh --help (--task-rules, --single-particle-grip): with --policy sac the sim gets the task
+    rules and the grip of the checkpoint's run (its config.yaml: a study policy, trained with the authors'
+    one-particle grip, meets that grip without a flag); a setting asked for that differs is run, with a note."""
+    args, rules, grip, note = SIM_SETTINGS[case]
+    shipped = ROOT / "ros_ws" / "src" / "dlo_policy" / "policies" / "all"
+    spg = tmp_path / "spg_run"
+    spg.mkdir()
+    (spg / "policy.pt").write_bytes((shipped / "policy.pt").read_bytes())
+    config = (shipped / "config.yaml").read_text()
+    assert "  task_rules: authors_code\n" in config and "single_particle_grip" not in config
+    (spg / "config.yaml").write_text(config.replace("  task_rules: authors_code\n",
+                                                    "  task_rules: authors_code\n  single_particle_grip: true\n"))
+    args = [str(spg / "policy.pt") if a == "SPG" else str(tmp_path / "online") if a == "OUT" else a for a in args]
+    proc, out, logs, bag = start(tmp_path, {"sim": episodes(1)}, ["--episodes", "1", *args], own_groups)
+    text = check(proc, out, logs, bag, 0, [note] if note else [])
+    assert ("[launch] note:" in text) == (note is not None), text
+    sim = json.loads((tmp_path / "args_sim.json").read_text())
+    given = {sim[i + 1].split(":=")[0]: sim[i + 1].split(":=")[1] for i, a in enumerate(sim) if a == "-p"}
+    assert (given["task_rules"], given["single_particle_grip"]) == (rules, grip), given
+
+
+@pytest.mark.parametrize("config", ["broken", "missing_file"])
+def test_a_checkpoint_whose_run_cannot_be_read_is_exit_2_in_one_line(config, tmp_path):
+    """--policy sac: the checkpoint's run config.yaml is read before anything starts; unreadable: exit 2."""
+    checkpoint = tmp_path / "run" / "policy.pt"
+    checkpoint.parent.mkdir()
+    checkpoint.write_bytes(b"")
+    (checkpoint.parent / "config.yaml").write_text("env_options: {task_rules: authors_code\n")
+    if config == "missing_file":
+        checkpoint.unlink()
+    logs = tmp_path / "logs"
+    result = subprocess.run(["bash", str(LAUNCH), "--logs", str(logs), "--checkpoint", str(checkpoint)],
+                            capture_output=True, text=True, timeout=300)
+    assert result.returncode == 2, result.stdout + result.stderr
+    lines = result.stderr.splitlines()
+    assert len(lines) == 1 and "Traceback" not in result.stderr, result.stderr
+    assert lines[0] == (f"launch_graph: --checkpoint {checkpoint}: no such file" if config == "missing_file" else
+                        f"launch_graph: --checkpoint: checkpoint {checkpoint}: its run's config.yaml cannot be read: "
+                        f"{checkpoint.parent / 'config.yaml'}: not valid YAML (line 2, column 1): "
+                        "expected ',' or '}', but got '<stream end>'")
+    assert result.stdout == "" and not logs.exists()

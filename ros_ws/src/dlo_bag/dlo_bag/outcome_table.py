@@ -72,8 +72,8 @@ def run_header(episodes, policy: str = "", checkpoint: str = "", without: str = 
     """What produced the outcomes: policy (and the modalities it observes, from the policy node's start-up
     line ``policy_line``, e.g. 'policy sac on T+K+V without T'), checkpoint, ablation, tactile noise (a
     setting as ``dlo_perception.tactile.noise_setting`` reads it, '' = none; named by ``noise_label``: a
-    preset with its numbers, a custom pair as numbers), clock mode, the task rules the episodes ran under
-    (from the episodes themselves) and their seeds."""
+    preset with its numbers, a custom pair as numbers), clock mode, the task rules and the grip (finite, or
+    single-particle) the episodes ran under (from the episodes themselves) and their seeds."""
     observes = re.search(r" on ([A-Za-z+]+)", policy_line or "")
     described = f"policy {policy or '?'}" + (f" observing {observes.group(1)}" if observes else "")
     if policy == "sac":
@@ -86,9 +86,11 @@ def run_header(episodes, policy: str = "", checkpoint: str = "", without: str = 
     seeds = seed_ranges(e["seed"] for e in episodes)
     count = f"{len(episodes)} episode{'' if len(episodes) == 1 else 's'}"
     rules = sorted({e.get("task_rules", LEGACY_TASK_RULES) for e in episodes})  # older outcome files: paper_text
+    grips = sorted({"single-particle" if e.get("single_particle_grip") else "finite" for e in episodes})  # older: finite
     noise = noise_label(tactile_noise) if tactile_noise not in ("", None) else "none"
     return (f"run: {described} ({source}); {ablation}; tactile noise: {noise}"
             + (f"; mode {mode}" if mode else "") + f"; task rules {', '.join(rules) or LEGACY_TASK_RULES}"
+            + f"; grip {', '.join(grips) or 'finite'}"
             + f"; seeds {seeds} ({count})")
 
 

@@ -27,7 +27,7 @@ def test_run_header_names_policy_checkpoint_ablation_noise_mode_and_seeds():
                         policy_line="policy sac on T+K+V without T")
     assert header.startswith("run: policy sac observing T+K+V (checkpoint runs/x/policy.pt)")
     for part in ("ablation: without T", "tactile noise: partial (sigma_theta 0.25 rad, sigma_y 0.001 m)",
-                 "mode real_time", "seeds 5..7, 9 (4 episodes)"):
+                 "mode real_time", "; grip finite; seeds 5..7, 9 (4 episodes)"):
         assert part in header, (part, header)
     for noise, said in [("", "none"), ("none", "none"), ("[0.1,0.001]", "sigma_theta 0.1 rad, sigma_y 0.001 m"),
                         ((0.1, 0.001), "sigma_theta 0.1 rad, sigma_y 0.001 m")]:  # a custom pair: its numbers
@@ -36,6 +36,9 @@ def test_run_header_names_policy_checkpoint_ablation_noise_mode_and_seeds():
     assert "the shipped All policy" in shipped and "ablation: none" in shipped and "(1 episode)" in shipped
     assert "no checkpoint" in run_header(episodes, "tactile_reactive")
     assert "learning online into runs/o" in run_header(episodes, "sac", train_out="runs/o")
+    single = [dict(EPISODE, single_particle_grip=True)]  # the sim node notes its grip in every episode
+    assert "; grip single-particle; " in run_header(single, "sac")
+    assert "; grip finite, single-particle; " in run_header(episodes[:1] + single, "sac")  # a mixed file: both
     assert seed_ranges([]) == "none" and seed_ranges([2, 1, 3, 3]) == "1..3"
 
 

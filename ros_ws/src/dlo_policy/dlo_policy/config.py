@@ -197,13 +197,23 @@ def record_task_rules(config: RunConfig, rules: str) -> RunConfig:
     return config
 
 
+def _yaml(text: str, what: str) -> Any:
+    """yaml.safe_load(text), or a one-line ConfigError naming `what` and where the YAML breaks."""
+    try:
+        return yaml.safe_load(text)
+    except yaml.YAMLError as error:
+        mark = getattr(error, "problem_mark", None)
+        where = f" (line {mark.line + 1}, column {mark.column + 1})" if mark is not None else ""
+        raise ConfigError(f"{what}: not valid YAML{where}: {getattr(error, 'problem', None) or error}") from None
+
+
 def load_config(path: Optional[str | Path] = None, overrides: typing.Sequence[str] = (),
                 values: Optional[typing.Mapping[str, Any]] = None) -> RunConfig:
     """Defaults, then the YAML file (if any), then `key=value` overrides (values parsed as YAML),
     then `values` (dotted key -> Python value)."""
     data: dict[str, Any] = {}
     if path is not None:
-        loaded = yaml.safe_load(Path(path).read_text())
+        loaded = _yaml(Path(path).read_text(), str(path))
         if loaded is not None and not isinstance(loaded, dict):
             raise ConfigError(f"{path}: expected a mapping at the top level")
         data = loaded or {}
@@ -211,7 +221,7 @@ def load_config(path: Optional[str | Path] = None, overrides: typing.Sequence[st
         key, sep, text = override.partition("=")
         if not sep or not key:
             raise ConfigError(f"override {override!r}: expected key=value, e.g. sac.batch_size=256")
-        _set_dotted(data, key.strip(), yaml.safe_load(text) if text.strip() else "")
+        _set_dotted(data, key.strip(), _yaml(text, f"override {override!r}") if text.strip() else "")
     for key, value in (values or {}).items():
         _set_dotted(data, key, value)
     return RunConfig.from_dict(data)

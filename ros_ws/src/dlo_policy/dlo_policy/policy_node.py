@@ -28,6 +28,7 @@ from dlo_perception.cloud import unpack_particles
 from dlo_perception.sync import IncompleteSteps, StampSync, stamp_to_ns
 from dlo_policy.modalities import ALL, ALL_NAME, by_name, names
 from dlo_policy.observation import build_observation, observation_size, parse_modalities
+from dlo_policy.rundir import SHIPPED_POLICY, shipped_policy_path  # noqa: F401 (SHIPPED_POLICY: re-exported)
 from dlo_sim.command import action_to_command
 from dlo_sim.task import LEGACY_TASK_RULES, dropped
 
@@ -45,20 +46,6 @@ PARAMETERS = (
     Param("checkpoint_every", 1000, "online training: control steps between checkpoints", at_least=1),
     Param("train_config", "", "online training: a dlo-train YAML config (SAC hyperparameters); empty = defaults"),
 )
-SHIPPED_POLICY = "policies/all/policy.pt"
-
-
-def shipped_policy_path() -> Path:
-    """The bundled All-modalities policy: installed share dir first, then the source tree."""
-    try:
-        from ament_index_python.packages import get_package_share_directory
-
-        installed = Path(get_package_share_directory("dlo_policy")) / SHIPPED_POLICY
-        if installed.exists():
-            return installed
-    except (ImportError, LookupError):
-        pass
-    return Path(__file__).resolve().parents[1] / SHIPPED_POLICY
 
 
 def modalities_parameter(name: str, value: str) -> tuple:

@@ -42,6 +42,7 @@ DONE_FILE = "done.json"
 TB_DIR = "tb"
 LOG_FILE = "train.log"
 LOCK_FILE = ".lock"
+SHIPPED_POLICY = "policies/all/policy.pt"  # the bundled All policy, its run's config.yaml beside it
 
 
 class RunInUse(RuntimeError):
@@ -128,6 +129,32 @@ def read_trained_config(run_dir: Path) -> RunConfig:
     return record_task_rules(read_config(run_dir), LEGACY_TASK_RULES)
 
 
+def shipped_policy_path() -> Path:
+    """The bundled All-modalities policy: installed share dir first, then the source tree."""
+    try:
+        from ament_index_python.packages import get_package_share_directory
+
+        installed = Path(get_package_share_directory("dlo_policy")) / SHIPPED_POLICY
+        if installed.exists():
+            return installed
+    except (ImportError, LookupError):
+        pass
+    return Path(__file__).resolve().parents[1] / SHIPPED_POLICY
+
+
+def trained_sim_settings(policy_file: Path) -> Optional[dict[str, Any]]:
+    """The simulator settings a policy file (policy.pt, best_policy.pt, checkpoint.pt) learned its task
+    under, from its run's config.yaml: ``{"task_rules", "single_particle_grip"}`` (what the sim node must
+    run for the policy to meet the task it was trained on); None when no config.yaml is beside the file.
+    ConfigError or OSError when that config.yaml cannot be read."""
+    run_dir = Path(policy_file).parent
+    if not (run_dir / CONFIG_FILE).exists():
+        return None
+    options = read_trained_config(run_dir).env_options
+    return {"task_rules": options.get("task_rules", LEGACY_TASK_RULES),
+            "single_particle_grip": bool(options.get("single_particle_grip", False))}
+
+
 def read_eval_rows(run_dir: Path) -> list[dict[str, str]]:
     """eval.csv's rows as text (csv.DictReader)."""
     with (Path(run_dir) / EVAL_FILE).open(newline="") as f:
@@ -173,3 +200,37 @@ class EvalLog:
     def append(self, rows: list[dict[str, Any]]) -> None:
         with self.path.open("a", newline="") as f:
             csv.DictWriter(f, fieldnames=EVAL_COLUMNS).writerows(rows)
+
+
+def main(argv=None) -> int:
+    """``python -m dlo_policy.rundir --sim-settings POLICY_FILE``: the sim settings the policy file was trained
+    under as one line ``TASK_RULES GRIP`` (e.g. ``authors_code false``; GRIP = single_particle_grip), or
+    ``unknown`` when no config.yaml is beside it; an empty POLICY_FILE is the shipped policy. Exit 2 with
+    one line on stderr when the file or its config.yaml cannot be read (scripts/launch_graph.sh uses it)."""
+    import argparse
+    import sys
+
+    from .config import ConfigError
+
+    parser = argparse.ArgumentParser(prog="python -m dlo_policy.rundir", description=main.__doc__)
+    parser.add_argument("--sim-settings", metavar="POLICY_FILE", required=True,
+                        help="policy.pt / checkpoint.pt of a dlo-train run ('' = the shipped policy)")
+    args = parser.parse_args(argv)
+    path = Path(args.sim_settings) if args.sim_settings else shipped_policy_path()
+    if not path.is_file():
+        print(f"checkpoint {path}: no such file", file=sys.stderr)
+        return 2
+    try:
+        settings = trained_sim_settings(path)
+    except (ConfigError, OSError) as error:
+        print(f"checkpoint {path}: its run's {CONFIG_FILE} cannot be read: {error}", file=sys.stderr)
+        return 2
+    if settings is None:
+        print("unknown")
+    else:
+        print(f"{settings['task_rules']} {'true' if settings['single_particle_grip'] else 'false'}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -105,3 +105,18 @@ def test_dlo_train_warns_when_no_update_will_happen(learning_starts, warned, tmp
         assert result.stderr.splitlines()[0] == warnings[0]  # at the start, before the run
     else:
         assert summary["updates"] == 60 - starts and warnings == []
+
+
+@pytest.mark.parametrize("how", ["config file", "override"])
+def test_dlo_train_with_broken_yaml_is_one_line_naming_where(how, tmp_path):
+    """A config file or a key=value override that is not valid YAML: one line naming it and where it
+    breaks (line, column), exit 2, no traceback and no run directory (it was a yaml.ParserError trace)."""
+    bad = tmp_path / "mine.yaml"
+    bad.write_text("seed: 3\nsac: {batch_size: 64\n")
+    given = ["--config", str(bad)] if how == "config file" else ["sac.hidden_sizes=[256, 256"]
+    result = subprocess.run(["dlo-train", "--out", str(tmp_path / "run"), *given], cwd=tmp_path,
+                            capture_output=True, text=True, timeout=300, env=environment())
+    said = one_line(result)
+    assert said.startswith(f"dlo-train: error: {bad}: not valid YAML (line 3, column 1): " if how == "config file"
+                           else "dlo-train: error: override 'sac.hidden_sizes=[256, 256': not valid YAML (line 1, "), said
+    assert not (tmp_path / "run").exists()

@@ -184,3 +184,44 @@ def test_eval_log_keeps_the_rows_up_to_the_resume_step_and_their_wall_time(tmp_p
     other = tmp_path / "other"
     other.mkdir()
     assert rundir.EvalLog(other, 30).wall_time_offset == 0.0 and rundir.read_eval_rows(other) == []
+
+
+def test_sim_settings_are_what_the_policy_file_was_trained_on(tmp_path, capsys):
+    """scripts/launch_graph.sh --help: with --policy sac the sim runs the task rules and grip of the
+    checkpoint's run (its config.yaml); `python -m dlo_policy.rundir --sim-settings` says which, 'unknown'
+    without a config.yaml, and the shipped policy's for an empty path."""
+    from dlo_policy.config import load_config, save_config
+
+    runs = {"old": [], "spg": ["env_options.task_rules=authors_code", "env_options.single_particle_grip=true"],
+            "text": ["env_options.task_rules=paper_text", "env_options.single_particle_grip=false"]}
+    for name, overrides in runs.items():
+        (tmp_path / name).mkdir()
+        save_config(load_config(None, overrides), tmp_path / name / rundir.CONFIG_FILE)
+        (tmp_path / name / "policy.pt").write_bytes(b"")
+    assert rundir.trained_sim_settings(tmp_path / "old" / "policy.pt") == {
+        "task_rules": "paper_text", "single_particle_grip": False}  # from before both options
+    assert rundir.trained_sim_settings(tmp_path / "spg" / "checkpoint.pt") == {
+        "task_rules": "authors_code", "single_particle_grip": True}
+    (tmp_path / "bare").mkdir()
+    (tmp_path / "bare" / "policy.pt").write_bytes(b"")
+    assert rundir.trained_sim_settings(tmp_path / "bare" / "policy.pt") is None
+    said = {}
+    for name in ("spg", "text", "old", "bare"):
+        assert rundir.main(["--sim-settings", str(tmp_path / name / "policy.pt")]) == 0
+        said[name] = capsys.readouterr().out
+    assert said == {"spg": "authors_code true\n", "text": "paper_text false\n", "old": "paper_text false\n",
+                    "bare": "unknown\n"}
+    assert rundir.main(["--sim-settings", ""]) == 0  # the shipped policy: trained on authors_code, finite grip
+    assert capsys.readouterr().out == "authors_code false\n"
+
+
+def test_sim_settings_of_a_missing_file_or_a_bad_config_is_one_line_and_exit_2(tmp_path, capsys):
+    assert rundir.main(["--sim-settings", str(tmp_path / "nothing.pt")]) == 2
+    err = capsys.readouterr().err
+    assert err == f"checkpoint {tmp_path / 'nothing.pt'}: no such file\n"
+    (tmp_path / "policy.pt").write_bytes(b"")
+    (tmp_path / rundir.CONFIG_FILE).write_text("env_options: [not, a, mapping\n")
+    assert rundir.main(["--sim-settings", str(tmp_path / "policy.pt")]) == 2
+    out = capsys.readouterr()
+    assert out.out == "" and len(out.err.strip().splitlines()) == 1
+    assert out.err.startswith(f"checkpoint {tmp_path / 'policy.pt'}: its run's config.yaml cannot be read: ")

@@ -172,7 +172,8 @@ class SimNode(Node):
             self.finish_episode()
 
     def finish_episode(self):
-        summary = {"episode": self.episode, "seed": self.episode_seed, **self.task.tracker.summary(0)}
+        summary = {"episode": self.episode, "seed": self.episode_seed, **self.task.tracker.summary(0),
+                   "single_particle_grip": self.p["single_particle_grip"]}
         self.finished.append(summary)
         self.get_logger().info(f"episode {self.episode} (seed {self.episode_seed}): {summary['outcome']} "
                                f"(authors' rule: {summary['outcome_authors']}), "
