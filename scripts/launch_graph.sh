@@ -158,7 +158,8 @@ rm -f "$outcomes"
 # ---- a DDS domain of its own ---------------------------------------------------------------
 # A domain is busy when a participant on this machine has bound one of its UDP ports (RTPS:
 # 7400 + 250 * domain + 0..249); a lock per domain keeps two launchers starting at the same
-# moment apart. The lock is held (inherited by the nodes) while the graph runs.
+# moment apart. The lock is held (inherited by the nodes) while the graph runs. Tests lock theirs
+# in the same directory (dlo_common.testing.reserve_domains, domains 100..232).
 domain_busy() {
   local lo=$((7400 + 250 * $1)) hi=$((7400 + 250 * $1 + 249)) f local_address port
   for f in /proc/net/udp /proc/net/udp6; do
@@ -182,7 +183,7 @@ lock_domain() {  # lock_domain N: hold the lock of domain N (false if another la
   return 1
 }
 if [ -n "$domain" ]; then
-  lock_domain "$domain" || echo "[launch] warning: another launch_graph.sh runs on ROS_DOMAIN_ID=$domain" >&2
+  lock_domain "$domain" || echo "[launch] warning: ROS_DOMAIN_ID=$domain is held by another launch_graph.sh or test run" >&2
   [ -n "$namespace" ] || ! domain_busy "$domain" || \
     echo "[launch] warning: ROS_DOMAIN_ID=$domain is in use on this machine; without --namespace the graphs' topics mix (the sim refuses to start next to another simulator)" >&2
 else

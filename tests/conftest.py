@@ -2,7 +2,6 @@
 never outlive their test."""
 
 import os
-import random
 import signal
 import subprocess
 import time
@@ -12,9 +11,13 @@ import pytest
 
 @pytest.fixture(scope="session", autouse=True)
 def isolated_ros_domain():
-    """Give this test session its own DDS domain so parallel runs do not cross-talk."""
-    os.environ.setdefault("ROS_DOMAIN_ID", str(random.Random(os.getpid()).randint(100, 200)))
-    os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    """Give this test session (each pytest-xdist worker) a DDS domain of its own, reserved so that no other
+    test process, launched graph or participant on this machine uses it (dlo_common.testing.reserve_domains),
+    also when the shell sets ROS_DOMAIN_ID (a user's graph runs there)."""
+    from dlo_common.testing import reserve_domains
+
+    os.environ["ROS_DOMAIN_ID"] = str(reserve_domains())
+    os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
     yield os.environ["ROS_DOMAIN_ID"]
 
 

@@ -5,7 +5,10 @@ The tests of dlo_bag, dlo_viz and dlo_driver_kit define their fixtures over thes
 - :class:`Proc`: a child process whose merged stdout/stderr is collected line by line (``wait_line``).
 - :data:`REPO`, :data:`ROS2RUN`: the repository (``DLO_ROOT``, set by ``scripts/env.sh``) and its
   ``scripts/ros2run``.
-- :func:`isolated_env`: a copy of the environment on a random ROS domain with localhost discovery;
+- :func:`reserve_domains`: ROS domains no other test process, launched graph or participant on this
+  machine uses, held until this process ends (or :func:`release_domains`): tests in parallel
+  (pytest-xdist workers, two suites, a user's graph) never share a domain.
+- :func:`isolated_env`: a copy of the environment on a reserved ROS domain with localhost discovery;
   :func:`package_test_env` the same, skipping the test when the package's executable is not built.
 - :class:`Procs`: starts processes and stops every one still running at the end (SIGINT, wait, kill).
 
@@ -14,6 +17,8 @@ Standard library only: no rclpy; pytest is imported inside :func:`package_test_e
 
 from __future__ import annotations
 
+import contextlib
+import fcntl
 import os
 import queue
 import random
@@ -92,19 +97,97 @@ def exited(pid: int) -> bool:
         return True
 
 
+# The domains of tests: 100..232 (232: the highest id Fast DDS maps to ports on Linux); scripts/launch_graph.sh
+# picks its own in 10..99. Both lock a domain in DOMAIN_LOCK_DIR (flock on N.lock) while they use it.
+TEST_DOMAINS = (100, 232)
+DOMAIN_LOCK_DIR = Path(os.environ.get("XDG_RUNTIME_DIR") or "/tmp") / f"dlo-vitac-domains-{os.getuid()}"
+_held_domains: dict[int, int] = {}  # domain -> the fd of its lock file (this process holds the flock)
+
+
+def domain_busy(domain: int) -> bool:
+    """Whether a DDS participant on this machine bound a UDP port of ``domain`` (RTPS: 7400 + 250 d + 0..249)."""
+    lo, hi = 7400 + 250 * domain, 7400 + 250 * domain + 249
+    for table in ("/proc/net/udp", "/proc/net/udp6"):
+        try:
+            with open(table) as f:
+                next(f, None)
+                for line in f:
+                    port = int(line.split()[1].rsplit(":", 1)[1], 16)
+                    if lo <= port <= hi:
+                        return True
+        except OSError:
+            continue
+    return False
+
+
+def _lock_domain(domain: int) -> bool:
+    DOMAIN_LOCK_DIR.mkdir(parents=True, exist_ok=True)
+    fd = os.open(DOMAIN_LOCK_DIR / f"{domain}.lock", os.O_RDWR | os.O_CREAT, 0o644)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        os.close(fd)
+        return False
+    _held_domains[domain] = fd
+    return True
+
+
+def release_domains(first: int, span: int = 1) -> None:
+    """Give back domains ``first .. first + span - 1`` that :func:`reserve_domains` gave this process."""
+    for domain in range(first, first + span):
+        fd = _held_domains.pop(domain, None)
+        if fd is not None:
+            os.close(fd)  # closing the file releases its flock
+
+
+def reserve_domains(span: int = 1, first: int = TEST_DOMAINS[0], last: int = TEST_DOMAINS[1]) -> int:
+    """The first of ``span`` consecutive ROS domains in ``first .. last`` that nothing else uses: locked by no
+    other process (tests, launch_graph.sh) and with no participant on their ports. They stay locked by this
+    process until it ends or :func:`release_domains`. The search starts at a random place (per process),
+    so that processes started together rarely race for the same lock. RuntimeError when none is free."""
+    count = last - first - span + 2
+    start = random.Random(os.getpid() ^ int(time.monotonic_ns())).randrange(count)
+    for i in range(count):
+        base = first + (start + i) % count
+        taken: list[int] = []
+        for domain in range(base, base + span):
+            if domain in _held_domains or domain_busy(domain) or not _lock_domain(domain):
+                break
+            taken.append(domain)
+        if len(taken) == span:
+            return base
+        for domain in taken:
+            release_domains(domain)
+    raise RuntimeError(f"no {span} free ROS domain(s) in {first}..{last} on this machine")
+
+
+@contextlib.contextmanager
+def reserved_domain(span: int = 1):
+    """``with reserved_domain() as domain:`` :func:`reserve_domains` for the block only."""
+    domain = reserve_domains(span)
+    try:
+        yield domain
+    finally:
+        release_domains(domain, span)
+
+
 def isolated_env(base: dict[str, str] | None = None, domain_id: int | None = None) -> dict[str, str]:
-    """A copy of ``base`` (default: ``os.environ``) on ROS domain ``domain_id`` (default: random, 100..200)
-    with localhost-only discovery and unbuffered Python output."""
+    """A copy of ``base`` (default: ``os.environ``) on ROS domain ``domain_id`` (default: one reserved for
+    this process, :func:`reserve_domains`) with localhost-only discovery and unbuffered Python output."""
     env = dict(os.environ if base is None else base)
-    env["ROS_DOMAIN_ID"] = str(random.randint(100, 200) if domain_id is None else domain_id)
+    env["ROS_DOMAIN_ID"] = str(reserve_domains() if domain_id is None else domain_id)
     env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
     env["PYTHONUNBUFFERED"] = "1"
     env.pop("ROS_LOCALHOST_ONLY", None)
     return env
 
 
+PACKAGE_TEST_DOMAINS = 20  # package_test_env reserves its domain and the 19 after it (dlo-driver-check's 16 faults)
+
+
 def package_test_env(package: str, executable: str) -> dict[str, str]:
-    """:func:`isolated_env` for the tests of ``package``; skips the test (pytest.skip) when scripts/env.sh
+    """:func:`isolated_env` on ``PACKAGE_TEST_DOMAINS`` reserved domains (ROS_DOMAIN_ID the
+    first) for the tests of ``package``; skips the test (pytest.skip) when scripts/env.sh
     is not sourced, scripts/ros2run is missing or ``ros2run <package>`` does not list ``executable``."""
     import pytest
 
@@ -112,7 +195,7 @@ def package_test_env(package: str, executable: str) -> dict[str, str]:
         pytest.skip("source scripts/env.sh first")
     if not ROS2RUN.exists():
         pytest.skip(f"{ROS2RUN} missing")
-    env = isolated_env()
+    env = isolated_env(domain_id=reserve_domains(PACKAGE_TEST_DOMAINS))  # room for tests using several
     check = subprocess.run([str(ROS2RUN), package], env=env, capture_output=True, text=True, timeout=60)
     if f"{package} {executable}" not in check.stdout.splitlines():
         pytest.skip(f"{package} is not built (run scripts/setup.sh): " + check.stderr)
