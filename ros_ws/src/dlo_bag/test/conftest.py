@@ -11,7 +11,7 @@ from dlo_common.testing import Procs, package_test_env
 
 @pytest.fixture(scope="session")
 def ros_env() -> dict[str, str]:
-    """Environment of env.sh with a random ROS_DOMAIN_ID (100..200) and localhost discovery."""
+    """Environment of env.sh on a reserved ROS_DOMAIN_ID (dlo_common.testing) and localhost discovery."""
     return package_test_env("dlo_bag", "recorder_node")
 
 

@@ -182,12 +182,9 @@ def isolated_env(base: dict[str, str] | None = None, domain_id: int | None = Non
     return env
 
 
-PACKAGE_TEST_DOMAINS = 20  # package_test_env reserves its domain and the 19 after it (dlo-driver-check's 16 faults)
-
-
-def package_test_env(package: str, executable: str) -> dict[str, str]:
-    """:func:`isolated_env` on ``PACKAGE_TEST_DOMAINS`` reserved domains (ROS_DOMAIN_ID the
-    first) for the tests of ``package``; skips the test (pytest.skip) when scripts/env.sh
+def package_test_env(package: str, executable: str, domains: int = 1) -> dict[str, str]:
+    """:func:`isolated_env` on ``domains`` consecutive reserved domains (ROS_DOMAIN_ID the first; tests that
+    need several use the ones after it) for the tests of ``package``; skips the test (pytest.skip) when scripts/env.sh
     is not sourced, scripts/ros2run is missing or ``ros2run <package>`` does not list ``executable``."""
     import pytest
 
@@ -195,7 +192,7 @@ def package_test_env(package: str, executable: str) -> dict[str, str]:
         pytest.skip("source scripts/env.sh first")
     if not ROS2RUN.exists():
         pytest.skip(f"{ROS2RUN} missing")
-    env = isolated_env(domain_id=reserve_domains(PACKAGE_TEST_DOMAINS))  # room for tests using several
+    env = isolated_env(domain_id=reserve_domains(domains))
     check = subprocess.run([str(ROS2RUN), package], env=env, capture_output=True, text=True, timeout=60)
     if f"{package} {executable}" not in check.stdout.splitlines():
         pytest.skip(f"{package} is not built (run scripts/setup.sh): " + check.stderr)
