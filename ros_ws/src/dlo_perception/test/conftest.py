@@ -1,18 +1,19 @@
 """Fixtures of the perception tests that run a node in-process."""
 import os
-import random
 
 import pytest
 
+from dlo_common.testing import reserved_domain
+
 
 @pytest.fixture(scope="module")
-def context(request):
-    """An rclpy context of the module's own, on a DDS domain of its own (201-230, from the pid and the
-    module: two test modules or two test processes do not share one)."""
+def context():
+    """An rclpy context of the module's own, on a DDS domain reserved for it (dlo_common.testing: no other
+    test module, test process or graph on this machine uses it meanwhile)."""
     rclpy = pytest.importorskip("rclpy")
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     context = rclpy.Context()
-    seed = f"{os.getpid()}:{request.module.__name__}"
-    rclpy.init(context=context, domain_id=random.Random(seed).randint(201, 230))
-    yield context
-    rclpy.shutdown(context=context)
+    with reserved_domain() as domain:
+        rclpy.init(context=context, domain_id=domain)
+        yield context
+        rclpy.shutdown(context=context)
