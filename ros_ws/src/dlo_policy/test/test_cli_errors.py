@@ -7,15 +7,16 @@
   no gradient update will happen, and says what to pass; a run that does update gets no warning.
 """
 
+import functools
 import json
 import os
-import random
 import subprocess
 from pathlib import Path
 
 import pytest
 import torch
 
+from dlo_common.testing import reserve_domains
 from dlo_policy.sac import CHECKPOINT_FORMAT, CheckpointError, read_checkpoint
 
 HERE = Path(__file__).resolve().parent
@@ -24,10 +25,16 @@ ROS2RUN = str(ROOT / "scripts" / "ros2run")
 INSTALL_BIN = ROOT / "ros_ws" / "install" / "dlo_policy" / "lib" / "dlo_policy"
 
 
+@functools.lru_cache(maxsize=None)
+def module_domain() -> int:
+    """A ROS domain reserved for this module's node processes (dlo_common.testing), held until pytest ends."""
+    return reserve_domains()
+
+
 def environment(**extra) -> dict:
     """The console scripts on PATH, a ROS domain of this test run's own, the test helpers importable."""
     return {**os.environ, "PATH": f"{INSTALL_BIN}:{os.environ['PATH']}",
-            "ROS_DOMAIN_ID": str(random.Random(os.getpid() + 3).randint(201, 232)),
+            "ROS_DOMAIN_ID": str(module_domain()),
             "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST",
             "PYTHONPATH": f"{HERE}:{os.environ.get('PYTHONPATH', '')}", **extra}
 
