@@ -4,12 +4,14 @@
   fingers equal ``dlo_sim.grip`` for closures across [0, 1]; every other particle keeps w_nom and is
   not carried; the pinned particle 0 is kinematic;
 - the held rule (docs/ARCHITECTURE.md#constants) at its boundaries: the extent along the finger includes the
-  capsule's rounded ends (|dy| <= half-length + radius), the distance to the lower finger's axis,
-  and "above the lower finger";
+  capsule's rounded ends (|dy| <= half-length + radius), the distance to the lower finger's axis
+  (inclusive, in float32), and "above the lower finger", measured from a gripper away from y = 0 too;
 - finite grip: a firm grip on a taut cable stalls the gripper, a sliding grip slides along it, and
   a gripped cable is not stretched; the kernel's stall rule gives the displacement
   ``dlo_sim.grip.stall_firm_grip`` (its numpy statement, used by the driver template) gives, on
-  taut, slack, curved and random cables under firm, sliding and no grips.
+  taut, slack, curved and random cables under firm, sliding and no grips; motion ending exactly at the
+  taut reach is not stalled, and the removed direction is a unit vector even for a 1.5e-9 m offset; the
+  kernel's slip rule moves exactly the carried particles beyond their reach back onto it.
 
 One simulator serves every test (each new one recompiles the kernels), so a kernel mutant costs one
 compilation in tools/mutation_check.sh.
@@ -235,3 +237,88 @@ def test_single_particle_grip_kernel_choice_equals_the_numpy_rule():
     # the cases that tell the rule apart: particle 0 nearest but skipped, a choice among several held
     # particles, and one that is not simply the lowest held index
     assert zero_nearest >= 3 and several >= 50 and not_lowest >= 20, (zero_nearest, several, not_lowest)
+
+
+@ti.kernel
+def _kernel_slip(k: ti.template()):
+    for _ in range(1):  # serially, as inside step_env's loop over envs
+        k.slip_taut_grip(0)
+
+
+def kernel_slip(sim, positions, carried):
+    """RopeKernels.slip_taut_grip of env 0 for these particles and carried fractions: the positions after it."""
+    n = len(positions)
+    x = np.zeros((1, P_MAX, 3), np.float32)
+    x[0, :n] = positions
+    carry = np.zeros((1, P_MAX), np.float32)
+    carry[0, :n] = carried
+    sim._k.x.from_numpy(x)
+    sim._k.carry.from_numpy(carry)
+    sim._k.n.from_numpy(np.array([n], np.int32))
+    _kernel_slip(sim._k)
+    return sim._k.x.to_numpy()[0, :n]
+
+
+def test_finite_grip_pulls_only_carried_particles_beyond_their_reach_back_onto_it(sim):
+    """slip_taut_grip: every carried particle (carried fraction > 0, firm or sliding) further than its rest
+    length along the cable (i * REST_SPACING, GRIP_SLIP_STRAIN = 0) from the fixed end is moved back onto that
+    distance along the line from the fixed end; carried particles within reach and particles not carried stay."""
+    anchor = np.array(FIXED_END)
+    rng = np.random.default_rng(3)
+    direction = rng.normal(size=(10, 3)) * [1.0, 1.0, 0.3] + [1.0, 0.0, 0.0]
+    direction /= np.linalg.norm(direction, axis=1, keepdims=True)
+    stretch = np.array([0.0, 1.5, 1.6, 1.2, 0.7, 1.04, 1.3, 0.95, 1.01, 2.0])  # distance / rest length along the cable
+    carried = np.array([0.0, 1.0, 0.0, 0.6, 1.0, 0.3, 1e-3, 0.8, 0.0, 1.0])
+    positions = (anchor + direction * (np.arange(10) * REST_SPACING * stretch)[:, None]).astype(np.float32)
+    got = kernel_slip(sim, positions, carried)
+    x = positions.astype(np.float64)
+    d = x - x[0]
+    length = np.linalg.norm(d, axis=1)
+    reach = np.arange(10) * REST_SPACING
+    pulled = (carried > 0) & (length > reach)
+    assert pulled.tolist() == [False, True, False, True, False, True, True, False, False, True]
+    expected = np.where(pulled[:, None], x[0] + d * (reach / np.maximum(length, 1e-12))[:, None], x)
+    np.testing.assert_allclose(got, expected, atol=2e-7)
+    np.testing.assert_allclose(np.linalg.norm(got[pulled] - x[0], axis=1), reach[pulled], atol=2e-7)
+
+
+def test_a_firm_grip_is_not_stalled_by_motion_that_ends_exactly_at_the_taut_reach(sim):
+    """The stall removes the motion that would take a firmly held particle *beyond* its rest length from the
+    fixed end: in the kernel's float32, motion ending exactly at it is allowed, one float32 step further is not."""
+    reach = F32(REST_SPACING)  # particle 1: taut_reach(1) = 1 * REST_SPACING, in float32
+    dg = F32(2.0 ** -12)  # m, outward along x (a sub-step is at most 0.000625 m); reach - dg is exact
+    at_reach = F32(reach - dg)
+    beyond = np.nextafter(at_reach, F32(1.0))
+    for x1, allowed in ((at_reach, dg), (beyond, 0.0)):
+        got = kernel_stall(sim, np.array([[0.0, 0.0, 0.0], [x1, 0.0, 0.0]], np.float32), [0.0, 1.0], (dg, 0.0, 0.0))
+        np.testing.assert_array_equal(got, np.array([allowed, 0.0, 0.0], np.float32), err_msg=f"x1 = {x1!r}")
+
+
+def test_a_firm_grip_stall_removes_all_outward_motion_even_for_a_tiny_horizontal_offset(sim):
+    """The direction of the removed motion is the unit horizontal vector from the fixed end to the particle for
+    any offset longer than the rule's 1e-9 m guard: a particle 1.5e-9 m beside the vertical through the fixed end
+    (and beyond its reach above it) stops all motion away from it, as in dlo_sim.grip.stall_firm_grip."""
+    positions = np.array([[0.0, 0.0, 0.0], [1.5e-9, 0.0, 2.0 * REST_SPACING]], np.float32)
+    dg = (2.0 ** -12, 2.0 ** -13, 0.0)
+    got = kernel_stall(sim, positions, [0.0, 1.0], dg)
+    expected = stall_firm_grip(positions, [0.0, 1.0], dg)
+    np.testing.assert_allclose(expected, [0.0, 2.0 ** -13, 0.0], atol=1e-12)  # sideways motion stays
+    np.testing.assert_allclose(got, expected, atol=1e-9)
+
+
+def test_held_rule_is_relative_to_the_gripper_and_its_distance_bound_is_inclusive(sim):
+    """The held rule measured from a gripper away from y = 0 (a reachable pose: x = 0, y = 0.05 m in the
+    workspace): the extent along the finger is |y - y_G|, not |y|; and "within HELD_DISTANCE of the lower
+    finger's axis" includes the distance itself, in the kernel's float32 (a particle exactly HELD_DISTANCE beside
+    the axis, a hair above it, is held; one float32 step further is not)."""
+    sim.reset(np.array([1]))
+    g = sim._k.gripper.to_numpy()
+    g[0] = (0.0, 0.05, g[0, 2])  # x = 0 exactly: dx = x of the particle, no rounding
+    sim._k.gripper.from_numpy(g)
+    d = F32(HELD_DISTANCE)  # float32(d) ** 2 rounds to float32(d ** 2), the kernel's bound
+    assert F32(d * d) == F32(HELD_DISTANCE * HELD_DISTANCE) and F32(np.nextafter(d, F32(1)) ** 2) > F32(d * d)
+    hair = float(np.spacing(F32(F32(g[0, 2]) - F32(FINGER_AXIS_OFFSET))))  # the next float32 above the axis
+    extent = FINGER_HALF_LENGTH + FINGER_RADIUS
+    probes = [(d, 0.0, hair), (-d, 0.0, hair), (np.nextafter(d, F32(1)), 0.0, hair), (0.0, extent - 1e-4, 0.002),
+              (0.0, -(extent - 1e-4), 0.002), (0.0, extent + 1e-4, 0.002), (0.0, -(extent + 1e-4), 0.002)]
+    assert place(sim, probes) == [True, True, False, True, True, False, False]

@@ -5,7 +5,11 @@
 - real_time: the last command acts while it is younger than ``command_timeout``; an older one stops
   the gripper and holds its closure while the episode stays the same (not a restart after a drop);
 - the speed limit through the node: 0.25 m/s is executed, 0.2501 m/s on either axis (or a closure
-  outside [0, 1], or NaN) makes the gripper hold.
+  outside [0, 1], or NaN) makes the gripper hold;
+- rejections are logged at once, then at most once a second per cause with a count; real_time warns
+  "no command for N s" after a second without one and "command timed out" for a stale one; the age
+  limit is the ``command_timeout`` parameter; nothing runs before the start;
+- the reset service: seed 0 is a seed, it starts a waiting or finished node, camera_info goes out once.
 
 The node is built once (the simulator compiles its kernels); every test starts a fresh episode.
 Each action the node executes is recorded by wrapping its TaskSim's ``step``; time is a fake
@@ -14,13 +18,13 @@ monotonic clock.
 
 import math
 import os
-import random
 import time
 
 import numpy as np
 import pytest
 
 rclpy = pytest.importorskip("rclpy")
+from dlo_common.testing import release_domains, reserve_domains  # noqa: E402
 from dlo_msgs.msg import GripperCommand  # noqa: E402
 
 from dlo_sim import sim_node as sim_node_module  # noqa: E402
@@ -36,7 +40,8 @@ PARAMETERS = {"publish_markers": False, "camera_resolution": 32, "rate_factor": 
 def node():
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     context = rclpy.Context()
-    rclpy.init(context=context, domain_id=random.Random(os.getpid()).randint(201, 230))
+    domain = reserve_domains()  # dlo_common.testing: no other test or graph on this machine uses it meanwhile
+    rclpy.init(context=context, domain_id=domain)
     with pytest.MonkeyPatch.context() as patch:
         patch.setattr(sim_node_module, "DISCOVERY_GRACE", 0.0)
         declare = sim_node_module.declare_parameters
@@ -46,6 +51,7 @@ def node():
     yield sim
     sim.destroy_node()
     rclpy.shutdown(context=context)
+    release_domains(domain)
 
 
 def _in_context(init, context):
@@ -275,3 +281,126 @@ def test_a_refusal_names_the_other_publisher_once_discovery_knows_it(monkeypatch
         "a node discovery has not named yet"]
     stub.get_publishers_info_by_topic = lambda topic: [info("sim_node")]
     assert sim_node_module.SimNode.other_publishers(stub, "/clock") == ["unknown"]
+
+
+class Logger:
+    """The node's logger: every line with its level, in order (throttling is the real logger's business)."""
+
+    def __init__(self):
+        self.lines = []
+
+    def __getattr__(self, level):
+        return lambda text, **kwargs: self.lines.append((level, text))
+
+    def warnings(self):
+        return [text for level, text in self.lines if level == "warning"]
+
+
+@pytest.fixture
+def log(node, monkeypatch):
+    logger = Logger()
+    monkeypatch.setattr(node, "get_logger", lambda: logger)
+    monkeypatch.setattr(node, "rejections", sim_node_module.RejectionLog(interval=1.0))
+    return logger
+
+
+def test_rejected_commands_are_logged_at_once_then_at_most_once_a_second_per_cause_with_a_count(
+        node, clock, executed, log):
+    start(node, "step_locked", seed=2)
+    node.on_command(command(node, vx=0.3))  # too fast: the gripper holds, logged at once
+    assert log.warnings() == ["rejected command: speed out of range: vx=0.3, vy=0.0 (limit 0.25 m/s); "
+                              "the gripper holds"]
+    assert executed[-1] == pytest.approx([0.0, 0.0, -1.0]) and node.step_index == 1
+    node.on_command(command(node, step=0))  # another cause: logged at once too
+    assert log.warnings()[1:] == ["rejected command: for step 0, not the current step 1 of episode "
+                                  f"{node.episode}: ignored"]
+    clock.now += 0.5
+    node.on_command(command(node, vx=-0.3))  # within the second: counted, not logged
+    assert len(log.warnings()) == 2 and node.rejections.total == {"speed": 2, "old step": 1}
+    clock.now += 0.5
+    node.on_command(command(node, vx=0.0, closure=1.5))  # the closure rule: a cause of its own
+    node.on_command(command(node, vx=0.4))  # a second after the first speed line: logged with the count
+    assert log.warnings()[2:] == ["rejected command: closure out of range: 1.5 (must be in [0, 1]); the gripper holds",
+                                  "rejected command: speed out of range: vx=0.4, vy=0.0 (limit 0.25 m/s); the gripper "
+                                  "holds (2 such commands in 0.5 s)"]
+    assert node.rejections.total == {"speed": 3, "old step": 1, "closure": 1} and node.step_index == 4
+
+
+def test_real_time_ticks_do_nothing_before_the_start(node, clock, executed):
+    start(node, "real_time", seed=4)
+    node.started = False
+    try:
+        node.on_real_time_tick()
+        assert executed == [] and node.step_index == 0
+    finally:
+        node.started = True
+
+
+def test_real_time_warns_once_no_command_came_for_a_second_and_when_a_command_times_out(node, clock, executed, log):
+    start(node, "real_time", seed=4)
+    node.last_command_wall = None  # as built: the episode clock starts with the first tick
+    node.on_real_time_tick()  # t = 0
+    clock.now += 0.5
+    node.on_real_time_tick()  # 0.5 s without a command: quiet
+    assert log.warnings() == [] and executed[-1] == pytest.approx([0.0, 0.0, -1.0])
+    clock.now += 0.5
+    node.on_real_time_tick()  # a second without a command: warned
+    assert log.warnings() == ["no command for 1 s: is a policy running? (the gripper stands still)"]
+    node.on_command(command(node, vx=0.05, closure=0.7))  # t = 1.0
+    clock.now += 0.25  # (binary fractions: the clock's sums are exact)
+    node.on_real_time_tick()
+    assert len(log.warnings()) == 1 and executed[-1] == pytest.approx([0.2, 0.0, 0.4])
+    clock.now += 0.5  # the command is 0.75 s old, the last command 0.75 s ago: timed out, not "no command"
+    node.on_real_time_tick()
+    assert log.warnings()[1:] == ["command timed out: the gripper stops and holds"]
+    assert executed[-1] == pytest.approx([0.0, 0.0, 0.4], abs=1e-6)
+    clock.now += 0.25  # 1.0 s since the last command: "no command" again
+    node.on_real_time_tick()
+    assert log.warnings()[2:] == ["no command for 1 s: is a policy running? (the gripper stands still)"]
+
+
+def test_real_time_command_age_limit_is_the_command_timeout_parameter(node, clock, executed):
+    start(node, "real_time", seed=4)
+    node.p["command_timeout"] = 0.2  # 5 steps of 0.04 s
+    try:
+        node.on_command(command(node, vx=0.0, closure=0.8))
+        for _ in range(10):
+            node.on_real_time_tick()
+        node.on_command(command(node, vx=0.05, step=10 - 4))  # 0.16 s old: obeyed
+        assert node.command[0][0] == pytest.approx(0.2)
+        node.on_command(command(node, vx=-0.05, step=10 - 6))  # 0.24 s old: stale under a 0.2 s timeout
+        node.on_real_time_tick()
+        assert executed[-1] == pytest.approx([0.2, 0.0, 0.4]) and node.rejections.total.get("stale", 0) >= 1
+    finally:
+        node.p["command_timeout"] = COMMAND_TIMEOUT
+
+
+def test_the_reset_service_starts_seed_zero_when_asked_for_it(node, clock, executed):
+    from dlo_msgs.srv import ResetEpisode
+
+    start(node, "step_locked", seed=7)
+    node.on_command(command(node))
+    response = node.on_reset_service(ResetEpisode.Request(seed=0), ResetEpisode.Response())  # 0 is a seed, not "own"
+    assert response.seed == 0 == node.episode_seed and node.task.sim.params["seed"][0] == 0
+
+
+def test_the_reset_service_starts_a_waiting_or_finished_node_and_camera_info_is_published_once(
+        node, clock, executed, monkeypatch):
+    from dlo_msgs.srv import ResetEpisode
+
+    published = []
+    monkeypatch.setattr(node.pub_info, "publish", published.append)
+    start(node, "step_locked", seed=0)
+    node.started, node.info_published = False, False  # not started yet: nothing published
+    try:
+        node.on_reset_service(ResetEpisode.Request(seed=3), ResetEpisode.Response())
+        assert node.started and len(published) == 1 and published[0].width == published[0].height == 32
+        node.on_command(command(node))  # obeyed: the node runs
+        assert node.step_index == 1 and len(executed) == 1
+        node.closing_since = clock.now  # the last episode ran: waiting for the answer to its final state
+        node.on_reset_service(ResetEpisode.Request(seed=4), ResetEpisode.Response())
+        node.on_command(command(node))  # a new episode runs again
+        assert node.step_index == 1 and len(executed) == 2 and node.episode_seed == 4
+        assert len(published) == 1  # camera_info is latched: published once
+    finally:
+        node.started, node.info_published, node.closing_since = True, True, None
