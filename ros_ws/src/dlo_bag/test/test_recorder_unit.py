@@ -147,3 +147,170 @@ def test_clock_is_recorded_when_asked(context, tmp_path, monkeypatch):
         recorder.destroy_node()
         pub_node.destroy_node()
     assert set(bag_info(bag).topics) == {"/clock", "/extra/topic"}
+
+
+# ------------------------------------------------------------------ discovery and errors, one pass at a time
+# (the graph the node sees is given: its get_topic_names_and_types / get_publishers_info_by_topic replaced)
+class FakeLogger:
+    def __init__(self):
+        self.lines = []
+
+    def info(self, text):
+        self.lines.append(("info", text))
+
+    def warning(self, text):
+        self.lines.append(("warning", text))
+
+    def error(self, text):
+        self.lines.append(("error", text))
+
+    def of(self, level):
+        return [text for lvl, text in self.lines if lvl == level]
+
+
+class PublisherInfo:
+    """What get_publishers_info_by_topic tells about one publisher (the fields discover() reads)."""
+
+    def __init__(self, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE,
+                 type_hash=""):
+        self.qos_profile = QoSProfile(depth=10, reliability=reliability, durability=durability)
+        self.topic_type_hash = type_hash
+
+
+class FakeStop:
+    def __init__(self):
+        self.requests = 0
+
+    def request(self):
+        self.requests += 1
+
+
+@pytest.fixture
+def offline_recorder(context, tmp_path, monkeypatch):
+    """A RecorderNode (no timers firing: nothing spins it) whose graph, subscriptions and log are the test's."""
+    declare = recorder_module.declare_parameters
+    monkeypatch.setattr(recorder_module, "declare_parameters", lambda n, specs: {
+        **declare(n, specs), "output": str(tmp_path / "bag"), "fsync": False})
+    init = rclpy.node.Node.__init__
+    monkeypatch.setattr(rclpy.node.Node, "__init__", lambda self, *a, **k: init(self, *a, **{"context": context, **k}))
+    stop = FakeStop()
+    node = recorder_module.RecorderNode(stop)
+    monkeypatch.setattr(rclpy.node.Node, "__init__", init)
+    node.graph, node.publishers_of, node.subscribed = [], {}, []
+    node.get_topic_names_and_types = lambda: node.graph
+    node.get_publishers_info_by_topic = lambda topic: node.publishers_of.get(topic, [])
+    real_subscribe = node.create_subscription
+
+    def create_subscription(msg_class, topic, callback, qos, **kwargs):
+        node.subscribed.append((topic, qos, kwargs))
+        return real_subscribe(msg_class, topic, callback, qos, **kwargs)
+    node.create_subscription = create_subscription
+    log = FakeLogger()
+    node.get_logger = lambda: log
+    node.log, node.stop_request = log, stop
+    yield node
+    node.finish()
+    node.destroy_node()
+
+
+def test_discovery_warns_about_several_types_a_new_best_effort_publisher_and_a_foreign_type_hash(offline_recorder):
+    node, log = offline_recorder, offline_recorder.log
+    node.graph = [("/dlo/gripper/state", ["dlo_msgs/msg/GripperState"]),
+                  ("/dlo/two_types", ["dlo_msgs/msg/GripperState", "sensor_msgs/msg/CameraInfo"])]
+    node.publishers_of = {"/dlo/gripper/state": [PublisherInfo(type_hash="not a RIHS01 hash")],
+                          "/dlo/two_types": [PublisherInfo()]}
+    node.discover()
+    assert [t for t, _, _ in node.subscribed] == ["/dlo/gripper/state", "/dlo/two_types"]
+    assert node.recorder.topics["/dlo/two_types"].msgtype == "dlo_msgs/msg/GripperState"  # the first type
+    assert log.of("warning") == ["/dlo/two_types: several types ['dlo_msgs/msg/GripperState', "
+                                 "'sensor_msgs/msg/CameraInfo']; recording dlo_msgs/msg/GripperState only"]
+    _, qos, kwargs = node.subscribed[0]
+    assert (qos.depth, qos.reliability, qos.durability) == (1000, ReliabilityPolicy.RELIABLE,
+                                                           DurabilityPolicy.VOLATILE)
+    events = kwargs["event_callbacks"]  # a message lost or an incompatible publisher is reported, per topic
+    assert events.message_lost is not None and events.incompatible_qos is not None
+
+    class Incompatible:
+        last_policy_kind = "RELIABILITY"
+    events.incompatible_qos(Incompatible())
+    assert log.of("warning")[-1] == ("/dlo/gripper/state: a publisher's QoS is incompatible with the recorder's "
+                                     "subscription (policy RELIABILITY); not recorded")
+
+    # a best-effort publisher joins a topic subscribed reliably: warned once, not subscribed again
+    del log.lines[:]
+    node.publishers_of["/dlo/gripper/state"].append(PublisherInfo(reliability=ReliabilityPolicy.BEST_EFFORT))
+    node.discover()
+    node.discover()
+    assert len(node.subscribed) == 2
+    assert log.of("warning") == ["/dlo/gripper/state: a publisher now offers best-effort QoS; the reliable "
+                                 "subscription cannot receive from it"]
+
+    # a publisher whose RIHS01 type hash differs from the installed definition's; the same hash says nothing
+    rihs01 = node.recorder.topics["/dlo/gripper/state"].rihs01
+    assert rihs01.startswith("RIHS01_")
+    del log.lines[:]
+    node.graph = [("/dlo/same_hash", ["dlo_msgs/msg/GripperState"]), ("/dlo/other_hash", ["dlo_msgs/msg/GripperState"])]
+    node.publishers_of = {"/dlo/same_hash": [PublisherInfo(type_hash=rihs01)],
+                          "/dlo/other_hash": [PublisherInfo(type_hash="RIHS01_" + "0" * 64)]}
+    node.discover()
+    assert log.of("warning") == [f"/dlo/other_hash: publisher type hash RIHS01_{'0' * 64} differs from the "
+                                 f"installed definition's {rihs01}"]
+    assert [t for t, _, _ in node.subscribed][2:] == ["/dlo/same_hash", "/dlo/other_hash"]
+
+
+def test_a_topic_that_cannot_be_recorded_is_reported_once_and_left_alone(offline_recorder):
+    node, log = offline_recorder, offline_recorder.log
+    node.graph = [("/dlo/unknown", ["no_such_pkg/msg/Nothing"]), ("/dlo/gripper/state", ["dlo_msgs/msg/GripperState"])]
+    node.publishers_of = {"/dlo/unknown": [PublisherInfo()], "/dlo/gripper/state": [PublisherInfo()]}
+    for _ in range(3):
+        node.discover()
+    errors = log.of("error")
+    assert len(errors) == 1 and errors[0].startswith("/dlo/unknown: not recorded: "), log.lines
+    assert [t for t, _, _ in node.subscribed] == ["/dlo/gripper/state"]  # the other topic is recorded
+    assert "/dlo/unknown" not in node.recorder.topics
+
+
+def test_write_errors_are_logged_once_a_second_and_a_failed_recording_stops_the_node(offline_recorder, monkeypatch):
+    from rclpy.serialization import serialize_message
+
+    from dlo_bag.bag import BagWriteError
+
+    node, log = offline_recorder, offline_recorder.log
+    node.graph = [("/dlo/gripper/state", ["dlo_msgs/msg/GripperState"])]
+    node.publishers_of = {"/dlo/gripper/state": [PublisherInfo()]}
+    node.discover()
+    data = serialize_message(old_state(1))
+    now = [100.0]
+
+    class Clock:
+        @staticmethod
+        def monotonic():
+            return now[0]
+    monkeypatch.setattr(recorder_module, "time", Clock)
+    node._on_message("/dlo/gripper/state", data)  # written: nothing logged
+    assert log.of("error") == [] and node.recorder.received["/dlo/gripper/state"] == 1
+
+    def bad_write(topic, data, timestamp):
+        raise ValueError("bad message")
+    monkeypatch.setattr(node.recorder.writer, "write", bad_write)
+    logged = []
+    for t in (100.0, 100.5, 101.0, 101.01, 101.5, 102.02):
+        now[0] = t
+        before = len(log.of("error"))
+        node._on_message("/dlo/gripper/state", data)
+        if len(log.of("error")) > before:
+            logged.append(t)
+    assert logged == [100.0, 101.01, 102.02]  # at most one line a second (more than 1 s apart)
+    assert log.of("error")[0] == "write failed (1 so far): /dlo/gripper/state: ValueError: bad message"
+    assert node.stop_request.requests == 0 and not node.recorder.failure
+
+    def full_disk(topic, data, timestamp):
+        raise BagWriteError("cannot write", cause="no space left on device")
+    monkeypatch.setattr(node.recorder.writer, "write", full_disk)
+    now[0] = 200.0
+    del log.lines[:]
+    node._on_message("/dlo/gripper/state", data)
+    node._on_message("/dlo/gripper/state", data)
+    assert node.stop_request.requests == 1  # the failure stops the node (once)
+    assert len(log.of("error")) == 1 and log.of("error")[0].startswith(
+        "recording failed: no space left on device (cannot write); stopping"), log.lines

@@ -255,3 +255,34 @@ def test_incomplete_steps_are_reported_once_a_second_with_the_stamps_seen(make_n
     assert "(the tactile's nearest stamp is 0.4 us earlier: every input of a step must carry the state's exact stamp)" \
         in first
     assert "other incomplete steps since the last report" in log.errors[1]
+
+
+def test_ablating_a_modality_the_policy_does_not_observe_is_one_error_naming_the_parameter(make_node):
+    """The node's own check, before any observation is built: the parameter, what it cannot ablate and
+    what the policy observes (not build_observation's tuple-worded error)."""
+    from dlo_common.node_util import ParameterError
+
+    with pytest.raises(ParameterError) as error:
+        make_node(act=RecordingPolicy(), without="V", trained_on="T+K")
+    assert str(error.value) == "parameter 'without': cannot ablate V: the policy observes only K+T"
+    with pytest.raises(ParameterError) as error:
+        make_node(act=RecordingPolicy(), without="T+V", trained_on="K")
+    assert str(error.value) == "parameter 'without': cannot ablate T+V: the policy observes only K"
+
+
+def test_a_modality_that_cannot_read_its_message_stops_the_node_at_start(make_node, monkeypatch):
+    """The node builds one observation from empty messages when it starts (``# it builds``): a modality
+    record whose ``from_message`` fails is a ParameterError then, not an exception at the first step."""
+    import dataclasses
+
+    from dlo_common.node_util import ParameterError
+
+    def unreadable(msg):
+        raise ValueError("tactile message has no field 'angle'")
+    broken = dataclasses.replace(policy_node_module.by_name("T"), from_message=unreadable)
+    real = policy_node_module.by_name
+    monkeypatch.setattr(policy_node_module, "by_name", lambda name: broken if name == "T" else real(name))
+    with pytest.raises(ParameterError, match="^tactile message has no field 'angle'$"):
+        make_node(act=RecordingPolicy())
+    node = make_node(act=RecordingPolicy(), without="T")  # the ablated modality is never read
+    assert node.sync.keys == ("gripper", "vision")

@@ -455,3 +455,114 @@ def test_a_run_from_before_task_rules_resumes_on_the_rules_it_was_trained_on(tmp
     assert train.main(["--out", str(run), "--resume", "--steps", "120"]) == 0
     assert yaml.safe_load((run / rundir.CONFIG_FILE).read_text())["env_options"] == {"task_rules": LEGACY_TASK_RULES}
     assert env_module.GIVEN and set(env_module.GIVEN) == {LEGACY_TASK_RULES}
+
+
+def test_the_progress_bars_show_steps_training_returns_and_the_last_evaluation(tmp_path, capsys):
+    """dlo-train's progress bar (stderr): the run's name, steps done of the total, and after each evaluation
+    the mean return of the last training episodes, the evaluation's reward and hold-the-end fraction, alpha;
+    the held-out test counts episodes over every tested input set; --no-progress shows neither."""
+    import re
+
+    run = tmp_path / "run"
+    started = time.perf_counter()
+    assert train.main(["--out", str(run), "--steps", "100", "--modalities", "All", *TINY,
+                       "train.test_episodes=3", "train.eval_without=[T]", "train.progress=true"]) == 0
+    elapsed = time.perf_counter() - started
+    err = capsys.readouterr().err
+    assert re.search(r"All: 100%\|.*\| 100/100 \[.*(step/s|s/step)", err), err
+    assert re.search(r"alpha=\d\.\d{3}, eval_reward=-?\d+\.\d\d, hold_the_end=\d+%, train_return=-?\d+\.\d\d\]", err), err
+    assert re.search(r"All held-out test: 100%\|.*\| 6/6 \[.*(episode/s|s/episode), without T\]", err), err
+    assert "all inputs" in err
+    rows = read_eval(run)
+    # what the run records: the last all-inputs evaluation in done.json; wall seconds of this run (2 decimals);
+    # the learner's health of evaluation step s drawn with a generator seeded s (reproducible on resume)
+    done = json.loads((run / rundir.DONE_FILE).read_text())
+    assert {k: str(v) for k, v in done["last_eval"].items()} == {k: v for k, v in rows[-2].items()}
+    assert rows[-2]["tested_without"] == "" and int(rows[-2]["step"]) == 100
+    for value in [r["wall_time_s"] for r in rows] + [str(done["wall_time_s"])]:
+        assert 0 <= float(value) <= elapsed and len(value.partition(".")[2]) <= 2, value
+    health = SAC.load(run / rundir.CHECKPOINT_FILE).diagnostics(seed=100)
+    for key in ("alpha", "entropy", "q_value", "saturated"):
+        assert float(rows[-1][key]) == round(health[key], 6), key
+    assert max(len(r[k].partition(".")[2]) for r in rows for k in ("alpha", "entropy", "q_value")) == 6
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    events = EventAccumulator(str(run / rundir.TB_DIR))
+    events.Reload()
+    lengths = [e.value for e in events.Scalars("train/episode_length")]
+    returns = [e.value for e in events.Scalars("train/episode_return")]
+    assert len(lengths) >= 5 and all(1 <= n <= 20 for n in lengths) and all(r < 0 for r in returns)  # reward <= 0
+    assert train.main(["--out", str(run), "--resume", "--steps", "200"]) == 0  # the bar starts where the run stands
+    err = capsys.readouterr().err
+    assert re.search(r"All:  50%\|.*\| 100/200 \[", err) and re.search(r"All: 100%\|.*\| 200/200 \[", err), err
+    quiet = tmp_path / "quiet"
+    assert train.main(["--out", str(quiet), "--steps", "100", "--modalities", "All", "--no-progress", *TINY,
+                       "train.test_episodes=3", "train.eval_without=[T]", "train.progress=true"]) == 0
+    err = capsys.readouterr().err
+    assert "100/100" not in err and "held-out test" not in err and "it/s" not in err, err
+
+
+def test_resume_rewinds_best_json_and_best_policy_to_the_checkpoint(tmp_path):
+    """dlo-train --resume: best.json and best_policy.pt go back to the best of the checkpoint's step at once
+    (evaluations after the checkpoint are run again), whatever a later evaluation had written there."""
+    run = tmp_path / "run"
+    assert train.main(["--out", str(run), "--steps", "100", "--no-progress", *TINY, "train.test_episodes=2"]) == 0
+    best = json.loads((run / rundir.BEST_FILE).read_text())
+    assert best == SAC.extra_state(run / rundir.CHECKPOINT_FILE)["best"]
+    (run / rundir.BEST_FILE).write_text(json.dumps({"step": 999, "hold_the_end": 1.0, "episode_reward": 0.0}))
+    (run / rundir.BEST_POLICY_FILE).write_bytes(b"a later evaluation's policy")
+    trainer = train.Trainer(rundir.read_config(run), run, resume=True)
+    try:
+        assert json.loads((run / rundir.BEST_FILE).read_text()) == best
+        assert SAC.load(run / rundir.BEST_POLICY_FILE).num_env_steps == best["step"]
+        assert trainer.best == best
+    finally:
+        trainer.env.close()
+        trainer.eval_env.close()
+        trainer.tb.close()
+
+
+CLOSING_ENV = '''"""The reach env, noting every env dlo-train makes and how often it is closed."""
+import sac_reach_env
+
+MADE = []
+
+
+class Noted:
+    def __init__(self, env):
+        self.env, self.closed = env, 0
+
+    def __getattr__(self, name):
+        return getattr(self.env, name)
+
+    def close(self):
+        self.closed += 1
+        return self.env.close()
+
+
+def make_env(modalities="All", seed=0, **options):
+    MADE.append(Noted(sac_reach_env.make_env(modalities, seed, **options)))
+    return MADE[-1]
+
+
+def make_vec_env(num_envs, modalities="All", seed=0, **options):
+    MADE.append(Noted(sac_reach_env.make_vec_env(num_envs, modalities, seed, **options)))
+    return MADE[-1]
+'''
+
+
+def test_a_run_closes_its_training_and_evaluation_envs_also_when_it_fails(tmp_path, monkeypatch):
+    (tmp_path / "closing_env.py").write_text(CLOSING_ENV)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    env_module = importlib.import_module("closing_env")
+    tiny = [o for o in TINY if not o.startswith("env_module")]
+    assert train.main(["--out", str(tmp_path / "run"), "--steps", "60", "--no-progress", "env_module=closing_env",
+                       *tiny, "train.test_episodes=2"]) == 0
+    assert [env.closed for env in env_module.MADE] == [1, 1]  # the training env, then the evaluation env
+    env_module.MADE.clear()
+    config = load_config(None, ["env_module=closing_env", *tiny, "train.progress=false", "train.total_steps=200",
+                                "env_options.crash_after=90"])
+    with pytest.raises(InterruptedError):
+        train.train(config, tmp_path / "crashed")
+    assert [env.closed for env in env_module.MADE] == [1, 1]
+    assert not (tmp_path / "crashed" / rundir.CHECKPOINT_FILE).exists()  # the first one is due at step 100
