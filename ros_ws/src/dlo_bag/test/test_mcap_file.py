@@ -317,7 +317,8 @@ def test_summary_size_bounds_what_finish_appends(tmp_path):
         w.add_schema(f"pkg/msg/Type{k}" * 3, "ros2msg", b"float64 x\n" * (k + 1))
     for k in range(30):
         w.add_channel(f"/dlo/topic/with/a/long/name/{k}" * 2, 1 + k % 12,
-                      metadata={"offered_qos_profiles": "- history: 1\n  depth: 10\n" * 3, "topic_type_hash": "RIHS01_" + "a" * 64})
+                      metadata={"offered_qos_profiles": "- history: 1\n  depth: 10\n" * 3,
+                                "topic_type_hash": "RIHS01_" + "a" * 64})
     for i in range(200):
         w.add_message(1 + i % 30, i, b"x" * 20)
     w.flush()

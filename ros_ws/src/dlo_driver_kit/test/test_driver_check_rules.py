@@ -12,7 +12,7 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # --import-mode=importlib
 
-from test_driver_check import complete_recording, ideal_recording, results_of  # noqa: E402
+from test_driver_check import complete_recording, results_of  # noqa: E402
 
 from dlo_driver_kit.driver_check import (CONTROL_RATE, MAX_SPEED, InfoSample, ImageSample, Recording,  # noqa: E402
                                          Settings, StateSample, check_camera, check_invalid, check_obey,
