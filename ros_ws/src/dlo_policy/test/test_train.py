@@ -21,16 +21,7 @@ from dlo_sim.task import DEFAULT_TASK_RULES, LEGACY_TASK_RULES
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # --import-mode=importlib: helper modules
 
-TINY = ["env_module=sac_reach_env", "sac.hidden_sizes=[32,32]", "sac.batch_size=32",
-        "sac.learning_starts=50", "sac.buffer_size=2000", "train.eval_every=100",
-        "train.checkpoint_every=100", "train.num_threads=1"]
-
-
-@pytest.fixture(autouse=True)
-def restore_threads():
-    previous = torch.get_num_threads()
-    yield
-    torch.set_num_threads(previous)
+from tiny_training import TINY, restore_threads  # noqa: E402,F401 (restore_threads: an autouse fixture)
 
 
 def read_eval(run: Path) -> list[dict[str, str]]:

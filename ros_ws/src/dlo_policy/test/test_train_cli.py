@@ -14,16 +14,7 @@ from dlo_policy.config import ConfigError, load_config, save_config
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # --import-mode=importlib: sac_reach_env
 
-TINY = ["env_module=sac_reach_env", "sac.hidden_sizes=[32,32]", "sac.batch_size=32",
-        "sac.learning_starts=50", "sac.buffer_size=2000", "train.eval_every=100",
-        "train.checkpoint_every=100", "train.num_threads=1"]
-
-
-@pytest.fixture(autouse=True)
-def restore_threads():
-    previous = torch.get_num_threads()
-    yield
-    torch.set_num_threads(previous)
+from tiny_training import TINY, restore_threads  # noqa: E402,F401 (restore_threads: an autouse fixture)
 
 
 def git(repo, *args):
