@@ -10,7 +10,6 @@ see only slowly:
 """
 
 import os
-import random
 import time
 
 import pytest
@@ -22,6 +21,7 @@ from rosbags.interfaces import QosDurability, QosReliability  # noqa: E402
 from rosgraph_msgs.msg import Clock  # noqa: E402
 from sensor_msgs.msg import CameraInfo  # noqa: E402
 
+from dlo_common.testing import reserved_domain  # noqa: E402
 from dlo_msgs.msg import GripperState  # noqa: E402
 from dlo_bag import recorder_node as recorder_module  # noqa: E402
 from dlo_bag.bag import bag_info, read_messages  # noqa: E402
@@ -33,9 +33,10 @@ N = 5
 def context():
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     context = rclpy.Context()
-    rclpy.init(context=context, domain_id=random.Random(os.getpid() + 3).randint(201, 230))
-    yield context
-    rclpy.shutdown(context=context)
+    with reserved_domain() as domain:  # dlo_common.testing: no other test or graph on this machine uses it meanwhile
+        rclpy.init(context=context, domain_id=domain)
+        yield context
+        rclpy.shutdown(context=context)
 
 
 def spin_until(executor, condition, timeout=20.0):

@@ -12,7 +12,6 @@
 """
 
 import os
-import random
 import re
 
 import numpy as np
@@ -20,6 +19,7 @@ import pytest
 
 rclpy = pytest.importorskip("rclpy")
 from dlo_common.params import as_params, check_value  # noqa: E402
+from dlo_common.testing import reserved_domain  # noqa: E402
 from dlo_msgs.msg import GripperState, TactilePose, TaskState, VisualPose  # noqa: E402
 
 from dlo_policy import policy_node as policy_node_module  # noqa: E402
@@ -36,9 +36,10 @@ V = (True, 0.5, -0.2, 0.011)
 def context():
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     context = rclpy.Context()
-    rclpy.init(context=context, domain_id=random.Random(os.getpid() + 2).randint(201, 230))
-    yield context
-    rclpy.shutdown(context=context)
+    with reserved_domain() as domain:  # dlo_common.testing: no other test or graph on this machine uses it meanwhile
+        rclpy.init(context=context, domain_id=domain)
+        yield context
+        rclpy.shutdown(context=context)
 
 
 class Published(list):
