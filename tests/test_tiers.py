@@ -15,6 +15,8 @@ import pathlib
 import subprocess
 import sys
 
+import pytest
+
 from dlo_common.testing import exited
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
@@ -73,7 +75,8 @@ def test_markers_are_put_on_tests_when_only_ros_ws_is_collected():
     assert graph == {"test_playback_republishes_the_same_messages", "test_playback_bad_parameters"}, collected.stdout
 
 
-def test_sigterm_to_pytest_runs_fixture_teardown_so_no_child_outlives_it(tmp_path):
+@pytest.mark.parametrize("workers", [[], ["-n", "1"]], ids=["serial", "xdist"])  # scripts/test.sh: xdist workers
+def test_sigterm_to_pytest_runs_fixture_teardown_so_no_child_outlives_it(workers, tmp_path):
     (tmp_path / "test_inner.py").write_text(
         "import os, pathlib, subprocess, time\n"
         "import pytest\n\n"
@@ -89,7 +92,7 @@ def test_sigterm_to_pytest_runs_fixture_teardown_so_no_child_outlives_it(tmp_pat
     pid_file = tmp_path / "child.pid"
     env = dict(os.environ, CHILD_PID=str(pid_file), PYTHONPATH=f"{ROOT}{os.pathsep}{os.environ.get('PYTHONPATH', '')}")
     pytest_run = subprocess.Popen([sys.executable, "-m", "pytest", "-q", "-p", "conftest", "-p", "no:cacheprovider",
-                                   "--rootdir", str(tmp_path), "-c", os.devnull, str(tmp_path / "test_inner.py")],
+                                   "--rootdir", str(tmp_path), "-c", os.devnull, *workers, str(tmp_path / "test_inner.py")],
                                   cwd=tmp_path, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     try:
         deadline = time.monotonic() + 120
