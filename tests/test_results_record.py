@@ -75,20 +75,26 @@ def test_each_recorded_number_was_computed_on_the_documented_episodes(run):
         assert path.name == (f"test_without_{without}.json" if without else "test.json") and without in tested
 
 
-def test_each_study_trained_on_its_documented_task_rules():
-    """docs/FIDELITY.md, docs/RESULTS.md: results/study trained under authors_code with the one-particle grip,
-    results/study_authors_code under authors_code with our grip, results/study_paper_text under paper_text (its
-    runs predate the field: no task_rules in config.yaml reads as paper_text; a run without
-    single_particle_grip predates that option: our grip)."""
+def test_each_study_trained_on_its_documented_task_rules_and_length():
+    """docs/FIDELITY.md, docs/RESULTS.md: results/study trained 50,000 steps under authors_code with the
+    one-particle grip, results/study_15k the same for 15,000 steps, results/study_authors_code under
+    authors_code with our grip, results/study_paper_text under paper_text (its runs predate the field: no
+    task_rules in config.yaml reads as paper_text; a run without single_particle_grip predates that option:
+    our grip); every finished run of a study has the study's length."""
     from dlo_policy.rundir import read_trained_config
 
-    for study, rules, one_particle in (("study", "authors_code", True), ("study_authors_code", "authors_code", False),
-                                       ("study_paper_text", "paper_text", False)):
+    studies = (("study", "authors_code", True, 50_000), ("study_15k", "authors_code", True, 15_000),
+               ("study_authors_code", "authors_code", False, 15_000), ("study_paper_text", "paper_text", False, 15_000))
+    for study, rules, one_particle, steps in studies:
         runs = sorted((RESULTS / study).glob("*/seed*"))
         assert runs, study
         for run in runs:
-            options = read_trained_config(run).env_options
+            config = read_trained_config(run)
+            options = config.env_options
             assert (options["task_rules"], options.get("single_particle_grip", False)) == (rules, one_particle), run
+            assert config.train.total_steps == steps, run
+            with (run / "eval.csv").open(newline="") as f:
+                assert int(list(csv.DictReader(f))[-1]["step"]) == steps, run
 
 
 def fractions(episodes, key):
