@@ -13,7 +13,7 @@ import pytest
 from dlo_sim.task import OUTCOME_CODES
 from dlo_bag.analysis import recompute_episode
 
-SEEDS = (7005, 7006, 7007, 7096)  # 7096: the shipped policy drops the cable early (authors' set <= 1 particle)
+SEEDS = (7001, 7005, 7006, 7007)  # 7001: the shipped policy drops the cable early (authors' set <= 1 particle)
 
 
 def task_states(env, agent, seed, rules_field):
@@ -50,10 +50,13 @@ def episodes():
     from dlo_policy.policy_node import shipped_policy_path
     from dlo_policy.sac import SAC
 
+    from dlo_policy.rundir import trained_sim_settings
+
     agent = SAC.load(shipped_policy_path())
+    grip = trained_sim_settings(shipped_policy_path())["single_particle_grip"]  # the grip it was trained with
     result = {}
     for rules in ("paper_text", "authors_code"):
-        env = make_env("All", seed=0, task_rules=rules)
+        env = make_env("All", seed=0, task_rules=rules, single_particle_grip=grip)
         result[rules] = [(seed, *task_states(env, agent, seed, rules)) for seed in SEEDS]
     return result
 

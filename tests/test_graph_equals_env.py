@@ -1,4 +1,4 @@
-"""Step-locked graph == in-process gym env, exactly, with the shipped SAC policy, under both task rules.
+"""Step-locked graph == in-process gym env, exactly, with the shipped SAC policy, under both task rules and both grips.
 
 The seeds are ones whose episodes diverged before the fix of the stalled gripper's height (the
 stall lifted the gripper and the vision node, which computes at the published gripper z, then saw
@@ -14,18 +14,29 @@ import pytest
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 SEED = 7005
-EPISODES = {"paper_text": 6, "authors_code": 4}  # seeds 7005 .. 7010 / 7008
+# (task rules, the grip): the shipped policy's own settings under both task rules, and the other grip
+CASES = {"paper_text": ("paper_text", None, 6), "authors_code": ("authors_code", None, 4),  # seeds 7005 .. 7010 / 7008
+         "authors_code_other_grip": ("authors_code", "other", 4)}
 
 
-@pytest.fixture(scope="module", params=sorted(EPISODES))
+def shipped_grip() -> bool:
+    from dlo_policy.policy_node import shipped_policy_path
+    from dlo_policy.rundir import trained_sim_settings
+
+    return trained_sim_settings(shipped_policy_path())["single_particle_grip"]
+
+
+@pytest.fixture(scope="module", params=sorted(CASES))
 def graph_episodes(request, tmp_path_factory):
-    rules = request.param
-    logs = tmp_path_factory.mktemp(f"graph_sac_{rules}") / "logs"
-    result = subprocess.run(["bash", str(ROOT / "scripts" / "launch_graph.sh"), "--episodes", str(EPISODES[rules]),
-                             "--seed", str(SEED), "--logs", str(logs), "--task-rules", rules],
+    rules, grip, episodes = CASES[request.param]
+    grip = shipped_grip() if grip is None else not shipped_grip()
+    logs = tmp_path_factory.mktemp(f"graph_sac_{request.param}") / "logs"
+    result = subprocess.run(["bash", str(ROOT / "scripts" / "launch_graph.sh"), "--episodes", str(episodes),
+                             "--seed", str(SEED), "--logs", str(logs), "--task-rules", rules,
+                             "--single-particle-grip", str(grip).lower()],
                             capture_output=True, text=True, timeout=900, env={**os.environ, "DLO_USE_ROS2RUN": "1"})
     assert result.returncode == 0, result.stdout[-2000:] + result.stderr[-2000:]
-    return rules, [json.loads(line) for line in (logs / "outcomes.jsonl").read_text().splitlines()]
+    return rules, grip, episodes, [json.loads(line) for line in (logs / "outcomes.jsonl").read_text().splitlines()]
 
 
 def test_shipped_policy_episodes_in_the_graph_equal_the_in_process_env(graph_episodes):
@@ -33,12 +44,12 @@ def test_shipped_policy_episodes_in_the_graph_equal_the_in_process_env(graph_epi
     from dlo_policy.policy_node import shipped_policy_path
     from dlo_policy.sac import SAC
 
-    rules, episodes = graph_episodes
+    rules, grip, count, episodes = graph_episodes
     agent = SAC.load(shipped_policy_path())
-    env = make_env("All", seed=SEED, task_rules=rules)
-    assert [e["seed"] for e in episodes] == list(range(SEED, SEED + EPISODES[rules]))
+    env = make_env("All", seed=SEED, task_rules=rules, single_particle_grip=grip)
+    assert [e["seed"] for e in episodes] == list(range(SEED, SEED + count))
     assert {e["task_rules"] for e in episodes} == {rules}
-    assert {e["single_particle_grip"] for e in episodes} == {False}  # the sim notes its grip: the shipped policy's
+    assert {e["single_particle_grip"] for e in episodes} == {grip}  # the sim notes its grip
     for live in episodes:
         observation, _ = env.reset(seed=live["seed"])
         done, info = False, {}

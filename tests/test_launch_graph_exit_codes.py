@@ -248,15 +248,18 @@ def test_a_bad_option_is_exit_2_in_one_line_before_anything_starts(case, tmp_pat
 
 NOTE = ("[launch] note: the policy was trained with task_rules={}, single_particle_grip={}; this graph runs "
         "task_rules={}, single_particle_grip={} (as asked)")
-SIM_SETTINGS = {  # launcher options (SPG: a copy of the shipped policy's run trained with the one-particle grip)
+SIM_SETTINGS = {  # launcher options (OURS: a copy of the shipped policy's run as if trained with our finite grip)
     # -> the sim's task_rules and single_particle_grip, and the note on settings that differ from the training
-    "shipped": ([], "authors_code", "false", None),
-    "shipped_asked_for_the_authors_grip": (["--single-particle-grip"], "authors_code", "true",
-                                           NOTE.format("authors_code", "false", "authors_code", "true")),
-    "trained_with_the_authors_grip": (["--checkpoint", "SPG"], "authors_code", "true", None),
-    "trained_with_it_asked_otherwise": (["--checkpoint", "SPG", "--single-particle-grip", "false", "--task-rules",
-                                         "paper_text"], "paper_text", "false",
-                                        NOTE.format("authors_code", "true", "paper_text", "false")),
+    "shipped": ([], "authors_code", "true", None),
+    "shipped_asked_for_our_grip": (["--single-particle-grip", "false"], "authors_code", "false",
+                                   NOTE.format("authors_code", "true", "authors_code", "false")),
+    "trained_with_our_grip": (["--checkpoint", "OURS"], "authors_code", "false", None),
+    "trained_with_our_grip_asked_for_the_authors_grip": (["--checkpoint", "OURS", "--single-particle-grip"],
+                                                         "authors_code", "true",
+                                                         NOTE.format("authors_code", "false", "authors_code", "true")),
+    "trained_with_it_asked_otherwise": (["--checkpoint", "OURS", "--single-particle-grip", "true", "--task-rules",
+                                         "paper_text"], "paper_text", "true",
+                                        NOTE.format("authors_code", "false", "paper_text", "true")),
     "scripted_policy": (["--policy", "tactile_reactive"], "authors_code", "false", None),
     "scripted_policy_asked": (["--policy", "tactile_reactive", "--single-particle-grip", "true"], "authors_code",
                               "true", None),
@@ -267,18 +270,18 @@ SIM_SETTINGS = {  # launcher options (SPG: a copy of the shipped policy's run tr
 @pytest.mark.parametrize("case", sorted(SIM_SETTINGS))
 def test_the_sim_runs_the_task_the_policy_was_trained_on_unless_asked(case, tmp_path, own_groups):
     """launch_graph.sh --help (--task-rules, --single-particle-grip): with --policy sac the sim gets the task
-    rules and the grip of the checkpoint's run (its config.yaml: a study policy, trained with the authors'
-    one-particle grip, meets that grip without a flag); a setting asked for that differs is run, with a note."""
+    rules and the grip of the checkpoint's run (its config.yaml: the shipped policy, trained with the authors'
+    one-particle grip, meets that grip without a flag, one trained with ours meets ours); a setting asked for
+    that differs is run, with a note."""
     args, rules, grip, note = SIM_SETTINGS[case]
     shipped = ROOT / "ros_ws" / "src" / "dlo_policy" / "policies" / "all"
-    spg = tmp_path / "spg_run"
-    spg.mkdir()
-    (spg / "policy.pt").write_bytes((shipped / "policy.pt").read_bytes())
+    ours = tmp_path / "finite_grip_run"
+    ours.mkdir()
+    (ours / "policy.pt").write_bytes((shipped / "policy.pt").read_bytes())
     config = (shipped / "config.yaml").read_text()
-    assert "  task_rules: authors_code\n" in config and "single_particle_grip" not in config
-    (spg / "config.yaml").write_text(config.replace("  task_rules: authors_code\n",
-                                                    "  task_rules: authors_code\n  single_particle_grip: true\n"))
-    args = [str(spg / "policy.pt") if a == "SPG" else str(tmp_path / "online") if a == "OUT" else a for a in args]
+    assert "  task_rules: authors_code\n  single_particle_grip: true\n" in config
+    (ours / "config.yaml").write_text(config.replace("  single_particle_grip: true\n", "  single_particle_grip: false\n"))
+    args = [str(ours / "policy.pt") if a == "OURS" else str(tmp_path / "online") if a == "OUT" else a for a in args]
     proc, out, logs, bag = start(tmp_path, {"sim": episodes(1)}, ["--episodes", "1", *args], own_groups)
     text = check(proc, out, logs, bag, 0, [note] if note else [])
     assert ("[launch] note:" in text) == (note is not None), text

@@ -143,13 +143,35 @@ def test_the_previous_policys_graph_run_is_its_record():
 
 
 def test_the_shipped_policys_graph_run_is_its_record():
-    """docs/RESULTS.md (Shipped policy): through the graph, seeds 7000-7099, the same 95% / 92% as
-    in-process, outcomes in results/shipped/graph_seeds7000-7099.jsonl."""
+    """docs/RESULTS.md (Shipped policy): through the graph, seeds 7000-7099, the same Hold the end under both
+    rules as in-process (results/shipped/in_process_7000.json), outcomes in
+    results/shipped/graph_seeds7000-7099.jsonl, run with the grip the policy was trained with."""
+    from dlo_policy.rundir import shipped_policy_path, trained_sim_settings
+
     graph = [json.loads(line) for line in (RESULTS / "shipped" / "graph_seeds7000-7099.jsonl").read_text().splitlines()]
+    in_process = json.loads((RESULTS / "shipped" / "in_process_7000.json").read_text())
+    assert [e["seed"] for e in graph] == list(range(7000, 7100))
+    assert {e["single_particle_grip"] for e in graph} == {trained_sim_settings(shipped_policy_path())["single_particle_grip"]}
+    paper, authors = fractions(graph, "outcome"), fractions(graph, "outcome_authors")
+    for outcome in OUTCOMES:
+        assert (paper[outcome], authors[outcome]) == pytest.approx(
+            (in_process[outcome], in_process["authors_code"][outcome])), outcome
+    same = f"the same {round(100 * paper['hold_the_end'])}% / {round(100 * authors['hold_the_end'])}%"
+    assert same in (ROOT / "docs" / "RESULTS.md").read_text(), same
+
+
+def test_the_policy_shipped_until_2026_12_03_is_its_record():
+    """docs/RESULTS.md (Shipped policy): the policy replaced on 2026-12-03 scored 95% / 92% on seeds 7000-7099
+    through the graph, its records and README in results/baselines/shipped_until_2026-12-03/."""
+    folder = RESULTS / "baselines" / "shipped_until_2026-12-03"
+    graph = [json.loads(line) for line in (folder / "graph_seeds7000-7099.jsonl").read_text().splitlines()]
     assert [e["seed"] for e in graph] == list(range(7000, 7100))
     assert (fractions(graph, "outcome")["hold_the_end"], fractions(graph, "outcome_authors")["hold_the_end"]) == \
         pytest.approx((0.95, 0.92))
-    assert "the same 95% / 92%" in (ROOT / "docs" / "RESULTS.md").read_text()
+    in_process = json.loads((folder / "in_process_7000.json").read_text())
+    assert (in_process["hold_the_end"], in_process["authors_code"]["hold_the_end"]) == pytest.approx((0.95, 0.92))
+    assert "scored 95% / 92% on the\nsame seeds (`results/baselines/shipped_until_2026-12-03/`)" in \
+        (ROOT / "docs" / "RESULTS.md").read_text()
 
 
 def test_the_scripted_baselines_are_their_record_on_seeds_0_to_199():

@@ -105,13 +105,19 @@ def test_checkpoints_store_the_expanded_modalities(tmp_path):
 
 
 def test_a_checkpoint_from_before_loads_and_its_all_means_k_t_v(tmp_path, monkeypatch):
-    """The shipped policy stores no modalities (it predates them): its run's config.yaml says "All", which is
-    K+T+V, and the policy node reads it so."""
+    """A policy file from before the modalities were stored (as the policy shipped until 2026-12-03): its run's
+    config.yaml says "All", which is K+T+V, and the policy node reads it so."""
     pytest.importorskip("rclpy")
+    import torch
+
     from dlo_policy import policy_node
     from dlo_policy.evaluate import load_run_config
 
-    shipped = policy_node.shipped_policy_path()
+    state = read_checkpoint(policy_node.shipped_policy_path())
+    del state["modalities"]  # what a file written before them holds
+    shipped = tmp_path / "policy.pt"
+    torch.save(state, shipped)
+    (tmp_path / "config.yaml").write_text(policy_node.shipped_policy_path().with_name("config.yaml").read_text())
     assert "modalities" not in read_checkpoint(shipped) and SAC.load(shipped).modalities is None
     assert load_run_config(shipped).modalities == "All"
     act, trained_on = policy_node.load_policy("sac", str(shipped), "K", seed=0)

@@ -211,8 +211,8 @@ def test_sim_settings_are_what_the_policy_file_was_trained_on(tmp_path, capsys):
         said[name] = capsys.readouterr().out
     assert said == {"spg": "authors_code true\n", "text": "paper_text false\n", "old": "paper_text false\n",
                     "bare": "unknown\n"}
-    assert rundir.main(["--sim-settings", ""]) == 0  # the shipped policy: trained on authors_code, finite grip
-    assert capsys.readouterr().out == "authors_code false\n"
+    assert rundir.main(["--sim-settings", ""]) == 0  # the shipped policy: the study's authors_code, one-particle grip
+    assert capsys.readouterr().out == "authors_code true\n"
 
 
 def test_sim_settings_of_a_missing_file_or_a_bad_config_is_one_line_and_exit_2(tmp_path, capsys):
