@@ -12,6 +12,9 @@ tests/test_tiers.py checks that each entry still names a test.
 
 A pytest stopped by SIGTERM (a CI job's timeout, ``kill``) tears its fixtures down as on Ctrl-C, so a
 graph a module-scoped fixture started does not outlive the run (pytest_configure below).
+
+Nodes killed with SIGKILL (the crash tests) leave Fast DDS shared-memory files in /dev/shm; the session
+removes the ones that appeared while it ran and that no process uses any more (pytest_sessionfinish).
 """
 
 from __future__ import annotations
@@ -39,6 +42,7 @@ GRAPH = (
     "tests/test_node_help.py::test_a_bad_value_in_a_params_file_is_a_one_line_error",
     "ros_ws/src/dlo_policy/test/test_cli_errors.py::test_policy_node_refuses_a_text_file_as_checkpoint",
     "ros_ws/src/dlo_driver_kit/test/test_driver_check.py::test_no_driver_is_one_clear_line_and_bad_usage_exits_2",
+    "ros_ws/src/dlo_common/test/test_testing.py::test_a_killed_participants_shared_memory_is_removed_and_a_live_ones_kept",
 )
 
 SLOW = (  # each about 3 s or more: a training, a long simulation, evaluation or video render
@@ -79,6 +83,24 @@ def pytest_configure(config):
 
     if threading.current_thread() is threading.main_thread() and signal.getsignal(signal.SIGTERM) == signal.SIG_DFL:
         signal.signal(signal.SIGTERM, interrupt)
+
+
+_DDS_SHM_BEFORE: list[set[str]] = []  # the session's snapshot of Fast DDS's /dev/shm files, once taken
+
+
+def pytest_sessionstart(session):
+    try:
+        from dlo_common.testing import dds_shm_entries
+    except ImportError:  # pytest without scripts/env.sh: nothing of ours to clean up after
+        return
+    _DDS_SHM_BEFORE.append(dds_shm_entries())
+
+
+def pytest_sessionfinish(session, exitstatus):
+    if _DDS_SHM_BEFORE:
+        from dlo_common.testing import remove_orphaned_dds_shm
+
+        remove_orphaned_dds_shm(_DDS_SHM_BEFORE[0])
 
 
 def pytest_collection_modifyitems(config, items):

@@ -11,6 +11,8 @@ The tests of dlo_bag, dlo_viz and dlo_driver_kit define their fixtures over thes
 - :func:`isolated_env`: a copy of the environment on a reserved ROS domain with localhost discovery;
   :func:`package_test_env` the same, skipping the test when the package's executable is not built.
 - :class:`Procs`: starts processes and stops every one still running at the end (SIGINT, wait, kill).
+- :func:`remove_orphaned_dds_shm`: the Fast DDS shared-memory files that killed participants left in
+  /dev/shm since a snapshot, removed (the root conftest.py does it at the end of every test session).
 
 Standard library only: no rclpy; pytest is imported inside :func:`package_test_env` only.
 """
@@ -169,6 +171,55 @@ def reserved_domain(span: int = 1):
         yield domain
     finally:
         release_domains(domain, span)
+
+
+SHM = Path("/dev/shm")
+DDS_SHM_PREFIXES = ("fastrtps_", "sem.fastrtps_")  # Fast DDS's shared-memory segments, port files, semaphores
+
+
+def dds_shm_entries(shm: Path = SHM) -> set[str]:
+    """The names of Fast DDS's shared-memory files in ``shm`` now."""
+    try:
+        return {p.name for p in shm.iterdir() if p.name.startswith(DDS_SHM_PREFIXES)}
+    except OSError:
+        return set()
+
+
+def _files_in_use() -> set[str]:
+    """Every file some process on this machine has mapped or open (/proc/*/maps, /proc/*/fd)."""
+    used: set[str] = set()
+    for proc in Path("/proc").iterdir():
+        if not proc.name.isdigit():
+            continue
+        with contextlib.suppress(OSError):
+            for line in (proc / "maps").read_text().splitlines():
+                fields = line.split(None, 5)  # address perms offset device inode [path]
+                if len(fields) == 6:
+                    used.add(fields[5].removesuffix(" (deleted)").strip())
+        with contextlib.suppress(OSError):
+            for fd in (proc / "fd").iterdir():
+                with contextlib.suppress(OSError):
+                    used.add(os.readlink(fd))
+    return used
+
+
+def remove_orphaned_dds_shm(before: set[str], shm: Path = SHM) -> list[str]:
+    """Remove the Fast DDS shared-memory files that appeared in ``shm`` since ``before`` (a
+    :func:`dds_shm_entries` snapshot) and that no process maps or holds open: what participants killed
+    with SIGKILL (crash tests) leave behind. Files of running participants, and every file that was
+    there before, stay. Returns the removed names."""
+    new = sorted(dds_shm_entries(shm) - before)
+    if not new:
+        return []
+    used = _files_in_use()
+    removed = []
+    for name in new:
+        path = shm / name
+        if str(path) not in used:
+            with contextlib.suppress(FileNotFoundError):
+                path.unlink()
+                removed.append(name)
+    return removed
 
 
 def isolated_env(base: dict[str, str] | None = None, domain_id: int | None = None) -> dict[str, str]:

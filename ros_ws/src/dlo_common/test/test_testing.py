@@ -1,9 +1,11 @@
 """dlo_common.testing.reserve_domains: a ROS domain a test uses is used by nothing else on the machine
-(another test process, a pytest-xdist worker, launch_graph.sh, any DDS participant)."""
+(another test process, a pytest-xdist worker, launch_graph.sh, any DDS participant);
+remove_orphaned_dds_shm: what killed participants leave in /dev/shm is removed, nothing in use."""
 
 import socket
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
@@ -70,3 +72,77 @@ def test_the_context_manager_releases_and_isolated_env_reserves():
         assert env["ROS_AUTOMATIC_DISCOVERY_RANGE"] == "LOCALHOST" and "ROS_LOCALHOST_ONLY" not in env
     finally:
         testing.release_domains(domain)
+
+
+HOLDER = """import mmap, sys, time
+held = open(sys.argv[1], "rb")                    # an open file
+mapped = open(sys.argv[2], "r+b")
+view = mmap.mmap(mapped.fileno(), 0)              # a mapped one (its file object then closed)
+mapped.close()
+print("ready", flush=True)
+time.sleep(120)
+"""
+
+
+def test_only_new_dds_files_no_process_uses_are_removed(tmp_path):
+    """remove_orphaned_dds_shm: of Fast DDS's files that appeared since the snapshot, those no process maps
+    or holds open go; one open or mapped by a live process, one there before, and any other file stay."""
+    shm = tmp_path / "shm"
+    shm.mkdir()
+    (shm / "fastrtps_before").write_bytes(b"x")
+    before = testing.dds_shm_entries(shm)
+    assert before == {"fastrtps_before"}
+    for name in ("fastrtps_orphan", "fastrtps_orphan_el", "sem.fastrtps_port7001_mutex", "fastrtps_open",
+                 "fastrtps_mapped", "someone_else"):
+        (shm / name).write_bytes(b"x" * 4096)
+    holder = subprocess.Popen([sys.executable, "-c", HOLDER, str(shm / "fastrtps_open"), str(shm / "fastrtps_mapped")],
+                              stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout.readline().strip() == "ready"
+        removed = testing.remove_orphaned_dds_shm(before, shm)
+    finally:
+        holder.kill()
+        holder.wait()
+    assert sorted(removed) == ["fastrtps_orphan", "fastrtps_orphan_el", "sem.fastrtps_port7001_mutex"]
+    assert sorted(p.name for p in shm.iterdir()) == ["fastrtps_before", "fastrtps_mapped", "fastrtps_open",
+                                                     "someone_else"]
+    assert testing.remove_orphaned_dds_shm(before, shm) == ["fastrtps_mapped", "fastrtps_open"]  # holder gone
+
+
+NODE = """import time, rclpy
+rclpy.init()
+node = rclpy.create_node("shm_probe")
+node.create_publisher(__import__("std_msgs.msg", fromlist=["String"]).String, "/shm_probe", 10)
+print("up", flush=True)
+time.sleep(120)
+"""
+
+
+def test_a_killed_participants_shared_memory_is_removed_and_a_live_ones_kept():
+    """What the test session does at its end (conftest.py): a ROS node killed with SIGKILL leaves Fast DDS
+    files in /dev/shm; they are removed, while those of a node still running stay."""
+    pytest.importorskip("rclpy")
+    if not testing.SHM.is_dir():
+        pytest.skip("no /dev/shm here")
+    before = testing.dds_shm_entries()
+    env = testing.isolated_env()
+    live, killed = (subprocess.Popen([sys.executable, "-c", NODE], env=env, stdout=subprocess.PIPE, text=True)
+                    for _ in range(2))
+    try:
+        for proc in (live, killed):
+            assert proc.stdout.readline().strip() == "up"
+        killed_files = {name for name in testing.dds_shm_entries() - before
+                        if f"{testing.SHM / name}" in (Path(f"/proc/{killed.pid}/maps").read_text())}
+        live_files = {name for name in testing.dds_shm_entries() - before
+                      if f"{testing.SHM / name}" in (Path(f"/proc/{live.pid}/maps").read_text())}
+        if not killed_files:
+            pytest.skip("this DDS set-up uses no shared memory")
+        killed.kill()
+        killed.wait()
+        removed = set(testing.remove_orphaned_dds_shm(before))
+        assert killed_files - live_files <= removed  # the killed node's own files are gone
+        assert live_files <= testing.dds_shm_entries() and not live_files & removed  # the live node's stay
+    finally:
+        for proc in (live, killed):
+            proc.kill()
+            proc.wait()
