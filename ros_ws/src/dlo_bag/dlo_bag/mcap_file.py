@@ -219,8 +219,8 @@ class ChunkedMcapWriter:
 
     def summary_size(self) -> int:
         """Upper bound of the bytes :meth:`finish` appends besides the pending chunk."""
-        schemas = sum(len(s.data) + len(s.name) + 32 for s in self.schemas.values())
-        channels = sum(64 + len(c.topic) + sum(len(k) + len(v) + 8 for k, v in c.metadata.items())
+        schemas = sum(len(s.data) + len(s.name) + len(s.encoding) + 32 for s in self.schemas.values())
+        channels = sum(64 + len(c.topic) + len(c.message_encoding) + sum(len(k) + len(v) + 8 for k, v in c.metadata.items())
                        for c in self.channels.values())
         chunks = (len(self.chunk_indexes) + 1) * (96 + 10 * max(1, len(self.channels)))
         return 512 + schemas + channels + chunks + 10 * len(self.channels)
@@ -471,6 +471,9 @@ def _cut_chunk(scan: McapScan, rest: bytes) -> Iterator[ScannedMessage]:
     _start, _end, _size, _crc = head.unpack_from(rest, 0)
     (clen,) = struct.unpack_from("<I", rest, head.size)
     pos = head.size + 4
+    if len(rest) < pos + clen + 8:  # cut in its compression name or its records length
+        scan.problems.append(f"chunk cut at byte {scan.good_end} (its header is incomplete)")
+        return
     compression = rest[pos:pos + clen].decode(errors="replace")
     pos += clen + 8  # compression string, records length
     if compression:

@@ -17,7 +17,7 @@ from mcap.opcode import Opcode
 from mcap.reader import make_reader
 from mcap.stream_reader import StreamReader
 from mcap.records import Chunk, Footer, Header, Message, MessageIndex, Metadata, SummaryOffset
-from mcap.writer import CompressionType, Writer
+from mcap.writer import CompressionType, IndexType, Writer
 
 from dlo_bag.mcap_file import MAGIC, WRITER_NAME, ChunkedMcapWriter, McapScanError, scan_mcap
 
@@ -377,8 +377,8 @@ def test_a_file_cut_anywhere_gives_every_complete_message_and_where_the_good_par
         got = [(m.log_time, m.sequence, m.data) for m in messages]
         expected = [(t, sq, d) for (_, t, _, sq, d), e in zip(written, message_ends) if e <= cut]
         assert got == expected, cut
-        if cut >= data_end:
-            assert scan.complete and scan.discarded == 0, cut
+        if cut >= data_end:  # the readable part ends with DataEnd: the summary and footer are no data
+            assert (scan.complete, scan.good_end, scan.discarded) == (True, data_end, 0), cut
         else:
             good = max(e for e in ends if e <= cut)
             assert (scan.complete, scan.good_end, scan.discarded, scan.size) == (False, good, cut - good, cut), cut
@@ -566,3 +566,178 @@ def test_a_cut_chunk_keeps_a_complete_record_that_ends_exactly_at_the_cut(tmp_pa
     scan, messages = scan_mcap(path)
     assert [m.data for m in messages] == [b"ab"]
     assert scan.good_end == cut and scan.discarded == 0
+
+
+def test_summary_size_bounds_what_finish_appends_at_its_tightest(tmp_path):
+    """summary_size() is an upper bound of what finish() appends besides the pending chunk, also where its
+    allowances are used up: every channel in every chunk (each chunk index lists them all), a pending chunk at
+    finish (its chunk index is in the summary too), channels with long message encodings and many schemas with
+    a long encoding (both counted by their length, not by an allowance)."""
+    def appended_besides_the_pending_chunk(w):
+        bound, before = w.summary_size(), w.committed
+        w.flush(fsync=False)  # what finish() appends first: the pending chunk and its message indexes
+        chunk = w.committed - before
+        w.finish(fsync=False)
+        return w.committed - before - chunk, bound
+
+    cases = (("many_chunks", 30, 10, "cdr", 1, "ros2msg"),
+             ("long_encodings", 60, 2, "application/x-dlo-" + "e" * 18, 1, "ros2msg"),
+             ("longer_encodings", 60, 2, "application/x-dlo-" + "e" * 27, 1, "ros2msg"),  # beyond the allowance
+             ("many_jsonschemas", 1, 1, "cdr", 1000, "jsonschema"))
+    for name, channels, chunks, encoding, schemas, schema_encoding in cases:
+        w = ChunkedMcapWriter(tmp_path / f"{name}.mcap", chunk_size=10**9)
+        for k in range(schemas):
+            w.add_schema(f"p/msg/T{k}", schema_encoding, b"x")
+        for k in range(channels):
+            w.add_channel(f"/t{k}", 1, message_encoding=encoding)
+        for j in range(chunks):
+            for k in range(channels):
+                w.add_message(k + 1, 100 * j + k, b"m")
+            if j < chunks - 1:
+                w.flush()
+        assert w.pending_counts == {k + 1: 1 for k in range(channels)}
+        appended, bound = appended_besides_the_pending_chunk(w)
+        assert appended <= bound, name
+        check_indexes((tmp_path / f"{name}.mcap").read_bytes())
+
+
+def test_a_message_without_payload_is_a_complete_message(tmp_path):
+    """A message of no data (22 bytes of record body: channel, sequence and the two times) is a complete message:
+    written, read back by the mcap reader and by scan_mcap, also from a cut chunk."""
+    path = tmp_path / "a.mcap"
+    w = ChunkedMcapWriter(path, chunk_size=10**6)
+    w.add_channel("/a", w.add_schema("s", "ros2msg", b""))
+    w.add_message(1, 10, b"", publish_time=11, sequence=3)
+    w.add_message(1, 20, b"x")
+    w.flush()
+    size_one_chunk = w.committed
+    w.finish(fsync=False)
+    data = path.read_bytes()
+    check_indexes(data)
+    with path.open("rb") as f:
+        assert [m.data for _, _, m in make_reader(f).iter_messages()] == [b"", b"x"]
+    scan, messages = scan_mcap(path)
+    assert [(m.log_time, m.publish_time, m.sequence, m.data) for m in messages] == [(10, 11, 3, b""), (20, 20, 0, b"x")]
+    assert scan.problems == [] and scan.messages == 2
+    # the chunk cut right after the empty message (its record is 9 + 22 bytes)
+    chunk_start = next(o for o, op, _, _ in records_at(data, 8, size_one_chunk) if op == Opcode.CHUNK)
+    chunk = Chunk.read(stream(record_at(data, chunk_start)[2]))
+    inner = chunk_start + record_at(data, chunk_start)[1] - len(chunk.data)
+    empty_end = next(inner + o + n for o, op, n, _ in records_at(chunk.data, 0, len(chunk.data)) if op == Opcode.MESSAGE)
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(data[:empty_end])
+    scan, messages = scan_mcap(cut)
+    assert [m.data for m in messages] == [b""] and scan.good_end == empty_end and scan.discarded == 0
+
+
+def test_a_cut_chunk_whose_compression_name_is_damaged_does_not_stop_the_scan(tmp_path):
+    """The compression name of a cut chunk that is not UTF-8 (damaged bytes) is still reported, as a compressed
+    chunk whose messages are lost; the messages before it are kept and the scan ends normally."""
+    from dlo_bag.mcap_file import _record_bytes
+
+    good = MAGIC + _record_bytes(Header(profile="ros2", library="x"))
+    message = HEAD.pack(Opcode.MESSAGE, 22 + 2) + struct.pack("<HIQQ", 1, 3, 7, 7) + b"ab"
+    first = _record_bytes(Chunk(message_start_time=7, message_end_time=7, uncompressed_size=len(message),
+                                uncompressed_crc=zlib.crc32(message), compression="", data=message))
+    chunk = bytearray(_record_bytes(Chunk(message_start_time=7, message_end_time=7, uncompressed_size=len(message),
+                                          uncompressed_crc=0, compression="zstd", data=message * 3)))
+    name_at = chunk.index(b"zstd")
+    chunk[name_at:name_at + 4] = b"\xff\xfez\xc3"  # not UTF-8
+    path = tmp_path / "a.mcap"
+    path.write_bytes(good + first + bytes(chunk[:-10]))
+    scan, messages = scan_mcap(path)
+    assert [m.data for m in messages] == [b"ab"]
+    assert scan.problems == [f"\ufffd\ufffdz\ufffd-compressed chunk cut at byte {len(good) + len(first)}: "
+                             "its messages are lost"]
+    assert scan.good_end == len(good) + len(first) and not scan.complete
+
+
+def test_a_chunk_cut_inside_its_header_is_reported_as_such(tmp_path):
+    """A chunk cut anywhere before its records begin (in the times, sizes, compression name or records length)
+    is reported as a chunk whose header is incomplete, compressed or not: never as an uncompressed chunk with
+    no message, nor under a cut-off compression name; the messages before it are kept."""
+    from dlo_bag.mcap_file import _record_bytes
+
+    good = MAGIC + _record_bytes(Header(profile="ros2", library="x"))
+    message = HEAD.pack(Opcode.MESSAGE, 22 + 2) + struct.pack("<HIQQ", 1, 3, 7, 7) + b"ab"
+    first = _record_bytes(Chunk(message_start_time=7, message_end_time=7, uncompressed_size=len(message),
+                                uncompressed_crc=zlib.crc32(message), compression="", data=message))
+    for compression in ("", "zstd"):
+        chunk = _record_bytes(Chunk(message_start_time=7, message_end_time=7, uncompressed_size=len(message),
+                                    uncompressed_crc=0, compression=compression, data=message))
+        header_end = 9 + 8 * 3 + 4 + 4 + len(compression) + 8  # opcode, length; times, size, crc; name; records length
+        for cut in range(9, header_end):
+            path = tmp_path / f"cut{compression}{cut}.mcap"
+            path.write_bytes(good + first + chunk[:cut])
+            scan, messages = scan_mcap(path)
+            assert [m.data for m in messages] == [b"ab"], (compression, cut)
+            assert scan.problems == [f"chunk cut at byte {len(good) + len(first)} (its header is incomplete)"], \
+                (compression, cut, scan.problems)
+
+
+def test_a_file_that_is_not_mcap_is_closed_at_once(tmp_path):
+    """scan_mcap closes the file it rejects (dlo-bag-recover scans many files in one process)."""
+    wrong = tmp_path / "wrong.mcap"
+    wrong.write_bytes(b"not an mcap file at all")
+    before = len(os.listdir("/proc/self/fd"))
+    with pytest.raises(McapScanError) as raised:
+        scan_mcap(wrong)
+    assert len(os.listdir("/proc/self/fd")) == before, "the rejected file is still open"
+    del raised
+
+
+def _garble_the_first_chunk(data: bytearray, first: int, end: int) -> None:
+    for k in range(first + 9 + 50, end):  # from inside the first schema record on: no definition parses
+        data[k] = 0xFF
+
+
+def test_the_summary_supplies_what_parses_and_only_a_footer_makes_it_trusted(tmp_path):
+    """With the chunk holding every schema and channel unreadable, the summary section supplies them: each record
+    that parses (a damaged schema record costs that schema only), also when the summary ends with a channel right
+    before the footer (no statistics, indexes or summary offsets). A file without its footer (cut anywhere after
+    DataEnd) has no trusted summary: nothing is read from it."""
+    path = tmp_path / "a.mcap"
+    write_example(path, chunk_size=250)
+    data = bytearray(path.read_bytes())
+    chunks = check_indexes(bytes(data))
+    first = min(chunks)
+    _garble_the_first_chunk(data, first, chunks[first][-1][2])
+    footer = Footer.read(stream(record_at(bytes(data), len(data) - 37)[2]))
+    schema_record = footer.summary_start
+    assert record_at(bytes(data), schema_record)[0] == Opcode.SCHEMA
+    damaged = bytearray(data)
+    damaged[schema_record + 9 + 2:schema_record + 9 + 6] = b"\xff\xff\xff\x7f"  # schema 1's name length: too long
+    path.write_bytes(bytes(damaged))
+    scan, messages = scan_mcap(path)
+    list(messages)
+    assert set(scan.schemas) == {2} and set(scan.channels) == {1, 2, 3}
+    assert scan.channels[2].metadata == {"offered_qos_profiles": "- depth: 1"}
+    # cut anywhere after DataEnd's start, before the footer is whole: no definition from the summary
+    cut_path = tmp_path / "cut.mcap"
+    for cut in range(footer.summary_start - 13, len(data)):
+        cut_path.write_bytes(bytes(data[:cut]))
+        scan, messages = scan_mcap(cut_path)
+        list(messages)
+        assert (scan.schemas, scan.channels) == ({}, {}), cut
+    # a summary of schemas and channels only (another writer's choice): the last channel ends at the footer
+    other = tmp_path / "other.mcap"
+    with other.open("wb") as f:
+        writer = Writer(f, chunk_size=10**6, compression=CompressionType.NONE, index_types=IndexType.NONE,
+                        use_statistics=False, use_summary_offsets=False)
+        writer.start(profile="ros2", library="test")
+        schema = writer.register_schema("s", "ros2msg", b"float64 x\n")
+        for k in range(3):
+            writer.register_channel(f"/c{k}", "cdr", schema)
+        for i in range(10):
+            writer.add_message(1 + i % 3, log_time=i, data=b"x" * 20, publish_time=i)
+        writer.finish()
+    data = bytearray(other.read_bytes())
+    footer = Footer.read(stream(record_at(bytes(data), len(data) - 37)[2]))
+    last = records_at(bytes(data), footer.summary_start, len(data) - 37)[-1]
+    assert last[1] == Opcode.CHANNEL and last[0] + last[2] == len(data) - 37
+    chunk_start = next(o for o, op, _, _ in records_at(bytes(data), 8, footer.summary_start) if op == Opcode.CHUNK)
+    _garble_the_first_chunk(data, chunk_start, chunk_start + record_at(bytes(data), chunk_start)[1])
+    other.write_bytes(bytes(data))
+    scan, messages = scan_mcap(other)
+    assert list(messages) == [] and scan.problems
+    assert {i: c.topic for i, c in scan.channels.items()} == {1: "/c0", 2: "/c1", 3: "/c2"} and set(scan.schemas) == {1}

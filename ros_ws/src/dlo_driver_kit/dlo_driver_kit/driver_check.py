@@ -417,7 +417,8 @@ def check_obey(rec: Recording, s: Settings) -> Result:
             v = np.median([[(b.x - a.x) / t, (b.y - a.y) / t] for a, b, t in pairs], axis=0)
             want = np.asarray(phase.command[:2])
             speed, target = float(np.linalg.norm(v)), float(np.linalg.norm(want))
-            angle = math.degrees(math.acos(np.clip(v @ want / max(speed * target, 1e-12), -1, 1))) if speed > 0 else 180.0
+            # the angle between the unit vectors: any commanded speed > 0 is judged alike, however small
+            angle = math.degrees(math.acos(np.clip((v / speed) @ (want / target), -1, 1))) if speed > 0 and target > 0 else 180.0
             text = f"{phase.name} {speed:.3f} m/s at {angle:.0f} deg"
             parts.append(text)
             if abs(speed - target) > SPEED_TOLERANCE * target or angle > ANGLE_TOLERANCE:

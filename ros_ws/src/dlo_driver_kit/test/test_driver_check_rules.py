@@ -659,6 +659,18 @@ def test_invalid_edges_are_exact():
         assert check_invalid(rec, s).status == status, (closure, check_invalid(rec, s))
 
 
+def test_obey_speed_edge_is_exact_and_a_small_commanded_speed_is_judged_alike():
+    """'obey': speed within 20 %: a driver executing 0.12 m/s for a commanded 0.15 m/s (--speed 0.15) is exactly
+    20 % slow and passes. Any --speed > 0 is judged the same way: a driver that executes a small commanded speed
+    (1.2 um/s) exactly obeys, at 0 deg."""
+    result = check_obey(driven(obey_spec(v=0.15, **{"+y": (6, (0.0, 0.12, 0.0), P)})), Settings(rate=16.0, speed=0.15))
+    assert result.status == "PASS" and "+y 0.120 m/s at 0 deg" in result.reason, result
+    for small in (1.2e-6, 5e-7, 1e-9):  # below 1 um/s the angle was once computed against a floor (76 deg at 5e-7)
+        result = check_obey(driven(obey_spec(v=small)), Settings(rate=16.0, speed=small))
+        assert result.status == "PASS" and "+x 0.000 m/s at 0 deg, +y 0.000 m/s at 0 deg, -y 0.000 m/s at 0 deg" in \
+            result.reason, (small, result)
+
+
 def test_obey_closure_edge_and_workspace_edges_are_exact():
     s = Settings(rate=16.0)
     assert check_obey(driven(obey_spec(open=(5, (0.0, 0.0, 0.05), P))), s).status == "PASS"

@@ -695,7 +695,9 @@ def test_main_dry_run_estimates_for_the_asked_workers_and_runs_nothing(tmp_path,
     (out / "V" / "seed0" / CHECKPOINT_FILE).write_bytes(b"")
     assert experiments.main(grid_args(out, "--dry-run")) == 0
     assert driver.estimates[-1] == (["T", "V"], ["todo", "partial"], out, 4, True)
-    assert capsys.readouterr().out.splitlines()[-1] == "estimate: stub"
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[-1] == "estimate: stub"
+    assert lines[1] == f"partial  {out / 'V' / 'seed0'}  (single)"  # resumed here: no note
     assert experiments.main(grid_args(out, "--dry-run", "--jobs", "9", "--threads", "2")) == 0
     assert driver.estimates[-1][3] == 9 and "cores" not in capsys.readouterr().err
     assert experiments.main(grid_args(out, "--dry-run", "--ray-address", "auto")) == 0
@@ -890,3 +892,96 @@ def test_every_drawn_state_of_the_grid_bar_is_consistent(capsys):
     states = re.findall(r"(\d+)/3 \[[^\]]*done=(\d+) running=\d+ failed=(\d+)", drawn)
     assert len(states) >= 3 and all(int(n) == int(done) + int(failed) for n, done, failed in states), drawn
     assert states[-1] == ("2", "1", "1") and drawn.endswith("\n")
+
+
+def test_calibrate_times_steps_with_an_update_each_and_an_evaluation_after_warm_ups(monkeypatch):
+    """--dry-run's calibration (module docstring): the clock runs over `steps` SAC steps, each an env step and
+    one gradient update (the warm-up before it has already updated), then over one evaluation of
+    train.eval_episodes episodes from train.eval_seed on the evaluation env after a warm-up evaluation on it;
+    both envs are closed. A configuration scaling observations by the env's bounds calibrates too."""
+    from dlo_policy import evaluate, sac
+
+    events, agents = [], []
+
+    class RecordedSAC(sac.SAC):
+        def __init__(self, *args, **kwargs):
+            super().__init__(*args, **kwargs)
+            agents.append(self)
+
+    class EventClock:
+        def __init__(self, *readings):
+            self.readings = list(readings)
+
+        def perf_counter(self):
+            events.append(("clock", agents[0].num_env_steps, agents[0].num_updates))
+            return self.readings.pop(0)
+
+    real_make_env, real_evaluate = experiments.make_env, evaluate.evaluate_agent
+
+    def make_env(config, *args, **kwargs):
+        env = real_make_env(config, *args, **kwargs)
+        name = "eval env" if args else "training env"
+        real_close = env.close
+        env.close = lambda: events.append(("close", name)) or real_close()
+        env.recorded_name = name
+        return env
+
+    def evaluate_agent(agent, vec_env, first_seed, episodes, *args, **kwargs):
+        events.append(("evaluate", vec_env.recorded_name, first_seed, episodes))
+        return real_evaluate(agent, vec_env, first_seed, episodes, *args, **kwargs)
+
+    monkeypatch.setattr(sac, "SAC", RecordedSAC)
+    monkeypatch.setattr(experiments, "make_env", make_env)
+    monkeypatch.setattr(evaluate, "evaluate_agent", evaluate_agent)
+    monkeypatch.setattr(experiments, "time", EventClock(5.0, 17.0, 100.0, 103.0))
+    config = load_config(None, [*TINY, "train.num_threads=1", "sac.observation_scaling=bounds"])
+    assert experiments.calibrate(config, steps=30) == experiments.Calibration(12.0 / 30, 3.0)
+    (agent,) = agents
+    assert agent.normalizer is not None  # scaled by the env's observation bounds
+    (_, warm_steps, warm_updates), (_, steps, updates) = events[0], events[1]
+    assert warm_updates > 0
+    assert (steps - warm_steps, updates - warm_updates) == (30, 30)
+    seed = config.train.eval_seed
+    assert events[2:] == [("close", "training env"), ("evaluate", "eval env", seed, 4), ("clock", steps, updates),
+                          ("evaluate", "eval env", seed, 4), ("clock", steps, updates), ("close", "eval env")]
+
+
+def test_main_accepts_one_job_and_no_retries(tmp_path, monkeypatch, capsys):
+    """--jobs must be at least 1, --retries at least 0 (the usage error's words): exactly those are accepted."""
+    driver = Driver(monkeypatch)
+    assert experiments.main(grid_args(tmp_path / "a", "--jobs", "1", "--retries", "0")) == 0
+    assert driver.local[-1][1] == 1
+    assert experiments.main(grid_args(tmp_path / "b", "--ray-address", "head:6379", "--retries", "0")) == 0
+    assert driver.ray_runs[-1][3] == 0
+    assert capsys.readouterr().err == ""
+
+
+def test_main_prints_its_report_after_the_finished_progress_bar(tmp_path, monkeypatch):
+    """On a terminal-less log (stdout and stderr into one file): the progress bar's last line is finished
+    and the report comes after it, last."""
+    stream = io.StringIO()
+    monkeypatch.setattr(sys, "stdout", stream)
+    monkeypatch.setattr(sys, "stderr", stream)
+    Driver(monkeypatch)
+    argv = [a for a in grid_args(tmp_path / "grid") if a != "--no-progress"]
+    assert experiments.main(argv) == 0
+    monkeypatch.undo()
+    log = stream.getvalue()
+    report = "grid: 2 run(s): 2 finished, 0 failed\n"
+    assert log.endswith("done=2 running=0 failed=0 retried=0]\n" + report), repr(log)
+
+
+def test_collect_into_a_directory_inside_the_runs_skips_what_it_collected(tmp_path, capsys):
+    """--collect RESULTS with RESULTS under --out: the copies in RESULTS are not runs of --out; a second
+    collect copies nothing (no RESULTS/RESULTS/...)."""
+    runs = tmp_path / "runs"
+    write_done(runs / "All" / "seed0", {"env_steps": 1})
+    results = runs / "results"
+    for _ in range(2):
+        assert experiments.main(["--out", str(runs), "--collect", str(results)]) == 0
+    assert capsys.readouterr().out == f"{results / 'All' / 'seed0'}\n"
+    assert sorted(p.relative_to(results).as_posix() for p in results.rglob("*")) == [
+        "All", "All/seed0", f"All/seed0/{DONE_FILE}"]
+    write_done(results, {"env_steps": 1})  # RESULTS itself holding a done.json is not a run of --out either
+    assert experiments.main(["--out", str(runs), "--collect", str(results)]) == 0
+    assert capsys.readouterr().out == ""

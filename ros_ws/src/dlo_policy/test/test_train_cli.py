@@ -11,6 +11,7 @@ import torch
 
 from dlo_policy import rundir, train
 from dlo_policy.config import ConfigError, load_config, save_config
+from dlo_policy.sac import StepResult
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # --import-mode=importlib: sac_reach_env
 
@@ -319,3 +320,107 @@ def test_without_tensorboard_a_run_logs_nothing_and_says_so_once(tmp_path, monke
     log.evaluation({"step": 100, "tested_without": "", "hold_the_end": 0.5})
     log.close()
     assert not (tmp_path / "tb").exists()
+
+
+def test_each_training_episode_logs_its_own_return_and_length(tmp_path, monkeypatch):
+    """TensorBoard train/episode_return and train/episode_length (module docstring): per training episode,
+    the sum of that episode's rewards and its step count, logged at the step it ends (terminated or
+    truncated); each episode starts from zero, the first one too."""
+    import types
+
+    monkeypatch.setattr("torch.utils.tensorboard.SummaryWriter", RecordingWriter)
+    trainer = train.Trainer(load_config(None, [*TINY, "train.progress=false"]), tmp_path / "run")
+    try:
+        trainer.bar = types.SimpleNamespace(update=lambda n: None)
+        agent = types.SimpleNamespace(num_env_steps=0, alpha=1.0)
+        for reward, terminated, truncated in ((-0.5, False, False), (-0.25, False, False), (-1.0, True, False),
+                                              (-0.5, False, False), (-0.25, False, True)):
+            agent.num_env_steps += 1
+            trainer.on_step(agent, StepResult(reward, terminated, truncated, {}, {}))
+        logged = [call for call in trainer.tb.writer.calls if call[0].startswith("train/")]
+        assert logged == [("train/episode_return", -1.75, 3), ("train/episode_length", 3, 3),
+                          ("train/episode_return", -0.75, 5), ("train/episode_length", 2, 5)]
+    finally:
+        trainer.env.close()
+        trainer.eval_env.close()
+        trainer.tb.close()
+
+
+class HeldOutEnv:
+    def __init__(self):
+        self.closed = 0
+
+    def close(self):
+        self.closed += 1
+
+
+def held_out_trainer(tmp_path, monkeypatch, results):
+    """A Trainer's state for test_best (no training): evaluation results replayed, best_policy.pt a stand-in."""
+    import types
+
+    from dlo_policy.evaluate import blanked_columns
+
+    config = load_config(None, [*TINY, "train.eval_without=[T]", "train.test_episodes=3", "train.progress=true"])
+    monkeypatch.setattr(train.SAC, "load", staticmethod(lambda path, **kwargs: types.SimpleNamespace(num_env_steps=300)))
+
+    def evaluate_agent(agent, env, first_seed, episodes, blank=(), progress=None):
+        progress(1)
+        result = results.pop(0)
+        if isinstance(result, BaseException):
+            raise result
+        return types.SimpleNamespace(to_json=lambda: dict(result))
+    monkeypatch.setattr(train, "evaluate_agent", evaluate_agent)
+    return types.SimpleNamespace(config=config, out_dir=tmp_path, eval_env=HeldOutEnv(),
+                                 tested=[("", []), ("T", blanked_columns(config.modalities, ["T"]))])
+
+
+def test_held_out_test_files_say_which_modality_was_blanked_like_dlo_evaluate(tmp_path, monkeypatch):
+    """test.json and test_without_X.json are dlo-evaluate's JSON (module docstring): "without" lists the
+    blanked modality as `dlo-evaluate --without X` does ([] for all inputs), with the checkpoint, the first
+    test seed, the modalities and the policy's env steps."""
+    import json
+
+    trainer = held_out_trainer(tmp_path, monkeypatch, [{"hold_the_end": 0.5}, {"hold_the_end": 0.25}])
+    assert train.Trainer.test_best(trainer)["hold_the_end"] == 0.5
+    common = {"checkpoint": rundir.BEST_POLICY_FILE, "seed": trainer.config.train.test_seed, "modalities": "All",
+              "env_steps": 300}
+    assert json.loads((tmp_path / "test.json").read_text()) == {"hold_the_end": 0.5, **common, "without": []}
+    assert json.loads((tmp_path / "test_without_T.json").read_text()) == {"hold_the_end": 0.25, **common,
+                                                                          "without": ["T"]}
+    assert trainer.eval_env.closed == 1
+
+
+def test_an_interrupted_held_out_test_finishes_its_progress_line_and_closes_the_env(tmp_path, monkeypatch, capsys):
+    """Ctrl-C during the held-out test: its progress bar's line is finished (the interruption's message
+    starts on a line of its own) and the evaluation env is closed."""
+    trainer = held_out_trainer(tmp_path, monkeypatch, [{"hold_the_end": 0.5}, KeyboardInterrupt()])
+    with pytest.raises(KeyboardInterrupt):
+        train.Trainer.test_best(trainer)
+    err = capsys.readouterr().err
+    assert "held-out test" in err and err.endswith("\n"), repr(err)
+    assert trainer.eval_env.closed == 1 and not (tmp_path / "test_without_T.json").exists()
+
+
+def test_an_interrupted_training_finishes_its_progress_line_and_closes_its_envs(tmp_path, monkeypatch, capsys):
+    """Ctrl-C during training: the progress bar's line is finished (the interruption's message starts on a
+    line of its own), the TensorBoard log and both envs are closed, no checkpoint is written."""
+    import types
+
+    closed = []
+
+    def learn(env, total, callback):
+        trainer.bar.update(7)
+        raise KeyboardInterrupt
+
+    agent = types.SimpleNamespace(num_env_steps=10, learn=learn)
+    trainer = types.SimpleNamespace(
+        config=load_config(None, [*TINY, "train.total_steps=100", "train.progress=true"]), agent=agent,
+        env=types.SimpleNamespace(close=lambda: closed.append("env")),
+        eval_env=types.SimpleNamespace(close=lambda: closed.append("eval_env")),
+        tb=types.SimpleNamespace(close=lambda: closed.append("tb")),
+        save_checkpoint=lambda: closed.append("checkpoint"), on_step=None)
+    with pytest.raises(KeyboardInterrupt):
+        train.Trainer.run(trainer)
+    err = capsys.readouterr().err
+    assert "17/100" in err and err.endswith("\n"), repr(err)
+    assert sorted(closed) == ["env", "eval_env", "tb"]
