@@ -673,6 +673,13 @@ def test_a_chunk_cut_inside_its_header_is_reported_as_such(tmp_path):
             assert [m.data for m in messages] == [b"ab"], (compression, cut)
             assert scan.problems == [f"chunk cut at byte {len(good) + len(first)} (its header is incomplete)"], \
                 (compression, cut, scan.problems)
+        path = tmp_path / f"header{compression}.mcap"  # cut right after its header: no record of it read
+        path.write_bytes(good + first + chunk[:header_end])
+        scan, messages = scan_mcap(path)
+        assert [m.data for m in messages] == [b"ab"]
+        at = len(good) + len(first)
+        assert scan.problems == [f"zstd-compressed chunk cut at byte {at}: its messages are lost" if compression
+                                 else f"chunk cut at byte {at}: kept its 0 complete message(s)"], scan.problems
 
 
 def test_a_file_that_is_not_mcap_is_closed_at_once(tmp_path):
