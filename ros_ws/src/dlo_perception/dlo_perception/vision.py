@@ -57,7 +57,7 @@ def visual_pose(images, camera: TopCamera, gripper_xy, plane_z: float) -> Visual
     taichi_runtime.init()
     images = np.ascontiguousarray(images, dtype=np.uint8)
     n = images.shape[0]
-    gripper = np.asarray(gripper_xy, dtype=np.float64).reshape(n, -1)[:, :2]
+    gripper = np.asarray(gripper_xy, dtype=np.float64).reshape(n, -1)[:, :2] if n else np.empty((0, 2))
     metres_per_pixel = camera.metres_per_pixel(plane_z)
     uv = camera.world_to_pixel(np.concatenate([gripper, np.full((n, 1), plane_z)], axis=1))
     pose = np.empty((n, 4))
@@ -191,7 +191,7 @@ def visual_pose_ground_truth(positions, num_particles, gripper_xy) -> VisualPose
     positions = np.asarray(positions, dtype=np.float64)
     n, p_max = positions.shape[:2]
     num_particles = np.asarray(num_particles).reshape(n)
-    gripper = np.asarray(gripper_xy, dtype=np.float64).reshape(n, -1)[:, :2]
+    gripper = np.asarray(gripper_xy, dtype=np.float64).reshape(n, -1)[:, :2] if n else np.empty((0, 2))
     x, y = positions[..., 0], positions[..., 1]
     x_occluded = gripper[:, 0] + OCCLUSION_RADIUS
     dy = y - gripper[:, 1:2]

@@ -97,6 +97,12 @@ def test_single_image_equals_its_row_in_the_batch(batch):
     assert one.angle[0] == pose.angle[2] and one.y[0] == pose.y[2] and one.confidence[0] == pose.confidence[2]
 
 
+def test_an_empty_batch_gives_empty_readings(batch):
+    images, _ = batch
+    pose = visual_pose(images[:0], CAMERA, np.empty((0, 2)), PLANE_Z)
+    assert [len(field) for field in (pose.visible, pose.confidence, pose.angle, pose.y)] == [0, 0, 0, 0]
+
+
 def test_short_visible_end_gives_low_confidence():
     cable = polyline(GRIPPER - [0.27, 0.0], 0.0, 0.292)  # ends ~20 mm right of the gripper centre
     image_pose = visual_pose(draw([cable], GRIPPER)[None], CAMERA, GRIPPER[None], PLANE_Z)
