@@ -146,8 +146,8 @@ def _kernel_stall(k: ti.template(), dg: ti.types.ndarray(), out: ti.types.ndarra
             out[j] = allowed[j]
 
 
-def kernel_stall(sim, positions, carried, dg):
-    """RopeKernels.stall_firm_grip of env 0 for these particles (n = len(positions)) and carried fractions."""
+def load_particles(sim, positions, carried):
+    """Env 0 of the kernels gets these particles (n = len(positions)) and carried fractions."""
     n = len(positions)
     x = np.zeros((1, P_MAX, 3), np.float32)
     x[0, :n] = positions
@@ -156,6 +156,11 @@ def kernel_stall(sim, positions, carried, dg):
     sim._k.x.from_numpy(x)
     sim._k.carry.from_numpy(carry)
     sim._k.n.from_numpy(np.array([n], np.int32))
+
+
+def kernel_stall(sim, positions, carried, dg):
+    """RopeKernels.stall_firm_grip of env 0 for these particles (n = len(positions)) and carried fractions."""
+    load_particles(sim, positions, carried)
     out = np.zeros(3, np.float32)
     _kernel_stall(sim._k, np.asarray(dg, np.float32), out)
     return out
@@ -247,16 +252,9 @@ def _kernel_slip(k: ti.template()):
 
 def kernel_slip(sim, positions, carried):
     """RopeKernels.slip_taut_grip of env 0 for these particles and carried fractions: the positions after it."""
-    n = len(positions)
-    x = np.zeros((1, P_MAX, 3), np.float32)
-    x[0, :n] = positions
-    carry = np.zeros((1, P_MAX), np.float32)
-    carry[0, :n] = carried
-    sim._k.x.from_numpy(x)
-    sim._k.carry.from_numpy(carry)
-    sim._k.n.from_numpy(np.array([n], np.int32))
+    load_particles(sim, positions, carried)
     _kernel_slip(sim._k)
-    return sim._k.x.to_numpy()[0, :n]
+    return sim._k.x.to_numpy()[0, :len(positions)]
 
 
 def test_finite_grip_pulls_only_carried_particles_beyond_their_reach_back_onto_it(sim):
