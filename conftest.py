@@ -14,10 +14,13 @@ A pytest stopped by SIGTERM (a CI job's timeout, ``kill``) tears its fixtures do
 graph a module-scoped fixture started does not outlive the run (pytest_configure below).
 
 Nodes killed with SIGKILL (the crash tests) leave Fast DDS shared-memory files in /dev/shm; the session
-removes the ones that appeared while it ran and that no process uses any more (pytest_sessionfinish).
+removes the ones that appeared while it ran and that no process uses any more (pytest_sessionfinish,
+after the fixtures' teardown).
 """
 
 from __future__ import annotations
+
+import pytest
 
 GRAPH_FIXTURES = frozenset({
     "launches",              # tests/test_graph_isolation.py: launch_graph.sh in its own session
@@ -96,6 +99,7 @@ def pytest_sessionstart(session):
     _DDS_SHM_BEFORE.append(dds_shm_entries())
 
 
+@pytest.hookimpl(trylast=True)  # after pytest's own, which tears down the fixtures an interrupt left set up
 def pytest_sessionfinish(session, exitstatus):
     if _DDS_SHM_BEFORE:
         from dlo_common.testing import remove_orphaned_dds_shm

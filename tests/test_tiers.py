@@ -107,3 +107,31 @@ def test_sigterm_to_pytest_runs_fixture_teardown_so_no_child_outlives_it(workers
     finally:
         if pytest_run.poll() is None:
             pytest_run.kill()
+
+
+@pytest.mark.parametrize("workers", [[], ["-n", "1"]], ids=["serial", "xdist"])
+def test_fixtures_are_torn_down_before_the_shared_memory_clean_up_of_the_session(workers, tmp_path):
+    """The session's clean-up of Fast DDS files scans every process on the machine (slow on a loaded one):
+    it runs after the fixtures' teardown, so that a SIGTERM-ed xdist worker, which execnet kills 5 s
+    after the interrupt, has already stopped what its tests started (and their files are then free)."""
+    log = tmp_path / "order.log"
+    (tmp_path / "test_inner.py").write_text(
+        "import os\n"
+        "import pytest\n"
+        "import dlo_common.testing\n\n"
+        "def note(what):\n"
+        "    with open(os.environ['ORDER_LOG'], 'a') as f:\n"
+        "        f.write(what + '\\n')\n\n"
+        "dlo_common.testing.remove_orphaned_dds_shm = lambda before: note('clean-up')\n\n"
+        "@pytest.fixture(scope='session')\n"
+        "def resource():\n"
+        "    yield\n"
+        "    note('teardown')\n\n"
+        "def test_interrupted(resource):\n"
+        "    raise KeyboardInterrupt  # as the SIGINT execnet sends an xdist worker, or Ctrl-C\n")
+    env = dict(os.environ, ORDER_LOG=str(log), PYTHONPATH=f"{ROOT}{os.pathsep}{os.environ.get('PYTHONPATH', '')}")
+    run = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "conftest", "-p", "no:cacheprovider",
+                          "--rootdir", str(tmp_path), "-c", os.devnull, *workers, str(tmp_path / "test_inner.py")],
+                         cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300)
+    order = log.read_text().split() if log.exists() else []
+    assert order[:2] == ["teardown", "clean-up"], (order, run.stdout[-2000:] + run.stderr[-2000:])

@@ -464,24 +464,22 @@ def scan_mcap(path: str | os.PathLike) -> tuple[McapScan, Iterator[ScannedMessag
 
 def _cut_chunk(scan: McapScan, rest: bytes) -> Iterator[ScannedMessage]:
     """Complete records of a chunk whose end is missing (uncompressed chunks only)."""
-    head = struct.Struct("<QQQI")
-    if len(rest) < head.size + 4:
+    name = 8 + 8 + 8 + 4 + 4  # after message start and end time, uncompressed size, CRC, name length
+    if len(rest) < name:
         scan.problems.append(f"chunk cut at byte {scan.good_end} (its header is incomplete)")
         return
-    _start, _end, _size, _crc = head.unpack_from(rest, 0)
-    (clen,) = struct.unpack_from("<I", rest, head.size)
-    pos = head.size + 4
-    if len(rest) < pos + clen + 8:  # cut in its compression name or its records length
+    (name_length,) = struct.unpack_from("<I", rest, name - 4)
+    records = name + name_length + 8  # after the compression name and the records length
+    if len(rest) < records:
         scan.problems.append(f"chunk cut at byte {scan.good_end} (its header is incomplete)")
         return
-    compression = rest[pos:pos + clen].decode(errors="replace")
-    pos += clen + 8  # compression string, records length
+    compression = rest[name:name + name_length].decode(errors="replace")
     if compression:
         scan.problems.append(f"{compression}-compressed chunk cut at byte {scan.good_end}: its messages are lost")
         return
     before, used = scan.messages, [0]
-    yield from _inner_records(scan, rest[pos:], used)
+    yield from _inner_records(scan, rest[records:], used)
     scan.problems.append(f"chunk cut at byte {scan.good_end}: kept its {scan.messages - before} "
                          "complete message(s)")
     if used[0]:
-        scan.good_end += 9 + pos + used[0]
+        scan.good_end += 9 + records + used[0]
