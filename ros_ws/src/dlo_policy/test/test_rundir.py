@@ -1,7 +1,8 @@
-"""dlo_policy.rundir: one training process per run directory (the lock)."""
+"""dlo_policy.rundir: one training process per run directory (the lock); where the shipped policy is found."""
 import os
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
@@ -225,3 +226,25 @@ def test_sim_settings_of_a_missing_file_or_a_bad_config_is_one_line_and_exit_2(t
     out = capsys.readouterr()
     assert out.out == "" and len(out.err.strip().splitlines()) == 1
     assert out.err.startswith(f"checkpoint {tmp_path / 'policy.pt'}: its run's config.yaml cannot be read: ")
+
+
+def test_the_shipped_policy_is_the_installed_one_when_the_package_is_installed(monkeypatch, tmp_path):
+    import ament_index_python.packages as index
+
+    (tmp_path / rundir.SHIPPED_POLICY).parent.mkdir(parents=True, exist_ok=True)
+    (tmp_path / rundir.SHIPPED_POLICY).write_bytes(b"installed")
+    monkeypatch.setattr(index, "get_package_share_directory", lambda package: str(tmp_path))
+    assert rundir.shipped_policy_path() == tmp_path / rundir.SHIPPED_POLICY
+
+
+@pytest.mark.parametrize("share", ["not installed", "installed without the policy"])
+def test_the_shipped_policy_falls_back_to_the_source_tree(monkeypatch, tmp_path, share):
+    import ament_index_python.packages as index
+
+    def not_installed(package):
+        raise index.PackageNotFoundError(package)
+
+    monkeypatch.setattr(index, "get_package_share_directory",
+                        not_installed if share == "not installed" else lambda package: str(tmp_path))
+    source_tree = Path(rundir.__file__).resolve().parents[1] / rundir.SHIPPED_POLICY
+    assert rundir.shipped_policy_path() == source_tree and source_tree.is_file()
