@@ -123,7 +123,9 @@ def test_playback_reruns_perception_on_recorded_images(recorded_run, own_groups)
 
     recorded = {stamp_to_ns(m.header.stamp): m for e in recorded_run["run"].values() for m in e["vision"].values()}
     ros2run = str(ROOT / "scripts" / "ros2run")
-    vision = subprocess.Popen([ros2run, "dlo_perception", "vision_node", "--ros-args", "-r", "/dlo/vision/pose:=/replay/vision"],
+    # queue_depth: a node starved of CPU (a loaded machine) keeps every replayed frame instead of the last 10
+    vision = subprocess.Popen([ros2run, "dlo_perception", "vision_node", "--ros-args", "-r", "/dlo/vision/pose:=/replay/vision",
+                               "-p", "queue_depth:=1000"],
                               stdout=subprocess.DEVNULL, stderr=subprocess.STDOUT, start_new_session=True)
     own_groups(vision.pid)
     rclpy.init()

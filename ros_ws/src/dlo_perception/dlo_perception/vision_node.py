@@ -26,6 +26,8 @@ INPUT_TIMEOUT = 1.0  # s, a step's image and state not matched by stamp after th
 PARAMETERS = (
     Param("camera_position", tuple(float(c) for c in DEFAULT_CAMERA.position),
           "camera centre in the world frame [m], [x, y, z] (looks down -z)", length=3),
+    Param("queue_depth", 10, "images and gripper states kept while the node is busy (keep last): raise it when "
+          "replaying a bag faster than the node keeps up, so that every frame is processed (later)", at_least=1),
 )
 
 
@@ -46,8 +48,9 @@ class VisionNode(Node):
         self.publisher = self.create_publisher(VisualPose, topic("vision").name, 10)
         latched = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
         self.create_subscription(CameraInfo, topic("camera_info").name, self.on_camera_info, latched)
-        self.create_subscription(Image, topic("image").name, lambda m: self.on_input("image", m), 10)
-        self.create_subscription(GripperState, topic("gripper").name, lambda m: self.on_input("gripper", m), 10)
+        depth = p["queue_depth"]
+        self.create_subscription(Image, topic("image").name, lambda m: self.on_input("image", m), depth)
+        self.create_subscription(GripperState, topic("gripper").name, lambda m: self.on_input("gripper", m), depth)
 
     def on_camera_info(self, info):
         self.camera = TopCamera.from_camera_info(info.width, info.height, info.k, self.camera_position)
