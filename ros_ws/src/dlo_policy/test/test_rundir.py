@@ -248,3 +248,18 @@ def test_the_shipped_policy_falls_back_to_the_source_tree(monkeypatch, tmp_path,
                         not_installed if share == "not installed" else lambda package: str(tmp_path))
     source_tree = Path(rundir.__file__).resolve().parents[1] / rundir.SHIPPED_POLICY
     assert rundir.shipped_policy_path() == source_tree and source_tree.is_file()
+
+
+def test_sim_settings_help_and_usage_errors(capsys):
+    """`python -m dlo_policy.rundir --help` names the command, its one option and what it prints; without
+    the option it is a usage error (exit 2, one line naming it)."""
+    with pytest.raises(SystemExit) as help_exit:
+        rundir.main(["--help"])
+    out = " ".join(capsys.readouterr().out.split())  # argparse wraps to the terminal's width
+    assert help_exit.value.code == 0
+    assert out.startswith("usage: python -m dlo_policy.rundir [-h] --sim-settings POLICY_FILE"), out
+    assert "the sim settings the policy file was trained" in out and "('' = the shipped policy)" in out, out
+    with pytest.raises(SystemExit) as usage_exit:
+        rundir.main([])
+    assert usage_exit.value.code == 2
+    assert "the following arguments are required: --sim-settings" in capsys.readouterr().err
