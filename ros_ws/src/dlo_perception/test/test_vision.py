@@ -100,7 +100,7 @@ def test_single_image_equals_its_row_in_the_batch(batch):
 def test_an_empty_batch_gives_empty_readings(batch):
     images, _ = batch
     pose = visual_pose(images[:0], CAMERA, np.empty((0, 2)), PLANE_Z)
-    assert [len(field) for field in (pose.visible, pose.confidence, pose.angle, pose.y)] == [0, 0, 0, 0]
+    assert [np.shape(field) for field in (pose.visible, pose.confidence, pose.angle, pose.y)] == [(0,)] * 4
 
 
 def test_short_visible_end_gives_low_confidence():
@@ -121,6 +121,11 @@ def test_ground_truth_from_particles(name):
     assert truth.confidence[0] == pytest.approx(confidence)
     assert truth.angle[0] == pytest.approx(angle, abs=1e-6)
     assert truth.y[0] == pytest.approx(y, abs=0.0043 * abs(np.tan(angle)) + 1e-6)
+
+
+def test_ground_truth_of_an_empty_batch_is_empty():
+    truth = visual_pose_ground_truth(np.empty((0, 8, 3)), np.empty(0, int), np.empty((0, 2)))
+    assert [np.shape(field) for field in (truth.visible, truth.confidence, truth.angle, truth.y)] == [(0,)] * 4
 
 
 def test_ground_truth_follows_the_cable_backwards_when_indices_run_leftwards():
