@@ -75,14 +75,45 @@ def listed(nodeid: str, entries) -> bool:
     return any(entry in (path, test) for entry in entries)
 
 
+def _children(pid: int) -> list[int]:
+    """The child processes of ``pid`` (Linux: /proc/PID/task/TID/children)."""
+    import pathlib
+
+    kids = []
+    for task in pathlib.Path(f"/proc/{pid}/task").glob("*"):
+        try:
+            kids += [int(k) for k in (task / "children").read_text().split()]
+        except OSError:  # the thread ended meanwhile
+            pass
+    return kids
+
+
 def pytest_configure(config):
     """SIGTERM becomes KeyboardInterrupt: pytest then runs every fixture's teardown (stopping the node
-    processes and graphs tests started) and exits 2, instead of dying with them still running."""
+    processes and graphs tests started) and exits 2, instead of dying with them still running.
+
+    With xdist workers (``-n``) the controller passes the first SIGTERM on to its workers, where the tests
+    and their fixtures live: each tears its fixtures down and reports an interrupted session, which stops
+    the controller (exit 2) once every worker is done. Interrupting the controller itself instead would
+    leave the workers to execnet's shutdown, which interrupts a worker 5 s later and kills it 5 s after
+    that, in the middle of its teardown on a loaded machine. A second SIGTERM interrupts the controller."""
+    import os
     import signal
     import threading
 
+    forwarded = []
+
     def interrupt(signum, frame):
-        raise KeyboardInterrupt(f"pytest got signal {signum}")
+        dsession = config.pluginmanager.getplugin("dsession")  # xdist's controller side, when -n is given
+        workers = _children(os.getpid()) if dsession is not None and not forwarded else []
+        if not workers:
+            raise KeyboardInterrupt(f"pytest got signal {signum}")
+        forwarded.append(signum)
+        for pid in workers:
+            try:
+                os.kill(pid, signum)
+            except ProcessLookupError:
+                pass
 
     if threading.current_thread() is threading.main_thread() and signal.getsignal(signal.SIGTERM) == signal.SIG_DFL:
         signal.signal(signal.SIGTERM, interrupt)

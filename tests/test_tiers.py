@@ -95,15 +95,50 @@ def test_sigterm_to_pytest_runs_fixture_teardown_so_no_child_outlives_it(workers
                                    "--rootdir", str(tmp_path), "-c", os.devnull, *workers, str(tmp_path / "test_inner.py")],
                                   cwd=tmp_path, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     try:
-        deadline = time.monotonic() + 120
+        deadline = time.monotonic() + 600  # a starved xdist worker takes minutes to start
         while not pid_file.exists() and time.monotonic() < deadline and pytest_run.poll() is None:
             time.sleep(0.1)
-        assert pid_file.exists(), pytest_run.communicate(timeout=60)[0][-2000:]
+        if not pid_file.exists():
+            pytest_run.kill()
+            pytest.fail("the inner test never started its fixture:\n" + pytest_run.communicate()[0][-2000:])
         child = int(pid_file.read_text())
         pytest_run.send_signal(signal.SIGTERM)
-        out = pytest_run.communicate(timeout=60)[0]
+        out = pytest_run.communicate(timeout=600)[0]  # no deadline in pytest's shutdown: a starved one takes minutes
         assert pytest_run.returncode == 2, out[-2000:]  # interrupted, as on Ctrl-C
         assert exited(child), f"the fixture's child {child} outlived pytest:\n{out[-2000:]}"
+    finally:
+        if pytest_run.poll() is None:
+            pytest_run.kill()
+
+
+def test_a_second_sigterm_stops_an_xdist_pytest_whose_worker_ignores_the_first(tmp_path):
+    """The controller passes the first SIGTERM on to its workers and waits for them; the second one
+    interrupts the controller itself (and execnet then interrupts the worker), so a worker that ignores
+    SIGTERM cannot keep pytest running."""
+    ready = tmp_path / "ready"
+    (tmp_path / "test_inner.py").write_text(
+        "import os, pathlib, signal, time\n\n"
+        "def test_ignores_sigterm():\n"
+        "    signal.signal(signal.SIGTERM, signal.SIG_IGN)\n"
+        "    pathlib.Path(os.environ['READY']).write_text('')\n"
+        "    time.sleep(600)\n")
+    env = dict(os.environ, READY=str(ready), PYTHONPATH=f"{ROOT}{os.pathsep}{os.environ.get('PYTHONPATH', '')}")
+    pytest_run = subprocess.Popen([sys.executable, "-m", "pytest", "-q", "-p", "conftest", "-p", "no:cacheprovider",
+                                   "--rootdir", str(tmp_path), "-c", os.devnull, "-n", "1", str(tmp_path / "test_inner.py")],
+                                  cwd=tmp_path, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        deadline = time.monotonic() + 600
+        while not ready.exists() and time.monotonic() < deadline and pytest_run.poll() is None:
+            time.sleep(0.1)
+        if not ready.exists():
+            pytest_run.kill()
+            pytest.fail("the inner test never started:\n" + pytest_run.communicate()[0][-2000:])
+        pytest_run.send_signal(signal.SIGTERM)
+        with pytest.raises(subprocess.TimeoutExpired):  # passed on to the worker, which ignores it
+            pytest_run.wait(timeout=3)
+        pytest_run.send_signal(signal.SIGTERM)
+        out = pytest_run.communicate(timeout=300)[0]
+        assert pytest_run.returncode == 2, out[-2000:]
     finally:
         if pytest_run.poll() is None:
             pytest_run.kill()
