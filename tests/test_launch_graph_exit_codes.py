@@ -26,9 +26,10 @@ NODES = {"sim_node": "sim", "recorder_node": "recorder", "tactile_node": "tactil
          "policy_node": "policy"}
 
 # What a node does, from FAKE_GRAPH (JSON, by launcher name): "exit" its status (default 0; "SIGKILL": killed),
-# "when" "start" (at once), "signal" (on SIGINT/SIGTERM, the default) or, for the sim, "episodes" (after
-# writing "episodes" outcome lines, once the whole graph has started); "say" lines to print first; the
-# recorder creates its bag directory with a .mcap and writes metadata.yaml when it closes ("closes": true).
+# "when" "start" (at once; a node other than the sim once the others handle signals), "signal" (on SIGINT/SIGTERM,
+# the default) or, for the sim, "episodes" (after writing "episodes" outcome lines, once the whole graph has
+# started); "say" lines to print first; the recorder creates its bag directory with a .mcap and writes
+# metadata.yaml when it closes ("closes": true).
 FAKE_ROS2 = r'''#!{python}
 import json, os, signal, sys, time
 from pathlib import Path
@@ -60,6 +61,11 @@ if bag is not None:
 if name == "sim":
     print(f"[INFO] [sim_node]: alone on ROS_DOMAIN_ID={{os.environ['ROS_DOMAIN_ID']}}", flush=True)
 when = plan.get("when", "signal")
+if when == "start" and name != "sim":  # a node failing at start fails once the graph is up: every other node of it
+    deadline = time.monotonic() + 120  # handles signals by then (on a loaded machine Python starts slowly, and a node
+    while time.monotonic() < deadline and not all(  # not yet handling the launcher's SIGINT would be killed 10 s later)
+            (Path(os.environ["FAKE_READY"]) / n).exists() for n in json.loads(os.environ["FAKE_NODES"]) if n != name):
+        time.sleep(0.05)
 if when == "start":
     finish()
 if when == "episodes":  # the sim: once every node of the graph runs and handles signals, its episodes, then it ends
@@ -164,7 +170,9 @@ def start(tmp_path, plan, args, own_groups):
     fake.chmod(0o755)
     env = {k: v for k, v in os.environ.items() if k != "DLO_USE_ROS2RUN"}  # a ROS 2 install: `ros2 run`
     (tmp_path / "ready").mkdir()
-    env.update(PATH=f"{bin_dir}{os.pathsep}{env['PATH']}", FAKE_GRAPH=json.dumps(plan), FAKE_READY=str(tmp_path / "ready"))
+    nodes = ["sim", "tactile", "vision", "policy"] + (["recorder"] if "--record" in args else [])  # what the launcher starts
+    env.update(PATH=f"{bin_dir}{os.pathsep}{env['PATH']}", FAKE_GRAPH=json.dumps(plan), FAKE_READY=str(tmp_path / "ready"),
+               FAKE_NODES=json.dumps(nodes))
     argv = [str(bag) if a == "BAG" else str(a) for a in args]
     out = tmp_path / "launch.out"
     with out.open("w") as f:
