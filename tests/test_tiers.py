@@ -75,6 +75,24 @@ def test_markers_are_put_on_tests_when_only_ros_ws_is_collected():
     assert graph == {"test_playback_republishes_the_same_messages", "test_playback_bad_parameters"}, collected.stdout
 
 
+def inner_pytest(tmp_path, workers, **env_vars) -> subprocess.Popen:
+    """pytest on ``tmp_path/test_inner.py`` with the root conftest (its SIGTERM handling), ``env_vars`` set."""
+    env = dict(os.environ, **env_vars, PYTHONPATH=f"{ROOT}{os.pathsep}{os.environ.get('PYTHONPATH', '')}")
+    return subprocess.Popen([sys.executable, "-m", "pytest", "-q", "-p", "conftest", "-p", "no:cacheprovider",
+                             "--rootdir", str(tmp_path), "-c", os.devnull, *workers, str(tmp_path / "test_inner.py")],
+                            cwd=tmp_path, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+
+
+def wait_for_file(path, run: subprocess.Popen):
+    """Until the inner test writes ``path`` (a starved xdist worker takes minutes to start); fails if it never does."""
+    deadline = time.monotonic() + 600
+    while not path.exists() and time.monotonic() < deadline and run.poll() is None:
+        time.sleep(0.1)
+    if not path.exists():
+        run.kill()
+        pytest.fail(f"the inner test never wrote {path.name}:\n" + run.communicate()[0][-2000:])
+
+
 @pytest.mark.parametrize("workers", [[], ["-n", "1"]], ids=["serial", "xdist"])  # scripts/test.sh: xdist workers
 def test_sigterm_to_pytest_runs_fixture_teardown_so_no_child_outlives_it(workers, tmp_path):
     (tmp_path / "test_inner.py").write_text(
@@ -90,17 +108,9 @@ def test_sigterm_to_pytest_runs_fixture_teardown_so_no_child_outlives_it(workers
         "def test_waits(child):\n"
         "    time.sleep(600)\n")
     pid_file = tmp_path / "child.pid"
-    env = dict(os.environ, CHILD_PID=str(pid_file), PYTHONPATH=f"{ROOT}{os.pathsep}{os.environ.get('PYTHONPATH', '')}")
-    pytest_run = subprocess.Popen([sys.executable, "-m", "pytest", "-q", "-p", "conftest", "-p", "no:cacheprovider",
-                                   "--rootdir", str(tmp_path), "-c", os.devnull, *workers, str(tmp_path / "test_inner.py")],
-                                  cwd=tmp_path, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    pytest_run = inner_pytest(tmp_path, workers, CHILD_PID=str(pid_file))
     try:
-        deadline = time.monotonic() + 600  # a starved xdist worker takes minutes to start
-        while not pid_file.exists() and time.monotonic() < deadline and pytest_run.poll() is None:
-            time.sleep(0.1)
-        if not pid_file.exists():
-            pytest_run.kill()
-            pytest.fail("the inner test never started its fixture:\n" + pytest_run.communicate()[0][-2000:])
+        wait_for_file(pid_file, pytest_run)
         child = int(pid_file.read_text())
         pytest_run.send_signal(signal.SIGTERM)
         out = pytest_run.communicate(timeout=600)[0]  # no deadline in pytest's shutdown: a starved one takes minutes
@@ -122,17 +132,9 @@ def test_a_second_sigterm_stops_an_xdist_pytest_whose_worker_ignores_the_first(t
         "    signal.signal(signal.SIGTERM, signal.SIG_IGN)\n"
         "    pathlib.Path(os.environ['READY']).write_text('')\n"
         "    time.sleep(600)\n")
-    env = dict(os.environ, READY=str(ready), PYTHONPATH=f"{ROOT}{os.pathsep}{os.environ.get('PYTHONPATH', '')}")
-    pytest_run = subprocess.Popen([sys.executable, "-m", "pytest", "-q", "-p", "conftest", "-p", "no:cacheprovider",
-                                   "--rootdir", str(tmp_path), "-c", os.devnull, "-n", "1", str(tmp_path / "test_inner.py")],
-                                  cwd=tmp_path, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    pytest_run = inner_pytest(tmp_path, ["-n", "1"], READY=str(ready))
     try:
-        deadline = time.monotonic() + 600
-        while not ready.exists() and time.monotonic() < deadline and pytest_run.poll() is None:
-            time.sleep(0.1)
-        if not ready.exists():
-            pytest_run.kill()
-            pytest.fail("the inner test never started:\n" + pytest_run.communicate()[0][-2000:])
+        wait_for_file(ready, pytest_run)
         pytest_run.send_signal(signal.SIGTERM)
         with pytest.raises(subprocess.TimeoutExpired):  # passed on to the worker, which ignores it
             pytest_run.wait(timeout=3)
@@ -164,9 +166,7 @@ def test_fixtures_are_torn_down_before_the_shared_memory_clean_up_of_the_session
         "    note('teardown')\n\n"
         "def test_interrupted(resource):\n"
         "    raise KeyboardInterrupt  # as the SIGINT execnet sends an xdist worker, or Ctrl-C\n")
-    env = dict(os.environ, ORDER_LOG=str(log), PYTHONPATH=f"{ROOT}{os.pathsep}{os.environ.get('PYTHONPATH', '')}")
-    run = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "conftest", "-p", "no:cacheprovider",
-                          "--rootdir", str(tmp_path), "-c", os.devnull, *workers, str(tmp_path / "test_inner.py")],
-                         cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300)
+    run = inner_pytest(tmp_path, workers, ORDER_LOG=str(log))
+    out = run.communicate(timeout=300)[0]
     order = log.read_text().split() if log.exists() else []
-    assert order[:2] == ["teardown", "clean-up"], (order, run.stdout[-2000:] + run.stderr[-2000:])
+    assert order[:2] == ["teardown", "clean-up"], (order, out[-2000:])
