@@ -60,20 +60,25 @@ if bag is not None:
     (bag / (bag.name + "_0.mcap")).write_bytes(b"\x89MCAP0\r\n")
 if name == "sim":
     print(f"[INFO] [sim_node]: alone on ROS_DOMAIN_ID={{os.environ['ROS_DOMAIN_ID']}}", flush=True)
-when = plan.get("when", "signal")
-if when == "start" and name != "sim":  # a node failing at start fails once the graph is up: every other node of it
-    deadline = time.monotonic() + 120  # handles signals by then (on a loaded machine Python starts slowly, and a node
-    while time.monotonic() < deadline and not all(  # not yet handling the launcher's SIGINT would be killed 10 s later)
+
+
+def wait_for_the_graph():
+    """Until every other node of the graph handles signals: a loaded machine starts Python slowly, a SIGINT
+    before a node's handler is ignored (a bash background job), and the launcher would kill that node 10 s later."""
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and not all(
             (Path(os.environ["FAKE_READY"]) / n).exists() for n in json.loads(os.environ["FAKE_NODES"]) if n != name):
         time.sleep(0.05)
-if when == "start":
+
+
+when = plan.get("when", "signal")
+if when == "start":  # a node other than the sim fails once the graph is up, as a node failing in a running graph
+    if name != "sim":
+        wait_for_the_graph()
     finish()
 if when == "episodes":  # the sim: once every node of the graph runs and handles signals, its episodes, then it ends
     outcomes = Path(params["summary_file"])
-    others = ["tactile", "vision", "policy"] + (["recorder"] if params.get("wait_for_recorder") else [])
-    deadline = time.monotonic() + 120  # a loaded machine starts Python slowly: a SIGINT before a node's handler
-    while time.monotonic() < deadline and not all((Path(os.environ["FAKE_READY"]) / n).exists() for n in others):
-        time.sleep(0.05)  # is ignored (a bash background job), and the launcher would kill that node after 10 s
+    wait_for_the_graph()
     seed = int(params["seed"])
     with outcomes.open("a") as f:
         for k in range(plan["episodes"]):
@@ -170,7 +175,7 @@ def start(tmp_path, plan, args, own_groups):
     fake.chmod(0o755)
     env = {k: v for k, v in os.environ.items() if k != "DLO_USE_ROS2RUN"}  # a ROS 2 install: `ros2 run`
     (tmp_path / "ready").mkdir()
-    nodes = ["sim", "tactile", "vision", "policy"] + (["recorder"] if "--record" in args else [])  # what the launcher starts
+    nodes = [n for n in NODES.values() if n != "recorder" or "--record" in args]  # what the launcher starts
     env.update(PATH=f"{bin_dir}{os.pathsep}{env['PATH']}", FAKE_GRAPH=json.dumps(plan), FAKE_READY=str(tmp_path / "ready"),
                FAKE_NODES=json.dumps(nodes))
     argv = [str(bag) if a == "BAG" else str(a) for a in args]

@@ -167,6 +167,10 @@ def test_fixtures_are_torn_down_before_the_shared_memory_clean_up_of_the_session
         "def test_interrupted(resource):\n"
         "    raise KeyboardInterrupt  # as the SIGINT execnet sends an xdist worker, or Ctrl-C\n")
     run = inner_pytest(tmp_path, workers, ORDER_LOG=str(log))
-    out = run.communicate(timeout=300)[0]
+    try:
+        out = run.communicate(timeout=300)[0]
+    finally:
+        if run.poll() is None:
+            run.kill()
     order = log.read_text().split() if log.exists() else []
     assert order[:2] == ["teardown", "clean-up"], (order, out[-2000:])
