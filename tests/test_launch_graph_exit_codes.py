@@ -26,10 +26,11 @@ NODES = {"sim_node": "sim", "recorder_node": "recorder", "tactile_node": "tactil
          "policy_node": "policy"}
 
 # What a node does, from FAKE_GRAPH (JSON, by launcher name): "exit" its status (default 0; "SIGKILL": killed),
-# "when" "start" (at once; a node other than the sim once the others handle signals), "signal" (on SIGINT/SIGTERM,
-# the default) or, for the sim, "episodes" (after writing "episodes" outcome lines, once the whole graph has
-# started); "say" lines to print first; the recorder creates its bag directory with a .mcap and writes
-# metadata.yaml when it closes ("closes": true).
+# "when" "start" (the sim: at once, before it says it is alone on the domain, as a sim rejecting its parameters or
+# refusing to start next to another simulator does, so the launcher starts no other node; any other node: once the
+# others handle signals), "signal" (on SIGINT/SIGTERM, the default) or, for the sim, "episodes" (after writing
+# "episodes" outcome lines, once the whole graph has started); "say" lines to print first; the recorder creates its
+# bag directory with a .mcap and writes metadata.yaml when it closes ("closes": true).
 FAKE_ROS2 = r'''#!{python}
 import json, os, signal, sys, time
 from pathlib import Path
@@ -58,6 +59,9 @@ Path(os.environ["FAKE_READY"]).with_name(f"args_{{name}}.json").write_text(json.
 if bag is not None:
     bag.mkdir(parents=True)
     (bag / (bag.name + "_0.mcap")).write_bytes(b"\x89MCAP0\r\n")
+when = plan.get("when", "signal")
+if name == "sim" and when == "start":
+    finish()
 if name == "sim":
     print(f"[INFO] [sim_node]: alone on ROS_DOMAIN_ID={{os.environ['ROS_DOMAIN_ID']}}", flush=True)
 
@@ -71,10 +75,8 @@ def wait_for_the_graph():
         time.sleep(0.05)
 
 
-when = plan.get("when", "signal")
 if when == "start":  # a node other than the sim fails once the graph is up, as a node failing in a running graph
-    if name != "sim":
-        wait_for_the_graph()
+    wait_for_the_graph()
     finish()
 if when == "episodes":  # the sim: once every node of the graph runs and handles signals, its episodes, then it ends
     outcomes = Path(params["summary_file"])
@@ -208,7 +210,8 @@ def test_the_exit_status_and_its_cause(case, tmp_path, own_groups):
     (plan, args), rc, lines = CASES[case]
     proc, out, logs, bag = start(tmp_path, plan, args, own_groups)
     text = check(proc, out, logs, bag, rc, lines)
-    if case.startswith("sim_rejected"):  # the graph stopped at the sim: nothing else was started
+    if case in ("sim_rejected_its_parameters", "sim_refused_to_start"):  # the graph stopped at the sim: nothing else
+        # was started (the sim never said it was alone on the domain)
         assert not any((logs / f"{node}.log").exists() for node in ("recorder", "tactile", "vision", "policy")), text
     if rc == 0:  # the run's outcome table follows (both rules), and no node was reported
         assert "hold_the_end            2/2    100.0%    0/2      0.0%" in text and "exited early" not in text
