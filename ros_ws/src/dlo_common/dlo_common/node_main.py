@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import os
 import re
+import signal
 import sys
+import threading
 from collections.abc import Callable, Sequence
 
 import rclpy
@@ -190,6 +192,20 @@ def run_node(make_node: Callable[[], "rclpy.node.Node"], args=None, *, interrupt
         answered = handle_help(package, parameters, summary, args, exit_codes)
         if answered is not None:
             return answered
+    # A SIGINT raises KeyboardInterrupt wherever Python runs, also inside rclpy's C++ code converting a message,
+    # which turns it into a RuntimeError ("Unable to convert call argument ...") while the context is still
+    # being shut down. Noting the signal (a Python handler set before rclpy.init, whose own handler calls it
+    # after shutting the context down) tells such an error from a real one.
+    interrupts: list[int] = []
+
+    def note_interrupt(signum, frame):
+        interrupts.append(signum)
+        raise KeyboardInterrupt
+
+    main_thread = threading.current_thread() is threading.main_thread()  # (only it may set handlers)
+    previous = signal.getsignal(signal.SIGINT) if main_thread else None
+    if previous is signal.default_int_handler:  # (an ignored SIGINT, as in a background job, stays ignored)
+        signal.signal(signal.SIGINT, note_interrupt)
     rclpy.init(args=args)
     node = None
     name = executable_name()  # the executable, until the node has its name
@@ -209,9 +225,9 @@ def run_node(make_node: Callable[[], "rclpy.node.Node"], args=None, *, interrupt
     except (KeyboardInterrupt, ExternalShutdownException):
         rc = interrupted_rc
     except Exception:
-        if rclpy.ok():
+        if rclpy.ok() and not interrupts:
             raise
-        rc = interrupted_rc  # the context was shut down by a signal while a callback ran (RCLError)
+        rc = interrupted_rc  # a signal shut the context down while a callback ran (RCLError), or interrupted rclpy
     finally:
         if node is not None:
             try:
@@ -219,4 +235,6 @@ def run_node(make_node: Callable[[], "rclpy.node.Node"], args=None, *, interrupt
             except Exception:  # noqa: BLE001 - already torn down by the signal's shutdown
                 pass
         rclpy.try_shutdown()
+        if previous is signal.default_int_handler:
+            signal.signal(signal.SIGINT, previous)
     return rc

@@ -1,0 +1,66 @@
+"""dlo_common.node_main.run_node: a node interrupted by SIGINT exits with its "interrupted" status and no
+traceback, also when the KeyboardInterrupt lands inside rclpy's C++ code converting a message, which turns it
+into a RuntimeError while the context is still being shut down (a tactile node interrupted mid-stream did)."""
+
+import subprocess
+import sys
+
+import pytest
+
+from dlo_common import testing
+
+LOSSY = '''import os, signal, sys
+import rclpy.node
+from dlo_common.node_main import run_node
+
+
+class Lossy(rclpy.node.Node):
+    def __init__(self):
+        super().__init__("lossy")
+        self.create_timer(0.05, self.tick)
+
+    def tick(self):  # as rclpy's take_message does when Python raises while it converts a message
+        try:
+            os.kill(os.getpid(), signal.SIGINT)
+            while True:
+                pass
+        except KeyboardInterrupt:
+            raise RuntimeError("Unable to convert call argument '0' to Python object") from None
+
+
+sys.exit(run_node(Lossy, [], interrupted_rc={rc}))
+'''
+
+FAULTY = '''import sys
+import rclpy.node
+from dlo_common.node_main import run_node
+
+
+class Faulty(rclpy.node.Node):
+    def __init__(self):
+        super().__init__("faulty")
+        self.create_timer(0.05, self.tick)
+
+    def tick(self):
+        raise RuntimeError("a real bug")
+
+
+sys.exit(run_node(Faulty, []))
+'''
+
+
+@pytest.mark.parametrize("rc", [0, 130])
+def test_a_sigint_lost_inside_rclpy_still_ends_the_node_as_interrupted(rc):
+    pytest.importorskip("rclpy")
+    env = testing.isolated_env()
+    for _ in range(5):  # (the context's shutdown races the error: without the fix most runs fail)
+        result = subprocess.run([sys.executable, "-c", LOSSY.format(rc=rc)], env=env, capture_output=True, text=True,
+                                timeout=120)
+        assert (result.returncode, result.stderr) == (rc, ""), result.stderr
+
+
+def test_an_error_in_a_callback_without_a_signal_is_a_traceback():
+    pytest.importorskip("rclpy")
+    result = subprocess.run([sys.executable, "-c", FAULTY], env=testing.isolated_env(), capture_output=True,
+                            text=True, timeout=120)
+    assert result.returncode == 1 and "RuntimeError: a real bug" in result.stderr, result.stderr
