@@ -2,6 +2,7 @@
 (another test process, a pytest-xdist worker, launch_graph.sh, any DDS participant);
 remove_orphaned_dds_shm: what killed participants leave in /dev/shm is removed, nothing in use."""
 
+import os
 import socket
 import subprocess
 import sys
@@ -109,6 +110,17 @@ def test_only_new_dds_files_no_process_uses_are_removed(tmp_path):
     assert testing.remove_orphaned_dds_shm(before, shm) == ["fastrtps_mapped", "fastrtps_open"]  # holder gone
 
 
+def uses(pid, path):
+    """Whether process ``pid`` has ``path`` mapped or open."""
+    proc, links = Path(f"/proc/{pid}"), set()
+    for fd in (proc / "fd").iterdir():
+        try:
+            links.add(os.readlink(fd))
+        except OSError:  # closed meanwhile
+            pass
+    return str(path) in (proc / "maps").read_text() or str(path) in links
+
+
 NODE = """import time, rclpy
 rclpy.init()
 node = rclpy.create_node("shm_probe")
@@ -140,8 +152,12 @@ def test_a_killed_participants_shared_memory_is_removed_and_a_live_ones_kept():
         killed.kill()
         killed.wait()
         removed = set(testing.remove_orphaned_dds_shm(before))
-        assert killed_files - live_files <= removed  # the killed node's own files are gone
-        assert live_files <= testing.dds_shm_entries() and not live_files & removed  # the live node's stay
+        assert removed  # what only the killed node held (its locks at least) is gone
+        # What the killed node mapped stays only where the live node uses it: the live node maps a peer's segment
+        # and ports to exchange data with it, at any moment after discovery, and keeps them until it ends.
+        left = testing.dds_shm_entries()
+        assert all(uses(live.pid, testing.SHM / name) for name in killed_files & left), killed_files & left
+        assert live_files <= left and not live_files & removed  # the live node's stay
     finally:
         for proc in (live, killed):
             proc.kill()
