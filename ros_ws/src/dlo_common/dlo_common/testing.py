@@ -28,6 +28,7 @@ import signal
 import subprocess
 import threading
 import time
+from collections.abc import Iterable
 from pathlib import Path
 
 # DLO_ROOT is set by scripts/env.sh; without it, the source tree this file lies in (ros_ws/src/dlo_common/dlo_common/).
@@ -185,10 +186,12 @@ def dds_shm_entries(shm: Path = SHM) -> set[str]:
         return set()
 
 
-def _files_in_use() -> set[str]:
-    """Every file some process on this machine has mapped or open (/proc/*/maps, /proc/*/fd)."""
+def files_in_use(pids: Iterable[int] | None = None) -> set[str]:
+    """Every file the processes ``pids`` (default: every process on this machine) have mapped or open
+    (/proc/PID/maps, /proc/PID/fd)."""
     used: set[str] = set()
-    for proc in Path("/proc").iterdir():
+    procs = Path("/proc").iterdir() if pids is None else (Path(f"/proc/{pid}") for pid in pids)
+    for proc in procs:
         if not proc.name.isdigit():
             continue
         with contextlib.suppress(OSError):
@@ -211,7 +214,7 @@ def remove_orphaned_dds_shm(before: set[str], shm: Path = SHM) -> list[str]:
     new = sorted(dds_shm_entries(shm) - before)
     if not new:
         return []
-    used = _files_in_use()
+    used = files_in_use()
     removed = []
     for name in new:
         path = shm / name

@@ -2,7 +2,6 @@
 (another test process, a pytest-xdist worker, launch_graph.sh, any DDS participant);
 remove_orphaned_dds_shm: what killed participants leave in /dev/shm is removed, nothing in use."""
 
-import os
 import socket
 import subprocess
 import sys
@@ -110,17 +109,6 @@ def test_only_new_dds_files_no_process_uses_are_removed(tmp_path):
     assert testing.remove_orphaned_dds_shm(before, shm) == ["fastrtps_mapped", "fastrtps_open"]  # holder gone
 
 
-def uses(pid, path):
-    """Whether process ``pid`` has ``path`` mapped or open."""
-    proc, links = Path(f"/proc/{pid}"), set()
-    for fd in (proc / "fd").iterdir():
-        try:
-            links.add(os.readlink(fd))
-        except OSError:  # closed meanwhile
-            pass
-    return str(path) in (proc / "maps").read_text() or str(path) in links
-
-
 NODE = """import time, rclpy
 rclpy.init()
 node = rclpy.create_node("shm_probe")
@@ -156,7 +144,8 @@ def test_a_killed_participants_shared_memory_is_removed_and_a_live_ones_kept():
         # What the killed node mapped stays only where the live node uses it: the live node maps a peer's segment
         # and ports to exchange data with it, at any moment after discovery, and keeps them until it ends.
         left = testing.dds_shm_entries()
-        assert all(uses(live.pid, testing.SHM / name) for name in killed_files & left), killed_files & left
+        used_by_live = testing.files_in_use([live.pid])
+        assert all(str(testing.SHM / name) in used_by_live for name in killed_files & left), killed_files & left
         assert live_files <= left and not live_files & removed  # the live node's stay
     finally:
         for proc in (live, killed):
