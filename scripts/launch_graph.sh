@@ -214,9 +214,14 @@ declare -A status=()
 # A node gets SIGINT (and closes cleanly) if this script dies without stopping it (e.g. SIGKILL).
 ORPHAN=()
 if command -v setpriv >/dev/null 2>&1 && setpriv --pdeathsig INT true 2>/dev/null; then ORPHAN=(setpriv --pdeathsig INT --); fi
+# A background job of this script starts with SIGINT ignored, and a node keeps it so until rclpy.init sets its
+# handlers: a Ctrl-C while a node still starts (imports) would be lost and the node killed 10 s later. Each node
+# starts with SIGINT at its default instead (GNU env >= 8.31): interrupted while it imports, it ends there.
+SIGINT_DEFAULT=()
+if env --default-signal=INT true 2>/dev/null; then SIGINT_DEFAULT=(env --default-signal=INT); fi
 start() {  # start <name> <pkg> <exe> [ros args...]
   local name="$1"; shift
-  ${ORPHAN[@]+"${ORPHAN[@]}"} "${RUN[@]}" "$@" > "$logs/$name.log" 2>&1 &
+  ${ORPHAN[@]+"${ORPHAN[@]}"} ${SIGINT_DEFAULT[@]+"${SIGINT_DEFAULT[@]}"} "${RUN[@]}" "$@" > "$logs/$name.log" 2>&1 &
   pids+=("$!") names+=("$name")
   echo "[launch] $name (pid $!) -> $logs/$name.log"
 }
@@ -387,7 +392,8 @@ if [ -n "$record" ]; then
   elif [ "$rst" = 1 ]; then
     echo "[launch] recording incomplete: the recorder dropped messages (see $logs/recorder.log)" >&2
     [ "$rc" = "$EXIT_INTERRUPTED" ] || rc=$EXIT_RECORDING_FAILED
-  elif [ -n "$rst" ] && [ "$rst" != 0 ] && [ "$failed_node" != recorder ]; then
+  elif [ -n "$rst" ] && [ "$rst" != 0 ] && [ "$failed_node" != recorder ] \
+      && ! { [ "$rc" = "$EXIT_INTERRUPTED" ] && [ "$rst" = 130 ]; }; then  # (130 when interrupted: still starting)
     echo "[launch] the recorder ended with $(describe "$rst"); the end of its log:" >&2
     show_log_end recorder
     [ "$rc" = "$EXIT_INTERRUPTED" ] || rc=$EXIT_RECORDING_FAILED

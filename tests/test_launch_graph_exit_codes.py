@@ -30,7 +30,8 @@ NODES = {"sim_node": "sim", "recorder_node": "recorder", "tactile_node": "tactil
 # refusing to start next to another simulator does, so the launcher starts no other node; any other node: once the
 # others handle signals), "signal" (on SIGINT/SIGTERM, the default) or, for the sim, "episodes" (after writing
 # "episodes" outcome lines, once the whole graph has started); "say" lines to print first; the recorder creates its
-# bag directory with a .mcap and writes metadata.yaml when it closes ("closes": true).
+# bag directory with a .mcap and writes metadata.yaml when it closes ("closes": true); "slow_start": true, a node
+# still starting (importing) when the launcher is interrupted: it sets no signal handler for 10 minutes.
 FAKE_ROS2 = r'''#!{python}
 import json, os, signal, sys, time
 from pathlib import Path
@@ -52,6 +53,9 @@ def finish(*_):
     os._exit(plan.get("exit", 130 if name == "sim" else 0))
 
 
+if plan.get("slow_start"):  # still importing, as a real node before rclpy.init: SIGINT at whatever it started with
+    Path(os.environ["FAKE_READY"]).with_name(f"starting_{{name}}").touch()
+    time.sleep(600)
 for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):  # a background job of bash starts with SIGINT ignored
     signal.signal(sig, finish)
 Path(os.environ["FAKE_READY"]).with_name(f"args_{{name}}.json").write_text(json.dumps(rest))  # what the launcher passed
@@ -67,8 +71,8 @@ if name == "sim":
 
 
 def wait_for_the_graph():
-    """Until every other node of the graph handles signals: a loaded machine starts Python slowly, a SIGINT
-    before a node's handler is ignored (a bash background job), and the launcher would kill that node 10 s later."""
+    """Until every other node of the graph handles signals: a loaded machine starts Python slowly, and a node
+    the launcher stops before it has set its handler ends by KeyboardInterrupt, not as the case plans."""
     deadline = time.monotonic() + 120
     while time.monotonic() < deadline and not all(
             (Path(os.environ["FAKE_READY"]) / n).exists() for n in json.loads(os.environ["FAKE_NODES"]) if n != name):
@@ -227,6 +231,23 @@ def test_an_interrupted_run_is_130_whatever_else_failed(case, tmp_path, own_grou
         time.sleep(0.1)
     proc.send_signal(sig)
     check(proc, out, logs, bag, rc, lines)
+
+
+@pytest.mark.parametrize("name", ["policy", "recorder"])
+def test_an_interrupt_while_a_node_still_starts_stops_it_with_that_sigint(name, tmp_path, own_groups):
+    """Ctrl-C while a node is still starting (importing torch, before rclpy.init sets its signal handlers)
+    stops it then: a bash background job starts with SIGINT ignored, and such a node used to be killed with
+    SIGKILL 10 s later ("did not stop within 10 s of SIGINT"), a recorder perhaps mid-way through opening its bag.
+    The recorder's own status then is the interrupt's, not a failure to report with its log."""
+    proc, out, logs, bag = start(tmp_path, {name: {"slow_start": True}}, ("--episodes", 0, "--record", "BAG"), own_groups)
+    deadline = time.monotonic() + 120
+    while not (tmp_path / f"starting_{name}").exists():
+        assert proc.poll() is None and time.monotonic() < deadline, out.read_text()
+        time.sleep(0.1)
+    proc.send_signal(signal.SIGINT)
+    text = check(proc, out, logs, bag, 130, ["[launch] interrupted: stopping the graph"])
+    assert "did not stop within" not in text and "the recorder ended" not in text, text
+    assert "KeyboardInterrupt" in (logs / f"{name}.log").read_text()  # it ended by that SIGINT, in its import
 
 
 BAD_OPTIONS = {
