@@ -522,7 +522,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--out", type=Path, required=True, help="results directory (one subdirectory per run)")
     parser.add_argument("--groups", default="single,pairs,ablation,sensitivity",
                         help=f"comma-separated subset of {','.join(GROUPS)} (default: all)")
-    parser.add_argument("--labels", help="only these configuration labels (comma-separated), e.g. All,V,T,K")
+    parser.add_argument("--labels", help="only these configuration labels (comma-separated), e.g. All,V,T,K; a run "
+                        "directory's name works too")
     parser.add_argument("--seeds", type=int, default=3, help="seeds per configuration (default 3)")
     parser.add_argument("--first-seed", type=int, default=0, help="seeds are first-seed .. first-seed + seeds - 1")
     parser.add_argument("--steps", type=int, help="env steps per run (default: the config's, 50000)")
@@ -584,10 +585,10 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
               f"using {max(1, cores // args.threads)} jobs", file=sys.stderr)
         jobs = max(1, cores // args.threads)
     try:
-        specs = experiment_grid([g.strip() for g in args.groups.split(",") if g.strip()],
-                                range(args.first_seed, args.first_seed + args.seeds))
+        groups = [g.strip() for g in args.groups.split(",") if g.strip()]
+        specs = experiment_grid(groups, range(args.first_seed, args.first_seed + args.seeds))
         if args.labels:
-            wanted = {label.strip() for label in args.labels.split(",")}
+            wanted = wanted_labels(args.labels, specs, ",".join(groups))
             specs = [s for s in specs if s.label in wanted]
         configs = [run_config(s, args.config, args.overrides, args.steps, args.threads) for s in specs]
         for config in configs:
@@ -641,6 +642,23 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         print(f"{len(failed)} run(s) failed: {', '.join(failed)} (see their train.log)", file=sys.stderr)
         return 1
     return 0
+
+
+def wanted_labels(labels: str, specs, groups: str) -> set[str]:
+    """The labels `--labels` names, each as written or as its run directory's name ('All_tactile-partial' for
+    'All tactile-partial'); ValueError naming the choices for one that is no configuration of the groups."""
+    known = list(dict.fromkeys(s.label for s in specs))
+    by_name = {**{label: label for label in known},
+               **{RunSpec(label, "", 0).directory(Path()).parent.name: label for label in known}}
+    wanted = set()
+    for label in (part.strip() for part in labels.split(",")):
+        if not label:
+            continue
+        if label not in by_name:
+            raise ValueError(f"--labels: {label!r} is not a configuration of the groups {groups} "
+                             f"(their labels: {', '.join(known)})")
+        wanted.add(by_name[label])
+    return wanted
 
 
 def _usage_error(message: str) -> int:

@@ -551,7 +551,8 @@ def test_help_describes_the_grid_and_every_option(capsys):
     for text in ("Overrides (key=value) apply to every run, e.g. train.eval_every=500.",
                  "--out OUT results directory (one subdirectory per run)",
                  "--groups GROUPS comma-separated subset of single,pairs,ablation,sensitivity (default: all)",
-                 "--labels LABELS only these configuration labels (comma-separated), e.g. All,V,T,K",
+                 "--labels LABELS only these configuration labels (comma-separated), e.g. All,V,T,K; "
+                 "a run directory's name works too",
                  "--seeds SEEDS seeds per configuration (default 3)",
                  "--first-seed FIRST_SEED seeds are first-seed .. first-seed + seeds - 1",
                  "--steps STEPS env steps per run (default: the config's, 50000)",
@@ -674,6 +675,26 @@ def test_main_picks_seeds_labels_and_groups_as_asked(tmp_path, monkeypatch, caps
                                                                         ("K", "seed5"), ("All", "seed5")]
     assert jobs == 4
     assert "4 runs, 0 done, 4 to run" in capsys.readouterr().out
+
+
+def test_a_label_is_also_its_directory_name(tmp_path, monkeypatch, capsys):
+    """'All tactile-partial' runs in All_tactile-partial/: either spelling picks it (a user copies the directory)."""
+    driver = Driver(monkeypatch)
+    for k, spelling in enumerate(("All tactile-partial", "All_tactile-partial")):
+        assert experiments.main(["--out", str(tmp_path / f"grid{k}"), "--groups", "sensitivity", "--labels", spelling,
+                                 "--seeds", "1", "--no-progress", *TINY]) == 0
+        assert len(driver.local) == k + 1
+        assert [t.run_dir.parent.name for t in driver.local[-1][0]] == ["All_tactile-partial"]
+    capsys.readouterr()
+
+
+def test_a_label_not_in_the_groups_is_one_line_naming_the_choices(tmp_path, monkeypatch, capsys):
+    driver = Driver(monkeypatch)
+    assert experiments.main(["--out", str(tmp_path / "grid"), "--groups", "single", "--labels", "All,T+K",
+                             "--seeds", "1", "--no-progress", *TINY]) == 2
+    assert capsys.readouterr().err == ("dlo-experiments: error: --labels: 'T+K' is not a configuration of the groups "
+                                       "single (their labels: T, K, V, All)\n")
+    assert driver.local == [] and not (tmp_path / "grid").exists()
 
 
 def test_main_never_runs_more_threads_than_cores(tmp_path, monkeypatch, capsys):
