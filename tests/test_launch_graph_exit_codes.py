@@ -12,6 +12,7 @@ second simulator) and tests/test_graph.py (Ctrl-C mid-run)."""
 
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -23,7 +24,7 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 LAUNCH = ROOT / "scripts" / "launch_graph.sh"
 NODES = {"sim_node": "sim", "recorder_node": "recorder", "tactile_node": "tactile", "vision_node": "vision",
-         "policy_node": "policy"}
+         "policy_node": "policy"}  # what the launcher starts without --foxglove (the bridge is not faked here)
 
 # What a node does, from FAKE_GRAPH (JSON, by launcher name): "exit" its status (default 0; "SIGKILL": killed),
 # "when" "start" (the sim: at once, before it says it is alone on the domain, as a sim rejecting its parameters or
@@ -95,6 +96,14 @@ if when == "episodes":  # the sim: once every node of the graph runs and handles
 while True:
     time.sleep(1)
 '''
+
+
+def test_the_fake_graph_is_the_launchers_graph():
+    """The stand-ins are every node the launcher starts (`start NAME PACKAGE EXECUTABLE` lines), but the
+    Foxglove bridge, which only --foxglove starts: a node added to the launcher is added here too."""
+    started = re.findall(r"^\s*start (\w+) (\w+) (\w+) --ros-args", LAUNCH.read_text(), flags=re.M)
+    assert {exe: name for name, _, exe in started if name != "foxglove"} == NODES
+    assert ("foxglove", "dlo_viz", "foxglove_bridge") in started
 
 
 def ran(plan, *args):
