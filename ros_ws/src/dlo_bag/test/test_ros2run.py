@@ -1,9 +1,13 @@
-"""scripts/ros2run finds every console script every ament_python package declares."""
+"""scripts/ros2run finds every console script every ament_python package declares, and a SIGINT before the
+node starts ends it whatever the moment."""
 
 from __future__ import annotations
 
 import ast
+import pathlib
+import signal
 import subprocess
+import time
 
 from dlo_common.testing import REPO, ROS2RUN
 
@@ -102,3 +106,52 @@ def test_help_is_the_usage_line_and_no_arguments_a_usage_error(ros_env):
         assert res.returncode == 0 and res.stderr.strip() == usage and res.stdout == "", res
     res = run(ros_env)
     assert res.returncode == 2 and res.stderr.strip() == usage and res.stdout == ""
+
+
+def fake_prefix(root: pathlib.Path, script: str) -> pathlib.Path:
+    """An install prefix with one package, fake_pkg, whose executable `forever` is `script` (sh)."""
+    prefix = root / "install"
+    (prefix / "share" / "ament_index" / "resource_index" / "packages").mkdir(parents=True)
+    (prefix / "share" / "ament_index" / "resource_index" / "packages" / "fake_pkg").touch()
+    exe = prefix / "lib" / "fake_pkg" / "forever"
+    exe.parent.mkdir(parents=True)
+    exe.write_text(f"#!/bin/sh\n{script}\n")
+    exe.chmod(0o755)
+    return prefix
+
+
+def test_the_first_prefix_holding_the_executable_wins(ros_env, tmp_path):
+    """As `ros2 run`: AMENT_PREFIX_PATH in order (an overlay before its underlay)."""
+    first, second = (fake_prefix(tmp_path / name, f"echo {name}") for name in ("overlay", "underlay"))
+    env = dict(ros_env, AMENT_PREFIX_PATH=f"{first}:{second}:{ros_env['AMENT_PREFIX_PATH']}")
+    assert run(env, "fake_pkg", "forever").stdout == "overlay\n"
+    (first / "lib" / "fake_pkg" / "forever").chmod(0o644)  # not executable there: the next prefix's
+    assert run(env, "fake_pkg", "forever").stdout == "underlay\n"
+
+
+def test_a_sigint_before_the_node_starts_ends_ros2run_instead_of_the_node_starting(ros_env, tmp_path):
+    """The launcher stops a graph by sending SIGINT to each node's process, which is ros2run until it execs the
+    node. Bash, waiting for a pipeline (its package lookup used awk, grep and sed) whose commands did not get the
+    signal and end normally, takes it as handled by them and goes on: it used to exec the node anyway, and the
+    launcher killed that node with SIGKILL 10 s later ("did not stop within 10 s of SIGINT"), a recorder perhaps
+    mid-way through opening its bag. Signals sent every ~5 ms across the lookup (~0.1-0.3 s) and beyond."""
+    # The node runs no child process before it execs (a shell waiting for `touch` would itself go on after a SIGINT)
+    prefix = fake_prefix(tmp_path, f": > {tmp_path}/started\nexec sleep 600")
+    env = dict(ros_env, AMENT_PREFIX_PATH=f"{prefix}:{ros_env['AMENT_PREFIX_PATH']}")
+    ended_before_the_node = 0
+    for k in range(60):
+        (tmp_path / "started").unlink(missing_ok=True)
+        proc = subprocess.Popen([str(ROS2RUN), "fake_pkg", "forever"], env=env, stdout=subprocess.PIPE,
+                                stderr=subprocess.STDOUT, preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+        time.sleep(0.005 * k)
+        proc.send_signal(signal.SIGINT)
+        try:
+            out, _ = proc.communicate(timeout=60)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.communicate()
+            raise AssertionError(f"SIGINT {5 * k} ms after the start was lost: ros2run went on and started the node") \
+                from None
+        assert proc.returncode in (130, -signal.SIGINT), (k, proc.returncode, out)
+        ended_before_the_node += not (tmp_path / "started").exists()
+    assert ended_before_the_node > 0  # some signals did arrive before the node (the case this test is about)
