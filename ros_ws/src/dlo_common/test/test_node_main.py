@@ -9,6 +9,7 @@ import sys
 import pytest
 
 from dlo_common import testing
+from dlo_common.node_main import params_files
 
 LOSSY = '''import os, signal, sys, time
 import rclpy.node
@@ -71,3 +72,11 @@ def test_an_error_in_a_callback_without_a_signal_is_a_traceback():
     result = subprocess.run([sys.executable, "-c", FAULTY], env=testing.isolated_env(), capture_output=True,
                             text=True, timeout=120)
     assert result.returncode == 1 and "RuntimeError: a real bug" in result.stderr, result.stderr
+
+
+def test_params_files_are_those_inside_ros_args_only():
+    """`--params-file F` counts between `--ros-args` and `--` (or the end), as rcl reads it; a trailing one has no file."""
+    argv = ["--params-file", "before.yaml", "--ros-args", "-p", "x:=1", "--params-file", "a.yaml", "--",
+            "--params-file", "app.yaml", "--ros-args", "--params-file", "b.yaml", "--params-file"]
+    assert params_files(argv) == ["a.yaml", "b.yaml"]
+    assert params_files(["--params-file", "x.yaml"]) == []
