@@ -58,10 +58,10 @@ def episodes():
 
     agent = SAC.load(shipped_policy_path())
     grip = trained_sim_settings(shipped_policy_path())["single_particle_grip"]  # the grip it was trained with
+    policy = lambda observation: agent.predict(observation[None], deterministic=True)[0]  # noqa: E731
     result = {}
     for rules in ("paper_text", "authors_code"):
         env = make_env("All", seed=0, task_rules=rules, single_particle_grip=grip)
-        policy = lambda observation: agent.predict(observation[None], deterministic=True)[0]  # noqa: E731
         result[rules] = [(seed, *task_states(env, policy, seed, rules)) for seed in SEEDS]
         result[rules].append((SEEDS[0], *task_states(env, lambda observation: LET_GO, SEEDS[0], rules)))
     return result

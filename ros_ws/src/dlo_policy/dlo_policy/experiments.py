@@ -648,8 +648,7 @@ def wanted_labels(labels: str, specs, groups: str) -> set[str]:
     """The labels `--labels` names, each as written or as its run directory's name ('All_tactile-partial' for
     'All tactile-partial'); ValueError naming the choices for one that is no configuration of the groups."""
     known = list(dict.fromkeys(s.label for s in specs))
-    by_name = {**{label: label for label in known},
-               **{RunSpec(label, "", 0).directory(Path()).parent.name: label for label in known}}
+    by_name = {**{s.label: s.label for s in specs}, **{s.directory(Path()).parent.name: s.label for s in specs}}
     wanted = set()
     for label in (part.strip() for part in labels.split(",")):
         if not label:
