@@ -72,20 +72,33 @@ def params_file_problem(path: str) -> str:
     except ImportError:  # rcl's own parser still reads it below
         return ""
     try:
-        document = yaml.safe_load(text)
+        documents = list(yaml.safe_load_all(text))  # (rcl reads every '---' document of a file)
     except yaml.YAMLError as error:
-        mark = getattr(error, "problem_mark", None)
-        where = f" at line {mark.line + 1}" if mark is not None else ""
-        problem = " ".join(str(getattr(error, "problem", None) or error).split())
-        return f"YAML syntax error{where}: {problem}"
-    if document is not None and not isinstance(document, dict):
-        what = "a list" if isinstance(document, list) else "a single value"
-        return f"wrong layout (the file holds {what}); {PARAMS_FILE_LAYOUT}"
-    empty = _empty_parameter_section(document or {})
-    if empty:
-        return (f"wrong layout ('{empty}: ros__parameters:' holds no parameters: add '    NAME: VALUE' under it "
-                "or leave the section out)")
+        return "YAML syntax error" + _yaml_error(error, text)
+    for document in documents:
+        if document is not None and not isinstance(document, dict):
+            what = "a list" if isinstance(document, list) else "a single value"
+            return f"wrong layout (the file holds {what}); {PARAMS_FILE_LAYOUT}"
+        empty = _empty_parameter_section(document or {})
+        if empty:
+            return (f"wrong layout ('{empty}: ros__parameters:' holds no parameters: add '    NAME: VALUE' under it "
+                    "or leave the section out)")
     return ""
+
+
+def _yaml_error(error: Exception, text: str) -> str:
+    """' at line N: what' of a PyYAML error (a parser error has a mark; a reader error, a character YAML
+    does not allow, has a position in ``text``)."""
+    mark, position = getattr(error, "problem_mark", None), getattr(error, "position", None)
+    if mark is not None:
+        where = f" at line {mark.line + 1}"
+    elif isinstance(position, int):
+        where = f" at line {text.count(chr(10), 0, position) + 1}"
+    else:
+        where = ""
+    problem = str(getattr(error, "problem", None) or error)
+    problem = re.sub(r'\s+in "<unicode string>", position \d+', "", problem)
+    return f"{where}: {' '.join(problem.split())}"
 
 
 def _empty_parameter_section(mapping: dict, path: str = "") -> str:

@@ -9,7 +9,7 @@ import sys
 import pytest
 
 from dlo_common import testing
-from dlo_common.node_main import params_files
+from dlo_common.node_main import handle_help, params_file_problem, params_files, ros_arguments_problem
 
 LOSSY = '''import os, signal, sys, time
 import rclpy.node
@@ -80,3 +80,69 @@ def test_params_files_are_those_inside_ros_args_only():
             "--params-file", "app.yaml", "--ros-args", "--params-file", "b.yaml", "--params-file"]
     assert params_files(argv) == ["a.yaml", "b.yaml"]
     assert params_files(["--params-file", "x.yaml"]) == []
+
+
+def write(tmp_path, text, name="params.yaml"):
+    path = tmp_path / name
+    path.write_bytes(text.encode() if isinstance(text, str) else text)
+    return str(path)
+
+
+def test_a_utf8_params_file_is_read_as_utf8_in_a_c_locale(tmp_path):
+    """A comment with a non-ASCII character (µm) in a container whose locale is C (no UTF-8 coercion): the file is
+    UTF-8, as rcl reads it, not the locale's ASCII; a file that is not UTF-8 is a one-line 'cannot read it'."""
+    good = write(tmp_path, "# the grip in \u00b5m\n/**:\n  ros__parameters:\n    a: 1\n")
+    latin = write(tmp_path, b"# \xb5m\n/**:\n  ros__parameters:\n    a: 1\n", "latin1.yaml")
+    env = dict(testing.isolated_env(), LC_ALL="C", LANG="C", PYTHONUTF8="0", PYTHONCOERCECLOCALE="0")
+    code = ("import sys; from dlo_common.node_main import params_file_problem as p; "
+            "print(repr(p(sys.argv[1])), repr(p(sys.argv[2])))")
+    result = subprocess.run([sys.executable, "-c", code, good, latin], env=env, capture_output=True, text=True,
+                            timeout=120)
+    assert result.returncode == 0, result.stderr
+    good_problem, latin_problem = (eval(x) for x in result.stdout.split(" ", 1))  # noqa: S307 - our own reprs
+    assert good_problem == ""
+    assert latin_problem.startswith("cannot read it (") and "utf-8" in latin_problem and "\n" not in latin_problem
+
+
+def test_yaml_errors_name_their_line_also_a_character_yaml_does_not_allow(tmp_path):
+    syntax = write(tmp_path, "/**:\n  ros__parameters:\n    a: [1\n    b: 2\n", "syntax.yaml")
+    assert params_file_problem(syntax) == "YAML syntax error at line 4: expected ',' or ']', but got ':'"
+    bell = write(tmp_path, "/**:\n  ros__parameters:\n    a: 1\n    b: \x07\n", "bell.yaml")
+    assert params_file_problem(bell) == ("YAML syntax error at line 4: unacceptable character #x0007: special "
+                                         "characters are not allowed")
+
+
+def test_an_empty_section_is_named_by_its_whole_path(tmp_path):
+    top = write(tmp_path, "/**:\n  ros__parameters:\n", "top.yaml")
+    assert "('/**: ros__parameters:' holds no parameters" in params_file_problem(top)
+    nested = write(tmp_path, "robot:\n  sim_node:\n    ros__parameters:\n", "nested.yaml")
+    assert "('robot/sim_node: ros__parameters:' holds no parameters" in params_file_problem(nested)
+
+
+def test_every_yaml_document_of_a_params_file_is_checked_as_rcl_reads_them_all(tmp_path):
+    two = "/**:\n  ros__parameters:\n    a: 1\n---\nsim_node:\n  ros__parameters:\n    b: 2\n"
+    assert params_file_problem(write(tmp_path, two, "two.yaml")) == ""  # rcl takes it: so do we
+    listed = "/**:\n  ros__parameters:\n    a: 1\n---\n- 1\n"
+    assert params_file_problem(write(tmp_path, listed, "listed.yaml")).startswith(
+        "wrong layout (the file holds a list)")
+
+
+def test_an_rcl_refusal_without_a_line_is_one_line_without_one(tmp_path):
+    """rcl names no line for a node name it refuses ('sim-node' for sim_node)."""
+    pytest.importorskip("rclpy")
+    path = write(tmp_path, "sim-node:\n  ros__parameters:\n    a: 1\n")
+    assert ros_arguments_problem(["x", "--ros-args", "--params-file", path]) == (
+        f"params file {path}: rcl cannot read it: node name must not contain characters other than alphanumerics "
+        "or '_'")
+
+
+def test_help_reads_the_arguments_it_is_given_and_sys_argv_only_without(monkeypatch, capsys):
+    monkeypatch.setattr(sys, "argv", ["sim_node"])
+    assert handle_help("dlo_sim", [], args=["--help"]) == 0
+    assert "sim_node" in capsys.readouterr().out
+    monkeypatch.setattr(sys, "argv", ["sim_node", "--help"])
+    assert handle_help("dlo_sim", [], args=[]) is None
+    assert handle_help("dlo_sim", []) == 0
+    monkeypatch.setattr(sys, "argv", ["sim_node", "stray"])
+    assert handle_help("dlo_sim", []) == 2
+    assert "unexpected argument 'stray'" in capsys.readouterr().err
