@@ -668,7 +668,7 @@ def test_main_lists_the_runs_runs_the_rest_and_reports(tmp_path, monkeypatch, ca
 def test_main_picks_seeds_labels_and_groups_as_asked(tmp_path, monkeypatch, capsys):
     driver = Driver(monkeypatch)
     out = tmp_path / "grid"
-    assert experiments.main(["--out", str(out), "--groups", " single , ,", "--labels", " K , All ", "--seeds", "2",
+    assert experiments.main(["--out", str(out), "--groups", " single , ,", "--labels", " K , , All ,", "--seeds", "2",
                              "--first-seed", "4", "--no-progress", *TINY]) == 0
     ((tasks, jobs),) = driver.local
     assert [(t.run_dir.parent.name, t.run_dir.name) for t in tasks] == [("K", "seed4"), ("All", "seed4"),
