@@ -222,7 +222,6 @@ def run_node(make_node: Callable[[], "rclpy.node.Node"], args=None, *, interrupt
     rclpy.init(args=args)
     node = None
     name = executable_name()  # the executable, until the node has its name
-    rc = 0
     try:
         node = make_node()
         name = node.get_name()

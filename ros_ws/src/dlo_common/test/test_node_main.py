@@ -5,6 +5,7 @@ into a RuntimeError while the context is still being shut down (a tactile node i
 import signal
 import subprocess
 import sys
+import types
 
 import pytest
 
@@ -146,3 +147,72 @@ def test_help_reads_the_arguments_it_is_given_and_sys_argv_only_without(monkeypa
     monkeypatch.setattr(sys, "argv", ["sim_node", "stray"])
     assert handle_help("dlo_sim", []) == 2
     assert "unexpected argument 'stray'" in capsys.readouterr().err
+
+
+def test_explicit_arguments_may_start_with_the_program_name(monkeypatch):
+    """`run_node(make, args=sys.argv)` passes the program name first: it is no stray argument (only sys.argv[1:]
+    is checked for those)."""
+    pytest.importorskip("rclpy")
+    monkeypatch.setattr(sys, "argv", ["sim_node"])
+    assert handle_help("dlo_sim", [], args=["sim_node", "--ros-args", "-p", "x:=1"]) is None
+
+
+def make_nothing():  # never called: --help answers before any node is built
+    raise AssertionError("a node was built for --help")
+
+
+@pytest.mark.parametrize(("interrupted_rc", "codes"), [
+    (0, "Exit codes: 0 done or stopped by a signal, 2 bad parameter, 3 refused to start."),
+    (130, "Exit codes: 0 done or stopped by a signal (130), 2 bad parameter, 3 refused to start.")])
+def test_help_names_the_package_and_the_exit_code_of_an_interruption(monkeypatch, capsys, interrupted_rc, codes):
+    from dlo_common.node_main import run_node
+    monkeypatch.setattr(sys, "argv", ["sim_node", "--help"])
+    monkeypatch.setattr(make_nothing, "__module__", "dlo_bag.recorder_node")  # the package is the module's first part
+    assert run_node(make_nothing, parameters=[], interrupted_rc=interrupted_rc) == 0
+    out = capsys.readouterr().out
+    assert "ros2 run dlo_bag sim_node" in out and codes in out.splitlines()
+    # run as `python -m dlo_sim.sim_node`: the make function's module is __main__, the package is the spec's
+    monkeypatch.setattr(make_nothing, "__module__", "__main__")
+    monkeypatch.setattr(sys.modules["__main__"], "__spec__", types.SimpleNamespace(name="dlo_sim.sim_node"),
+                        raising=False)
+    assert run_node(make_nothing, parameters=[], interrupted_rc=interrupted_rc) == 0
+    assert "ros2 run dlo_sim sim_node" in capsys.readouterr().out
+
+
+def refusing_probe(seen):
+    """A make_node that builds a node, notes the `answer` parameter it got, and refuses to start (exit 3)."""
+    import rclpy.node
+
+    from dlo_common.node_util import NodeStartError
+
+    def make():
+        node = rclpy.node.Node("probe")
+        seen.append(node.declare_parameter("answer", 0).value)
+        node.destroy_node()
+        raise NodeStartError("refused")
+    return make
+
+
+def test_run_node_gives_rcl_its_own_arguments_and_runs_in_a_thread(monkeypatch, capsys):
+    """The arguments passed to run_node reach rcl (not sys.argv's) and its SIGINT handler is put back on return;
+    run from a thread that is not the main one (no signal handler may be set there) it still builds, refuses and
+    returns its exit code, also after an earlier run in the same process (the context was shut down)."""
+    pytest.importorskip("rclpy")
+    import threading
+
+    from dlo_common.node_main import run_node
+    with testing.reserved_domain() as domain:
+        monkeypatch.setenv("ROS_DOMAIN_ID", str(domain))
+        monkeypatch.setattr(sys, "argv", ["probe", "--ros-args", "-p", "answer:=1"])
+        seen, results = [], []
+        before = signal.signal(signal.SIGINT, signal.default_int_handler)  # as in a terminal
+        try:
+            assert run_node(refusing_probe(seen), ["probe", "--ros-args", "-p", "answer:=42"]) == 3
+            assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # its own handler is gone again
+            thread = threading.Thread(target=lambda: results.append(run_node(refusing_probe(seen), [])))
+            thread.start()
+            thread.join(60)
+        finally:
+            signal.signal(signal.SIGINT, before)
+    assert seen == [42, 0] and results == [3]
+    assert capsys.readouterr().err.count("] refused") == 2
