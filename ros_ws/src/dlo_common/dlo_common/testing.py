@@ -206,11 +206,21 @@ def files_in_use(pids: Iterable[int] | None = None) -> set[str]:
     return used
 
 
+def dds_shm_owner(name: str) -> str:
+    """The Fast DDS file whose use keeps ``name`` alive: a port's named mutex (``sem.fastrtps_portN_mutex``)
+    belongs to its port (``fastrtps_portN``): Fast DDS maps the mutex only while it opens the port, so a
+    running participant's port mutex is mostly mapped by no one. Every other file stands for itself."""
+    if name.startswith("sem.fastrtps_port") and name.endswith("_mutex"):
+        return name.removeprefix("sem.").removesuffix("_mutex")
+    return name
+
+
 def remove_orphaned_dds_shm(before: set[str], shm: Path = SHM) -> list[str]:
     """Remove the Fast DDS shared-memory files that appeared in ``shm`` since ``before`` (a
-    :func:`dds_shm_entries` snapshot) and that no process maps or holds open: what participants killed
-    with SIGKILL (crash tests) leave behind. Files of running participants, and every file that was
-    there before, stay. Returns the removed names."""
+    :func:`dds_shm_entries` snapshot) and that no process maps or holds open (a port's mutex: while no
+    process uses its port, :func:`dds_shm_owner`): what participants killed with SIGKILL (crash tests)
+    leave behind. Files of running participants, and every file that was there before, stay. Returns
+    the removed names."""
     new = sorted(dds_shm_entries(shm) - before)
     if not new:
         return []
@@ -218,7 +228,7 @@ def remove_orphaned_dds_shm(before: set[str], shm: Path = SHM) -> list[str]:
     removed = []
     for name in new:
         path = shm / name
-        if str(path) not in used:
+        if str(path) not in used and str(shm / dds_shm_owner(name)) not in used:
             with contextlib.suppress(FileNotFoundError):
                 path.unlink()
                 removed.append(name)

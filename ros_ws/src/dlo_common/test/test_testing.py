@@ -79,6 +79,10 @@ held = open(sys.argv[1], "rb")                    # an open file
 mapped = open(sys.argv[2], "r+b")
 view = mmap.mmap(mapped.fileno(), 0)              # a mapped one (its file object then closed)
 mapped.close()
+ports = [open(path, "r+b") for path in sys.argv[3:]]  # mapped ports
+port_views = [mmap.mmap(f.fileno(), 0) for f in ports]
+for f in ports:
+    f.close()
 print("ready", flush=True)
 time.sleep(120)
 """
@@ -93,10 +97,12 @@ def test_only_new_dds_files_no_process_uses_are_removed(tmp_path):
     before = testing.dds_shm_entries(shm)
     assert before == {"fastrtps_before"}
     for name in ("fastrtps_orphan", "fastrtps_orphan_el", "sem.fastrtps_port7001_mutex", "fastrtps_open",
-                 "fastrtps_mapped", "someone_else"):
+                 "fastrtps_mapped", "someone_else", "fastrtps_port7002", "sem.fastrtps_port7002_mutex"):
         (shm / name).write_bytes(b"x" * 4096)
-    holder = subprocess.Popen([sys.executable, "-c", HOLDER, str(shm / "fastrtps_open"), str(shm / "fastrtps_mapped")],
-                              stdout=subprocess.PIPE, text=True)
+    # The holder maps fastrtps_port7002 but not its mutex: a running participant's port, whose mutex Fast DDS
+    # maps only while it opens the port. The mutex stays with its port.
+    holder = subprocess.Popen([sys.executable, "-c", HOLDER, str(shm / "fastrtps_open"), str(shm / "fastrtps_mapped"),
+                               str(shm / "fastrtps_port7002")], stdout=subprocess.PIPE, text=True)
     try:
         assert holder.stdout.readline().strip() == "ready"
         removed = testing.remove_orphaned_dds_shm(before, shm)
@@ -105,8 +111,10 @@ def test_only_new_dds_files_no_process_uses_are_removed(tmp_path):
         holder.wait()
     assert sorted(removed) == ["fastrtps_orphan", "fastrtps_orphan_el", "sem.fastrtps_port7001_mutex"]
     assert sorted(p.name for p in shm.iterdir()) == ["fastrtps_before", "fastrtps_mapped", "fastrtps_open",
+                                                     "fastrtps_port7002", "sem.fastrtps_port7002_mutex",
                                                      "someone_else"]
-    assert testing.remove_orphaned_dds_shm(before, shm) == ["fastrtps_mapped", "fastrtps_open"]  # holder gone
+    assert testing.remove_orphaned_dds_shm(before, shm) == [  # holder gone
+        "fastrtps_mapped", "fastrtps_open", "fastrtps_port7002", "sem.fastrtps_port7002_mutex"]
 
 
 NODE = """import time, rclpy
@@ -133,8 +141,9 @@ def test_a_killed_participants_shared_memory_is_removed_and_a_live_ones_kept():
             assert proc.stdout.readline().strip() == "up"
         killed_files = {name for name in testing.dds_shm_entries() - before
                         if f"{testing.SHM / name}" in (Path(f"/proc/{killed.pid}/maps").read_text())}
+        live_maps = Path(f"/proc/{live.pid}/maps").read_text()  # its files, its ports' mutexes (dds_shm_owner) too
         live_files = {name for name in testing.dds_shm_entries() - before
-                      if f"{testing.SHM / name}" in (Path(f"/proc/{live.pid}/maps").read_text())}
+                      if f"{testing.SHM / testing.dds_shm_owner(name)}" in live_maps}
         if not killed_files:
             pytest.skip("this DDS set-up uses no shared memory")
         killed.kill()
@@ -143,10 +152,12 @@ def test_a_killed_participants_shared_memory_is_removed_and_a_live_ones_kept():
         assert removed  # what only the killed node held (its locks at least) is gone
         # What the killed node mapped stays only where the live node uses it: the live node maps a peer's segment
         # and ports to exchange data with it, at any moment after discovery, and keeps them until it ends.
+        # (A port's mutex, which Fast DDS maps only while it opens the port, goes with its port: dds_shm_owner.)
         left = testing.dds_shm_entries()
         used_by_live = testing.files_in_use([live.pid])
-        assert all(str(testing.SHM / name) in used_by_live for name in killed_files & left), killed_files & left
-        assert live_files <= left and not live_files & removed  # the live node's stay
+        assert all(str(testing.SHM / testing.dds_shm_owner(name)) in used_by_live for name in killed_files & left), (
+            killed_files & left)
+        assert live_files <= left and not live_files & removed, (live_files - left)  # the live node's stay
     finally:
         for proc in (live, killed):
             proc.kill()
