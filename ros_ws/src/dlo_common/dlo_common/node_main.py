@@ -14,7 +14,7 @@ from rclpy.executors import ExternalShutdownException
 from rclpy.utilities import remove_ros_args
 
 from dlo_common.node_util import NodeStartError, ParameterError, UnknownParameterError
-from dlo_common.params import Param, help_requested, help_text, unexpected_arguments
+from dlo_common.params import Param, help_requested, help_text, unexpected_arguments, yaml_problem
 
 EXIT_BAD_PARAMETER = 2
 EXIT_REFUSED = 3
@@ -87,18 +87,9 @@ def params_file_problem(path: str) -> str:
 
 
 def _yaml_error(error: Exception, text: str) -> str:
-    """' at line N: what' of a PyYAML error (a parser error has a mark; a reader error, a character YAML
-    does not allow, has a position in ``text``)."""
-    mark, position = getattr(error, "problem_mark", None), getattr(error, "position", None)
-    if mark is not None:
-        where = f" at line {mark.line + 1}"
-    elif isinstance(position, int):
-        where = f" at line {text.count(chr(10), 0, position) + 1}"
-    else:
-        where = ""
-    problem = str(getattr(error, "problem", None) or error)
-    problem = re.sub(r'\s+in "<unicode string>", position \d+', "", problem)
-    return f"{where}: {' '.join(problem.split())}"
+    """' at line N: what' of a PyYAML error raised on ``text`` (dlo_common.params.yaml_problem)."""
+    found = yaml_problem(error, text)
+    return f"{'' if found.line is None else f' at line {found.line}'}: {found.problem}"
 
 
 def _empty_parameter_section(mapping: dict, path: str = "") -> str:

@@ -13,6 +13,8 @@ A node module lists its parameters once, as a module-level ``PARAMETERS`` sequen
   format, each description as a comment);
 - the parameter tables of the docs (:func:`markdown_table`).
 
+And :func:`yaml_problem`: where a YAML file breaks and why, in one line, for every reader of YAML files.
+
 Units are part of each description (e.g. ``[s]``, ``[m]``).
 """
 
@@ -104,6 +106,33 @@ class Param:
         if self.at_most is not None:
             parts.append(f"<= {_number(self.at_most)}")
         return ", ".join(parts)
+
+
+@dataclass(frozen=True)
+class YamlProblem:
+    """Where a YAML text breaks (1-based line and column; None when the error does not say) and why (one line)."""
+
+    line: int | None
+    column: int | None
+    problem: str
+
+
+def yaml_problem(error: Exception, text: str) -> YamlProblem:
+    """The :class:`YamlProblem` of a PyYAML error raised on ``text``: a scanner or parser error has a mark; a
+    reader error (a character YAML does not allow, a control character say) has a position in ``text``,
+    which is turned into the line and column; its message's ' in "<unicode string>", position N' and line
+    breaks are dropped."""
+    mark, position = getattr(error, "problem_mark", None), getattr(error, "position", None)
+    if mark is not None:
+        line, column = mark.line + 1, mark.column + 1
+    elif isinstance(position, int):
+        line = text.count("\n", 0, position) + 1
+        column = position - (text.rfind("\n", 0, position) + 1) + 1
+    else:
+        line = column = None
+    problem = str(getattr(error, "problem", None) or error)
+    problem = re.sub(r'\s+in "<unicode string>", position \d+', "", problem)
+    return YamlProblem(line, column, " ".join(problem.split()))
 
 
 def _number(value: float) -> str:

@@ -8,7 +8,8 @@ import yaml
 
 from dlo_common.params import (Param, ParameterError, UnknownParameterError, as_param, check_value, coerce, example,
                                format_default, help_requested, help_text, markdown_table, params_yaml, renamed_names,
-                               renamed_notice, unexpected_arguments, unknown_parameter)
+                               renamed_notice, unexpected_arguments, unknown_parameter, YamlProblem,
+                               yaml_problem)
 
 INT = Param("n", 1, "count", at_least=1)
 BOUNDED = Param("port", 10, "port", at_least=0, at_most=20)
@@ -181,3 +182,27 @@ def test_the_notice_for_old_names_names_the_new_one():
         "parameter 'noise' is now 'tactile_noise' (the old name works until the next release)"
     assert renamed_notice(["a", "b"], "c") == \
         "parameters 'a', 'b' are now 'c' (the old names work until the next release)"
+
+
+def _problem(text: str):
+    with pytest.raises(yaml.YAMLError) as raised:
+        list(yaml.safe_load_all(text))
+    return yaml_problem(raised.value, text)
+
+
+@pytest.mark.parametrize("text, line, column, problem", [
+    ("a: 1\nb: [1\nc: 2\n", 3, 2, "expected ',' or ']', but got ':'"),  # a parser error: its mark
+    ("a: b: c\n", 1, 5, "mapping values are not allowed here"),  # a scanner error
+    ("a: 1\nb: x\x07y\n", 2, 5, "unacceptable character #x0007: special characters are not allowed"),  # reader
+    ("\x07", 1, 1, "unacceptable character #x0007: special characters are not allowed"),  # the first character
+    ("a: 1\n\nb: \x1b\n", 3, 4, "unacceptable character #x001b: special characters are not allowed"),
+    ("\nb: \x07\n", 2, 4, "unacceptable character #x0007: special characters are not allowed"),  # text[0] a break
+])
+def test_a_yaml_problem_names_its_line_and_column_in_one_line(text, line, column, problem):
+    """Every kind of PyYAML error, a reader error (a character YAML does not allow) too, gives the 1-based
+    line and column of the text and a one-line reason without PyYAML's 'in "<unicode string>"' part."""
+    assert _problem(text) == YamlProblem(line, column, problem)
+
+
+def test_a_yaml_error_without_a_place_has_none():
+    assert yaml_problem(yaml.YAMLError("broken\n  somewhere"), "x") == YamlProblem(None, None, "broken somewhere")

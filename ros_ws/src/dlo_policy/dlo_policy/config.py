@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any, Optional
 
 import yaml
+from dlo_common.params import yaml_problem
 
 
 class ConfigError(ValueError):
@@ -202,9 +203,9 @@ def _yaml(text: str, what: str) -> Any:
     try:
         return yaml.safe_load(text)
     except yaml.YAMLError as error:
-        mark = getattr(error, "problem_mark", None)
-        where = f" (line {mark.line + 1}, column {mark.column + 1})" if mark is not None else ""
-        raise ConfigError(f"{what}: not valid YAML{where}: {getattr(error, 'problem', None) or error}") from None
+        found = yaml_problem(error, text)
+        where = "" if found.line is None else f" (line {found.line}, column {found.column})"
+        raise ConfigError(f"{what}: not valid YAML{where}: {found.problem}") from None
 
 
 def load_config(path: Optional[str | Path] = None, overrides: typing.Sequence[str] = (),

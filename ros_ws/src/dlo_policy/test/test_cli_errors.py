@@ -114,16 +114,21 @@ def test_dlo_train_warns_when_no_update_will_happen(learning_starts, warned, tmp
         assert summary["updates"] == 60 - starts and warnings == []
 
 
-@pytest.mark.parametrize("how", ["config file", "override"])
+@pytest.mark.parametrize("how", ["config file", "override", "control character"])
 def test_dlo_train_with_broken_yaml_is_one_line_naming_where(how, tmp_path):
     """A config file or a key=value override that is not valid YAML: one line naming it and where it
-    breaks (line, column), exit 2, no traceback and no run directory (it was a yaml.ParserError trace)."""
+    breaks (line, column), exit 2, no traceback and no run directory (it was a yaml.ParserError trace).
+    Also a character YAML does not allow (a stray control character: PyYAML's reader error has no line,
+    and its message ran over two lines)."""
     bad = tmp_path / "mine.yaml"
-    bad.write_text("seed: 3\nsac: {batch_size: 64\n")
-    given = ["--config", str(bad)] if how == "config file" else ["sac.hidden_sizes=[256, 256"]
+    bad.write_text("seed: 3\nsac: {batch_size: \x07}\n" if how == "control character" else "seed: 3\nsac: {batch_size: 64\n")
+    given = ["sac.hidden_sizes=[256, 256"] if how == "override" else ["--config", str(bad)]
     result = subprocess.run(["dlo-train", "--out", str(tmp_path / "run"), *given], cwd=tmp_path,
                             capture_output=True, text=True, timeout=300, env=environment())
     said = one_line(result)
-    assert said.startswith(f"dlo-train: error: {bad}: not valid YAML (line 3, column 1): " if how == "config file"
-                           else "dlo-train: error: override 'sac.hidden_sizes=[256, 256': not valid YAML (line 1, "), said
+    expected = {"config file": f"dlo-train: error: {bad}: not valid YAML (line 3, column 1): ",
+                "override": "dlo-train: error: override 'sac.hidden_sizes=[256, 256': not valid YAML (line 1, ",
+                "control character": f"dlo-train: error: {bad}: not valid YAML (line 2, column 19): unacceptable "
+                                     "character #x0007: special characters are not allowed"}[how]
+    assert said.startswith(expected), said
     assert not (tmp_path / "run").exists()
