@@ -54,7 +54,10 @@ has runs, else it is skipped with the reason printed):
     results.md            one row per configuration (and per tested input set of the ablation):
                           seeds (finished/total) x steps, best smoothed mean hold the end under
                           both rules, last-5 mean and last-5/best, held-out test under both rules,
-                          the paper's number; the definitions are written under the table
+                          the paper's number; the definitions are written under the table;
+                          then a second table: the best of the UNSMOOTHED seed-averaged curve
+                          under both rules (what the paper's footnote suggests its listed
+                          numbers are)
 Output of `--compare` (each DIR a results directory of the same configurations trained under
 another setting, NAME its name in the outputs):
     compare.md            per configuration and NAME: seeds x steps, best smoothed mean, last-5

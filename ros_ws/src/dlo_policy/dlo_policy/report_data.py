@@ -268,9 +268,10 @@ def stat_of(samples: Sequence[float]) -> Stat:
     return Stat(float(mean), float(ci) if n >= 2 else math.nan, n)
 
 
-def best_smoothed(curves: Curves, column: str = HOLD) -> tuple[Stat, Optional[int]]:
-    """B = max_k of the seed mean of smoothed `column`, its CI at k*, and the step k* (None if unknown)."""
-    smoothed = smooth(curves.values[column])
+def best_smoothed(curves: Curves, column: str = HOLD, window: int = SMOOTHING_WINDOW) -> tuple[Stat, Optional[int]]:
+    """B = max_k of the seed mean of smoothed `column`, its CI at k*, and the step k* (None if unknown).
+    window=1: the best of the unsmoothed seed-averaged curve."""
+    smoothed = smooth(curves.values[column], window)
     mean = smoothed.mean(axis=0)
     if np.isnan(mean).any():
         return Stat(math.nan, math.nan, curves.seeds), None

@@ -127,6 +127,22 @@ def test_ratio_in_the_table_of_a_hand_made_run(tmp_path):
     assert row[2] == f"100% (1 seed) at {9 * EVERY:,}" and row[4] == "70% (1 seed)" and row[5] == "0.70 (sags)"
 
 
+def test_the_unsmoothed_best_is_the_highest_evaluation_of_the_seed_averaged_curve(tmp_path):
+    """results.md's second table: the best of the seed mean WITHOUT smoothing (the paper's listed statistic), under
+    both rules, at its step, beside the paper's number; the main table keeps the smoothed best."""
+    write_run(tmp_path, "V", 1, [0, 0, 1, 0, 0, 0.5, 0.5], authors=[0, 0, 0.8, 0, 0, 0, 0])
+    write_run(tmp_path, "V", 2, [0, 0, 0.6, 0, 0, 0.5, 0.7], authors=[0, 0, 0.4, 0, 0, 0, 0.2])
+    text = report_tables.results_table(report_data.load_runs(tmp_path))
+    main, unsmoothed = text.split("| configuration | seeds (finished/total) × steps | best unsmoothed")
+    # smoothed (trailing 5): seeds 0.40 and 0.36 at the last step, the highest of the seed mean (0.38)
+    assert table_rows(main)["V"][2] == f"38% ± 25% at {6 * EVERY:,}"
+    row = table_rows("| configuration" + unsmoothed)["V"]
+    # unsmoothed: the seed mean peaks at step 2 (1.0 and 0.6; authors' rule 0.8 and 0.4), t(1) = 12.706
+    assert row[1:4] == ["2/2 × 600", f"80% ± 254% at {2 * EVERY:,}", f"60% ± 254% at {2 * EVERY:,}"]
+    assert row[4] == "77%"
+    assert "*Best unsmoothed mean*" in unsmoothed and "10 seeds" in unsmoothed
+
+
 def test_band_only_from_three_seeds():
     assert not report_plots.band_allowed(1) and not report_plots.band_allowed(2)
     assert report_plots.band_allowed(3) and report_plots.band_allowed(10)
