@@ -100,31 +100,25 @@ UNSMOOTHED_NOTE = (
     "over many noisy evaluations: it lies above the smoothed best, the more so the fewer the seeds.")
 
 
-def unsmoothed_table(runs: Runs) -> str:
-    """The best of each configuration's unsmoothed seed-averaged curve under both rules, beside the paper."""
-    rows = []
-    for label, without, curves in ordered(runs):
-        paper = PAPER_HOLD_THE_END.get(label) if not without else None
-        rows.append([row_name(label, without), format_seeds(summarize(label, curves)),
-                     format_best(*best_smoothed(curves, HOLD, window=1)),
-                     format_best(*best_smoothed(curves, HOLD_AUTHORS, window=1)),
-                     "—" if paper is None else f"{paper:.0%}"])
-    return "\n".join(markdown_table(["configuration", "seeds (finished/total) × steps",
-                                     "best unsmoothed mean hold the end, paper rule (at step)", "same, authors' rule",
-                                     "paper (listed)"], rows)) + "\n\n" + UNSMOOTHED_NOTE + "\n"
+UNSMOOTHED_HEADER = ("configuration", "seeds (finished/total) × steps",
+                     "best unsmoothed mean hold the end, paper rule (at step)", "same, authors' rule", "paper (listed)")
 
 
 def results_table(runs: Runs, warnings: Sequence[str] = ()) -> str:
-    """results.md: one row per configuration and tested input set, the definitions, the unsmoothed bests (the
-    paper's listed statistic, :func:`unsmoothed_table`), any warnings."""
-    rows = []
+    """results.md: one row per configuration and tested input set, the definitions, then the unsmoothed bests (the
+    paper's listed statistic: best_smoothed with window 1, under both rules), any warnings."""
+    rows, unsmoothed_rows = [], []
     for label, without, curves in ordered(runs):
+        name = row_name(label, without)
+        summary = summarize(name, curves)
         paper = PAPER_HOLD_THE_END.get(label) if not without else None
-        rows.append([row_name(label, without), *summary_cells(summarize(row_name(label, without), curves)),
-                     "—" if paper is None else f"{paper:.0%}"])
+        paper_cell = "—" if paper is None else f"{paper:.0%}"
+        rows.append([name, *summary_cells(summary), paper_cell])
+        unsmoothed_rows.append([name, format_seeds(summary), format_best(*best_smoothed(curves, HOLD, window=1)),
+                                format_best(*best_smoothed(curves, HOLD_AUTHORS, window=1)), paper_cell])
     lines = markdown_table(["configuration", *SUMMARY_HEADER, "paper (best mean)"], rows)
     text = "\n".join(lines) + "\n\n" + definitions([runs]) + "\n- *paper*: best mean hold the end in the paper.\n"
-    text += "\n" + unsmoothed_table(runs)
+    text += "\n" + "\n".join(markdown_table(UNSMOOTHED_HEADER, unsmoothed_rows)) + "\n\n" + UNSMOOTHED_NOTE + "\n"
     if warnings:
         text += "\nWarnings:\n" + "".join(f"- {w}\n" for w in warnings)
     return text
