@@ -17,6 +17,7 @@ import numpy as np
 import pytest
 
 from dlo_bag.analysis import read_run
+from dlo_common.testing import stop_or_explain
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 SEED = 11
@@ -114,7 +115,7 @@ def test_bag_analysis_equals_live_outcomes(recorded_run, tmp_path):
     assert len(list((tmp_path / "plots").glob("episode_*.png"))) == EPISODES
 
 
-def test_playback_reruns_perception_on_recorded_images(recorded_run, own_groups):
+def test_playback_reruns_perception_on_recorded_images(recorded_run, own_groups, tmp_path):
     """Replay the recorded images and gripper states into a fresh vision node: same visual poses."""
     import rclpy
 
@@ -124,9 +125,11 @@ def test_playback_reruns_perception_on_recorded_images(recorded_run, own_groups)
     recorded = {stamp_to_ns(m.header.stamp): m for e in recorded_run["run"].values() for m in e["vision"].values()}
     ros2run = str(ROOT / "scripts" / "ros2run")
     # queue_depth: a node starved of CPU (a loaded machine) keeps every replayed frame instead of the last 10
+    # PYTHONFAULTHANDLER: should it not stop, its Python stacks (stop_or_explain; once, rehearsal 33, 2026-12-04)
+    vision_log = tmp_path / "vision.log"
     vision = subprocess.Popen([ros2run, "dlo_perception", "vision_node", "--ros-args", "-r", "/dlo/vision/pose:=/replay/vision",
-                               "-p", "queue_depth:=1000"],
-                              stdout=subprocess.DEVNULL, stderr=subprocess.STDOUT, start_new_session=True)
+                               "-p", "queue_depth:=1000"], env=dict(os.environ, PYTHONFAULTHANDLER="1"),
+                              stdout=vision_log.open("w"), stderr=subprocess.STDOUT, start_new_session=True)
     own_groups(vision.pid)
     rclpy.init()
     try:
@@ -151,8 +154,7 @@ def test_playback_reruns_perception_on_recorded_images(recorded_run, own_groups)
         assert playback.wait(timeout=30) == 0
     finally:
         rclpy.shutdown()
-        vision.send_signal(signal.SIGINT)
-        vision.wait(timeout=30)
+        stop_or_explain(vision, "the vision node", 30, vision_log)
     # Frames before the recorded camera_info (latched, caught by the recorder a little late) cannot
     # be processed; from the first processed frame on, none is missing.
     assert len(replayed) >= 0.8 * len(recorded)

@@ -11,6 +11,7 @@ The tests of dlo_bag, dlo_viz and dlo_driver_kit define their fixtures over thes
 - :func:`isolated_env`: a copy of the environment on a reserved ROS domain with localhost discovery;
   :func:`package_test_env` the same, skipping the test when the package's executable is not built.
 - :class:`Procs`: starts processes and stops every one still running at the end (SIGINT, wait, kill).
+- :func:`stop_or_explain`: SIGINT a node and wait for it; one that hangs fails with its C and Python stacks.
 - :func:`remove_orphaned_dds_shm`: the Fast DDS shared-memory files that killed participants left in
   /dev/shm since a snapshot, removed (the root conftest.py does it at the end of every test session).
 
@@ -98,6 +99,32 @@ def exited(pid: int) -> bool:
             return f.read().rsplit(")", 1)[-1].split()[0] == "Z"  # after "pid (comm)": comm may hold spaces
     except (FileNotFoundError, ProcessLookupError):
         return True
+
+
+def stop_or_explain(proc: subprocess.Popen, name: str, timeout: float = 30.0, log: Path | None = None) -> int:
+    """SIGINT ``proc`` (a node) and wait up to ``timeout`` s for it to end; its return code. A node that does not
+    end is a failure that must say where it hangs: the C stacks of its threads (gdb, when installed), then a
+    SIGABRT, which makes a node started with ``PYTHONFAULTHANDLER=1`` write its threads' Python stacks to its
+    output (``log``, read into the message), go into the AssertionError raised; the node is killed."""
+    proc.send_signal(signal.SIGINT)
+    try:
+        return proc.wait(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        pass
+    try:
+        gdb = subprocess.run(["gdb", "-p", str(proc.pid), "-batch", "-ex", "thread apply all bt"],
+                             capture_output=True, text=True, timeout=60).stdout
+    except (OSError, subprocess.TimeoutExpired) as error:
+        gdb = f"(no C stacks: {error})"
+    proc.send_signal(signal.SIGABRT)
+    try:
+        proc.wait(timeout=10)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait()
+    python = log.read_text(errors="replace")[-20000:] if log is not None and log.exists() else "(no log)"
+    raise AssertionError(f"{name} did not stop within {timeout:g} s of SIGINT\n--- its output, Python stacks at "
+                         f"the end ---\n{python}\n--- its C stacks ---\n{gdb[-20000:]}")
 
 
 # The domains of tests: 100..232 (232: the highest id Fast DDS maps to ports on Linux); scripts/launch_graph.sh

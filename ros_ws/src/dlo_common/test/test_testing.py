@@ -1,10 +1,15 @@
 """dlo_common.testing.reserve_domains: a ROS domain a test uses is used by nothing else on the machine
 (another test process, a pytest-xdist worker, launch_graph.sh, any DDS participant);
-remove_orphaned_dds_shm: what killed participants leave in /dev/shm is removed, nothing in use."""
+remove_orphaned_dds_shm: what killed participants leave in /dev/shm is removed, nothing in use;
+stop_or_explain: a node that does not stop on SIGINT fails with its stacks."""
 
+import os
+import shutil
+import signal
 import socket
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -162,3 +167,29 @@ def test_a_killed_participants_shared_memory_is_removed_and_a_live_ones_kept():
         for proc in (live, killed):
             proc.kill()
             proc.wait()
+
+
+def test_stop_or_explain_returns_the_code_of_a_node_that_stops_and_names_where_one_hangs(tmp_path):
+    """A node that ends on SIGINT: its code. One that does not: an AssertionError with its Python stacks
+    (faulthandler on SIGABRT) and C stacks (gdb), and it is gone."""
+    default_sigint = lambda: signal.signal(signal.SIGINT, signal.SIG_DFL)  # (pytest run with SIGINT ignored)
+    stops = subprocess.Popen([sys.executable, "-c", "import time\ntry:\n    print('up', flush=True)\n    time.sleep(60)\n"
+                              "except KeyboardInterrupt:\n    raise SystemExit(7)"], stdout=subprocess.PIPE,
+                             preexec_fn=default_sigint)
+    assert stops.stdout.readline() == b"up\n"
+    assert testing.stop_or_explain(stops, "stops", 30) == 7
+    log = tmp_path / "hangs.log"
+    hangs = subprocess.Popen([sys.executable, "-c", "import signal, time\nsignal.signal(signal.SIGINT, signal.SIG_IGN)\n"
+                              "print('up', flush=True)\ndef stuck_in_shutdown():\n    time.sleep(600)\nstuck_in_shutdown()"],
+                             env=dict(os.environ, PYTHONFAULTHANDLER="1"), stdout=log.open("w"), stderr=subprocess.STDOUT,
+                             preexec_fn=default_sigint)
+    while "up" not in log.read_text():
+        time.sleep(0.05)
+    with pytest.raises(AssertionError) as failure:
+        testing.stop_or_explain(hangs, "the hanging node", 1, log)
+    assert testing.exited(hangs.pid)
+    message = str(failure.value)
+    assert message.startswith("the hanging node did not stop within 1 s of SIGINT")
+    assert "in stuck_in_shutdown" in message  # its Python stack
+    if shutil.which("gdb"):
+        assert "Thread 1" in message or "#0 " in message, message  # its C stack
