@@ -18,6 +18,8 @@ import time
 
 import pytest
 
+from dlo_common.testing import stop_or_explain
+
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 ROS2RUN = str(ROOT / "scripts" / "ros2run")
 SEED, EPISODES = 5, 3
@@ -125,7 +127,8 @@ def test_real_time_sim_waits_for_a_command_publisher_then_warns_without_commands
     log = tmp_path / "sim.log"
     sim = subprocess.Popen([ROS2RUN, "dlo_sim", "sim_node", "--ros-args", "-p", "mode:=real_time",
                             "-p", "publish_markers:=false", "-p", "camera_resolution:=32"],
-                           stdout=open(log, "w"), stderr=subprocess.STDOUT)
+                           stdout=open(log, "w"), stderr=subprocess.STDOUT,
+                           env=dict(os.environ, PYTHONFAULTHANDLER="1"))  # (its Python stacks, should it hang)
     context = rclpy.Context()
     rclpy.init(context=context)
     node = rclpy.create_node("feedback_probe", context=context)
@@ -157,12 +160,7 @@ def test_real_time_sim_waits_for_a_command_publisher_then_warns_without_commands
         executor.shutdown()
         node.destroy_node()
         rclpy.shutdown(context=context)
-        sim.send_signal(signal.SIGINT)
-        try:
-            sim.wait(timeout=30)
-        except subprocess.TimeoutExpired:
-            sim.kill()
-            sim.wait()
+        stop_or_explain(sim, "the sim node", 30, log)
     assert "Traceback" not in log.read_text()
 
 
