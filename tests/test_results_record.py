@@ -42,13 +42,15 @@ def percent_pair(cell: str) -> tuple[float, float]:
 
 def test_the_record_has_finished_runs_and_only_their_small_files():
     """docs/RESULTS.md (How results are measured): every finished run's small files (config.yaml, eval.csv,
-    done.json, best.json, test*.json) are under results/; never checkpoints, policies or bags."""
+    done.json, best.json, test*.json; training_configs_seed*.json where its best policy was also evaluated on its
+    own training episodes) are under results/; never checkpoints, policies or bags."""
     runs = finished_runs()
     assert len(runs) >= 40
     for run in runs:
         names = {p.name for p in run.iterdir()}
         assert RECORD_FILES <= names and "test.json" in names, run
-        assert all(n in RECORD_FILES or re.fullmatch(r"test(_without_[KTV])?\.json", n) for n in names), (run, names)
+        assert all(n in RECORD_FILES or re.fullmatch(r"test(_without_[KTV])?\.json|training_configs_seed\d+\.json", n)
+                   for n in names), (run, names)
     assert not [p for p in RESULTS.rglob("*") if p.suffix in (".pt", ".mcap", ".db3")]
 
 
@@ -73,6 +75,14 @@ def test_each_recorded_number_was_computed_on_the_documented_episodes(run):
         assert (test["seed"], test["episodes"]) == (5000, 100), path.name
         without = "".join(test.get("without", []))
         assert path.name == (f"test_without_{without}.json" if without else "test.json") and without in tested
+    # docs/RESULTS.md (The study, evaluation on training configurations): the best policy on the run's first and
+    # last 100 training episodes, whose seeds are the run's seed, seed + 1, ... (one env, dlo_policy.env)
+    episodes = json.loads((run / "done.json").read_text())["episodes"]
+    for path in run.glob("training_configs_seed*.json"):
+        test = json.loads(path.read_text())
+        assert path.name == f"training_configs_seed{test['seed']}.json" and test["episodes"] == 100, path.name
+        assert test["seed"] in (seed, seed + episodes - 100) and test["checkpoint"].endswith("/best_policy.pt"), path.name
+        assert test["without"] == [] and test["modalities"] == config["modalities"], path.name
 
 
 def test_each_study_trained_on_its_documented_task_rules_and_length():
