@@ -148,7 +148,10 @@ def test_real_time_mode_holds_its_rate_and_stops_on_stale_commands(probe, tmp_pa
     text = (tmp_path / "sim.log").read_text()
     for cause in ("for episode 999", "old (current step", "ahead of the current step"):
         lines = [line for line in text.splitlines() if "rejected command" in line and cause in line]
-        assert 1 <= len(lines) <= 3, (cause, lines)  # ~100 rejections in 1 s: one or two lines, counted
+        # ~100 rejections sent in 1 s: a line at most once a second (by the log's own stamps; a loaded machine
+        # may spread their handling over more seconds), the rest counted in them
+        stamps = [float(line.split("] [")[1]) for line in lines]
+        assert 1 <= len(lines) <= 5 and all(b - a >= 0.99 for a, b in zip(stamps, stamps[1:])), (cause, lines)
     assert "such commands in" in text and "Traceback" not in text
 
 
