@@ -69,27 +69,47 @@ def test_sim_node_in_real_time_passes_every_rule(procs, ros_env):
 BATCH = 4  # broken drivers checked at once, each with its checker on a ROS domain of its own
 
 
+def check_broken_drivers(ros_env, faults: list[str]) -> dict[str, subprocess.CompletedProcess]:
+    """dlo-driver-check of each broken driver in ``faults``, all at once, each pair on a domain of its own
+    (the session's domain + 1 + the fault's index in FAULTS) so that no two see each other."""
+    base, envs = int(ros_env["ROS_DOMAIN_ID"]), {}
+    for fault in faults:
+        envs[fault] = dict(ros_env, ROS_DOMAIN_ID=str(base + 1 + sorted(FAULTS).index(fault)))
+    results = {}
+    with Procs(ros_env) as start:
+        drivers = {fault: start(fault, [sys.executable, str(HERE / "dlo_driver_kit_broken_driver.py"), fault],
+                                env=envs[fault])
+                   for fault in faults}
+        for driver in drivers.values():
+            driver.wait_line("real_time driver at", timeout=60)
+        checks = {fault: subprocess.Popen([*CHECK, "--timeout", "20", "--duration", "1"], env=envs[fault],
+                                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                  for fault in faults}
+        for fault, check in checks.items():
+            out, err = check.communicate(timeout=120)
+            results[fault] = subprocess.CompletedProcess(check.args, check.returncode, out, err)
+    return results
+
+
+def failed_rules(result: subprocess.CompletedProcess) -> set[str]:
+    return {rule for rule, status in verdicts(result.stdout).items() if status == "FAIL"}
+
+
 @pytest.fixture(scope="module")
 def broken_checks(ros_env) -> dict[str, subprocess.CompletedProcess]:
     """Every broken driver of FAULTS checked by dlo-driver-check, BATCH pairs at a time (a check holds
-    still and moves for ~12 s of fixed phases: one after the other they took minutes), each pair on a
-    domain of its own (the session's domain + 1 + its index) so that no two see each other."""
-    base, faults, results = int(ros_env["ROS_DOMAIN_ID"]), sorted(FAULTS), {}
+    still and moves for ~12 s of fixed phases: one after the other they took minutes). The timed rules
+    (rate, sync, obey, stale) measure a real-time driver on this machine: on a machine loaded far beyond its
+    cores (6 test workers and 2 trainings on 2 cores) 4 drivers of a batch ran late enough to fail them too.
+    A driver whose check fails any rule but its own is checked once more alone, and that check is the result."""
+    faults = sorted(FAULTS)
+    results = {}
     for first in range(0, len(faults), BATCH):
-        batch = faults[first:first + BATCH]
-        envs = {fault: dict(ros_env, ROS_DOMAIN_ID=str(base + 1 + first + i)) for i, fault in enumerate(batch)}
-        with Procs(ros_env) as start:
-            drivers = {fault: start(fault, [sys.executable, str(HERE / "dlo_driver_kit_broken_driver.py"), fault],
-                                    env=envs[fault])
-                       for fault in batch}
-            for driver in drivers.values():
-                driver.wait_line("real_time driver at", timeout=60)
-            checks = {fault: subprocess.Popen([*CHECK, "--timeout", "20", "--duration", "1"], env=envs[fault],
-                                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-                      for fault in batch}
-            for fault, check in checks.items():
-                out, err = check.communicate(timeout=120)
-                results[fault] = subprocess.CompletedProcess(check.args, check.returncode, out, err)
+        results.update(check_broken_drivers(ros_env, faults[first:first + BATCH]))
+    for fault in faults:
+        if failed_rules(results[fault]) != {FAULTS[fault]}:
+            print(f"{fault}: failed {sorted(failed_rules(results[fault]))} in its batch; checked again alone")
+            results[fault] = check_broken_drivers(ros_env, [fault])[fault]
     return results
 
 
@@ -97,8 +117,7 @@ def broken_checks(ros_env) -> dict[str, subprocess.CompletedProcess]:
 def test_a_broken_driver_fails_exactly_its_rule(broken_checks, fault):
     result = broken_checks[fault]
     assert result.returncode == 1, result.stdout + result.stderr
-    failed = {rule for rule, status in verdicts(result.stdout).items() if status == "FAIL"}
-    assert failed == {FAULTS[fault]}, result.stdout
+    assert failed_rules(result) == {FAULTS[fault]}, result.stdout
     assert f"failed: {FAULTS[fault]}" in result.stdout
     rate_line = next(line for line in result.stdout.splitlines() if line.startswith(("PASS rate", "FAIL rate")))
     assert all(float(hz) < 100 for hz in re.findall(r"([\d.]+) Hz", rate_line)), rate_line  # no 1e9 Hz "by stamps"
