@@ -3,6 +3,7 @@ rate and command timeout, a policy node killed and restarted mid-episode, missin
 simulator on the same domain, a recorder that lacks a topic, perception nodes interrupted mid-stream,
 malformed parameters."""
 
+import os
 import pathlib
 import signal
 import subprocess
@@ -12,6 +13,7 @@ import pytest
 import rclpy
 from rosgraph_msgs.msg import Clock
 
+from dlo_common.testing import hang_report
 from dlo_msgs.msg import GripperCommand, GripperState, TactilePose, TaskState, VisualPose
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
@@ -19,20 +21,28 @@ ROS2RUN = str(ROOT / "scripts" / "ros2run")
 
 
 def start(pkg, exe, *params, log=None):
+    """A node of the graph (PYTHONFAULTHANDLER: its Python stacks, should it hang at stop), output to ``log``."""
     args = [ROS2RUN, pkg, exe, "--ros-args"] + [a for p in params for a in ("-p", p)]
-    return subprocess.Popen(args, stdout=log or subprocess.DEVNULL, stderr=subprocess.STDOUT)
+    proc = subprocess.Popen(args, stdout=log or subprocess.DEVNULL, stderr=subprocess.STDOUT,
+                            env={**os.environ, "PYTHONFAULTHANDLER": "1"})
+    proc.log = pathlib.Path(log.name) if log is not None else None
+    return proc
 
 
-def stop(*procs):
-    for proc in procs:
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGINT)
-    for proc in procs:
+def stop(*procs, timeout=30):
+    """SIGINT the nodes; one that does not stop within ``timeout`` s fails the test with its stacks."""
+    running = [proc for proc in procs if proc.poll() is None]
+    for proc in running:
+        proc.send_signal(signal.SIGINT)
+    hung = []
+    for proc in running:
         try:
-            proc.wait(timeout=15)
+            proc.wait(timeout=timeout)
         except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
+            hung.append(proc)
+    reports = [hang_report(proc, proc.args[2], timeout, lambda proc=proc: proc.log.read_text(errors="replace")
+                           if proc.log is not None else "(started without a log)") for proc in hung]
+    assert not reports, "\n\n".join(reports)
 
 
 class Probe:

@@ -10,8 +10,10 @@ The tests of dlo_bag, dlo_viz and dlo_driver_kit define their fixtures over thes
   (pytest-xdist workers, two suites, a user's graph) never share a domain.
 - :func:`isolated_env`: a copy of the environment on a reserved ROS domain with localhost discovery;
   :func:`package_test_env` the same, skipping the test when the package's executable is not built.
-- :class:`Procs`: starts processes and stops every one still running at the end (SIGINT, wait, kill).
-- :func:`stop_or_explain`: SIGINT a node and wait for it; one that hangs fails with its C and Python stacks.
+- :class:`Procs`: starts processes and stops every one still running at the end (SIGINT, wait; one that does
+  not stop fails with its stacks).
+- :func:`stop_or_explain`: SIGINT a node and wait for it; one that hangs fails with its C and Python stacks
+  (:func:`hang_report`).
 - :func:`remove_orphaned_dds_shm`: the Fast DDS shared-memory files that killed participants left in
   /dev/shm since a snapshot, removed (the root conftest.py does it at the end of every test session).
 
@@ -38,13 +40,21 @@ ROS2RUN = REPO / "scripts" / "ros2run"
 
 
 class Proc:
-    """A child process whose merged stdout/stderr is collected line by line."""
+    """A child process whose merged stdout/stderr is collected line by line. It starts with SIGINT's default
+    action even when the tests run with SIGINT ignored (as a background job), so that SIGINT stops it."""
 
     def __init__(self, cmd: list[str], env: dict[str, str], name: str, **popen) -> None:
         self.name = name
         self.cmd = cmd
+        given = popen.pop("preexec_fn", None)
+
+        def preexec() -> None:
+            signal.signal(signal.SIGINT, signal.SIG_DFL)
+            if given is not None:
+                given()
+
         self.p = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                                  text=True, bufsize=1, start_new_session=True, **popen)
+                                  text=True, bufsize=1, start_new_session=True, preexec_fn=preexec, **popen)
         self.lines: list[str] = []
         self._q: queue.Queue[str | None] = queue.Queue()
         self._t = threading.Thread(target=self._pump, daemon=True)
@@ -59,6 +69,12 @@ class Proc:
 
     def output(self) -> str:
         return "\n".join(self.lines)
+
+    def output_when_ended(self) -> str:
+        """:meth:`output` once the process has ended and its last lines are read."""
+        self.p.wait()
+        self._t.join(timeout=10)
+        return self.output()
 
     def wait_line(self, prefix: str, timeout: float = 60.0) -> str:
         """The first new line containing ``prefix``; fails if the process ends first."""
@@ -103,14 +119,21 @@ def exited(pid: int) -> bool:
 
 def stop_or_explain(proc: subprocess.Popen, name: str, timeout: float = 30.0, log: Path | None = None) -> int:
     """SIGINT ``proc`` (a node) and wait up to ``timeout`` s for it to end; its return code. A node that does not
-    end is a failure that must say where it hangs: the C stacks of its threads (gdb, when installed), then a
-    SIGABRT, which makes a node started with ``PYTHONFAULTHANDLER=1`` write its threads' Python stacks to its
-    output (``log``, read into the message), go into the AssertionError raised; the node is killed."""
+    end is a failure that must say where it hangs (:func:`hang_report`, its output read from ``log``): an
+    AssertionError with its C and Python stacks; the node is killed."""
     proc.send_signal(signal.SIGINT)
     try:
         return proc.wait(timeout=timeout)
     except subprocess.TimeoutExpired:
         pass
+    raise AssertionError(hang_report(proc, name, timeout, lambda: log.read_text(errors="replace")
+                                     if log is not None and log.exists() else "(no log)"))
+
+
+def hang_report(proc: subprocess.Popen, name: str, timeout: float, output) -> str:
+    """Where a node that did not end within ``timeout`` s of SIGINT hangs: the C stacks of its threads (gdb, when
+    installed), then a SIGABRT, which makes a node started with ``PYTHONFAULTHANDLER=1`` write its threads' Python
+    stacks to its output (``output()``, read after it ended); the node is killed if SIGABRT does not end it."""
     try:
         gdb = subprocess.run(["gdb", "-p", str(proc.pid), "-batch", "-ex", "thread apply all bt"],
                              capture_output=True, text=True, timeout=60).stdout
@@ -122,9 +145,8 @@ def stop_or_explain(proc: subprocess.Popen, name: str, timeout: float = 30.0, lo
     except subprocess.TimeoutExpired:
         proc.kill()
         proc.wait()
-    python = log.read_text(errors="replace")[-20000:] if log is not None and log.exists() else "(no log)"
-    raise AssertionError(f"{name} did not stop within {timeout:g} s of SIGINT\n--- its output, Python stacks at "
-                         f"the end ---\n{python}\n--- its C stacks ---\n{gdb[-20000:]}")
+    return (f"{name} did not stop within {timeout:g} s of SIGINT\n--- its output, Python stacks at the end ---\n"
+            f"{output()[-20000:]}\n--- its C stacks ---\n{gdb[-20000:]}")
 
 
 # The domains of tests: 100..232 (232: the highest id Fast DDS maps to ports on Linux); scripts/launch_graph.sh
@@ -292,16 +314,17 @@ def package_test_env(package: str, executable: str, domains: int = 1) -> dict[st
 
 class Procs:
     """Processes started with ``procs(name, cmd, env=None, **popen)`` (a :class:`Proc` in ``env``, default
-    the one given here); :meth:`stop_all` (also on leaving a ``with`` block) sends SIGINT to every one still
-    running, waits up to ``stop_timeout`` s for each and kills the ones that did not stop."""
+    the one given here, with ``PYTHONFAULTHANDLER=1``); :meth:`stop_all` (also on leaving a ``with`` block)
+    sends SIGINT to every one still running and waits up to ``stop_timeout`` s for each: one that does not
+    stop (a node that ignores Ctrl-C) fails the test with its stacks (:func:`hang_report`) and is killed."""
 
-    def __init__(self, env: dict[str, str], stop_timeout: float = 10.0) -> None:
+    def __init__(self, env: dict[str, str], stop_timeout: float = 30.0) -> None:
         self.env = env
         self.stop_timeout = stop_timeout
         self.started: list[Proc] = []
 
     def __call__(self, name: str, cmd: list[str], env: dict[str, str] | None = None, **popen) -> Proc:
-        proc = Proc(cmd, self.env if env is None else env, name, **popen)
+        proc = Proc(cmd, {"PYTHONFAULTHANDLER": "1", **(self.env if env is None else env)}, name, **popen)
         self.started.append(proc)
         return proc
 
@@ -309,11 +332,15 @@ class Procs:
         running = [proc for proc in self.started if proc.p.poll() is None]
         for proc in running:
             proc.signal(signal.SIGINT)
+        hung = []
         for proc in running:
             try:
                 proc.wait(timeout=self.stop_timeout)
             except subprocess.TimeoutExpired:
-                proc.kill()
+                hung.append(proc)
+        reports = [hang_report(proc.p, proc.name, self.stop_timeout, proc.output_when_ended) for proc in hung]
+        if reports:
+            raise AssertionError("\n\n".join(reports))
 
     def __enter__(self) -> Procs:
         return self

@@ -1,7 +1,7 @@
 """dlo_common.testing.reserve_domains: a ROS domain a test uses is used by nothing else on the machine
 (another test process, a pytest-xdist worker, launch_graph.sh, any DDS participant);
 remove_orphaned_dds_shm: what killed participants leave in /dev/shm is removed, nothing in use;
-stop_or_explain: a node that does not stop on SIGINT fails with its stacks."""
+stop_or_explain and Procs: a node that does not stop on SIGINT fails with its stacks."""
 
 import os
 import shutil
@@ -193,3 +193,34 @@ def test_stop_or_explain_returns_the_code_of_a_node_that_stops_and_names_where_o
     assert "in stuck_in_shutdown" in message  # its Python stack
     if shutil.which("gdb"):
         assert "Thread 1" in message or "#0 " in message, message  # its C stack
+
+
+def test_procs_stop_every_process_on_sigint_and_one_that_ignores_it_fails_with_its_stacks():
+    """Procs.stop_all: processes that end on SIGINT end (also when the tests themselves run with SIGINT ignored,
+    as a background job); one that ignores SIGINT is an AssertionError naming it, with its Python stack, and
+    is gone; every other one still stopped."""
+    stops = ("import time\ntry:\n    print('up', flush=True)\n    time.sleep(60)\nexcept KeyboardInterrupt:\n"
+             "    print('interrupted', flush=True)")
+    hangs = ("import signal, time\nsignal.signal(signal.SIGINT, signal.SIG_IGN)\nprint('up', flush=True)\n"
+             "def ignores_ctrl_c():\n    time.sleep(600)\nignores_ctrl_c()")
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)  # the children inherit an ignored SIGINT
+    try:
+        with testing.Procs(dict(os.environ), stop_timeout=1) as start:
+            first = start("first", [sys.executable, "-c", stops])
+            second = start("second", [sys.executable, "-c", stops])
+            for proc in (first, second):
+                proc.wait_line("up", timeout=60)
+        assert first.p.returncode == second.p.returncode == 0 and "interrupted" in first.output()
+        procs = testing.Procs(dict(os.environ), stop_timeout=1)
+        quiet = procs("quiet", [sys.executable, "-c", stops])
+        stuck = procs("stuck", [sys.executable, "-c", hangs])
+        for proc in (quiet, stuck):
+            proc.wait_line("up", timeout=60)
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    with pytest.raises(AssertionError) as failure:
+        procs.stop_all()
+    message = str(failure.value)
+    assert message.startswith("stuck did not stop within 1 s of SIGINT") and "quiet" not in message
+    assert "in ignores_ctrl_c" in message  # its Python stack (PYTHONFAULTHANDLER, set by Procs)
+    assert testing.exited(stuck.p.pid) and quiet.p.returncode == 0
