@@ -40,9 +40,10 @@ def ray_env(temp_dir: str) -> dict:
     """Environment of the cluster and the driver: node address 127.0.0.1 for every node and the
     driver (Ray otherwise turns 127.0.0.1 into the machine's outward address), no usage reports,
     Ray's own files (the current-cluster address file) in the cluster's temp dir, nothing assumed
-    under /tmp/ray, the test helpers importable by Ray's workers (sac_reach_env)."""
+    under /tmp/ray, temporary files in it too (the run directory of the run on the node killed, which
+    that run cannot remove, goes with it), the test helpers importable by Ray's workers (sac_reach_env)."""
     env = dict(os.environ)
-    env.update(RAY_TMPDIR=temp_dir, RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER="0", RAY_DISABLE_USAGE_STATS="1",
+    env.update(RAY_TMPDIR=temp_dir, TMPDIR=temp_dir, RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER="0", RAY_DISABLE_USAGE_STATS="1",
                RAY_worker_register_timeout_seconds="600",  # workers start slowly on a loaded machine
                RAY_worker_niceness="0",  # Ray's workers keep the test's priority (Ray's default: +15)
                PYTHONPATH=os.pathsep.join([str(HERE), env.get("PYTHONPATH", "")]))
