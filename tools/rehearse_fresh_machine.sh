@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Rehearse a new user's fresh machine: clone the committed HEAD into a new folder, give it a fresh
 # HOME, TMPDIR and caches (no venv, no pip/Ray/Taichi/torch caches, no ROS state), run the README's
-# test command there, then list what the run left outside its folder (/tmp, /dev/shm).
+# test command there, then list what the run left outside its folder (/tmp, /dev/shm) and in its own
+# TMPDIR besides pytest's basetemp.
 #
 #   tools/rehearse_fresh_machine.sh [--keep] [pytest args ...]
 #
@@ -36,6 +37,14 @@ if [ -n "$left" ]; then
   echo "$left" | sed 's/^/  /'
 else
   say "nothing new in /tmp or /dev/shm"
+fi
+# the run's own TMPDIR: what tests leave there accumulates in a user's /tmp (pytest's basetemp is expected)
+own="$(ls -A "$BASE/tmp" | grep -v '^pytest-of-' || true)"
+if [ -n "$own" ]; then
+  say "left in the run's own TMPDIR besides pytest's basetemp:"
+  echo "$own" | sed 's/^/  /'
+else
+  say "nothing left in the run's own TMPDIR besides pytest's basetemp"
 fi
 if [ "$KEEP" = 0 ] && [ "$status" = 0 ]; then rm -rf "$BASE"; else say "kept $BASE"; fi
 exit "$status"
