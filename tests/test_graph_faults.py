@@ -29,6 +29,10 @@ def start(pkg, exe, *params, log=None):
     return proc
 
 
+def log_text(path):
+    return path.read_text(errors="replace") if path.exists() else ""
+
+
 def stop(*procs, timeout=30):
     """SIGINT the nodes; one that does not stop within ``timeout`` s fails the test with its stacks."""
     running = [proc for proc in procs if proc.poll() is None]
@@ -109,6 +113,8 @@ def test_bad_commands_are_rejected_and_the_gripper_holds(probe, tmp_path):
         assert (probe.states[-1].x, probe.states[-1].closure) == pytest.approx((state.x, state.closure), abs=1e-9)
         probe.send(state, 0.25, 0.0, 0.6)  # the answer to the current step does
         assert probe.spin_until(lambda state=state: probe.states[-1].step == state.step + 1, 20)
+        # the two "episode" rejections share a line a second: the second is logged (counted) once 1 s has passed
+        assert probe.spin_until(lambda: log_text(tmp_path / "sim.log").count("rejected command") >= 7, 20)
     finally:
         stop(sim)
     text = (tmp_path / "sim.log").read_text()
@@ -136,7 +142,9 @@ def test_real_time_mode_holds_its_rate_and_stops_on_stale_commands(probe, tmp_pa
             probe.send(state, 0.1, 0.0, 0.7)
             answered += 1
             assert probe.spin_until(lambda state=state: probe.states[-1].step > state.step, 10)
-        probe.spin_for(0.6)  # commands stop: after the timeout the gripper stands still, in the same episode
+        # commands stop: after the timeout (0.3 s) the gripper stands still, in the same episode (6 states alike)
+        assert probe.spin_until(lambda state=state: probe.states[-6].step > state.step
+                                and len({s.x for s in probe.states[-6:]}) == 1, 10)
         x_after_timeout, closure = probe.states[-1].x, probe.states[-1].closure
         assert x_after_timeout > start_x + 0.02  # it did follow the live commands
         probe.spin_for(1.0)
@@ -158,10 +166,10 @@ def test_real_time_mode_holds_its_rate_and_stops_on_stale_commands(probe, tmp_pa
     text = (tmp_path / "sim.log").read_text()
     for cause in ("for episode 999", "old (current step", "ahead of the current step"):
         lines = [line for line in text.splitlines() if "rejected command" in line and cause in line]
-        # ~100 rejections sent in 1 s: a line at most once a second (by the log's own stamps; a loaded machine
-        # may spread their handling over more seconds), the rest counted in them
+        # ~100 rejections sent in 1 s: a line about once a second (the log's own stamps, taken a little after the
+        # throttle's clock: 0.5 s of slack), not one per rejection; a loaded machine may spread them over more seconds
         stamps = [float(line.split("] [")[1]) for line in lines]
-        assert 1 <= len(lines) <= 5 and all(b - a >= 0.99 for a, b in zip(stamps, stamps[1:])), (cause, lines)
+        assert 1 <= len(lines) <= 5 and all(b - a >= 0.5 for a, b in zip(stamps, stamps[1:])), (cause, lines)
     assert "such commands in" in text and "Traceback" not in text
 
 
