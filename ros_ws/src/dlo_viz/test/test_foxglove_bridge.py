@@ -179,7 +179,7 @@ def test_clients_connect_and_leave(bridge, typestore):
         for c in clients:
             c.wait(lambda c=c: c.channel_by_topic("/dlo/gripper/state") is not None, 10, "advertise")
             c.subscribe()
-        time.sleep(0.2)
+        wait_until(lambda: bridge.subscribers["/dlo/gripper/state"] == 2, 10)  # both subscriptions arrived
         for _ in range(5):
             bridge.forward("/dlo/gripper/state", data)
         for c in clients:
@@ -188,7 +188,8 @@ def test_clients_connect_and_leave(bridge, typestore):
         clients[0].unsubscribe_all()  # one unsubscribes, then both leave (one abruptly)
         clients[0].close()
         clients[1]._ws.socket.close()
-        time.sleep(0.3)
+        wait_until(lambda: bridge.subscribers["/dlo/gripper/state"] == 0 and bridge.stats.clients_now == 0
+                   and not bridge.channels["/dlo/gripper/state"].has_sinks(), 10)  # both gone
     bridge.forward("/dlo/gripper/state", data)  # nobody subscribed: not forwarded, no error
     wait_until(lambda: bridge.stats.clients_now == 0, 10)
     assert bridge.stats.clients_connected == 6
@@ -245,9 +246,11 @@ def test_a_client_that_stops_reading_never_blocks(bridge, typestore):
             t0 = time.perf_counter()
             bridge.forward(topic, data)
             worst = max(worst, time.perf_counter() - t0)
-            if i % 20 == 19:  # a 'graph' at a steady pace (the reading client keeps up; the other does not)
+            if i % 10 == 9:  # a 'graph' at a steady pace, 4 MB/s (the reading client keeps up; the other does not)
                 time.sleep(0.05)
-        assert worst < 0.1, f"forward() took {worst:.3f} s with a stalled client"
+        # a blocked send would hold forward() until the stalled client reads (never); 1 s leaves a loaded machine
+        # its scheduling pauses
+        assert worst < 1.0, f"forward() took {worst:.3f} s with a stalled client"
         # 12 MB is more than the socket buffers and a queue of 64 images hold: the SDK reports the stalled client
         wait_until(lambda: any("reads slower than the graph publishes" in line for line in bridge.lines), 30)
         slow_lines = [line for line in bridge.lines if "reads slower than the graph publishes" in line]
