@@ -149,8 +149,12 @@ def test_playback_reruns_perception_on_recorded_images(recorded_run, own_groups,
         deadline = time.monotonic() + 180
         while playback.poll() is None and time.monotonic() < deadline:
             rclpy.spin_once(node, timeout_sec=0.1)
-        for _ in range(20):  # the last poses still in flight
+        quiet_since, deadline = time.monotonic(), time.monotonic() + 120
+        while time.monotonic() - quiet_since < 3.0 and time.monotonic() < deadline:  # the poses of the frames a
+            count = len(replayed)                                                   # loaded node still works on
             rclpy.spin_once(node, timeout_sec=0.1)
+            if len(replayed) > count:
+                quiet_since = time.monotonic()
         assert playback.wait(timeout=30) == 0
     finally:
         rclpy.shutdown()

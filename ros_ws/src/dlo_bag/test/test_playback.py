@@ -48,7 +48,7 @@ def test_playback_republishes_the_same_messages(procs, tmp_path):
     play = procs("playback", [str(ROS2RUN), "dlo_bag", "playback_node", "--ros-args",
                               "-p", f"bag:={bag}", "-p", "rate:=4.0",
                               "-p", f"topics:={json.dumps(PLAYED)}",
-                              "-p", "wait_for_subscribers:=1"])
+                              "-p", "wait_for_subscribers:=1", "-p", "wait_timeout:=60.0"])
     received = json.loads(sub.wait_line("RECEIVED ", timeout=90).split(" ", 1)[1])
     assert play.wait(timeout=60) == 0, play.output()
     assert f"published {N * len(PLAYED)} messages" in play.output()
