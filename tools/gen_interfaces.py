@@ -234,7 +234,14 @@ def observe(node, proc: subprocess.Popen, window: float, timeout: float) -> tupl
         if time.monotonic() > deadline:
             raise CaptureError(f"no policy answering the sim within {timeout:.0f} s")
         rclpy.spin_once(node, timeout_sec=0.2)
-    time.sleep(1.0)  # late discovery of the remaining endpoints
+    # the remaining endpoints: until the graph's topics have stopped appearing for 2 s (a loaded machine
+    # discovers them later than an idle one)
+    known, stable_since = set(), time.monotonic()
+    while time.monotonic() - stable_since < 2.0 and time.monotonic() < deadline:
+        topics = {t for t, _ in node.get_topic_names_and_types() if node.count_publishers(t)}
+        if topics != known:
+            known, stable_since = topics, time.monotonic()
+        rclpy.spin_once(node, timeout_sec=0.1)
     samples: dict[str, dict] = {}
 
     def on_message(topic, msg):
