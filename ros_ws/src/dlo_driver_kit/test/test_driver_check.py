@@ -42,12 +42,26 @@ def run_check(env, *args, timeout=120) -> subprocess.CompletedProcess:
     return subprocess.run([*CHECK, *args], env=env, capture_output=True, text=True, timeout=timeout)
 
 
+TIMED_RULES = {"rate", "sync", "obey", "stale"}  # measured in real time on this machine
+
+
+def run_check_timed(env, *args) -> subprocess.CompletedProcess:
+    """run_check of a driver that must pass every rule; if only timed rules failed (a loaded machine can run a
+    real-time driver late), the check once more: its result."""
+    result = run_check(env, *args)
+    failed = {rule for rule, status in verdicts(result.stdout).items() if status == "FAIL"}
+    if failed and failed <= TIMED_RULES:
+        print(f"failed {sorted(failed)}: checked again")
+        result = run_check(env, *args)
+    return result
+
+
 # ------------------------------------------------------------------------------------ with ROS
 def test_mock_driver_passes_every_rule_in_a_namespace(procs, ros_env):
     remap = [arg for t in TOPICS for arg in ("-r", f"{t}:=/robot1{t}")]
     driver = procs("mock", [str(ROS2RUN), "dlo_driver_kit", "mock_driver_node", "--ros-args", *remap])
     driver.wait_line("real_time driver at 12.5 Hz", timeout=60)
-    result = run_check(ros_env, "--namespace", "robot1", "--timeout", "20")
+    result = run_check_timed(ros_env, "--namespace", "robot1", "--timeout", "20")
     assert result.returncode == 0, result.stdout + result.stderr
     assert set(verdicts(result.stdout).values()) == {"PASS"}
     assert "stopped at the boundary" in result.stdout  # it really was driven to the workspace corner
@@ -61,7 +75,7 @@ def test_sim_node_in_real_time_passes_every_rule(procs, ros_env):
     sim = procs("sim", [str(ROS2RUN), "dlo_sim", "sim_node", "--ros-args", "-p", "mode:=real_time",
                         "-p", "task_rules:=paper_text"])
     sim.wait_line("real_time simulation", timeout=180)
-    result = run_check(ros_env, "--timeout", "60")
+    result = run_check_timed(ros_env, "--timeout", "60")
     assert result.returncode == 0, result.stdout + result.stderr + sim.output()[-3000:]
     assert set(verdicts(result.stdout).values()) == {"PASS"}
 
