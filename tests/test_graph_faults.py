@@ -13,7 +13,7 @@ import pytest
 import rclpy
 from rosgraph_msgs.msg import Clock
 
-from dlo_common.testing import hang_report
+from dlo_common.testing import stop_all_or_explain
 from dlo_msgs.msg import GripperCommand, GripperState, TactilePose, TaskState, VisualPose
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
@@ -35,18 +35,8 @@ def log_text(path):
 
 def stop(*procs, timeout=30):
     """SIGINT the nodes; one that does not stop within ``timeout`` s fails the test with its stacks."""
-    running = [proc for proc in procs if proc.poll() is None]
-    for proc in running:
-        proc.send_signal(signal.SIGINT)
-    hung = []
-    for proc in running:
-        try:
-            proc.wait(timeout=timeout)
-        except subprocess.TimeoutExpired:
-            hung.append(proc)
-    reports = [hang_report(proc, proc.args[2], timeout, lambda proc=proc: proc.log.read_text(errors="replace")
-                           if proc.log is not None else "(started without a log)") for proc in hung]
-    assert not reports, "\n\n".join(reports)
+    stop_all_or_explain([(proc, proc.args[2], lambda proc=proc: log_text(proc.log) if proc.log is not None
+                          else "(started without a log)") for proc in procs], timeout)
 
 
 class Probe:

@@ -13,7 +13,7 @@ The tests of dlo_bag, dlo_viz and dlo_driver_kit define their fixtures over thes
 - :class:`Procs`: starts processes and stops every one still running at the end (SIGINT, wait; one that does
   not stop fails with its stacks).
 - :func:`stop_or_explain`: SIGINT a node and wait for it; one that hangs fails with its C and Python stacks
-  (:func:`hang_report`).
+  (:func:`hang_report`); :func:`stop_all_or_explain` the same for several at once (Procs uses it).
 - :func:`remove_orphaned_dds_shm`: the Fast DDS shared-memory files that killed participants left in
   /dev/shm since a snapshot, removed (the root conftest.py does it at the end of every test session).
 
@@ -31,7 +31,7 @@ import signal
 import subprocess
 import threading
 import time
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from pathlib import Path
 
 # DLO_ROOT is set by scripts/env.sh; without it, the source tree this file lies in (ros_ws/src/dlo_common/dlo_common/).
@@ -121,13 +121,26 @@ def stop_or_explain(proc: subprocess.Popen, name: str, timeout: float = 30.0, lo
     """SIGINT ``proc`` (a node) and wait up to ``timeout`` s for it to end; its return code. A node that does not
     end is a failure that must say where it hangs (:func:`hang_report`, its output read from ``log``): an
     AssertionError with its C and Python stacks; the node is killed."""
-    proc.send_signal(signal.SIGINT)
-    try:
-        return proc.wait(timeout=timeout)
-    except subprocess.TimeoutExpired:
-        pass
-    raise AssertionError(hang_report(proc, name, timeout, lambda: log.read_text(errors="replace")
-                                     if log is not None and log.exists() else "(no log)"))
+    stop_all_or_explain([(proc, name, lambda: log.read_text(errors="replace")
+                          if log is not None and log.exists() else "(no log)")], timeout)
+    return proc.returncode
+
+
+def stop_all_or_explain(procs: Iterable[tuple[subprocess.Popen, str, Callable[[], str]]], timeout: float) -> None:
+    """SIGINT every process of ``procs`` (process, name, its output) still running and wait up to ``timeout`` s
+    for each; those that did not end fail together in one AssertionError with their stacks (:func:`hang_report`)."""
+    running = [entry for entry in procs if entry[0].poll() is None]
+    for proc, _, _ in running:
+        proc.send_signal(signal.SIGINT)
+    hung = []
+    for entry in running:
+        try:
+            entry[0].wait(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            hung.append(entry)
+    reports = [hang_report(proc, name, timeout, output) for proc, name, output in hung]
+    if reports:
+        raise AssertionError("\n\n".join(reports))
 
 
 def hang_report(proc: subprocess.Popen, name: str, timeout: float, output) -> str:
@@ -329,18 +342,9 @@ class Procs:
         return proc
 
     def stop_all(self) -> None:
-        running = [proc for proc in self.started if proc.p.poll() is None]
-        for proc in running:
-            proc.signal(signal.SIGINT)
-        hung = []
-        for proc in running:
-            try:
-                proc.wait(timeout=self.stop_timeout)
-            except subprocess.TimeoutExpired:
-                hung.append(proc)
-        reports = [hang_report(proc.p, proc.name, self.stop_timeout, proc.output_when_ended) for proc in hung]
-        if reports:
-            raise AssertionError("\n\n".join(reports))
+        stop_all_or_explain([(proc.p, proc.name, proc.output_when_ended) for proc in self.started], self.stop_timeout)
+        for proc in self.started:
+            proc.wait()  # its last lines read
 
     def __enter__(self) -> Procs:
         return self
