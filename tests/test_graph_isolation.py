@@ -113,12 +113,13 @@ def one_step_each(bag, seed):
     """Every step of the bag's episode 0 recorded, all of it from one simulator (seed). A step recorded more
     than once is the simulator republishing a state nobody has answered yet (at start-up every 0.25 s until
     the policy's first command arrives, later after step_timeout): byte for byte the same message."""
-    tasks = [m.msg for m in read_messages(bag, ["/dlo/task/state"])]
+    read = {topic: (list(read_messages(bag, [topic])), list(read_messages(bag, [topic], raw=True)))
+            for topic in ("/dlo/task/state", "/dlo/gripper/state")}
+    tasks = [m.msg for m in read["/dlo/task/state"][0]]
     assert {t.seed for t in tasks} == {seed}
     steps = [t.step for t in tasks if t.episode == 0]
     assert sorted(set(steps)) == list(range(max(steps) + 1))
-    for topic in ("/dlo/task/state", "/dlo/gripper/state"):
-        decoded, raw = list(read_messages(bag, [topic])), list(read_messages(bag, [topic], raw=True))
+    for topic, (decoded, raw) in read.items():
         assert [m.timestamp for m in decoded] == [m.timestamp for m in raw]
         by_step = {}
         for m, r in zip(decoded, raw):

@@ -77,9 +77,10 @@ def test_each_recorded_number_was_computed_on_the_documented_episodes(run):
         assert path.name == (f"test_without_{without}.json" if without else "test.json") and without in tested
     # docs/RESULTS.md (The study, evaluation on training configurations): the best policy on the run's first and
     # last 100 training episodes, whose seeds are the run's seed, seed + 1, ... (one env, dlo_policy.env)
-    for path in run.glob("training_configs_seed*.json"):
+    training_configs = sorted(run.glob("training_configs_seed*.json"))
+    episodes = json.loads((run / "done.json").read_text())["episodes"] if training_configs else None
+    for path in training_configs:
         test = json.loads(path.read_text())
-        episodes = json.loads((run / "done.json").read_text())["episodes"]
         assert path.name == f"training_configs_seed{test['seed']}.json" and test["episodes"] == 100, path.name
         assert test["seed"] in (seed, seed + episodes - 100) and test["checkpoint"].endswith("/best_policy.pt"), path.name
         assert test["without"] == [] and test["modalities"] == config["modalities"], path.name

@@ -42,6 +42,10 @@ def run_check(env, *args, timeout=120) -> subprocess.CompletedProcess:
     return subprocess.run([*CHECK, *args], env=env, capture_output=True, text=True, timeout=timeout)
 
 
+def failed_rules(result: subprocess.CompletedProcess) -> set[str]:
+    return {rule for rule, status in verdicts(result.stdout).items() if status == "FAIL"}
+
+
 TIMED_RULES = {"rate", "sync", "obey", "stale"}  # measured in real time on this machine
 
 
@@ -49,7 +53,7 @@ def run_check_timed(env, *args) -> subprocess.CompletedProcess:
     """run_check of a driver that must pass every rule; if only timed rules failed (a loaded machine can run a
     real-time driver late), the check once more: its result."""
     result = run_check(env, *args)
-    failed = {rule for rule, status in verdicts(result.stdout).items() if status == "FAIL"}
+    failed = failed_rules(result)
     if failed and failed <= TIMED_RULES:
         print(f"failed {sorted(failed)}: checked again")
         result = run_check(env, *args)
@@ -103,10 +107,6 @@ def check_broken_drivers(ros_env, faults: list[str]) -> dict[str, subprocess.Com
             out, err = check.communicate(timeout=120)
             results[fault] = subprocess.CompletedProcess(check.args, check.returncode, out, err)
     return results
-
-
-def failed_rules(result: subprocess.CompletedProcess) -> set[str]:
-    return {rule for rule, status in verdicts(result.stdout).items() if status == "FAIL"}
 
 
 @pytest.fixture(scope="module")
