@@ -196,15 +196,16 @@ def run_node(make_node: Callable[[], "rclpy.node.Node"], args=None, *, interrupt
         answered = handle_help(package, parameters, summary, args, exit_codes)
         if answered is not None:
             return answered
-    # A SIGINT raises KeyboardInterrupt wherever Python runs, also inside rclpy's C++ code converting a message,
-    # which turns it into a RuntimeError ("Unable to convert call argument ...") while the context is still
-    # being shut down. Noting the signal (a Python handler set before rclpy.init, whose own handler calls it
-    # after shutting the context down) tells such an error from a real one.
+    # rclpy's own handler (set by rclpy.init) shuts the context down on SIGINT, which wakes and ends spin. This one,
+    # set before it (rclpy's calls it afterwards), only notes the signal: raising KeyboardInterrupt would land
+    # wherever Python runs, also inside rclpy (a half-built executor Task whose __del__ complains, a message being
+    # converted, which rclpy turns into a RuntimeError) and halfway through a callback. So a callback running when
+    # the signal comes finishes, then the node stops; the note tells an rclpy error of the shut-down context from a
+    # real one, and ends a node whose signal came before rclpy's handler or context was there to be shut down.
     interrupts: list[int] = []
 
     def note_interrupt(signum, frame):
         interrupts.append(signum)
-        raise KeyboardInterrupt
 
     main_thread = threading.current_thread() is threading.main_thread()  # (only it may set handlers)
     previous = signal.getsignal(signal.SIGINT) if main_thread else None
@@ -216,7 +217,8 @@ def run_node(make_node: Callable[[], "rclpy.node.Node"], args=None, *, interrupt
     try:
         node = make_node()
         name = node.get_name()
-        rclpy.spin(node)
+        if not interrupts:  # (a signal noted before rclpy's handler could shut the context down: no spin)
+            rclpy.spin(node)
         rc = interrupted_rc  # spin returns when a signal has shut the context down
     except ParameterError as error:
         what = "" if isinstance(error, UnknownParameterError) else "bad parameter: "
