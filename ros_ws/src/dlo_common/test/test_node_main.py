@@ -70,6 +70,24 @@ sys.exit(run_node(make, [], interrupted_rc={rc}))
 '''
 
 
+FAULTY = '''import sys
+import rclpy.node
+from dlo_common.node_main import run_node
+
+
+class Faulty(rclpy.node.Node):
+    def __init__(self):
+        super().__init__("faulty")
+        self.create_timer(0.05, self.tick)
+
+    def tick(self):
+        raise RuntimeError("a real bug")
+
+
+sys.exit(run_node(Faulty, []))
+'''
+
+
 def default_sigint():
     """SIGINT at its default in the node, as in a terminal (a test run in the background inherits it ignored)."""
     signal.signal(signal.SIGINT, signal.SIG_DFL)
