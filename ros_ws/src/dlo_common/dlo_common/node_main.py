@@ -185,7 +185,7 @@ def run_node(make_node: Callable[[], "rclpy.node.Node"], args=None, *, interrupt
 
     Exit code 2 and one line on a bad parameter, 3 and one line when the node refuses to start or
     go on (:class:`NodeStartError`); never a traceback for a signal, also one that arrives while a
-    callback runs or while the node is being built.
+    callback runs (the callback finishes first) or while the node is being built.
     """
     if parameters is not None:
         module = getattr(make_node, "__module__", "dlo")
