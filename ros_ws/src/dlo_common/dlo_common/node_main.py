@@ -200,8 +200,8 @@ def run_node(make_node: Callable[[], "rclpy.node.Node"], args=None, *, interrupt
     # set before it (rclpy's calls it afterwards), only notes the signal: raising KeyboardInterrupt would land
     # wherever Python runs, also inside rclpy (a half-built executor Task whose __del__ complains, a message being
     # converted, which rclpy turns into a RuntimeError) and halfway through a callback. So a callback running when
-    # the signal comes finishes, then the node stops; the note tells an rclpy error of the shut-down context from a
-    # real one, and ends a node whose signal came before rclpy's handler or context was there to be shut down.
+    # the signal comes finishes, then the node stops. The note ends a node whose signal came before rclpy's handler
+    # or context was there to be shut down; an error once the context is shut down is the signal's, not a bug.
     interrupts: list[int] = []
 
     def note_interrupt(signum, frame):
@@ -230,9 +230,9 @@ def run_node(make_node: Callable[[], "rclpy.node.Node"], args=None, *, interrupt
     except (KeyboardInterrupt, ExternalShutdownException):
         rc = interrupted_rc
     except Exception:
-        if rclpy.ok() and not interrupts:
+        if rclpy.ok():
             raise
-        rc = interrupted_rc  # a signal shut the context down while a callback ran (RCLError), or interrupted rclpy
+        rc = interrupted_rc  # a signal shut the context down under a callback or the node's making (RCLError)
     finally:
         if node is not None:
             try:

@@ -128,6 +128,28 @@ def test_an_error_in_a_callback_without_a_signal_is_a_traceback():
     assert result.returncode == 1 and "RuntimeError: a real bug" in result.stderr, result.stderr
 
 
+def test_run_node_destroys_the_node_it_built_also_when_the_context_was_shut_down_under_it(monkeypatch):
+    """A clean shutdown for a caller in the same process: once run_node returns, the node it built is destroyed
+    (its entities gone from the graph), also when something else shut the context down while it spun."""
+    pytest.importorskip("rclpy")
+    import rclpy
+    from rclpy.node import Node
+
+    from dlo_common.node_main import run_node
+    built = []
+
+    def make():
+        built.append(Node("stopper"))
+        built[0].create_timer(0.05, rclpy.try_shutdown)
+        return built[0]
+
+    with testing.reserved_domain() as domain:
+        monkeypatch.setenv("ROS_DOMAIN_ID", str(domain))
+        assert run_node(make, ["stopper"], interrupted_rc=130) == 130
+    with pytest.raises(Exception, match="destruction was requested"):
+        built[0].get_name()
+
+
 def test_params_files_are_those_inside_ros_args_only():
     """`--params-file F` counts between `--ros-args` and `--` (or the end), as rcl reads it; a trailing one has no file."""
     argv = ["--params-file", "before.yaml", "--ros-args", "-p", "x:=1", "--params-file", "a.yaml", "--",
