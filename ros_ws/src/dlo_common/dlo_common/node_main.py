@@ -7,6 +7,7 @@ import re
 import signal
 import sys
 import threading
+import time
 from collections.abc import Callable, Sequence
 
 import rclpy
@@ -19,6 +20,7 @@ from dlo_common.params import Param, help_requested, help_text, unexpected_argum
 EXIT_BAD_PARAMETER = 2
 EXIT_REFUSED = 3
 EXIT_CODES = "0 done or stopped by a signal, 2 bad parameter, 3 refused to start"
+FORCE_AFTER = 2.0  # s: a SIGINT this long after the first interrupts a callback that is still running
 
 
 def executable_name() -> str:
@@ -202,10 +204,14 @@ def run_node(make_node: Callable[[], "rclpy.node.Node"], args=None, *, interrupt
     # converted, which rclpy turns into a RuntimeError) and halfway through a callback. So a callback running when
     # the signal comes finishes, then the node stops. The note ends a node whose signal came before rclpy's handler
     # or context was there to be shut down; an error once the context is shut down is the signal's, not a bug.
-    interrupts: list[int] = []
+    # A callback that never finishes (a driver waiting on hardware) is interrupted by a SIGINT sent again later
+    # (FORCE_AFTER); the copies a terminal's Ctrl-C and a launcher forwarding it deliver together do not.
+    interrupts: list[float] = []
 
     def note_interrupt(signum, frame):
-        interrupts.append(signum)
+        interrupts.append(time.monotonic())
+        if interrupts[-1] - interrupts[0] >= FORCE_AFTER:
+            raise KeyboardInterrupt
 
     main_thread = threading.current_thread() is threading.main_thread()  # (only it may set handlers)
     previous = signal.getsignal(signal.SIGINT) if main_thread else None
@@ -228,6 +234,9 @@ def run_node(make_node: Callable[[], "rclpy.node.Node"], args=None, *, interrupt
         print(f"[{name}] {error}", file=sys.stderr)
         rc = EXIT_REFUSED
     except (KeyboardInterrupt, ExternalShutdownException):
+        if len(interrupts) > 1 and interrupts[-1] - interrupts[0] >= FORCE_AFTER:
+            print(f"[{name}] stopped by a second SIGINT: a callback had not finished {FORCE_AFTER:g} s after the "
+                  "first", file=sys.stderr)
         rc = interrupted_rc
     except Exception:
         if rclpy.ok():

@@ -26,6 +26,7 @@ class Busy(rclpy.node.Node):
 
     def tick(self):  # goes on after the signal, building what rclpy's executor builds for every callback
         os.kill(os.getpid(), signal.SIGINT)
+        os.kill(os.getpid(), signal.SIGINT)  # as a terminal's Ctrl-C and a launcher passing it on deliver it
         deadline = time.monotonic() + 0.5
         while time.monotonic() < deadline:
             rclpy.task.Task(lambda: None)
@@ -54,6 +55,25 @@ class Late(rclpy.node.Node):
 
 
 sys.exit(run_node(Late, [], interrupted_rc={rc}))
+'''
+
+STUCK = '''import sys, time
+import rclpy.node
+from dlo_common.node_main import run_node
+
+
+class Stuck(rclpy.node.Node):
+    def __init__(self):
+        super().__init__("stuck")
+        self.create_timer(0.05, self.tick)
+
+    def tick(self):  # a driver waiting on hardware that never answers
+        print("in the callback", flush=True)
+        while True:
+            time.sleep(0.01)
+
+
+sys.exit(run_node(Stuck, [], interrupted_rc={rc}))
 '''
 
 EARLY = '''import signal, sys
@@ -105,6 +125,29 @@ def test_a_sigint_lets_the_running_callback_finish_then_ends_the_node_without_a_
         result = run_script(BUSY, rc)
         assert (result.returncode, result.stderr) == (rc, ""), result.stderr
         assert "the callback finished" in result.stdout
+
+
+@pytest.mark.parametrize("rc", [0, 130])
+def test_a_callback_that_never_finishes_is_interrupted_by_a_later_second_sigint(rc):
+    pytest.importorskip("rclpy")
+    import time
+
+    from dlo_common.node_main import FORCE_AFTER
+    proc = subprocess.Popen([sys.executable, "-c", STUCK.format(rc=rc)], env=testing.isolated_env(), text=True,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, preexec_fn=default_sigint)
+    try:
+        assert proc.stdout.readline() == "in the callback\n"
+        proc.send_signal(signal.SIGINT)
+        time.sleep(FORCE_AFTER + 0.5)
+        assert proc.poll() is None  # the first SIGINT waits for the callback
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == rc
+    assert err == f"[stuck] stopped by a second SIGINT: a callback had not finished {FORCE_AFTER:g} s after the first\n"
 
 
 @pytest.mark.parametrize("rc", [0, 130])
