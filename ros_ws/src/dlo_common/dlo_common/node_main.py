@@ -23,6 +23,10 @@ EXIT_CODES = "0 done or stopped by a signal, 2 bad parameter, 3 refused to start
 FORCE_AFTER = 2.0  # s: a SIGINT this long after the first interrupts a callback that is still running
 
 
+class SecondInterrupt(KeyboardInterrupt):
+    """A SIGINT ``FORCE_AFTER`` s or more after the first, raised where the node is stuck."""
+
+
 def executable_name() -> str:
     """The running executable's name (``sim_node``), also under ``python -m`` (``sim_node.py``)."""
     name = os.path.basename(sys.argv[0]) or "node"
@@ -211,7 +215,7 @@ def run_node(make_node: Callable[[], "rclpy.node.Node"], args=None, *, interrupt
     def note_interrupt(signum, frame):
         interrupts.append(time.monotonic())
         if interrupts[-1] - interrupts[0] >= FORCE_AFTER:
-            raise KeyboardInterrupt
+            raise SecondInterrupt
 
     main_thread = threading.current_thread() is threading.main_thread()  # (only it may set handlers)
     previous = signal.getsignal(signal.SIGINT) if main_thread else None
@@ -233,10 +237,11 @@ def run_node(make_node: Callable[[], "rclpy.node.Node"], args=None, *, interrupt
     except NodeStartError as error:
         print(f"[{name}] {error}", file=sys.stderr)
         rc = EXIT_REFUSED
+    except SecondInterrupt:
+        print(f"[{name}] stopped by a second SIGINT: a callback had not finished {FORCE_AFTER:g} s after the first",
+              file=sys.stderr)
+        rc = interrupted_rc
     except (KeyboardInterrupt, ExternalShutdownException):
-        if len(interrupts) > 1 and interrupts[-1] - interrupts[0] >= FORCE_AFTER:
-            print(f"[{name}] stopped by a second SIGINT: a callback had not finished {FORCE_AFTER:g} s after the "
-                  "first", file=sys.stderr)
         rc = interrupted_rc
     except Exception:
         if rclpy.ok():
