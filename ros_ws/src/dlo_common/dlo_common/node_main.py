@@ -11,7 +11,7 @@ import time
 from collections.abc import Callable, Sequence
 
 import rclpy
-from rclpy.executors import ExternalShutdownException
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.utilities import remove_ros_args
 
 from dlo_common.node_util import NodeStartError, ParameterError, UnknownParameterError
@@ -21,6 +21,7 @@ EXIT_BAD_PARAMETER = 2
 EXIT_REFUSED = 3
 EXIT_CODES = "0 done or stopped by a signal, 2 bad parameter, 3 refused to start"
 FORCE_AFTER = 2.0  # s: a SIGINT this long after the first interrupts a callback that is still running
+SPIN_TIMEOUT = 0.1  # s: the longest a node waits for work before it looks whether it was told to stop
 
 
 class SecondInterrupt(KeyboardInterrupt):
@@ -202,14 +203,16 @@ def run_node(make_node: Callable[[], "rclpy.node.Node"], args=None, *, interrupt
         answered = handle_help(package, parameters, summary, args, exit_codes)
         if answered is not None:
             return answered
-    # rclpy's own handler (set by rclpy.init) shuts the context down on SIGINT, which wakes and ends spin. This one,
-    # set before it (rclpy's calls it afterwards), only notes the signal: raising KeyboardInterrupt would land
+    # rclpy's own handler (set by rclpy.init) shuts the context down on SIGINT, but wakes a waiting executor first:
+    # one that looks in between waits again, for good when no message comes (an idle node hung so). So the spin
+    # loop below waits at most SPIN_TIMEOUT and stops once the context is down or a SIGINT was noted. This handler,
+    # set before rclpy's (which calls it afterwards), only notes the signal: raising KeyboardInterrupt would land
     # wherever Python runs, also inside rclpy (a half-built executor Task whose __del__ complains, a message being
     # converted, which rclpy turns into a RuntimeError) and halfway through a callback. So a callback running when
-    # the signal comes finishes, then the node stops. The note ends a node whose signal came before rclpy's handler
-    # or context was there to be shut down; an error once the context is shut down is the signal's, not a bug.
-    # A callback that never finishes (a driver waiting on hardware) is interrupted by a SIGINT sent again later
-    # (FORCE_AFTER); the copies a terminal's Ctrl-C and a launcher forwarding it deliver together do not.
+    # the signal comes finishes, then the node stops, also when the signal came before rclpy's handler was there;
+    # an error once the context is shut down is the signal's, not a bug. A callback that never finishes (a driver
+    # waiting on hardware) is interrupted by a SIGINT sent again later (FORCE_AFTER); the copies that a terminal's
+    # Ctrl-C and a launcher passing it on deliver together do not.
     interrupts: list[float] = []
 
     def note_interrupt(signum, frame):
@@ -227,9 +230,11 @@ def run_node(make_node: Callable[[], "rclpy.node.Node"], args=None, *, interrupt
     try:
         node = make_node()
         name = node.get_name()
-        if not interrupts:  # (a signal noted before rclpy's handler could shut the context down: no spin)
-            rclpy.spin(node)
-        rc = interrupted_rc  # spin returns when a signal has shut the context down
+        executor = SingleThreadedExecutor()
+        executor.add_node(node)
+        while rclpy.ok() and not interrupts:  # (also a signal noted before rclpy's handler was there: no spin)
+            executor.spin_once(timeout_sec=SPIN_TIMEOUT)
+        rc = interrupted_rc
     except ParameterError as error:
         what = "" if isinstance(error, UnknownParameterError) else "bad parameter: "
         print(f"[{name}] {what}{error}", file=sys.stderr)

@@ -76,6 +76,27 @@ class Stuck(rclpy.node.Node):
 sys.exit(run_node(Stuck, [], interrupted_rc={rc}))
 '''
 
+QUIET = '''import sys, threading, time
+import rclpy, rclpy.node
+from dlo_common.node_main import run_node
+
+
+def make():  # an idle node whose context goes down without waking its executor, as after rclpy's SIGINT handling
+    node = rclpy.node.Node("quiet")
+    context = rclpy.get_default_context()
+
+    def shut_down_unseen():
+        time.sleep(0.5)
+        with context._Context__context:
+            context._Context__context.shutdown()
+
+    threading.Thread(target=shut_down_unseen, daemon=True).start()
+    return node
+
+
+sys.exit(run_node(make, [], interrupted_rc={rc}))
+'''
+
 EARLY = '''import signal, sys
 import rclpy.node
 from dlo_common.node_main import run_node
@@ -148,6 +169,16 @@ def test_a_callback_that_never_finishes_is_interrupted_by_a_later_second_sigint(
             proc.wait()
     assert proc.returncode == rc
     assert err == f"[stuck] stopped by a second SIGINT: a callback had not finished {FORCE_AFTER:g} s after the first\n"
+
+
+@pytest.mark.parametrize("rc", [0, 130])
+def test_an_idle_node_whose_context_goes_down_without_waking_its_executor_ends(rc):
+    """rclpy's SIGINT handling wakes the executor before it shuts the context down: an executor that looked in
+    between waited again, for good on an idle node (a tactile node after its simulator had gone hung so)."""
+    pytest.importorskip("rclpy")
+    result = subprocess.run([sys.executable, "-c", QUIET.format(rc=rc)], env=testing.isolated_env(),
+                            capture_output=True, text=True, timeout=120)
+    assert (result.returncode, result.stderr) == (rc, ""), result.stderr
 
 
 @pytest.mark.parametrize("rc", [0, 130])
