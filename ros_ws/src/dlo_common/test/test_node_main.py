@@ -176,8 +176,7 @@ def test_an_idle_node_whose_context_goes_down_without_waking_its_executor_ends(r
     """rclpy's SIGINT handling wakes the executor before it shuts the context down: an executor that looked in
     between waited again, for good on an idle node (a tactile node after its simulator had gone hung so)."""
     pytest.importorskip("rclpy")
-    result = subprocess.run([sys.executable, "-c", QUIET.format(rc=rc)], env=testing.isolated_env(),
-                            capture_output=True, text=True, timeout=120)
+    result = run_script(QUIET, rc)
     assert (result.returncode, result.stderr) == (rc, ""), result.stderr
 
 
