@@ -37,8 +37,9 @@ PARAMETERS = (
                                 "matched subscriptions (0 = do not wait)."),
     ("wait_timeout", 10.0, "Give up waiting for subscribers after this many seconds (then play)."),
     Param("queue_depth", 1000, "Publisher history depth for volatile topics.", at_least=1),
-    ("linger", 2.0, "After the last message, wait up to this many seconds for reliable "
-                    "subscribers to acknowledge it."),
+    Param("linger", 2.0, "After the last message, wait up to this many seconds for reliable subscribers to "
+          "acknowledge every message (what a busy subscriber has not received when the node exits is lost; a "
+          "warning names such topics).", at_least=0.0),
 )
 
 EXIT_CODES = "0 played (also when stopped by a signal), 2 bad parameter or unreadable bag"
@@ -95,6 +96,7 @@ class PlaybackNode(Node):
         while not stop.is_set() and time.monotonic() < end:
             if all(p.get_subscription_count() >= self.wait_count
                    for p in self._pubs.values()):
+                self.get_logger().info(f"every topic has {self.wait_count} subscriber(s): playing")
                 return
             executor.spin_once(timeout_sec=0.05)
         if not stop.is_set():
@@ -119,14 +121,21 @@ class PlaybackNode(Node):
             self.count += 1
 
     def finish(self) -> None:
+        """Wait up to ``linger`` s for the reliable subscribers to acknowledge every message; once this node
+        exits, what a busy subscriber (a node starved of CPU) has not received yet is lost: a warning names
+        the topics whose subscribers had not acknowledged everything."""
         end = time.monotonic() + self.linger
-        for pub in self.reliable:
-            left = end - time.monotonic()
-            if left <= 0:
-                break
-            if pub.get_subscription_count() == 0:  # nobody left to acknowledge (a reader may exit once served)
-                continue
-            pub.wait_for_all_acked(Duration(nanoseconds=int(left * 1e9)))
+        waiting = [pub for pub in self.reliable  # nobody left to acknowledge (a reader may exit once served)
+                   if pub.get_subscription_count() > 0 and not pub.wait_for_all_acked(Duration(nanoseconds=0))]
+        if waiting:
+            self.get_logger().info(f"played; waiting up to {self.linger:g} s for the subscribers of "
+                                   f"{', '.join(p.topic_name for p in waiting)} to acknowledge every message")
+        unacked = [pub.topic_name for pub in waiting
+                   if not pub.wait_for_all_acked(Duration(nanoseconds=int(max(end - time.monotonic(), 0.0) * 1e9)))]
+        if unacked:
+            self.get_logger().warning(f"not every subscriber of {', '.join(unacked)} acknowledged the last messages "
+                                      f"within linger {self.linger:g} s: a busy subscriber may miss them "
+                                      "(raise -p linger:=<seconds>)")
 
 
 def main(args: list[str] | None = None) -> int:

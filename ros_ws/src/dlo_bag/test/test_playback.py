@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import signal
 import sys
 from pathlib import Path
 
@@ -57,6 +58,40 @@ def test_playback_republishes_the_same_messages(procs, tmp_path):
         assert len(got) == N, topic
         for want, have in zip(sent[topic], got):
             assert same_cdr(want, have), topic
+
+
+@pytest.mark.parametrize("linger", [30.0, 0.5])
+def test_a_paused_subscriber_gets_every_message_within_linger_or_the_playback_says_it_may_not(procs, tmp_path,
+                                                                                                  linger):
+    """A subscriber starved of CPU (here stopped with SIGSTOP from the start of the playing to its end): the
+    playback waits up to `linger` s for it to acknowledge every message; one that resumes within it receives them
+    all, one that does not is named in a warning (what it has not received is lost once the playback exits)."""
+    bag = tmp_path / "bag"
+    sent = write_bag(bag)
+    sub = procs("sub", helper_cmd("sub", "--topics", *PLAYED, "--expect", str(N), "--timeout", "60"))
+    sub.wait_line("SUBSCRIBED")
+    play = procs("playback", [str(ROS2RUN), "dlo_bag", "playback_node", "--ros-args", "-p", f"bag:={bag}",
+                              "-p", "rate:=0.1", "-p", f"topics:={json.dumps(PLAYED)}", "-p", f"linger:={linger}",
+                              "-p", "wait_for_subscribers:=1", "-p", "wait_timeout:=60.0"])
+    try:
+        play.wait_line("subscriber(s): playing", timeout=90)  # matched: the subscriber has its publishers
+        sub.signal(signal.SIGSTOP)
+        play.wait_line("played; waiting up to", timeout=60)  # every message sent, not all acknowledged
+        if linger < 1.0:
+            warning = play.wait_line("acknowledged the last messages", timeout=60)
+            assert play.wait(timeout=60) == 0, play.output()
+            assert all(topic in warning for topic in PLAYED), warning
+            assert "raise -p linger" in warning
+            return
+    finally:
+        sub.signal(signal.SIGCONT)
+    received = json.loads(sub.wait_line("RECEIVED ", timeout=90).split(" ", 1)[1])
+    assert play.wait(timeout=60) == 0, play.output()
+    assert f"published {N * len(PLAYED)} messages" in play.output()
+    assert "acknowledged the last messages" not in play.output()
+    for topic in PLAYED:  # every message, in order
+        got = [bytes.fromhex(h) for h in received[topic]]
+        assert len(got) == N and all(same_cdr(want, have) for want, have in zip(sent[topic], got)), topic
 
 
 def same_cdr(sent: bytes, received: bytes) -> bool:

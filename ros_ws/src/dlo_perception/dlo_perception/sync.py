@@ -16,13 +16,14 @@ from collections import deque
 
 NAMES = {"gripper": "gripper state", "particles": "particle cloud"}  # how a report names an input (default: its key)
 PUBLISHERS = {"tactile": ("tactile_node", "particles"), "vision": ("vision_node", "image")}  # node, its other input
+PENDING_DEPTH = 32  # incomplete steps a synchroniser keeps by default (older ones: superseded)
 NEAR_MISS_NS = 20_000_000  # stamps < 20 ms apart (a quarter control period): one step, stamped by two clock readings
 
 
 class StampSync:
     """Collect ``(key, stamp_ns, value)`` items; ``add`` returns the full set once all keys have ``stamp_ns``."""
 
-    def __init__(self, keys, depth: int = 32, history: int = 64):
+    def __init__(self, keys, depth: int = PENDING_DEPTH, history: int = 64):
         self.keys = tuple(keys)
         self.depth = int(depth)
         self.pending = {}  # stamp_ns -> {key: value}

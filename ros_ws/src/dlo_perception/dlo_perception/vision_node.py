@@ -15,7 +15,7 @@ from sensor_msgs.msg import CameraInfo, Image
 
 from dlo_msgs.msg import GripperState, VisualPose
 from dlo_perception.camera import TopCamera
-from dlo_perception.sync import IncompleteSteps, StampSync, stamp_to_ns
+from dlo_perception.sync import PENDING_DEPTH, IncompleteSteps, StampSync, stamp_to_ns
 from dlo_perception.vision import visual_pose
 from dlo_common.node_util import declare_parameters
 from dlo_common.topics import topic
@@ -26,8 +26,10 @@ INPUT_TIMEOUT = 1.0  # s, a step's image and state not matched by stamp after th
 PARAMETERS = (
     Param("camera_position", tuple(float(c) for c in DEFAULT_CAMERA.position),
           "camera centre in the world frame [m], [x, y, z] (looks down -z)", length=3),
-    Param("queue_depth", 10, "images and gripper states kept while the node is busy (keep last): raise it when "
-          "replaying a bag faster than the node keeps up, so that every frame is processed (later)", at_least=1),
+    Param("queue_depth", 10, "images and gripper states kept while the node is busy or waits for a step's other "
+          "input, and poses kept while a subscriber is busy (keep last): raise it when replaying a bag faster than "
+          "the node or its subscribers keep up, so that every frame is processed and every pose received (later)",
+          at_least=1),
 )
 
 
@@ -43,12 +45,14 @@ class VisionNode(Node):
         # queue up behind the compilation and drop frames).
         visual_pose(np.zeros((1, DEFAULT_CAMERA.height, DEFAULT_CAMERA.width), np.uint8), DEFAULT_CAMERA,
                     np.zeros((1, 2)), 0.1)
-        self.sync = StampSync(("image", "gripper"))
+        depth = p["queue_depth"]
+        # a replay's inputs can reach the node out of step (each topic is resent on its own to a node that
+        # acknowledged late): as many incomplete steps are kept as queued inputs
+        self.sync = StampSync(("image", "gripper"), depth=max(PENDING_DEPTH, depth))
         self.incomplete = IncompleteSteps(INPUT_TIMEOUT)  # a step whose inputs never share one stamp: reported
-        self.publisher = self.create_publisher(VisualPose, topic("vision").name, 10)
+        self.publisher = self.create_publisher(VisualPose, topic("vision").name, depth)
         latched = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
         self.create_subscription(CameraInfo, topic("camera_info").name, self.on_camera_info, latched)
-        depth = p["queue_depth"]
         self.create_subscription(Image, topic("image").name, lambda m: self.on_input("image", m), depth)
         self.create_subscription(GripperState, topic("gripper").name, lambda m: self.on_input("gripper", m), depth)
 
