@@ -125,8 +125,8 @@ class PlaybackNode(Node):
         exits, what a busy subscriber (a node starved of CPU) has not received yet is lost: a warning names
         the topics whose subscribers had not acknowledged everything."""
         end = time.monotonic() + self.linger
-        waiting = [pub for pub in self.reliable  # nobody left to acknowledge (a reader may exit once served)
-                   if pub.get_subscription_count() > 0 and not pub.wait_for_all_acked(Duration(nanoseconds=0))]
+        # a topic without subscribers (none came, or they left once served) has nothing left to acknowledge
+        waiting = [pub for pub in self.reliable if not pub.wait_for_all_acked(Duration(nanoseconds=0))]
         if waiting:
             self.get_logger().info(f"played; waiting up to {self.linger:g} s for the subscribers of "
                                    f"{', '.join(p.topic_name for p in waiting)} to acknowledge every message")

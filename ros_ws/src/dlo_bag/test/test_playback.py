@@ -60,6 +60,26 @@ def test_playback_republishes_the_same_messages(procs, tmp_path):
             assert same_cdr(want, have), topic
 
 
+def test_it_plays_at_once_without_wait_for_subscribers_else_once_every_topic_has_them_or_after_wait_timeout(
+        procs, tmp_path):
+    bag = tmp_path / "bag"
+    write_bag(bag)
+    play = procs("playback", [str(ROS2RUN), "dlo_bag", "playback_node", "--ros-args", "-p", f"bag:={bag}",
+                              "-p", "rate:=0.0", "-p", "linger:=60.0"])
+    assert play.wait(timeout=60) == 0, play.output()
+    assert f"published {N * len(TOPICS)} messages" in play.output()  # with nobody to acknowledge, no waiting
+    assert "subscriber(s)" not in play.output() and "waiting up to" not in play.output(), play.output()
+    sub = procs("sub", helper_cmd("sub", "--topics", PLAYED[0], "--expect", str(N), "--timeout", "60"))
+    sub.wait_line("SUBSCRIBED")  # a subscriber of one topic of the four
+    play = procs("playback", [str(ROS2RUN), "dlo_bag", "playback_node", "--ros-args", "-p", f"bag:={bag}",
+                              "-p", "rate:=0.0", "-p", f"topics:={json.dumps(PLAYED)}", "-p", "linger:=60.0",
+                              "-p", "wait_for_subscribers:=1", "-p", "wait_timeout:=3.0"])
+    assert play.wait(timeout=60) == 0, play.output()
+    assert "not every topic has 1 subscriber(s) after 3 s; playing anyway" in play.output()
+    assert f"published {N * len(PLAYED)} messages" in play.output()
+    assert len(json.loads(sub.wait_line("RECEIVED ", timeout=60).split(" ", 1)[1])[PLAYED[0]]) == N
+
+
 @pytest.mark.parametrize("linger", [30.0, 0.5])
 def test_a_paused_subscriber_gets_every_message_within_linger_or_the_playback_says_it_may_not(procs, tmp_path,
                                                                                                   linger):

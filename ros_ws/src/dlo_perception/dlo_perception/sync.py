@@ -27,7 +27,6 @@ class StampSync:
         self.keys = tuple(keys)
         self.depth = int(depth)
         self.pending = {}  # stamp_ns -> {key: value}
-        self.dropped = 0  # stamps discarded incomplete
         self.recent = {key: deque(maxlen=history) for key in self.keys}  # latest stamps of each input, for reports
 
     def add(self, key, stamp_ns: int, value):
@@ -40,11 +39,9 @@ class StampSync:
             del self.pending[int(stamp_ns)]
             for older in [s for s in self.pending if s < stamp_ns]:  # superseded, never complete now
                 del self.pending[older]
-                self.dropped += 1
             return tuple(slot[k] for k in self.keys)
         while len(self.pending) > self.depth:
             del self.pending[min(self.pending)]
-            self.dropped += 1
         return None
 
     def missing(self, stamp_ns: int) -> list:

@@ -11,7 +11,7 @@
 
 import pytest
 
-from dlo_perception.sync import IncompleteSteps, StampSync, format_stamp
+from dlo_perception.sync import NEAR_MISS_NS, IncompleteSteps, StampSync, format_stamp
 
 STEP_NS = 80_000_000
 
@@ -73,6 +73,107 @@ def test_a_step_is_reported_only_after_the_timeout_and_the_state_first():
     report.seen(2_000_000_000, 5.0)
     assert report.check(sync, 6.5, prefer="gripper").startswith("step at t=2.00 s: no gripper input after 1.0 s; "
                                                                  "particle cloud at 2; gripper state has stamps")
+
+
+def test_an_unknown_input_is_a_key_error_and_changes_nothing():
+    sync = StampSync(("image", "gripper"))
+    with pytest.raises(KeyError, match="unknown input 'depth'; inputs are"):
+        sync.add("depth", 5, None)
+    assert sync.pending == {} and sync.missing(5) == ["image", "gripper"]
+
+
+def test_only_the_latest_history_stamps_of_an_input_count_as_seen():
+    sync = StampSync(("image", "gripper"), history=4)
+    for stamp in range(6):
+        sync.add("image", stamp, stamp)
+    assert sync.missing(5) == ["gripper"]
+    assert sync.missing(1) == ["image", "gripper"]  # older than the image's last 4 stamps
+    assert sync.nearby("image", 0) == [2, 3]
+
+
+def test_a_completed_step_supersedes_the_incomplete_older_ones_and_depth_bounds_the_rest():
+    sync = StampSync(("image", "gripper"), depth=3)
+    for stamp in (1, 2, 3, 4, 5):
+        assert sync.add("image", stamp, stamp) is None
+    assert sorted(sync.pending) == [3, 4, 5]  # the newest 3
+    assert sync.add("gripper", 4, "g4") == (4, "g4")
+    assert sorted(sync.pending) == [5]  # 3 superseded by 4
+    assert sync.add("gripper", 5, "g5") == (5, "g5") and sync.pending == {}
+
+
+def test_nearby_stamps_are_the_closest_ones_in_time_order_wherever_the_step_lies():
+    sync = StampSync(("image", "gripper"))
+    for k in range(10):
+        sync.add("image", 1_000_000_000 + k * STEP_NS, None)
+    middle = 1_000_000_000 + 5 * STEP_NS
+    assert sync.nearby("image", middle + 400) == [middle, middle + STEP_NS]
+    assert sync.nearby("image", middle - 400) == [middle - STEP_NS, middle]
+    assert sync.nearby("image", middle + 400, count=3) == [middle - STEP_NS, middle, middle + STEP_NS]
+    assert sync.nearby("gripper", middle) == []
+
+
+def seen_line(offsets, keys=("gripper", "tactile", "vision")):
+    """stamps_seen of the step at 1.28 s when each input of ``offsets`` (key -> [ns off the step]) carried those."""
+    sync = StampSync(keys)
+    for key, offs in offsets.items():
+        for off in offs:
+            sync.add(key, 1_280_000_000 + off, None)
+    return sync.stamps_seen(1_280_000_000)
+
+
+def test_the_nearest_stamp_decides_a_near_miss_earlier_or_later_and_the_closest_input_is_named():
+    later = seen_line({"gripper": [0], "tactile": [-STEP_NS + 400, 400]}, ("gripper", "tactile"))
+    assert later.endswith("(the tactile's nearest stamp is 0.4 us later: every input of a step must carry the "
+                          "state's exact stamp)"), later
+    both = seen_line({"gripper": [0], "tactile": [-400], "vision": [100]})
+    assert "(the vision's nearest stamp is 0.1 us later" in both, both  # the closer of two near misses
+    tie = seen_line({"gripper": [0], "tactile": [400], "vision": [-400]})
+    assert "(the tactile's nearest stamp is 0.4 us later" in tie, tie  # the first input of a tie
+    one_ns = seen_line({"gripper": [0], "tactile": [1]}, ("gripper", "tactile"))
+    assert "nearest stamp is 0.001 us later" in one_ns, one_ns
+    for far in (NEAR_MISS_NS, STEP_NS):  # 20 ms or more: another step, not a clock read apart
+        text = seen_line({"gripper": [0], "tactile": [far]}, ("gripper", "tactile"))
+        assert "nearest stamp" not in text and text.startswith("gripper state at 1.28; tactile has stamps"), text
+
+
+def test_an_input_of_no_known_publisher_that_sent_nothing_asks_for_its_publisher():
+    text = seen_line({"tactile": [0]}, ("gripper", "tactile"))
+    assert text == "gripper state: nothing received yet (is its publisher running?); tactile at 1.28", text
+
+
+def test_a_shared_first_seen_is_the_one_used_and_a_matched_step_leaves_it():
+    first_seen = {}
+    report = IncompleteSteps(first_seen=first_seen)
+    sync = StampSync(("image", "gripper"))
+    sync.add("image", 5, None)
+    assert report.note(sync, 5, False, 0.0) is None and first_seen == {5: 0.0}
+    assert sync.add("gripper", 5, None) is not None
+    assert report.note(sync, 5, True, 0.5) is None and first_seen == {}  # nothing kept of a completed step
+    assert report.check(sync, 5.0) is None
+
+
+def test_a_step_every_input_delivered_or_none_still_holds_is_not_reported():
+    sync, report = StampSync(("image", "gripper")), IncompleteSteps(timeout=1.0)
+    sync.add("image", 5, None)
+    sync.add("gripper", 5, None)  # complete, though the node did not call matched()
+    report.seen(5, 0.0)
+    assert report.check(sync, 2.0) is None and report.first_seen == {}
+    sync, report = StampSync(("image", "gripper"), history=2), IncompleteSteps(timeout=1.0)
+    sync.add("image", 7, None)
+    report.seen(7, 0.0)
+    for stamp in (8, 9):  # the image's stamp 7 ages out of its history of 2: no input holds it now
+        sync.add("image", stamp, None)
+    assert report.check(sync, 2.0) is None and report.first_seen == {}
+
+
+def test_a_line_once_interval_has_passed_not_before():
+    sync, report = StampSync(("image", "gripper")), IncompleteSteps(timeout=1.0, interval=1.0)
+    for stamp, at in ((1, 0.0), (2, 1.0), (3, 1.5)):
+        sync.add("image", stamp, None)
+        report.seen(stamp, at)
+    assert report.check(sync, 1.5) is not None  # stamp 1, waiting 1.5 s
+    assert report.check(sync, 2.25) is None  # stamp 2 is due, but the last line was 0.75 s ago
+    assert report.check(sync, 2.5) is not None  # exactly 1 s after the last line
 
 
 # ------------------------------------------------------------------------------- tactile_node in-process
