@@ -161,8 +161,9 @@ def test_without_camera_info_or_with_a_colour_image_no_pose_and_a_line_says_why(
 
 
 def test_a_state_stamped_apart_from_its_image_is_reported_once_a_second(context, monkeypatch):
-    """A driver whose state is stamped 0.4 us after its image: no step matches; about one error a second naming
-    the state's step, the image's stamps nearby and the state's stamp (dlo_perception.sync.IncompleteSteps)."""
+    """A driver whose image is stamped 0.4 us after its state: no step matches; about one error a second naming
+    the state's step (not the image's, which comes later), the image's stamps nearby and the state's stamp
+    (dlo_perception.sync.IncompleteSteps)."""
     from dlo_perception import vision_node as module
     from dlo_perception.camera import camera_info
 
@@ -176,8 +177,8 @@ def test_a_state_stamped_apart_from_its_image_is_reported_once_a_second(context,
         monkeypatch.setattr(node.publisher, "publish", sent.append)
         node.on_camera_info(camera_info(module.DEFAULT_CAMERA))
         for k in range(50):  # 4 s of steps
-            image, state = step_messages(pixels, *divmod(1_000_000_000 + k * STEP_NS, 1_000_000_000),
-                                         stamp_offset_ns=400)
+            image, state = step_messages(pixels, *divmod(1_000_000_400 + k * STEP_NS, 1_000_000_000),
+                                         stamp_offset_ns=-400)
             node.on_input("image", image)
             node.on_input("gripper", state)
             clock[0] += 0.08
@@ -186,5 +187,5 @@ def test_a_state_stamped_apart_from_its_image_is_reported_once_a_second(context,
     assert sent == []
     errors = [text for level, text in log.lines if level == "error"]
     assert len(errors) == len(log.lines) and 3 <= len(errors) <= 4, log.lines  # once a second, not 50 times
-    assert errors[0].startswith("step at t=1.00 s: no image input after 1.0 s; image has stamps 1, 1.08 nearby; "
-                                "gripper state at 1.0000004"), errors[0]
+    assert errors[0].startswith("step at t=1.00 s: no image input after 1.0 s; image has stamps 1.0000004, 1.0800004 "
+                                "nearby; gripper state at 1 (the image's nearest stamp is 0.4 us later"), errors[0]
