@@ -90,8 +90,9 @@ def test_a_paused_subscriber_gets_every_message_within_linger_or_the_playback_sa
     sent = write_bag(bag)
     sub = procs("sub", helper_cmd("sub", "--topics", *PLAYED, "--expect", str(N), "--timeout", "60"))
     sub.wait_line("SUBSCRIBED")
+    # rate 0.05: the playing takes 5.6 s, so most messages are sent after the SIGSTOP even on a loaded machine
     play = procs("playback", [str(ROS2RUN), "dlo_bag", "playback_node", "--ros-args", "-p", f"bag:={bag}",
-                              "-p", "rate:=0.1", "-p", f"topics:={json.dumps(PLAYED)}", "-p", f"linger:={linger}",
+                              "-p", "rate:=0.05", "-p", f"topics:={json.dumps(PLAYED)}", "-p", f"linger:={linger}",
                               "-p", "wait_for_subscribers:=1", "-p", "wait_timeout:=60.0"])
     try:
         play.wait_line("subscriber(s): playing", timeout=90)  # matched: the subscriber has its publishers
