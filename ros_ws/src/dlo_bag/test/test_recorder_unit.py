@@ -21,7 +21,7 @@ from rosbags.interfaces import QosDurability, QosReliability  # noqa: E402
 from rosgraph_msgs.msg import Clock  # noqa: E402
 from sensor_msgs.msg import CameraInfo  # noqa: E402
 
-from dlo_common.testing import reserved_domain  # noqa: E402
+from dlo_common.testing import LogLines, reserved_domain  # noqa: E402
 from dlo_msgs.msg import GripperState  # noqa: E402
 from dlo_bag import recorder_node as recorder_module  # noqa: E402
 from dlo_bag.bag import bag_info, read_messages  # noqa: E402
@@ -152,21 +152,6 @@ def test_clock_is_recorded_when_asked(context, tmp_path, monkeypatch):
 
 # ------------------------------------------------------------------ discovery and errors, one pass at a time
 # (the graph the node sees is given: its get_topic_names_and_types / get_publishers_info_by_topic replaced)
-class FakeLogger:
-    def __init__(self):
-        self.lines = []
-
-    def info(self, text):
-        self.lines.append(("info", text))
-
-    def warning(self, text):
-        self.lines.append(("warning", text))
-
-    def error(self, text):
-        self.lines.append(("error", text))
-
-    def of(self, level):
-        return [text for lvl, text in self.lines if lvl == level]
 
 
 class PublisherInfo:
@@ -206,7 +191,7 @@ def offline_recorder(context, tmp_path, monkeypatch):
         node.subscribed.append((topic, qos, kwargs))
         return real_subscribe(msg_class, topic, callback, qos, **kwargs)
     node.create_subscription = create_subscription
-    log = FakeLogger()
+    log = LogLines()
     node.get_logger = lambda: log
     node.log, node.stop_request = log, stop
     yield node

@@ -16,6 +16,8 @@ The tests of dlo_bag, dlo_viz and dlo_driver_kit define their fixtures over thes
   (:func:`hang_report`); :func:`stop_all_or_explain` the same for several at once (Procs uses it).
 - :func:`remove_orphaned_dds_shm`: the Fast DDS shared-memory files that killed participants left in
   /dev/shm since a snapshot, removed (the root conftest.py does it at the end of every test session).
+- :class:`LogLines`: a node's logger stand-in for in-process tests (``monkeypatch.setattr(node, "get_logger",
+  lambda: log)``): every line with its level, in order.
 
 Standard library only: no rclpy; pytest is imported inside :func:`package_test_env` only.
 """
@@ -37,6 +39,22 @@ from pathlib import Path
 # DLO_ROOT is set by scripts/env.sh; without it, the source tree this file lies in (ros_ws/src/dlo_common/dlo_common/).
 REPO = Path(os.environ.get("DLO_ROOT") or Path(__file__).resolve().parents[4])
 ROS2RUN = REPO / "scripts" / "ros2run"
+
+
+class LogLines:
+    """A node's logger stand-in: ``lines`` holds every ``(level, text)`` logged, in order (throttling and the other
+    keyword arguments are the real logger's business); ``of(level)`` the texts of one level."""
+
+    def __init__(self) -> None:
+        self.lines: list[tuple[str, str]] = []
+
+    def __getattr__(self, level: str):
+        if level.startswith("_"):
+            raise AttributeError(level)
+        return lambda text, **_: self.lines.append((level, text))
+
+    def of(self, level: str) -> list[str]:
+        return [text for lvl, text in self.lines if lvl == level]
 
 
 class Proc:

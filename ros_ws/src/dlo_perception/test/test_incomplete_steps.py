@@ -11,6 +11,7 @@
 
 import pytest
 
+from dlo_common.testing import LogLines
 from dlo_perception.sync import NEAR_MISS_NS, IncompleteSteps, StampSync, format_stamp
 
 STEP_NS = 80_000_000
@@ -180,17 +181,6 @@ def test_a_line_once_interval_has_passed_not_before():
 rclpy = pytest.importorskip("rclpy")
 
 
-class Log:
-    def __init__(self):
-        self.errors = []
-
-    def error(self, text, **_):
-        self.errors.append(text)
-
-    def __getattr__(self, name):
-        return lambda *a, **k: None
-
-
 def test_tactile_node_reports_a_state_stamped_apart_from_its_cloud(context, monkeypatch):
     import numpy as np
 
@@ -202,7 +192,7 @@ def test_tactile_node_reports_a_state_stamped_apart_from_its_cloud(context, monk
     monkeypatch.setattr(rclpy.node.Node, "__init__", lambda self, *a, **k: init(self, *a, **{"context": context, **k}))
     node = module.TactileNode()
     monkeypatch.setattr(rclpy.node.Node, "__init__", init)
-    log, clock = Log(), [50.0]
+    log, clock = LogLines(), [50.0]
     monkeypatch.setattr(node, "get_logger", lambda: log)
     monkeypatch.setattr(module, "time", type("Clock", (), {"monotonic": staticmethod(lambda: clock[0])}))
     published = []
@@ -219,6 +209,6 @@ def test_tactile_node_reports_a_state_stamped_apart_from_its_cloud(context, monk
     finally:
         node.destroy_node()
     assert published == []  # no step ever matched
-    assert 3 <= len(log.errors) <= 4, log.errors  # once a second, not 50 times
-    assert log.errors[0].startswith("step at t=1.00 s: no particles input after 1.0 s; particle cloud has stamps 1, "
-                                    "1.08 nearby; gripper state at 1.0000004"), log.errors[0]
+    assert 3 <= len(log.of("error")) <= 4, log.of("error")  # once a second, not 50 times
+    assert log.of("error")[0].startswith("step at t=1.00 s: no particles input after 1.0 s; particle cloud has stamps 1, "
+                                    "1.08 nearby; gripper state at 1.0000004"), log.of("error")[0]

@@ -9,6 +9,7 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # --import-mode=importlib
 
+from dlo_common.testing import LogLines  # noqa: E402
 from test_vision import GRIPPER, PLANE_Z, draw, held_then_bent  # noqa: E402
 
 rclpy = pytest.importorskip("rclpy")
@@ -52,9 +53,6 @@ def test_a_replay_whose_images_come_before_their_states_is_processed_whole(conte
     late; each topic is resent on its own): here every image comes before the first gripper state. With a deep queue
     (replaying) every frame is still matched and processed; at the live depth the newest 32 are (the older stamps
     are dropped as superseded)."""
-    from dlo_msgs.msg import GripperState
-    from sensor_msgs.msg import Image
-
     from dlo_perception.camera import camera_info
     from dlo_perception.vision_node import DEFAULT_CAMERA
 
@@ -64,32 +62,15 @@ def test_a_replay_whose_images_come_before_their_states_is_processed_whole(conte
         monkeypatch.setattr(node.publisher, "publish", sent.append)
         node.on_camera_info(camera_info(DEFAULT_CAMERA))
         stamps = [(1 + k // 12, (k % 12) * 80_000_000) for k in range(160)]  # 160 steps of 0.08 s from 1 s
-        for sec, nanosec in stamps:
-            image = Image(height=DEFAULT_CAMERA.height, width=DEFAULT_CAMERA.width, encoding="mono8",
-                          step=DEFAULT_CAMERA.width, data=bytes(DEFAULT_CAMERA.height * DEFAULT_CAMERA.width))
-            image.header.stamp.sec, image.header.stamp.nanosec = sec, nanosec
+        blank = np.zeros((DEFAULT_CAMERA.height, DEFAULT_CAMERA.width), np.uint8)
+        steps = [step_messages(blank, sec, nanosec) for sec, nanosec in stamps]
+        for image, _ in steps:
             node.on_input("image", image)
-        for sec, nanosec in stamps:
-            state = GripperState(x=0.1, y=0.0, z=0.05)
-            state.header.stamp.sec, state.header.stamp.nanosec = sec, nanosec
+        for _, state in steps:
             node.on_input("gripper", state)
     finally:
         node.destroy_node()
     assert [(p.header.stamp.sec, p.header.stamp.nanosec) for p in sent] == stamps[-processed:]
-
-
-class Log:
-    def __init__(self):
-        self.lines = []
-
-    def warning(self, text, **_):
-        self.lines.append(("warning", text))
-
-    def error(self, text, **_):
-        self.lines.append(("error", text))
-
-    def __getattr__(self, name):
-        return lambda *a, **k: None
 
 
 def step_messages(pixels, sec, nanosec, *, encoding="mono8", padding=0, stamp_offset_ns=0):
@@ -139,13 +120,14 @@ def test_without_camera_info_or_with_a_colour_image_no_pose_and_a_line_says_why(
 
     pixels = draw([held_then_bent(0.0)], GRIPPER)
     node = vision_node(context, monkeypatch)
-    log = Log()
+    log = LogLines()
     monkeypatch.setattr(node, "get_logger", lambda: log)
     try:
         sent = []
         monkeypatch.setattr(node.publisher, "publish", sent.append)
-        for message in step_messages(pixels, 1, 0):
-            node.on_input("image" if hasattr(message, "encoding") else "gripper", message)
+        image, state = step_messages(pixels, 1, 0)
+        node.on_input("image", image)
+        node.on_input("gripper", state)
         assert sent == [] and log.lines == [("warning", "no camera_info yet: skipping an image")]
         node.on_camera_info(camera_info(DEFAULT_CAMERA))
         image, state = step_messages(np.repeat(pixels, 3, axis=1), 1, STEP_NS, encoding="rgb8")
@@ -153,8 +135,9 @@ def test_without_camera_info_or_with_a_colour_image_no_pose_and_a_line_says_why(
         node.on_input("image", image)
         node.on_input("gripper", state)
         assert sent == [] and log.lines[1:] == [("error", "expected a mono8 segmentation image, got rgb8")]
-        for message in step_messages(pixels, 1, 2 * STEP_NS):
-            node.on_input("image" if hasattr(message, "encoding") else "gripper", message)
+        image, state = step_messages(pixels, 1, 2 * STEP_NS)
+        node.on_input("image", image)
+        node.on_input("gripper", state)
         assert len(sent) == 1 and len(log.lines) == 2  # the next mono8 step after camera_info: a pose
     finally:
         node.destroy_node()
@@ -169,7 +152,7 @@ def test_a_state_stamped_apart_from_its_image_is_reported_once_a_second(context,
 
     pixels = draw([held_then_bent(0.0)], GRIPPER)
     node = vision_node(context, monkeypatch)
-    log, clock = Log(), [50.0]
+    log, clock = LogLines(), [50.0]
     monkeypatch.setattr(node, "get_logger", lambda: log)
     monkeypatch.setattr(module, "time", type("Clock", (), {"monotonic": staticmethod(lambda: clock[0])}))
     try:
@@ -185,7 +168,7 @@ def test_a_state_stamped_apart_from_its_image_is_reported_once_a_second(context,
     finally:
         node.destroy_node()
     assert sent == []
-    errors = [text for level, text in log.lines if level == "error"]
+    errors = log.of("error")
     assert len(errors) == len(log.lines) and 3 <= len(errors) <= 4, log.lines  # once a second, not 50 times
     assert errors[0].startswith("step at t=1.00 s: no image input after 1.0 s; image has stamps 1.0000004, 1.0800004 "
                                 "nearby; gripper state at 1 (the image's nearest stamp is 0.4 us later"), errors[0]

@@ -19,7 +19,7 @@ import pytest
 
 rclpy = pytest.importorskip("rclpy")
 from dlo_common.params import as_params, check_value  # noqa: E402
-from dlo_common.testing import reserved_domain  # noqa: E402
+from dlo_common.testing import LogLines, reserved_domain  # noqa: E402
 from dlo_msgs.msg import GripperState, TactilePose, TaskState, VisualPose  # noqa: E402
 
 from dlo_policy import policy_node as policy_node_module  # noqa: E402
@@ -171,17 +171,6 @@ def test_online_training_gets_a_terminal_flag_only_for_a_drop(make_node, n_held,
     assert learner.saved == 1
 
 
-class Log:
-    def __init__(self):
-        self.errors = []
-
-    def error(self, text, **_):
-        self.errors.append(text)
-
-    def __getattr__(self, name):
-        return lambda *a, **k: None
-
-
 def test_topics_timer_and_parameters(make_node):
     node = make_node(act=RecordingPolicy())
     assert node.real_publisher.topic_name == "/dlo/gripper/cmd"
@@ -213,7 +202,7 @@ def test_bad_parameters_are_refused(make_node, parameters, message):
 
 def test_an_incomplete_step_names_the_missing_input_once(make_node, monkeypatch):
     node = make_node(act=RecordingPolicy(), input_timeout=0.5)
-    log = Log()
+    log = LogLines()
     monkeypatch.setattr(node, "get_logger", lambda: log)
     clock = [100.0]
     monkeypatch.setattr(policy_node_module, "time", type("Clock", (), {"monotonic": staticmethod(lambda: clock[0])}))
@@ -222,11 +211,11 @@ def test_an_incomplete_step_names_the_missing_input_once(make_node, monkeypatch)
     node.on_input("vision", stamped(VisualPose(), 2))
     clock[0] += 0.4
     node.check_missing_inputs()
-    assert log.errors == []
+    assert log.of("error") == []
     clock[0] += 0.2
     node.check_missing_inputs()
     node.check_missing_inputs()
-    assert len(log.errors) == 1 and "no tactile input after 0.5 s" in log.errors[0] and "t=0.16 s" in log.errors[0]
+    assert len(log.of("error")) == 1 and "no tactile input after 0.5 s" in log.of("error")[0] and "t=0.16 s" in log.of("error")[0]
 
 
 def test_incomplete_steps_are_reported_once_a_second_with_the_stamps_seen(make_node, monkeypatch):
@@ -234,7 +223,7 @@ def test_incomplete_steps_are_reported_once_a_second_with_the_stamps_seen(make_n
     image's and cloud's stamps, the policy never gets a complete step; it says so about once a second,
     naming the missing inputs and the stamps they carry (not one error per step)."""
     node = make_node(act=RecordingPolicy())
-    log = Log()
+    log = LogLines()
     monkeypatch.setattr(node, "get_logger", lambda: log)
     clock = [100.0]
     monkeypatch.setattr(policy_node_module, "time", type("Clock", (), {"monotonic": staticmethod(lambda: clock[0])}))
@@ -248,14 +237,14 @@ def test_incomplete_steps_are_reported_once_a_second_with_the_stamps_seen(make_n
         if step % 3 == 0:
             node.check_missing_inputs()
     assert node.publisher == []
-    assert 2 <= len(log.errors) <= 4, log.errors  # 50 incomplete steps, about one line a second
-    first = log.errors[0]  # the latest incomplete step when it is due, e.g. the one at 1.44 s
+    assert 2 <= len(log.of("error")) <= 4, log.of("error")  # 50 incomplete steps, about one line a second
+    first = log.of("error")[0]  # the latest incomplete step when it is due, e.g. the one at 1.44 s
     found = re.match(r"step at t=(\S+) s: no tactile, vision input after 1.0 s; gripper state at (\S+)00004; tactile has "
                      r"stamps (\S+), \S+ nearby; vision has stamps (\S+), \S+ nearby", first)
     assert found and found.group(1) == found.group(2) == found.group(3) == found.group(4), first
     assert "(the tactile's nearest stamp is 0.4 us earlier: every input of a step must carry the state's exact stamp)" \
         in first
-    assert "other incomplete steps since the last report" in log.errors[1]
+    assert "other incomplete steps since the last report" in log.of("error")[1]
 
 
 def test_ablating_a_modality_the_policy_does_not_observe_is_one_error_naming_the_parameter(make_node):

@@ -24,7 +24,7 @@ import numpy as np
 import pytest
 
 rclpy = pytest.importorskip("rclpy")
-from dlo_common.testing import release_domains, reserve_domains  # noqa: E402
+from dlo_common.testing import LogLines, release_domains, reserve_domains  # noqa: E402
 from dlo_msgs.msg import GripperCommand  # noqa: E402
 
 from dlo_sim import sim_node as sim_node_module  # noqa: E402
@@ -283,22 +283,9 @@ def test_a_refusal_names_the_other_publisher_once_discovery_knows_it(monkeypatch
     assert sim_node_module.SimNode.other_publishers(stub, "/clock") == ["unknown"]
 
 
-class Logger:
-    """The node's logger: every line with its level, in order (throttling is the real logger's business)."""
-
-    def __init__(self):
-        self.lines = []
-
-    def __getattr__(self, level):
-        return lambda text, **kwargs: self.lines.append((level, text))
-
-    def warnings(self):
-        return [text for level, text in self.lines if level == "warning"]
-
-
 @pytest.fixture
 def log(node, monkeypatch):
-    logger = Logger()
+    logger = LogLines()
     monkeypatch.setattr(node, "get_logger", lambda: logger)
     monkeypatch.setattr(node, "rejections", sim_node_module.RejectionLog(interval=1.0))
     return logger
@@ -308,19 +295,19 @@ def test_rejected_commands_are_logged_at_once_then_at_most_once_a_second_per_cau
         node, clock, executed, log):
     start(node, "step_locked", seed=2)
     node.on_command(command(node, vx=0.3))  # too fast: the gripper holds, logged at once
-    assert log.warnings() == ["rejected command: speed out of range: vx=0.3, vy=0.0 (limit 0.25 m/s); "
+    assert log.of("warning") == ["rejected command: speed out of range: vx=0.3, vy=0.0 (limit 0.25 m/s); "
                               "the gripper holds"]
     assert executed[-1] == pytest.approx([0.0, 0.0, -1.0]) and node.step_index == 1
     node.on_command(command(node, step=0))  # another cause: logged at once too
-    assert log.warnings()[1:] == ["rejected command: for step 0, not the current step 1 of episode "
+    assert log.of("warning")[1:] == ["rejected command: for step 0, not the current step 1 of episode "
                                   f"{node.episode}: ignored"]
     clock.now += 0.5
     node.on_command(command(node, vx=-0.3))  # within the second: counted, not logged
-    assert len(log.warnings()) == 2 and node.rejections.total == {"speed": 2, "old step": 1}
+    assert len(log.of("warning")) == 2 and node.rejections.total == {"speed": 2, "old step": 1}
     clock.now += 0.5
     node.on_command(command(node, vx=0.0, closure=1.5))  # the closure rule: a cause of its own
     node.on_command(command(node, vx=0.4))  # a second after the first speed line: logged with the count
-    assert log.warnings()[2:] == ["rejected command: closure out of range: 1.5 (must be in [0, 1]); the gripper holds",
+    assert log.of("warning")[2:] == ["rejected command: closure out of range: 1.5 (must be in [0, 1]); the gripper holds",
                                   "rejected command: speed out of range: vx=0.4, vy=0.0 (limit 0.25 m/s); the gripper "
                                   "holds (2 such commands in 0.5 s)"]
     assert node.rejections.total == {"speed": 3, "old step": 1, "closure": 1} and node.step_index == 4
@@ -342,21 +329,21 @@ def test_real_time_warns_once_no_command_came_for_a_second_and_when_a_command_ti
     node.on_real_time_tick()  # t = 0
     clock.now += 0.5
     node.on_real_time_tick()  # 0.5 s without a command: quiet
-    assert log.warnings() == [] and executed[-1] == pytest.approx([0.0, 0.0, -1.0])
+    assert log.of("warning") == [] and executed[-1] == pytest.approx([0.0, 0.0, -1.0])
     clock.now += 0.5
     node.on_real_time_tick()  # a second without a command: warned
-    assert log.warnings() == ["no command for 1 s: is a policy running? (the gripper stands still)"]
+    assert log.of("warning") == ["no command for 1 s: is a policy running? (the gripper stands still)"]
     node.on_command(command(node, vx=0.05, closure=0.7))  # t = 1.0
     clock.now += 0.25  # (binary fractions: the clock's sums are exact)
     node.on_real_time_tick()
-    assert len(log.warnings()) == 1 and executed[-1] == pytest.approx([0.2, 0.0, 0.4])
+    assert len(log.of("warning")) == 1 and executed[-1] == pytest.approx([0.2, 0.0, 0.4])
     clock.now += 0.5  # the command is 0.75 s old, the last command 0.75 s ago: timed out, not "no command"
     node.on_real_time_tick()
-    assert log.warnings()[1:] == ["command timed out: the gripper stops and holds"]
+    assert log.of("warning")[1:] == ["command timed out: the gripper stops and holds"]
     assert executed[-1] == pytest.approx([0.0, 0.0, 0.4], abs=1e-6)
     clock.now += 0.25  # 1.0 s since the last command: "no command" again
     node.on_real_time_tick()
-    assert log.warnings()[2:] == ["no command for 1 s: is a policy running? (the gripper stands still)"]
+    assert log.of("warning")[2:] == ["no command for 1 s: is a policy running? (the gripper stands still)"]
 
 
 def test_real_time_command_age_limit_is_the_command_timeout_parameter(node, clock, executed):
