@@ -10,6 +10,8 @@ for the inner loop. Tiers, commands and measured times: tests/README.md#running-
 A list entry is a test file (every test in it) or ``file::test`` (every parametrization);
 tests/test_tiers.py checks that each entry still names a test.
 
+Each xdist worker keeps its own Taichi kernel cache (worker_taichi_cache).
+
 A pytest stopped by SIGTERM (a CI job's timeout, ``kill``) tears its fixtures down as on Ctrl-C, so a
 graph a module-scoped fixture started does not outlive the run (pytest_configure below).
 
@@ -117,6 +119,19 @@ def pytest_configure(config):
 
     if threading.current_thread() is threading.main_thread() and signal.getsignal(signal.SIGTERM) == signal.SIG_DFL:
         signal.signal(signal.SIGTERM, interrupt)
+    worker = getattr(config, "workerinput", {}).get("workerid")
+    if worker and "TI_OFFLINE_CACHE_FILE_PATH" not in os.environ:
+        os.environ["TI_OFFLINE_CACHE_FILE_PATH"] = worker_taichi_cache(worker)
+
+
+def worker_taichi_cache(worker: str) -> str:
+    """Taichi's offline kernel cache of one xdist worker (and the nodes its tests start): Taichi writes its
+    cache as a process exits, under a lock it gives up on after a while, and the workers, which exit
+    together, printed "Lock .../ticache.lock failed" under the result line with one shared cache."""
+    import os
+
+    home = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    return os.path.join(home, "taichi", f"ticache-{worker}")
 
 
 _DDS_SHM_BEFORE: list[set[str]] = []  # the session's snapshot of Fast DDS's /dev/shm files, once taken

@@ -39,7 +39,9 @@ so one defect fails one rule:
   (measured from consecutive states: displacement / stamp difference, or arrival-time difference
   when the stamps are unusable), closure within 0.05;
 - ``invalid``: non-finite (NaN) and out-of-range (speed > 0.25 m/s, closure > 1) commands are
-  rejected: the gripper does not move (< 0.5 mm per step) and keeps its closure;
+  rejected: the gripper, moving under a valid command just before, stops (< 0.5 mm per step) within
+  two control periods of the first invalid command (the pipeline, as for ``stale``) and keeps the
+  closure it had (within 0.02, also not clamped to 1);
 - ``stale``: when commands stop, the gripper stops within ``--command-timeout`` (+ two control
   periods for the pipeline) and the driver keeps publishing its state (real-time timing);
 - ``workspace``: every reported gripper position lies in ``|x|, |y| <= --workspace`` (+ 1 mm),
@@ -87,6 +89,7 @@ SERVICE_RESET = next(sv for sv in SERVICES if sv.name == "/dlo/sim/reset")
 STILL = 0.0005  # m per step: the gripper counts as not moving below this
 WORKSPACE_SLACK = 0.001  # m
 PIPELINE_SLACK = 0.1  # s of delivery on top of two control periods for the stale stop
+REACT_PERIODS = 2  # control periods an invalid command may take to stop the gripper (the pipeline, as for 'stale')
 ENCODING_BYTES = {"mono8": 1, "8UC1": 1, "mono16": 2, "16UC1": 2, "rgb8": 3, "bgr8": 3, "8UC3": 3,
                   "rgba8": 4, "bgra8": 4, "32FC1": 4}
 SEGMENTATION = (IMAGE_BACKGROUND, IMAGE_GRIPPER, IMAGE_CABLE)  # the pixel values vision_node reads
@@ -234,19 +237,25 @@ def phase_window(rec: Recording, name: str) -> tuple[float, float] | None:
     return None
 
 
-def steps_in(rec: Recording, names) -> list[tuple[StateSample, StateSample]]:
+def steps_in(rec: Recording, names, react: int = 1) -> list[tuple[StateSample, StateSample]]:
     """Consecutive state pairs (k, k+1) of one episode that certainly ran under a command of one
-    of the phases ``names``: the commands answering k and k-1 both came from that phase (the
-    driver may act on either, depending on when the command arrived)."""
+    of the phases ``names``: the commands answering k, k-1, ..., k-``react`` all came from that phase
+    (the driver acts on the latest command it has: the one answering k, or an older one when
+    commands reach it up to ``react`` control periods late)."""
     names = {names} if isinstance(names, str) else set(names)
     pairs = []
     for a, b in zip(rec.states, rec.states[1:]):
         if b.episode != a.episode or b.step != a.step + 1:
             continue
-        now, before = rec.answered.get((a.episode, a.step)), rec.answered.get((a.episode, a.step - 1))
-        if now in names and before == now:
+        answers = {rec.answered.get((a.episode, a.step - back)) for back in range(react + 1)}
+        if len(answers) == 1 and answers <= names:
             pairs.append((a, b))
     return pairs
+
+
+def first_answered(rec: Recording, name: str, episode: int) -> StateSample:
+    """The first state of ``episode`` that a command of phase ``name`` answered (measured before it was sent)."""
+    return next(x for x in rec.states if x.episode == episode and rec.answered.get((x.episode, x.step)) == name)
 
 
 def typical_period(rec: Recording, clock: str = "stamp") -> float:
@@ -443,7 +452,7 @@ def check_invalid(rec: Recording, s: Settings) -> Result:
     for phase in schedule(s):
         if phase.kind != "invalid":
             continue
-        pairs = steps_in(rec, phase.name)
+        pairs = steps_in(rec, phase.name, react=REACT_PERIODS)
         bad = [b for a, b in pairs if not finite(b)]
         if bad:
             problems.append(f"{phase.name}: state became non-finite (x = {bad[0].x}, closure = {bad[0].closure})")
@@ -452,7 +461,8 @@ def check_invalid(rec: Recording, s: Settings) -> Result:
             problems.append(f"{phase.name}: {len(pairs)} usable step(s)")
             continue
         step = max(moved(a, b) for a, b in pairs)
-        closure = max(abs(b.closure - a.closure) for a, b in pairs)
+        kept = first_answered(rec, phase.name, pairs[0][0].episode).closure  # measured before the command was sent
+        closure = max(abs(x.closure - kept) for pair in pairs for x in pair)
         text = f"{phase.name} {step * 1000:.2f} mm/step, closure {closure:+.3f}"
         parts.append(text)
         if step > STILL or closure > 0.02:

@@ -17,7 +17,7 @@ from test_driver_check import complete_recording, results_of  # noqa: E402
 from dlo_driver_kit.driver_check import (CONTROL_RATE, MAX_SPEED, InfoSample, ImageSample, Recording,  # noqa: E402
                                          Settings, StateSample, check_camera, check_invalid, check_obey,
                                          check_rate, check_stale, check_stamps, check_workspace,
-                                         cloud_layout_problem, finite, judged_states, motion_clock, schedule,
+                                         cloud_layout_problem, finite, judged_states, motion_clock, moved, schedule,
                                          steps_in, typical_period)
 
 
@@ -101,6 +101,11 @@ def test_steps_in_takes_consecutive_steps_whose_answer_and_the_one_before_came_f
     assert pairs(("a", "b")) == [(1, 2), (2, 3), (7, 8)]
     rec.answered[(0, 5)] = "b"
     assert pairs("b") == [(6, 7), (7, 8)]
+    late = lambda names: [(a.step, b.step) for a, b in steps_in(rec, names, react=2)]  # noqa: E731
+    assert late("a") == [(2, 3)]  # (1, 2): step -1 unanswered
+    assert late("b") == [(6, 7), (7, 8)]  # (3, 4): steps 1 and 2 were "a"; (4, 6) is a jump
+    del rec.answered[(0, 4)]
+    assert late("b") == [(7, 8)] and pairs("b") == [(6, 7), (7, 8)]  # (6, 7) needs step 4's answer too
     for x in rec.states[6:]:
         x.episode = 1  # an episode change between steps 6 and 7
     rec.answered.update({(1, 6): "b", (1, 7): "b", (1, 8): "b"})
@@ -279,18 +284,19 @@ def test_images_must_match_camera_info_and_hold_height_times_step_bytes(change, 
 P = 0.0625  # s: a control period that is exact in binary
 
 
-def driven(spec, s=None):
+def driven(spec, lag=0):
     """A recording of a driver that does what ``spec`` says: [(phase, states, (vx, vy, closure) it executes,
     stamp step)], each state answered by its phase's command, which the next state shows executed: its
-    position advanced by velocity x its stamp step, its closure the executed one."""
+    position advanced by velocity x its stamp step, its closure the executed one. ``lag``: the driver gets
+    its commands that many control periods late (the state after next shows the command at lag 1)."""
     rec, wall, stamp, x, y, step = Recording(), 0.0, 100.0, 0.0, 0.0, 0
-    executing = (0.0, 0.0, 0.0)
+    executed = [(0.0, 0.0, 0.0)] * (lag + 1)  # what the states so far answered with, oldest first
     for name, n, command, dt in spec + [("end", 1, (0.0, 0.0, 0.0), P)]:
         for _ in range(n):
-            vx, vy, closure = executing
+            vx, vy, closure = executed[-1 - lag]
             x, y, stamp, wall = x + vx * dt, y + vy * dt, stamp + dt, wall + P
             rec.states.append(StateSample(wall, stamp, 0, step, x, y, closure))
-            executing = command
+            executed.append(command)
             if name != "end":
                 rec.answered[(0, step)] = name
             step += 1
@@ -353,7 +359,7 @@ def test_obey_uses_the_steps_half_to_twice_a_period_long_and_wants_two_of_them()
 
 
 def invalid_spec(**phases):
-    spec = {"idle": (4, (0.0, 0.0, 0.0), P), "nan": (5, (0.0, 0.0, 0.5), P), "speed": (5, (0.0, 0.0, 0.5), P),
+    spec = {"idle": (4, (0.0, 0.0, 0.5), P), "nan": (5, (0.0, 0.0, 0.5), P), "speed": (5, (0.0, 0.0, 0.5), P),
             "closure": (5, (0.0, 0.0, 0.5), P)}
     spec.update(phases)
     return [(name, *value) for name, value in spec.items()]
@@ -384,8 +390,49 @@ def test_invalid_commands_must_leave_the_gripper_where_it_was():
     nan_steps[-1].x = math.nan
     result = check_invalid(rec, s)
     assert result.status == "FAIL" and result.reason == "nan: state became non-finite (x = nan, closure = 0.5)"
-    short = check_invalid(driven(invalid_spec(nan=(2, (0.0, 0.0, 0.5), P))), s)
+    short = check_invalid(driven(invalid_spec(nan=(3, (0.0, 0.0, 0.5), P))), s)
     assert short.status == "FAIL" and short.reason == "nan: 1 usable step(s)"
+
+
+def led_in(invalid=(0.0, 0.0, 0.0), states=10, v=0.1):
+    """Each invalid phase after a lead phase moving at (-v, -v), open, as the schedule sends them; the driver
+    executes ``invalid`` for the invalid commands (a driver that rejects them: stop, keep the closure)."""
+    spec = [("idle", 4, (0.0, 0.0, 0.0), P)]
+    for name in ("nan", "speed", "closure"):
+        spec += [(f"lead-{name}", 6, (-v, -v, 0.0), P), (name, states, invalid, P)]
+    return spec
+
+
+def test_invalid_commands_may_take_two_control_periods_to_stop_the_gripper():
+    """A driver that gets its commands late still moves with the lead command in the first steps answered by
+    the invalid phase; the rule allows two control periods of that (as 'stale' does for the pipeline)."""
+    s = Settings(rate=16.0)
+    for lag in (0, 1, 2):
+        result = check_invalid(driven(led_in(), lag=lag), s)
+        assert result.status == "PASS", (lag, result)
+        assert result.reason.startswith("gripper held (largest step, closure change): nan 0.00 mm/step"), result
+    late = check_invalid(driven(led_in(), lag=3), s)
+    assert late.status == "FAIL" and late.reason.startswith("nan 8.84 mm/step, closure +0.000: not rejected"), late
+    # judged from the third state answered by the phase on: the first two pairs are the lead's
+    rec = driven(led_in(), lag=2)
+    assert [a.step for a, b in steps_in(rec, "nan", react=2)] == list(range(12, 20))  # nan answers 10-19
+    assert moved(*next((a, b) for a, b in zip(rec.states, rec.states[1:]) if a.step == 11)) > 0.008
+
+
+def test_an_invalid_command_must_not_move_the_gripper_nor_change_its_closure_at_all():
+    s = Settings(rate=16.0)
+    # ignored (the last valid command goes on until the command timeout, 8 periods), not rejected
+    ignored = [(name, *rest) for name, *rest in led_in()]
+    at = ignored.index(("nan", 10, (0.0, 0.0, 0.0), P))
+    ignored[at:at + 1] = [("nan", 7, (-0.1, -0.1, 0.0), P), ("nan", 3, (0.0, 0.0, 0.0), P)]
+    result = check_invalid(driven(ignored), s)
+    assert result.status == "FAIL" and result.reason.startswith("nan 8.84 mm/step, closure +0.000: not rejected")
+    # closure 1.5 clamped to 1 (the gripper closes once, then holds): the closure it had was 0
+    clamped = [(name, n, (0.0, 0.0, 1.0) if name == "closure" else command, dt) for name, n, command, dt in led_in()]
+    for lag in (0, 2):  # also by a driver that acts on the command at once (its closure jump is in no judged step)
+        result = check_invalid(driven(clamped, lag=lag), s)
+        assert result.status == "FAIL" and result.reason == (
+            "closure 0.00 mm/step, closure +1.000: not rejected (commanded (0.0, 0.0, 1.5))"), (lag, result)
 
 
 # ------------------------------------------------------------------------------------------------ stale
@@ -638,7 +685,7 @@ def test_stale_edges_are_exact():
 
 def test_invalid_edges_are_exact():
     s = Settings(rate=16.0)
-    assert check_invalid(driven(invalid_spec(nan=(3, (0.0, 0.0, 0.5), P))), s).status == "PASS"  # two steps do
+    assert check_invalid(driven(invalid_spec(nan=(4, (0.0, 0.0, 0.5), P))), s).status == "PASS"  # two steps do
     rec = driven(invalid_spec())
     speed = [x for x in rec.states if rec.answered.get((0, x.step - 1)) == "speed"]
     speed[2].x = speed[3].x = speed[4].x = 0.0006  # one step of 0.6 mm among still ones
