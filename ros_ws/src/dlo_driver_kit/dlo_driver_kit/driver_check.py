@@ -461,8 +461,8 @@ def check_invalid(rec: Recording, s: Settings) -> Result:
             problems.append(f"{phase.name}: {len(pairs)} usable step(s)")
             continue
         step = max(moved(a, b) for a, b in pairs)
-        kept = first_answered(rec, phase.name, pairs[0][0].episode).closure  # measured before the command was sent
-        closure = max(abs(x.closure - kept) for pair in pairs for x in pair)
+        # against the closure measured before the phase's first command of the state's episode was sent
+        closure = max(abs(x.closure - first_answered(rec, phase.name, x.episode).closure) for pair in pairs for x in pair)
         text = f"{phase.name} {step * 1000:.2f} mm/step, closure {closure:+.3f}"
         parts.append(text)
         if step > STILL or closure > 0.02:

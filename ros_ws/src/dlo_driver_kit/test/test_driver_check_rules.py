@@ -435,6 +435,30 @@ def test_an_invalid_command_must_not_move_the_gripper_nor_change_its_closure_at_
             "closure 0.00 mm/step, closure +1.000: not rejected (commanded (0.0, 0.0, 1.5))"), (lag, result)
 
 
+def test_the_closure_kept_is_the_one_the_gripper_had_in_the_states_episode():
+    """A driver whose episode ends during an invalid phase (the sim, its cable dropped) starts the next one at its
+    start closure: those states are judged against the closure of their own episode before the phase."""
+    s = Settings(rate=16.0)
+    rec = driven(led_in())
+    start = [x for x in rec.states if rec.answered.get((0, x.step)) == "nan"][5].step
+    answered = {}
+    for x in rec.states:
+        name = rec.answered.get((0, x.step))
+        if x.step >= start:
+            x.episode, x.step, x.closure = 1, x.step - start, 0.7
+        if name is not None:
+            answered[(x.episode, x.step)] = name
+    rec.answered = answered
+    assert [(a.episode, a.step) for a, b in steps_in(rec, "nan", react=2)] == [(0, 12), (0, 13), (1, 2), (1, 3), (1, 4)]
+    result = check_invalid(rec, s)
+    assert result.status == "PASS" and "nan 0.00 mm/step, closure +0.000" in result.reason, result
+    for x in rec.states:
+        if x.episode == 1 and x.step == 3:
+            x.closure = 0.73
+    result = check_invalid(rec, s)
+    assert result.status == "FAIL" and result.reason.startswith("nan 0.00 mm/step, closure +0.030: not rejected")
+
+
 # ------------------------------------------------------------------------------------------------ stale
 def silent_recording(stop_after, publish_until=2.5, period=P, before_from=0.0, t0=1.0):
     """Lead phase 0-1 s, the last command at ``t0``, silence 1-2.5 s; the gripper moves 1 mm a step from
