@@ -129,6 +129,7 @@ def schedule(s: Settings) -> list[Phase]:
     """The phases of one check, in order."""
     v, fast = s.speed, MAX_SPEED
     corner_time = 2.0 * s.workspace / fast + 0.3  # from anywhere in the workspace to the corner
+    invalid = max(0.6, (REACT_PERIODS + 4) / s.rate)  # s: steps for 'invalid' to judge after the allowance, at any --rate
     return [
         Phase("idle", "idle", s.duration, (0.0, 0.0, 0.0)),
         Phase("close", "closure", 0.6, (0.0, 0.0, 1.0)),
@@ -140,11 +141,11 @@ def schedule(s: Settings) -> list[Phase]:
         Phase("silent", "silent", s.command_timeout + 1.0, None),
         Phase("corner", "workspace", corner_time, (fast, fast, 0.0)),
         Phase("lead-nan", "lead", 0.4, (-v, -v, 0.0)),
-        Phase("nan", "invalid", 0.6, (math.nan, 0.0, 0.0)),
+        Phase("nan", "invalid", invalid, (math.nan, 0.0, 0.0)),
         Phase("lead-speed", "lead", 0.4, (-v, -v, 0.0)),
-        Phase("speed", "invalid", 0.6, (-3.0 * fast, 0.0, 0.0)),
+        Phase("speed", "invalid", invalid, (-3.0 * fast, 0.0, 0.0)),
         Phase("lead-closure", "lead", 0.4, (-v, -v, 0.0)),
-        Phase("closure", "invalid", 0.6, (0.0, 0.0, 1.5)),
+        Phase("closure", "invalid", invalid, (0.0, 0.0, 1.5)),
         Phase("reset", "reset", 0.8, (0.0, 0.0, 0.0)),  # /dlo/sim/reset at its start, then hold still
     ]
 

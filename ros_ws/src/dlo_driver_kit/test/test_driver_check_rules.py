@@ -66,6 +66,15 @@ def test_the_schedule_is_the_documented_sequence_of_phases(s):
 
 
 # ------------------------------------------------------------------------------------------------ helpers
+def test_the_invalid_phases_last_long_enough_for_four_judged_steps_at_a_slow_rate():
+    """'invalid' judges from the third invalid command on: at --rate 7.5 Hz 0.6 s left it one step or none (a mock
+    driver at 7.5 Hz failed with "closure: 1 usable step(s)"); the phases last 6 control periods, at least 0.6 s."""
+    durations = lambda rate: {p.name: p.duration for p in schedule(Settings(rate=rate)) if p.kind == "invalid"}  # noqa: E731
+    assert durations(CONTROL_RATE) == durations(10.0) == {"nan": 0.6, "speed": 0.6, "closure": 0.6}
+    assert durations(7.5) == {"nan": 0.8, "speed": 0.8, "closure": 0.8}
+    assert durations(5.0) == {"nan": 1.2, "speed": 1.2, "closure": 1.2}
+
+
 def test_typical_period_is_the_median_positive_difference():
     rec = Recording(states=states([0.0, 0.0, 0.0, 0.1, 0.2, 0.5]))
     assert typical_period(rec, "wall") == pytest.approx(0.1)  # repeated arrival times left out

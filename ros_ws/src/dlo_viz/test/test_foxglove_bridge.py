@@ -626,6 +626,8 @@ def test_stop_closes_the_server_and_detaches_from_the_sdk_log(typestore):
             socket.create_connection(("127.0.0.1", b.port), timeout=10).close()
         except ConnectionRefusedError:
             return True
+        except ConnectionResetError:  # accepted into the backlog as the listener closed (rehearsal 88): look again
+            return False
         return False
     wait_until(refused, 10)  # the SDK closes its listening socket as it shuts down
     before = b.stats.clients_connected
