@@ -326,17 +326,17 @@ def isolated_env(base: dict[str, str] | None = None, domain_id: int | None = Non
     return env
 
 
-def package_test_env(package: str, executable: str, domains: int = 1) -> dict[str, str]:
-    """:func:`isolated_env` on ``domains`` consecutive reserved domains (ROS_DOMAIN_ID the first; tests that
-    need several use the ones after it) for the tests of ``package``; skips the test (pytest.skip) when scripts/env.sh
-    is not sourced, scripts/ros2run is missing or ``ros2run <package>`` does not list ``executable``."""
+def package_test_env(package: str, executable: str) -> dict[str, str]:
+    """:func:`isolated_env` on a reserved domain for the tests of ``package``; skips the test (pytest.skip)
+    when scripts/env.sh is not sourced, scripts/ros2run is missing or ``ros2run <package>`` does not list
+    ``executable``."""
     import pytest
 
     if "DLO_ROOT" not in os.environ:
         pytest.skip("source scripts/env.sh first")
     if not ROS2RUN.exists():
         pytest.skip(f"{ROS2RUN} missing")
-    env = isolated_env(domain_id=reserve_domains(domains))
+    env = isolated_env(domain_id=reserve_domains())
     check = subprocess.run([str(ROS2RUN), package], env=env, capture_output=True, text=True, timeout=60)
     if f"{package} {executable}" not in check.stdout.splitlines():
         pytest.skip(f"{package} is not built (run scripts/setup.sh): " + check.stderr)

@@ -41,7 +41,8 @@ so one defect fails one rule:
 - ``invalid``: non-finite (NaN) and out-of-range (speed > 0.25 m/s, closure > 1) commands are
   rejected: the gripper, moving under a valid command just before, stops (< 0.5 mm per step) within
   two control periods of the first invalid command (the pipeline, as for ``stale``) and keeps the
-  closure it had (within 0.02, also not clamped to 1);
+  closure it had (within 0.02, also not clamped to 1); no state reported after an invalid command
+  (within those two periods of the phase's end too) is non-finite;
 - ``stale``: when commands stop, the gripper stops within ``--command-timeout`` (+ two control
   periods for the pipeline) and the driver keeps publishing its state (real-time timing);
 - ``workspace``: every reported gripper position lies in ``|x|, |y| <= --workspace`` (+ 1 mm),
@@ -454,7 +455,9 @@ def check_invalid(rec: Recording, s: Settings) -> Result:
         if phase.kind != "invalid":
             continue
         pairs = steps_in(rec, phase.name, react=REACT_PERIODS)
-        bad = [b for a, b in pairs if not finite(b)]
+        # any state that may show an invalid command executed (judged or not): none may be non-finite
+        bad = [x for x in rec.states if not finite(x) and phase.name in
+               {rec.answered.get((x.episode, x.step - 1 - back)) for back in range(REACT_PERIODS + 1)}]
         if bad:
             problems.append(f"{phase.name}: state became non-finite (x = {bad[0].x}, closure = {bad[0].closure})")
             continue
@@ -463,7 +466,8 @@ def check_invalid(rec: Recording, s: Settings) -> Result:
             continue
         step = max(moved(a, b) for a, b in pairs)
         # against the closure measured before the phase's first command of the state's episode was sent
-        closure = max(abs(x.closure - first_answered(rec, phase.name, x.episode).closure) for pair in pairs for x in pair)
+        before = {e: first_answered(rec, phase.name, e).closure for e in {x.episode for pair in pairs for x in pair}}
+        closure = max(abs(x.closure - before[x.episode]) for pair in pairs for x in pair)
         text = f"{phase.name} {step * 1000:.2f} mm/step, closure {closure:+.3f}"
         parts.append(text)
         if step > STILL or closure > 0.02:

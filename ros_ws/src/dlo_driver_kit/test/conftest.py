@@ -6,14 +6,12 @@ import pytest
 
 from dlo_common.testing import Procs, package_test_env
 
-DRIVER_CHECK_DOMAINS = 20  # the session's domain and one per broken driver (16, test_driver_check.py), with room
-
 
 @pytest.fixture(scope="session")
 def ros_env() -> dict[str, str]:
-    """Environment of env.sh on reserved ROS domains (ROS_DOMAIN_ID the first; the broken-driver checks use
-    the next DRIVER_CHECK_DOMAINS - 1) and localhost discovery."""
-    return package_test_env("dlo_driver_kit", "mock_driver_node", domains=DRIVER_CHECK_DOMAINS)
+    """Environment of env.sh on a reserved ROS domain and localhost discovery (the broken-driver checks
+    reserve one more domain per driver: test_driver_check.py)."""
+    return package_test_env("dlo_driver_kit", "mock_driver_node")
 
 
 @pytest.fixture

@@ -7,6 +7,7 @@ needs to run a step: one exact stamp on all of a step's inputs (sync), mono8 seg
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import re
@@ -23,7 +24,7 @@ from dlo_driver_kit_broken_driver import FAULTS  # noqa: E402
 from dlo_driver_kit.driver_check import (RULES, CloudSample, ImageSample, InfoSample, Recording,  # noqa: E402
                                          Settings, StateSample, check_stale, check_workspace, cloud_layout_problem,
                                          evaluate, schedule)
-from dlo_common.testing import ROS2RUN, Procs  # noqa: E402
+from dlo_common.testing import ROS2RUN, Procs, reserved_domain  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 CHECK = [sys.executable, "-m", "dlo_driver_kit.driver_check"]
@@ -91,12 +92,11 @@ BATCH = 4  # broken drivers checked at once, each with its checker on a ROS doma
 
 def check_broken_drivers(ros_env, faults: list[str]) -> dict[str, subprocess.CompletedProcess]:
     """dlo-driver-check of each broken driver in ``faults``, all at once, each pair on a domain of its own
-    (the session's domain + 1 + the fault's index in FAULTS) so that no two see each other."""
-    base, envs = int(ros_env["ROS_DOMAIN_ID"]), {}
-    for fault in faults:
-        envs[fault] = dict(ros_env, ROS_DOMAIN_ID=str(base + 1 + sorted(FAULTS).index(fault)))
+    (reserved for the batch, one by one: another test session on this machine may hold domains anywhere)
+    so that no two see each other."""
     results = {}
-    with Procs(ros_env) as start:
+    with contextlib.ExitStack() as domains, Procs(ros_env) as start:
+        envs = {fault: dict(ros_env, ROS_DOMAIN_ID=str(domains.enter_context(reserved_domain()))) for fault in faults}
         drivers = {fault: start(fault, [sys.executable, str(HERE / "dlo_driver_kit_broken_driver.py"), fault],
                                 env=envs[fault])
                    for fault in faults}

@@ -14,8 +14,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))  # --import-mode=import
 
 from test_driver_check import complete_recording, results_of  # noqa: E402
 
-from dlo_driver_kit.driver_check import (CONTROL_RATE, MAX_SPEED, InfoSample, ImageSample, Recording,  # noqa: E402
-                                         Settings, StateSample, check_camera, check_invalid, check_obey,
+from dlo_driver_kit.driver_check import (CONTROL_RATE, MAX_SPEED, REACT_PERIODS, InfoSample, ImageSample,  # noqa: E402
+                                         Recording, Settings, StateSample, check_camera, check_invalid, check_obey,
                                          check_rate, check_stale, check_stamps, check_workspace,
                                          cloud_layout_problem, finite, judged_states, motion_clock, moved, schedule,
                                          steps_in, typical_period)
@@ -401,6 +401,32 @@ def test_invalid_commands_must_leave_the_gripper_where_it_was():
     assert result.status == "FAIL" and result.reason == "nan: state became non-finite (x = nan, closure = 0.5)"
     short = check_invalid(driven(invalid_spec(nan=(3, (0.0, 0.0, 0.5), P))), s)
     assert short.status == "FAIL" and short.reason == "nan: 1 usable step(s)"
+
+
+def test_a_state_made_non_finite_by_an_invalid_command_fails_even_outside_the_judged_steps():
+    """A driver that reports NaN for one step right after the first NaN command (a step the rule allows for
+    stopping, so judged by no motion test) and then recovers did not reject the command."""
+    s = Settings(rate=16.0)
+    for lag in (0, 2):
+        for after in range(1 + REACT_PERIODS + 1):  # the states after the phase's 1st, 2nd, 3rd command
+            rec = driven(led_in(), lag=lag)
+            first = min(x.step for x in rec.states if rec.answered.get((0, x.step)) == "nan")
+            hit = next(x for x in rec.states if x.step == first + 1 + after)
+            hit.closure = math.nan
+            result = check_invalid(rec, s)
+            assert result.status == "FAIL" and result.reason == (
+                "nan: state became non-finite (x = {}, closure = nan)".format(hit.x)), (lag, after, result)
+    # and after the phase's last command: the state that shows it (two periods late at most)
+    for late, status in ((1, "FAIL"), (REACT_PERIODS + 1, "FAIL"), (REACT_PERIODS + 2, "PASS")):
+        rec = driven(led_in())
+        last = max(x.step for x in rec.states if rec.answered.get((0, x.step)) == "speed")
+        next(x for x in rec.states if x.step == last + late).x = math.inf
+        assert check_invalid(rec, s).status == status, (late, check_invalid(rec, s))
+    # a non-finite state before the first invalid command is not this rule's
+    rec = driven(led_in())
+    first = min(x.step for x in rec.states if rec.answered.get((0, x.step)) == "nan")
+    next(x for x in rec.states if x.step == first).y = math.nan
+    assert check_invalid(rec, s).status == "PASS", check_invalid(rec, s)
 
 
 def led_in(invalid=(0.0, 0.0, 0.0), states=10, v=0.1):
