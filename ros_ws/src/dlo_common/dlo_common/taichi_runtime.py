@@ -10,6 +10,11 @@ with the same options.
   bit-reproducible for a given build, and the simulator's NaN checks test exponent bits.
 - ``arch()``: the backend Taichi runs on, or the one ``init()`` would start.
 
+``init`` also removes a leftover lock of Taichi's kernel cache (``ticache.lock`` older than
+``STALE_LOCK_AGE``): Taichi holds it while it writes the cache at exit, well under a second; a process
+killed meanwhile (SIGKILL, out of memory) leaves it, and every later process then failed to save its
+kernels ("Lock .../ticache.lock failed") and compiled them again at each start.
+
 Taichi is imported inside ``init`` only, so importing ``dlo_common`` stays light. Importing this
 module keeps Taichi's "[Taichi] version ..." banner off stdout (it would precede a command's
 ``--help`` text or its one-line error; ``ENABLE_TAICHI_HEADER_PRINT=1`` brings it back).
@@ -17,6 +22,8 @@ module keeps Taichi's "[Taichi] version ..." banner off stdout (it would precede
 from __future__ import annotations
 
 import os
+import time
+from pathlib import Path
 from typing import Optional
 
 os.environ.setdefault("ENABLE_TAICHI_HEADER_PRINT", "0")
@@ -24,6 +31,7 @@ os.environ.setdefault("ENABLE_TAICHI_HEADER_PRINT", "0")
 ENV_VAR = "DLO_TI_ARCH"  # the user's backend choice, read by init() (docs: dlo_sim/README.md)
 ARCHS = ("cpu", "cuda", "gpu", "vulkan")  # backend names, as Taichi calls them (ti.cpu, ...)
 DEFAULT_ARCH = "cpu"
+STALE_LOCK_AGE = 60.0  # s: a kernel-cache lock this old is a killed process's leftover
 
 _selected: Optional[str] = None  # select(name)
 _running: Optional[str] = None  # the backend init() started
@@ -68,6 +76,20 @@ def init(arch: Optional[str] = None) -> None:
     ti.init(arch=getattr(ti, name), fast_math=True, default_fp=ti.f32, offline_cache=True,
             log_level=ti.WARN if name == "cpu" else ti.ERROR)  # a missing GPU: our one line, not Taichi's three
     _running = name
+    clear_stale_cache_lock(ti.lang.impl.current_cfg().offline_cache_file_path)
     if name == "cuda" and ti.lang.impl.current_cfg().arch != ti.cuda:  # Taichi falls back to the CPU silently
         raise ValueError(f"Taichi arch cuda asked for ({ENV_VAR} / train.sim_arch), but Taichi found no "
                          "CUDA device and fell back to the CPU (use cpu)")
+
+
+def clear_stale_cache_lock(cache_dir: str | os.PathLike, now: Optional[float] = None) -> bool:
+    """Remove ``cache_dir``/ticache.lock when it was last written more than STALE_LOCK_AGE s before ``now``
+    (default: the clock); True when one was removed. A younger one is left: another process may be writing."""
+    lock = Path(cache_dir) / "ticache.lock"
+    try:
+        if (time.time() if now is None else now) - lock.stat().st_mtime <= STALE_LOCK_AGE:
+            return False
+        lock.unlink()
+    except OSError:  # none, or gone meanwhile
+        return False
+    return True

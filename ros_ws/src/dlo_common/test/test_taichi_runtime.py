@@ -66,3 +66,54 @@ def test_the_backend_named_in_capitals_is_the_same_backend():
                             env=env)
     assert result.returncode == 0, result.stderr
     assert json.loads(result.stdout.splitlines()[-1]) == {"before": "cpu", "after": "cpu"}
+
+
+KERNEL_PROBE = """
+import dlo_common.taichi_runtime as runtime
+runtime.init()
+import taichi as ti
+
+
+@ti.kernel
+def twice(x: ti.i32) -> ti.i32:
+    return 2 * x
+
+
+print(twice(21))
+"""
+
+
+def test_a_lock_left_by_a_killed_process_no_longer_keeps_kernels_out_of_the_cache(tmp_path):
+    """Taichi holds ticache.lock while it writes its kernel cache at exit; a process killed meanwhile leaves
+    it, and every later process failed to save its kernels ("Lock .../ticache.lock failed") and compiled
+    them again at each start. init removes a lock older than STALE_LOCK_AGE: the kernel is saved, no warning."""
+    from dlo_common.taichi_runtime import STALE_LOCK_AGE
+
+    cache = tmp_path / "ticache"
+    cache.mkdir()
+    lock = cache / "ticache.lock"
+    lock.touch()
+    old = lock.stat().st_mtime - STALE_LOCK_AGE - 5
+    os.utime(lock, (old, old))
+    env = {**os.environ, "TI_OFFLINE_CACHE_FILE_PATH": str(cache)}
+    env.pop("DLO_TI_ARCH", None)
+    probe = tmp_path / "probe.py"  # (Taichi reads a kernel's source from its file)
+    probe.write_text(KERNEL_PROBE)
+    result = subprocess.run([sys.executable, str(probe)], capture_output=True, text=True, timeout=300, env=env)
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.splitlines()[-1] == "42"
+    assert "ticache.lock failed" not in result.stderr, result.stderr
+    assert not lock.exists()
+    assert any(p.suffix == ".tic" for p in cache.iterdir()), sorted(p.name for p in cache.iterdir())  # saved
+
+
+def test_a_recent_lock_is_left_to_the_process_writing_the_cache(tmp_path):
+    from dlo_common.taichi_runtime import STALE_LOCK_AGE, clear_stale_cache_lock
+
+    lock = tmp_path / "ticache.lock"
+    assert clear_stale_cache_lock(tmp_path) is False  # none
+    lock.touch()
+    written = lock.stat().st_mtime
+    assert clear_stale_cache_lock(tmp_path) is False and lock.exists()  # just written
+    assert clear_stale_cache_lock(tmp_path, now=written + STALE_LOCK_AGE) is False and lock.exists()
+    assert clear_stale_cache_lock(tmp_path, now=written + STALE_LOCK_AGE + 0.01) is True and not lock.exists()
