@@ -1,0 +1,81 @@
+#!/usr/bin/env python3
+"""Stop a whole graph with one SIGINT, again and again, and catch a node that does not exit.
+
+    tools/stop_together.py [--rounds 100] [--run 20] [--out /tmp/stop_together]
+
+Each round starts sim_node, tactile_node, vision_node and a random policy_node on a ROS domain reserved for it
+(dlo_common.testing), lets them run ``--run`` s, sends SIGINT to all four at once (what a terminal's Ctrl-C to a
+launched graph does) and waits 30 s for each. A node still running then gets its C stacks written to
+OUT/hang_<round>_<node>.txt (gdb) and is killed. One JSON line per round on stdout and in OUT/rounds.jsonl.
+A diagnostic for the middleware's teardown (tests/README.md: rehearsals 98 and 99), not a product command.
+Needs scripts/env.sh sourced and gdb for the stacks.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import signal
+import subprocess
+import time
+from pathlib import Path
+
+from dlo_common.testing import ROS2RUN, isolated_env, release_domains, reserve_domains
+
+NODES = {
+    "sim": ["dlo_sim", "sim_node", "min_subscribers:=3", "publish_markers:=false"],
+    "tactile": ["dlo_perception", "tactile_node"],
+    "vision": ["dlo_perception", "vision_node"],
+    "policy": ["dlo_policy", "policy_node", "policy:=random", "modalities:=All"],
+}
+STOP_WAIT = 30.0  # s after the SIGINT
+
+
+def one_round(index: int, run_s: float, out: Path) -> dict:
+    domain = reserve_domains()
+    env = isolated_env(domain_id=domain)
+    try:
+        procs = {}
+        for name, (package, executable, *params) in NODES.items():
+            args = [str(ROS2RUN), package, executable, "--ros-args"] + [a for p in params for a in ("-p", p)]
+            procs[name] = subprocess.Popen(args, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        time.sleep(run_s)
+        for proc in procs.values():
+            proc.send_signal(signal.SIGINT)
+        start, hung, codes = time.monotonic(), [], {}
+        for name, proc in procs.items():
+            try:
+                codes[name] = proc.wait(timeout=max(0.1, STOP_WAIT - (time.monotonic() - start)))
+            except subprocess.TimeoutExpired:
+                hung.append(name)
+                stacks = subprocess.run(["gdb", "-p", str(proc.pid), "-batch", "-ex", "thread apply all bt"],
+                                        capture_output=True, text=True, timeout=120).stdout
+                (out / f"hang_{index}_{name}.txt").write_text(stacks)
+                proc.kill()
+                proc.wait()
+        return {"round": index, "domain": domain, "hung": hung, "exit_codes": codes,
+                "stop_s": round(time.monotonic() - start, 2)}
+    finally:
+        release_domains(domain)
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(prog="tools/stop_together.py", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--rounds", type=int, default=100, help="graphs started and stopped (default 100)")
+    parser.add_argument("--run", type=float, default=20.0, help="seconds each graph runs before the SIGINT")
+    parser.add_argument("--out", type=Path, default=Path("/tmp/stop_together"), help="where the lines and stacks go")
+    args = parser.parse_args(argv)
+    args.out.mkdir(parents=True, exist_ok=True)
+    hangs = 0
+    with (args.out / "rounds.jsonl").open("a") as log:
+        for index in range(args.rounds):
+            line = json.dumps(one_round(index, args.run, args.out))
+            print(line, flush=True)
+            log.write(line + "\n")
+            hangs += bool(json.loads(line)["hung"])
+    print(f"{hangs} of {args.rounds} rounds left a node running {STOP_WAIT:g} s after the SIGINT")
+    return 1 if hangs else 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
