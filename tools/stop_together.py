@@ -69,10 +69,11 @@ def main(argv=None) -> int:
     hangs = 0
     with (args.out / "rounds.jsonl").open("a") as log:
         for index in range(args.rounds):
-            line = json.dumps(one_round(index, args.run, args.out))
+            result = one_round(index, args.run, args.out)
+            line = json.dumps(result)
             print(line, flush=True)
             log.write(line + "\n")
-            hangs += bool(json.loads(line)["hung"])
+            hangs += bool(result["hung"])
     print(f"{hangs} of {args.rounds} rounds left a node running {STOP_WAIT:g} s after the SIGINT")
     return 1 if hangs else 0
 

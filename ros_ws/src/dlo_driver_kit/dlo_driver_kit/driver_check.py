@@ -249,10 +249,16 @@ def steps_in(rec: Recording, names, react: int = 1) -> list[tuple[StateSample, S
     for a, b in zip(rec.states, rec.states[1:]):
         if b.episode != a.episode or b.step != a.step + 1:
             continue
-        answers = {rec.answered.get((a.episode, a.step - back)) for back in range(react + 1)}
+        answers = acting(rec, a.episode, a.step, react)
         if len(answers) == 1 and answers <= names:
             pairs.append((a, b))
     return pairs
+
+
+def acting(rec: Recording, episode: int, step: int, react: int) -> set:
+    """The phases whose commands may move the gripper from state ``step`` of ``episode`` to the next one: those
+    answering that state and the ``react`` states before it (None for a state no command answered)."""
+    return {rec.answered.get((episode, step - back)) for back in range(react + 1)}
 
 
 def first_answered(rec: Recording, name: str, episode: int) -> StateSample:
@@ -456,8 +462,7 @@ def check_invalid(rec: Recording, s: Settings) -> Result:
             continue
         pairs = steps_in(rec, phase.name, react=REACT_PERIODS)
         # any state that may show an invalid command executed (judged or not): none may be non-finite
-        bad = [x for x in rec.states if not finite(x) and phase.name in
-               {rec.answered.get((x.episode, x.step - 1 - back)) for back in range(REACT_PERIODS + 1)}]
+        bad = [x for x in rec.states if not finite(x) and phase.name in acting(rec, x.episode, x.step - 1, REACT_PERIODS)]
         if bad:
             problems.append(f"{phase.name}: state became non-finite (x = {bad[0].x}, closure = {bad[0].closure})")
             continue
