@@ -190,6 +190,8 @@ def capture(domain: int, window: float, timeout: float, workdir: Path, log=print
     import rclpy
     from rclpy.signals import SignalHandlerOptions
 
+    from dlo_common.node_main import shut_down
+
     os.environ["ROS_DOMAIN_ID"] = str(domain)
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     rclpy.init(signal_handler_options=SignalHandlerOptions.NO)  # Ctrl-C: KeyboardInterrupt, the graph is stopped
@@ -209,8 +211,7 @@ def capture(domain: int, window: float, timeout: float, workdir: Path, log=print
         finally:
             stop_group(proc)
     finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
+        shut_down(node)
     records = []
     for path in sorted(dump.glob("*.jsonl")):
         records += [json.loads(line) for line in path.read_text().splitlines() if line.strip()]

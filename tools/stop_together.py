@@ -6,7 +6,9 @@
 Each round starts sim_node, tactile_node, vision_node and a random policy_node on a ROS domain reserved for it
 (dlo_common.testing), lets them run ``--run`` s, sends SIGINT to all four at once (what a terminal's Ctrl-C to a
 launched graph does) and waits 30 s for each. A node still running then gets its C stacks written to
-OUT/hang_<round>_<node>.txt (gdb) and is killed. One JSON line per round on stdout and in OUT/rounds.jsonl.
+OUT/hang_<round>_<node>.txt (gdb) and is killed; a node that exits with another status than its interrupted one
+(1: its middleware teardown was cut after dlo_common.node_main.TEARDOWN_LIMIT s) keeps its stderr in
+OUT/stderr_<round>_<node>.txt. One JSON line per round on stdout and in OUT/rounds.jsonl.
 A diagnostic for the middleware's teardown (tests/README.md: rehearsals 98 and 99), not a product command.
 Needs scripts/env.sh sourced and gdb for the stacks.
 """
@@ -27,6 +29,7 @@ NODES = {
     "vision": ["dlo_perception", "vision_node"],
     "policy": ["dlo_policy", "policy_node", "policy:=random", "modalities:=All"],
 }
+INTERRUPTED = {"sim": 130}  # exit status after a SIGINT (0 for the others)
 STOP_WAIT = 30.0  # s after the SIGINT
 
 
@@ -37,7 +40,8 @@ def one_round(index: int, run_s: float, out: Path) -> dict:
         procs = {}
         for name, (package, executable, *params) in NODES.items():
             args = [str(ROS2RUN), package, executable, "--ros-args"] + [a for p in params for a in ("-p", p)]
-            procs[name] = subprocess.Popen(args, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+            procs[name] = subprocess.Popen(args, env=env, stdout=subprocess.DEVNULL,
+                                           stderr=(out / f"stderr_{index}_{name}.txt").open("w"))
         time.sleep(run_s)
         for proc in procs.values():
             proc.send_signal(signal.SIGINT)
@@ -52,6 +56,9 @@ def one_round(index: int, run_s: float, out: Path) -> dict:
                 (out / f"hang_{index}_{name}.txt").write_text(stacks)
                 proc.kill()
                 proc.wait()
+        for name in procs:
+            if codes.get(name) == INTERRUPTED.get(name, 0):
+                (out / f"stderr_{index}_{name}.txt").unlink()
         return {"round": index, "domain": domain, "hung": hung, "exit_codes": codes,
                 "stop_s": round(time.monotonic() - start, 2)}
     finally:
@@ -66,7 +73,7 @@ def main(argv=None) -> int:
     parser.add_argument("--out", type=Path, default=Path("/tmp/stop_together"), help="where the lines and stacks go")
     args = parser.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
-    hangs = 0
+    hangs = cut = 0
     with (args.out / "rounds.jsonl").open("a") as log:
         for index in range(args.rounds):
             result = one_round(index, args.run, args.out)
@@ -74,7 +81,9 @@ def main(argv=None) -> int:
             print(line, flush=True)
             log.write(line + "\n")
             hangs += bool(result["hung"])
-    print(f"{hangs} of {args.rounds} rounds left a node running {STOP_WAIT:g} s after the SIGINT")
+            cut += any(code != INTERRUPTED.get(name, 0) for name, code in result["exit_codes"].items())
+    print(f"{hangs} of {args.rounds} rounds left a node running {STOP_WAIT:g} s after the SIGINT; in {cut} a node "
+          "exited with another status than its interrupted one (stderr kept in --out)")
     return 1 if hangs else 0
 
 

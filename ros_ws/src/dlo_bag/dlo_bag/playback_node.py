@@ -20,7 +20,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from rclpy.signals import SignalHandlerOptions
 from rosbags.interfaces import QosDurability, QosReliability
 
-from dlo_common.node_main import handle_help
+from dlo_common.node_main import handle_help, shut_down
 from dlo_common.node_util import ParameterError, ShutdownRequest, declare_parameters
 from dlo_common.params import Param
 
@@ -42,7 +42,7 @@ PARAMETERS = (
           "warning names such topics).", at_least=0.0),
 )
 
-EXIT_CODES = "0 played (also when stopped by a signal), 2 bad parameter or unreadable bag"
+EXIT_CODES = "0 played (also when stopped by a signal), 1 failed (see stderr), 2 bad parameter or unreadable bag"
 
 class PlaybackNode(Node):
     """Thin node: publishers for the bag's topics, paced by :class:`dlo_bag.playback.Pacer`."""
@@ -162,10 +162,8 @@ def main(args: list[str] | None = None) -> int:
         print(f"playback_node: error: {err}", file=sys.stderr)
         rc = 2
     finally:
-        if node is not None:
-            node.destroy_node()
+        shut_down(node)  # a middleware teardown that hangs is cut (exit 1, stacks on stderr)
         stop.restore()
-        rclpy.try_shutdown()
     return rc
 
 

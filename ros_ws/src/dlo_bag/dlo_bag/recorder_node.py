@@ -29,7 +29,7 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 
-from dlo_common.node_main import handle_help
+from dlo_common.node_main import handle_help, shut_down
 from dlo_common.node_util import ParameterError, ShutdownRequest, declare_parameters
 from dlo_common.params import Param
 
@@ -58,7 +58,8 @@ PARAMETERS = (
 )
 
 EXIT_DROPPED, EXIT_BAD_PARAMETER, EXIT_RECORDING_FAILED = 1, 2, 3
-EXIT_CODES = "0 complete bag (also after a signal), 1 messages were dropped, 2 bad parameter or output, 3 recording failed"
+EXIT_CODES = ("0 complete bag (also after a signal), 1 messages were dropped (or, after the bag was closed, the "
+              "middleware's teardown hung: see stderr), 2 bad parameter or output, 3 recording failed")
 
 
 class RecorderNode(Node):
@@ -238,9 +239,8 @@ def main(args: list[str] | None = None) -> int:
             if summary.failure:
                 rc = EXIT_RECORDING_FAILED
             rc = rc or (EXIT_DROPPED if summary.dropped else 0)
-            node.destroy_node()
+        shut_down(node)  # the bag is closed: a middleware teardown that hangs is cut (exit 1, stacks on stderr)
         stop.restore()
-        rclpy.try_shutdown()
     return rc
 
 

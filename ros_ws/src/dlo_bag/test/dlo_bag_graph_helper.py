@@ -27,6 +27,7 @@ from rclpy.signals import SignalHandlerOptions
 from dlo_msgs.msg import GripperCommand, GripperState, TactilePose, TaskState, VisualPose
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2, PointField
 
+from dlo_common.node_main import shut_down
 from dlo_common.topics import topic as topic_record
 
 TOPICS = {
@@ -132,7 +133,7 @@ def run_pub(args, stop) -> int:
             i += 1
             time.sleep(0.005)
         print(f"STREAMED {i}", flush=True)
-    node.destroy_node()
+    shut_down(node)  # (Fast DDS can deadlock here: cut after node_main.TEARDOWN_LIMIT s)
     return 0
 
 
@@ -153,7 +154,7 @@ def run_sub(args, stop) -> int:
             break
     print("RECEIVED " + json.dumps(received), flush=True)
     del subs
-    node.destroy_node()
+    shut_down(node)  # (Fast DDS can deadlock here: cut after node_main.TEARDOWN_LIMIT s)
     return 0
 
 

@@ -204,3 +204,36 @@ def test_messages_lost_before_delivery_make_exit_status_1_with_a_closed_bag(proc
     assert "received 0, written 0, dropped 2" in out and "2 messages were not written" in out, out
     assert json.loads(summary_file.read_text())["dropped"] == 2
     assert (bag / "metadata.yaml").is_file() and "Traceback" not in out
+
+
+HANGS_IN_TEARDOWN = """
+import ctypes, sys
+from dlo_bag import recorder_node
+from dlo_common import node_main
+
+node_main.TEARDOWN_LIMIT = 1.0
+discover = recorder_node.RecorderNode.discover
+
+def discover_then_stop(self):
+    discover(self)
+    self.stop.request()
+
+recorder_node.RecorderNode.discover = discover_then_stop
+recorder_node.RecorderNode.destroy_node = lambda self: ctypes.PyDLL(None).sleep(120)  # Fast DDS's deadlock: C, GIL held
+sys.exit(recorder_node.main(sys.argv[1:]))
+"""
+
+
+def test_a_middleware_teardown_that_hangs_is_cut_after_the_bag_is_closed(procs, tmp_bags):
+    """dlo_bag README (recorder_node): the bag is closed and the summary written before the middleware's teardown;
+    a teardown that hangs (Fast DDS can deadlock there) ends the recorder after TEARDOWN_LIMIT s with exit 1."""
+    bag = tmp_bags / "run"
+    summary_file = tmp_bags / "summary.json"
+    rec = procs("recorder", [sys.executable, "-c", HANGS_IN_TEARDOWN, "--ros-args", "-p", f"output:={bag}",
+                             "-p", f"summary_file:={summary_file}"])
+    assert rec.wait(timeout=60) == 1, rec.output()
+    out = rec.output()
+    assert "Timeout (0:00:01)!" in out and "in shut_down" in out, out
+    assert json.loads(summary_file.read_text())["dropped"] == 0
+    assert (bag / "metadata.yaml").is_file()
+    assert bag_info(bag).topics == {}  # a complete bag, readable, that recorded nothing

@@ -2,13 +2,15 @@
 
 from __future__ import annotations
 
+import faulthandler
 import os
 import re
 import signal
 import sys
 import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
 
 import rclpy
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
@@ -17,9 +19,11 @@ from rclpy.utilities import remove_ros_args
 from dlo_common.node_util import NodeStartError, ParameterError, UnknownParameterError
 from dlo_common.params import Param, help_requested, help_text, unexpected_arguments, yaml_problem
 
+EXIT_FAILED = 1  # an error the node did not expect (a traceback), or a middleware teardown cut short (stacks)
 EXIT_BAD_PARAMETER = 2
 EXIT_REFUSED = 3
-EXIT_CODES = "0 done or stopped by a signal, 2 bad parameter, 3 refused to start"
+EXIT_CODES = "0 done or stopped by a signal, 1 failed (see stderr), 2 bad parameter, 3 refused to start"
+TEARDOWN_LIMIT = 10.0  # s: a middleware teardown (DDS participant destruction) still running this long ends the process
 FORCE_AFTER = 2.0  # s: a SIGINT this long after the first interrupts a callback that is still running
 SPIN_TIMEOUT = 0.1  # s: the longest a node waits for work before it looks whether it was told to stop
 
@@ -193,6 +197,9 @@ def run_node(make_node: Callable[[], "rclpy.node.Node"], args=None, *, interrupt
     Exit code 2 and one line on a bad parameter, 3 and one line when the node refuses to start or
     go on (:class:`NodeStartError`); never a traceback for a signal, also one that arrives while a
     callback runs (the callback finishes first) or while the node is being built.
+
+    Once it stops spinning, the node's ``finish()`` (when it has one: saving, closing files, a last report)
+    runs, then :func:`shut_down` tears the middleware down within ``TEARDOWN_LIMIT`` s.
     """
     if parameters is not None:
         module = getattr(make_node, "__module__", "dlo")
@@ -253,12 +260,55 @@ def run_node(make_node: Callable[[], "rclpy.node.Node"], args=None, *, interrupt
             raise
         rc = interrupted_rc  # a signal shut the context down under a callback or the node's making (RCLError)
     finally:
+        if node is not None and hasattr(node, "finish"):
+            try:
+                node.finish()  # the node's own closing work (save, close, report): not bounded
+            except Exception as error:  # noqa: BLE001 - one line, not a traceback over the exit code
+                print(f"[{name}] could not finish: {type(error).__name__}: {error}", file=sys.stderr)
+                rc = EXIT_FAILED
+        shut_down(node)
+        if previous is signal.default_int_handler:
+            signal.signal(signal.SIGINT, previous)
+    return rc
+
+
+def _stderr_fd() -> int:
+    try:
+        return sys.stderr.fileno()
+    except (AttributeError, ValueError, OSError):  # replaced by an object without a descriptor (a test's capture)
+        return 2
+
+
+@contextmanager
+def bounded(seconds: float | None = None) -> Iterator[None]:
+    """Ends the process with exit code 1 when the block runs longer than ``seconds``, after faulthandler's
+    "Timeout (0:00:10)!" line and every thread's Python stack on stderr.
+
+    The watchdog is faulthandler's C thread: it needs no GIL, so it also ends a block stuck in C code that holds
+    the GIL (rclpy's ``destroy_node`` and ``try_shutdown`` do: no Python thread, signal handler or second
+    Ctrl-C runs then). One such timer exists per process; this one replaces any other and is cancelled on exit.
+    ``seconds`` defaults to ``TEARDOWN_LIMIT``.
+    """
+    faulthandler.dump_traceback_later(TEARDOWN_LIMIT if seconds is None else seconds, exit=True, file=_stderr_fd())
+    try:
+        yield
+    finally:
+        faulthandler.cancel_dump_traceback_later()
+
+
+def shut_down(node: "rclpy.node.Node | None" = None, limit: float | None = None) -> None:
+    """Destroy ``node`` (if any) and shut rclpy's default context down within ``limit`` s (default
+    ``TEARDOWN_LIMIT``; :func:`bounded`).
+
+    Fast DDS 2.14 (Jazzy) can deadlock while it destroys a participant whose peers leave at the same moment
+    (``DomainParticipant::set_listener`` waits for a discovery callback that waits for a lock it holds): seen
+    about once in 100 stops of a whole graph by one SIGINT. The node's work is done by then; without a bound it
+    would never exit. Run the node's own closing work (saving, closing a bag) BEFORE this, outside the bound.
+    """
+    with bounded(limit):
         if node is not None:
             try:
                 node.destroy_node()
             except Exception:  # noqa: BLE001 - already torn down by the signal's shutdown
                 pass
         rclpy.try_shutdown()
-        if previous is signal.default_int_handler:
-            signal.signal(signal.SIGINT, previous)
-    return rc

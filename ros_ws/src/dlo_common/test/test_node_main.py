@@ -129,6 +129,50 @@ sys.exit(run_node(Faulty, []))
 '''
 
 
+HUNG = '''import ctypes, os, signal, sys, time
+import rclpy.node
+from dlo_common import node_main
+
+node_main.TEARDOWN_LIMIT = 1.0
+
+
+class Hung(rclpy.node.Node):
+    def __init__(self):
+        super().__init__("hung")
+        self.create_timer(0.05, lambda: os.kill(os.getpid(), signal.SIGINT))
+
+    def finish(self):  # the node's own closing work (saving a run): longer than the limit, and not cut
+        time.sleep(2 * node_main.TEARDOWN_LIMIT)
+        print("finished", flush=True)
+
+    def destroy_node(self):  # the middleware's teardown stuck in C code that holds the GIL (Fast DDS's deadlock)
+        ctypes.PyDLL(None).sleep(120)
+
+
+sys.exit(node_main.run_node(Hung, [], interrupted_rc={rc}))
+'''
+
+UNFINISHED = '''import os, signal, sys
+import rclpy.node
+from dlo_common.node_main import run_node
+
+
+class Unfinished(rclpy.node.Node):
+    def __init__(self):
+        super().__init__("unfinished")
+        self.create_timer(0.05, lambda: os.kill(os.getpid(), signal.SIGINT))
+
+    def finish(self):  # saving the run on a full disk
+        raise OSError(28, "No space left on device")
+
+    def destroy_node(self):
+        print("destroyed", flush=True)
+        super().destroy_node()
+
+
+sys.exit(run_node(Unfinished, [], interrupted_rc={rc}))
+'''
+
 def default_sigint():
     """SIGINT at its default in the node, as in a terminal (a test run in the background inherits it ignored)."""
     signal.signal(signal.SIGINT, signal.SIG_DFL)
@@ -192,6 +236,28 @@ def test_a_sigint_noted_before_rclpy_could_shut_the_context_down_ends_the_node(r
     pytest.importorskip("rclpy")
     result = run_script(EARLY, rc)  # (without the note's check it would spin until the timeout)
     assert (result.returncode, result.stderr) == (rc, ""), result.stderr
+
+
+@pytest.mark.parametrize("rc", [0, 130])
+def test_a_middleware_teardown_that_hangs_holding_the_gil_ends_the_process_after_the_limit(rc):
+    """Fast DDS can deadlock destroying a participant while its peers leave (about 1 in 100 stops of a graph):
+    the node must still exit, with 1 and the stacks, once TEARDOWN_LIMIT s have passed (not after the 120 s
+    its teardown would take); the node's finish() runs before the limit starts, however long it takes."""
+    pytest.importorskip("rclpy")
+    result = run_script(HUNG, rc)
+    assert result.returncode == 1, result.stderr
+    assert "finished\n" in result.stdout  # (Fast DDS may print its own lines there)
+    assert result.stderr.startswith("Timeout (0:00:01)!\n"), result.stderr
+    assert "in shut_down" in result.stderr and "in run_node" in result.stderr, result.stderr
+
+
+@pytest.mark.parametrize("rc", [0, 130])
+def test_a_finish_that_fails_is_one_line_and_exit_1_and_the_node_is_still_torn_down(rc):
+    pytest.importorskip("rclpy")
+    result = run_script(UNFINISHED, rc)
+    assert result.returncode == 1, result.stderr
+    assert result.stderr == "[unfinished] could not finish: OSError: [Errno 28] No space left on device\n"
+    assert "destroyed\n" in result.stdout
 
 
 def test_an_error_in_a_callback_without_a_signal_is_a_traceback():
@@ -310,8 +376,9 @@ def make_nothing():  # never called: --help answers before any node is built
 
 
 @pytest.mark.parametrize(("interrupted_rc", "codes"), [
-    (0, "Exit codes: 0 done or stopped by a signal, 2 bad parameter, 3 refused to start."),
-    (130, "Exit codes: 0 done or stopped by a signal (130), 2 bad parameter, 3 refused to start.")])
+    (0, "Exit codes: 0 done or stopped by a signal, 1 failed (see stderr), 2 bad parameter, 3 refused to start."),
+    (130, "Exit codes: 0 done or stopped by a signal (130), 1 failed (see stderr), 2 bad parameter, 3 refused to "
+          "start.")])
 def test_help_names_the_package_and_the_exit_code_of_an_interruption(monkeypatch, capsys, interrupted_rc, codes):
     from dlo_common.node_main import run_node
     monkeypatch.setattr(sys, "argv", ["sim_node", "--help"])

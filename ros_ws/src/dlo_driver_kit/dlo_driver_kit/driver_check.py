@@ -732,8 +732,9 @@ def record(s: Settings, namespace: str, timeout: float, log=print) -> Recording 
         rec.last_command_wall = silent_from
         return rec
     finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
+        from dlo_common.node_main import shut_down
+
+        shut_down(node)  # a middleware teardown that hangs is cut (exit 1, stacks on stderr)
 
 
 def start_episode(node, client, request, timeout: float = 5.0) -> str:

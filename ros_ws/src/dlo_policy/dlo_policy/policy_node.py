@@ -203,12 +203,12 @@ class PolicyNode(Node):
         config = load_config(p["train_config"] or None, values={"modalities": p["modalities"], "seed": p["seed"]})
         return OnlineLearner(config, observation_size(p["modalities"]), p["train_out"], p["checkpoint_every"])
 
-    def destroy_node(self):
+    def finish(self):
+        """Save the online run (run_node calls this once the node stops, before the middleware's teardown)."""
         if getattr(self, "learner", None) is not None:
             self.learner.save()
             self.get_logger().info(f"online training: {self.learner.agent.num_env_steps} steps, saved to "
                                    f"{self.learner.run_dir}")
-        super().destroy_node()
 
     def check_missing_inputs(self):
         """A step incomplete after ``input_timeout`` s: one error naming the missing input and the stamps

@@ -101,8 +101,7 @@ def make_node(context, monkeypatch):
 
     yield make
     for node in nodes:
-        if not getattr(node, "destroyed_by_test", False):
-            node.destroy_node()
+        node.destroy_node()
 
 
 def stamped(msg, step):
@@ -166,8 +165,7 @@ def test_online_training_gets_a_terminal_flag_only_for_a_drop(make_node, n_held,
     feed(node, step=6, task=TaskState(episode=2, step=6, n_held=n_held, reward=-0.5, done=True))
     assert learner.calls == [dict(reward=0.25, done=False, dropped=False, episode=2, step=5),
                              dict(reward=-0.5, done=True, dropped=dropped, episode=2, step=6)]
-    node.destroy_node()  # saves the online run once
-    node.destroyed_by_test = True
+    node.finish()  # saves the online run once (run_node calls it when the node stops)
     assert learner.saved == 1
 
 

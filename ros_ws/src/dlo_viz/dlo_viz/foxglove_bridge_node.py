@@ -189,7 +189,7 @@ class FoxgloveBridgeNode(Node):
             + (f", slow clients reported {len(s.slow_client_reports)}" if s.slow_client_reports else ""))
 
     def finish(self) -> dict:
-        """Stop the server (bounded time) and report the counts."""
+        """Stop the server (bounded time) and report the counts (run_node calls this once the node stops)."""
         stopped = self.bridge.stop()
         summary = self.bridge.stats.to_dict()
         summary.update(url=self.bridge.ws_url, wall_s=round(time.monotonic() - self._started, 3),
@@ -204,12 +204,6 @@ class FoxgloveBridgeNode(Node):
             except OSError as err:
                 self._say(f"cannot write summary_file {self.summary_file}: {err}", "error")
         return summary
-
-    def destroy_node(self) -> None:
-        try:
-            self.finish()
-        finally:
-            super().destroy_node()
 
 
 def main(args=None):
