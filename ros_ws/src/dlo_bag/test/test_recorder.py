@@ -191,18 +191,23 @@ sys.exit(recorder_node.main(sys.argv[1:]))
 """
 
 
+def run_patched_recorder(procs, tmp_bags, script):
+    """recorder_node run by ``script`` (``python -c``: it patches the node, then calls main) into tmp_bags/run,
+    with a summary_file: -> (exit status, output, bag, summary or None when it wrote none)."""
+    bag, summary_file = tmp_bags / "run", tmp_bags / "summary.json"
+    rec = procs("recorder", [sys.executable, "-c", script, "--ros-args", "-p", f"output:={bag}",
+                             "-p", f"summary_file:={summary_file}"])
+    rc = rec.wait(timeout=60)
+    return rc, rec.output(), bag, json.loads(summary_file.read_text()) if summary_file.exists() else None
+
 def test_messages_lost_before_delivery_make_exit_status_1_with_a_closed_bag(procs, tmp_bags):
     """dlo_bag README (recorder_node): dropped also counts messages the middleware reports lost; exit 1
     when messages were dropped (the bag is still closed); the launcher then exits 4."""
-    bag = tmp_bags / "run"
-    summary_file = tmp_bags / "summary.json"
-    rec = procs("recorder", [sys.executable, "-c", LOSES_MESSAGES, "--ros-args", "-p", f"output:={bag}",
-                             "-p", f"summary_file:={summary_file}"])
-    assert rec.wait(timeout=60) == 1, rec.output()
-    out = rec.output()
+    rc, out, bag, summary = run_patched_recorder(procs, tmp_bags, LOSES_MESSAGES)
+    assert rc == 1, out
     assert "the middleware lost 2 message(s) before delivery" in out, out
     assert "received 0, written 0, dropped 2" in out and "2 messages were not written" in out, out
-    assert json.loads(summary_file.read_text())["dropped"] == 2
+    assert summary["dropped"] == 2
     assert (bag / "metadata.yaml").is_file() and "Traceback" not in out
 
 
@@ -227,13 +232,9 @@ sys.exit(recorder_node.main(sys.argv[1:]))
 def test_a_middleware_teardown_that_hangs_is_cut_after_the_bag_is_closed(procs, tmp_bags):
     """dlo_bag README (recorder_node): the bag is closed and the summary written before the middleware's teardown;
     a teardown that hangs (Fast DDS can deadlock there) ends the recorder after TEARDOWN_LIMIT s with exit 1."""
-    bag = tmp_bags / "run"
-    summary_file = tmp_bags / "summary.json"
-    rec = procs("recorder", [sys.executable, "-c", HANGS_IN_TEARDOWN, "--ros-args", "-p", f"output:={bag}",
-                             "-p", f"summary_file:={summary_file}"])
-    assert rec.wait(timeout=60) == 1, rec.output()
-    out = rec.output()
+    rc, out, bag, summary = run_patched_recorder(procs, tmp_bags, HANGS_IN_TEARDOWN)
+    assert rc == 1, out
     assert "Timeout (0:00:01)!" in out and "in shut_down" in out, out
-    assert json.loads(summary_file.read_text())["dropped"] == 0
+    assert summary["dropped"] == 0
     assert (bag / "metadata.yaml").is_file()
     assert bag_info(bag).topics == {}  # a complete bag, readable, that recorded nothing
