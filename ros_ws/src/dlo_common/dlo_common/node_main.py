@@ -280,32 +280,31 @@ def _stderr_fd() -> int:
 
 
 @contextmanager
-def bounded(seconds: float | None = None) -> Iterator[None]:
-    """Ends the process with exit code 1 when the block runs longer than ``seconds``, after faulthandler's
+def bounded() -> Iterator[None]:
+    """Ends the process with exit code 1 when the block runs longer than ``TEARDOWN_LIMIT`` s, after faulthandler's
     "Timeout (0:00:10)!" line and every thread's Python stack on stderr.
 
     The watchdog is faulthandler's C thread: it needs no GIL, so it also ends a block stuck in C code that holds
     the GIL (rclpy's ``destroy_node`` and ``try_shutdown`` do: no Python thread, signal handler or second
     Ctrl-C runs then). One such timer exists per process; this one replaces any other and is cancelled on exit.
-    ``seconds`` defaults to ``TEARDOWN_LIMIT``.
+    The stacks go to file descriptor 2 when ``sys.stderr`` has none (replaced by a test's capture).
     """
-    faulthandler.dump_traceback_later(TEARDOWN_LIMIT if seconds is None else seconds, exit=True, file=_stderr_fd())
+    faulthandler.dump_traceback_later(TEARDOWN_LIMIT, exit=True, file=_stderr_fd())
     try:
         yield
     finally:
         faulthandler.cancel_dump_traceback_later()
 
 
-def shut_down(node: "rclpy.node.Node | None" = None, limit: float | None = None) -> None:
-    """Destroy ``node`` (if any) and shut rclpy's default context down within ``limit`` s (default
-    ``TEARDOWN_LIMIT``; :func:`bounded`).
+def shut_down(node: "rclpy.node.Node | None" = None) -> None:
+    """Destroy ``node`` (if any) and shut rclpy's default context down within ``TEARDOWN_LIMIT`` s (:func:`bounded`).
 
     Fast DDS 2.14 (Jazzy) can deadlock while it destroys a participant whose peers leave at the same moment
     (``DomainParticipant::set_listener`` waits for a discovery callback that waits for a lock it holds): seen
     about once in 100 stops of a whole graph by one SIGINT. The node's work is done by then; without a bound it
     would never exit. Run the node's own closing work (saving, closing a bag) BEFORE this, outside the bound.
     """
-    with bounded(limit):
+    with bounded():
         if node is not None:
             try:
                 node.destroy_node()

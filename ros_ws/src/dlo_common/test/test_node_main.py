@@ -173,6 +173,27 @@ class Unfinished(rclpy.node.Node):
 sys.exit(run_node(Unfinished, [], interrupted_rc={rc}))
 '''
 
+GOES_ON = '''import io, os, signal, sys, time
+import rclpy.node
+from dlo_common import node_main
+
+node_main.TEARDOWN_LIMIT = 0.5
+
+
+class Quick(rclpy.node.Node):
+    def __init__(self):
+        super().__init__("quick")
+        self.create_timer(0.05, lambda: os.kill(os.getpid(), signal.SIGINT))
+
+
+print(node_main.run_node(Quick, []), flush=True)
+time.sleep(4 * node_main.TEARDOWN_LIMIT)  # a caller that goes on after run_node (a test, a tool)
+print("still running", flush=True)
+sys.stderr = io.StringIO()  # a test's capture: no file descriptor
+with node_main.bounded():
+    time.sleep(120)
+'''
+
 def default_sigint():
     """SIGINT at its default in the node, as in a terminal (a test run in the background inherits it ignored)."""
     signal.signal(signal.SIGINT, signal.SIG_DFL)
@@ -250,6 +271,14 @@ def test_a_middleware_teardown_that_hangs_holding_the_gil_ends_the_process_after
     assert result.stderr.startswith("Timeout (0:00:01)!\n"), result.stderr
     assert "in shut_down" in result.stderr and "in run_node" in result.stderr, result.stderr
 
+
+def test_the_teardown_limit_ends_with_the_teardown_and_reports_on_fd_2_when_stderr_has_none():
+    """After a teardown in time the watchdog is gone (a caller of run_node goes on as long as it likes); a block
+    of bounded() run with sys.stderr replaced by an object without a descriptor still ends, reported on fd 2."""
+    pytest.importorskip("rclpy")
+    result = run_script(GOES_ON, 0)
+    assert result.stdout.splitlines()[-2:] == ["0", "still running"], result.stdout + result.stderr
+    assert result.returncode == 1 and result.stderr.startswith("Timeout (0:00:00.500000)!\n"), result.stderr
 
 @pytest.mark.parametrize("rc", [0, 130])
 def test_a_finish_that_fails_is_one_line_and_exit_1_and_the_node_is_still_torn_down(rc):
