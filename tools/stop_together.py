@@ -80,6 +80,7 @@ def main(argv=None) -> int:
             line = json.dumps(result)
             print(line, flush=True)
             log.write(line + "\n")
+            log.flush()  # (a round's line is on disk while the next one runs)
             hangs += bool(result["hung"])
             cut += any(code != INTERRUPTED.get(name, 0) for name, code in result["exit_codes"].items())
     print(f"{hangs} of {args.rounds} rounds left a node running {STOP_WAIT:g} s after the SIGINT; in {cut} a node "
