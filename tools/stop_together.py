@@ -5,10 +5,11 @@
 
 Each round starts sim_node, tactile_node, vision_node and a random policy_node on a ROS domain reserved for it
 (dlo_common.testing), lets them run ``--run`` s, sends SIGINT to all four at once (what a terminal's Ctrl-C to a
-launched graph does) and waits 30 s for each. A node still running then gets its C stacks written to
-OUT/hang_<round>_<node>.txt (gdb) and is killed; a node that exits with another status than its interrupted one
-(1: its middleware teardown was cut after dlo_common.node_main.TEARDOWN_LIMIT s) keeps its stderr in
-OUT/stderr_<round>_<node>.txt. One JSON line per round on stdout and in OUT/rounds.jsonl.
+launched graph does) and waits 30 s for each. A node still running then gets its C and Python stacks written to
+OUT/hang_<round>_<node>.txt (dlo_common.testing.hang_report: gdb, then SIGABRT) and is killed; a node that
+exits with another status than its interrupted one (1: its middleware teardown was cut after
+dlo_common.node_main.TEARDOWN_LIMIT s) keeps its stderr in OUT/stderr_<round>_<node>.txt. One JSON line per
+round on stdout and in OUT/rounds.jsonl.
 A diagnostic for the middleware's teardown (tests/README.md: rehearsals 98 and 99), not a product command.
 Needs scripts/env.sh sourced and gdb for the stacks.
 """
@@ -21,7 +22,7 @@ import subprocess
 import time
 from pathlib import Path
 
-from dlo_common.testing import ROS2RUN, isolated_env, release_domains, reserve_domains
+from dlo_common.testing import ROS2RUN, hang_report, isolated_env, release_domains, reserve_domains
 
 NODES = {
     "sim": ["dlo_sim", "sim_node", "min_subscribers:=3", "publish_markers:=false"],
@@ -35,13 +36,14 @@ STOP_WAIT = 30.0  # s after the SIGINT
 
 def one_round(index: int, run_s: float, out: Path) -> dict:
     domain = reserve_domains()
-    env = isolated_env(domain_id=domain)
+    env = {**isolated_env(domain_id=domain), "PYTHONFAULTHANDLER": "1"}  # (Python stacks on hang_report's SIGABRT)
+    stderr = {name: out / f"stderr_{index}_{name}.txt" for name in NODES}
     try:
         procs = {}
         for name, (package, executable, *params) in NODES.items():
             args = [str(ROS2RUN), package, executable, "--ros-args"] + [a for p in params for a in ("-p", p)]
-            procs[name] = subprocess.Popen(args, env=env, stdout=subprocess.DEVNULL,
-                                           stderr=(out / f"stderr_{index}_{name}.txt").open("w"))
+            with stderr[name].open("w") as err:  # (the child keeps its own descriptor)
+                procs[name] = subprocess.Popen(args, env=env, stdout=subprocess.DEVNULL, stderr=err)
         time.sleep(run_s)
         for proc in procs.values():
             proc.send_signal(signal.SIGINT)
@@ -51,15 +53,13 @@ def one_round(index: int, run_s: float, out: Path) -> dict:
                 codes[name] = proc.wait(timeout=max(0.1, STOP_WAIT - (time.monotonic() - start)))
             except subprocess.TimeoutExpired:
                 hung.append(name)
-                stacks = subprocess.run(["gdb", "-p", str(proc.pid), "-batch", "-ex", "thread apply all bt"],
-                                        capture_output=True, text=True, timeout=120).stdout
-                (out / f"hang_{index}_{name}.txt").write_text(stacks)
-                proc.kill()
-                proc.wait()
+                (out / f"hang_{index}_{name}.txt").write_text(
+                    hang_report(proc, name, STOP_WAIT, lambda name=name: stderr[name].read_text(errors="replace")))
+        unexpected = [name for name, code in codes.items() if code != INTERRUPTED.get(name, 0)]
         for name in procs:
-            if codes.get(name) == INTERRUPTED.get(name, 0):
-                (out / f"stderr_{index}_{name}.txt").unlink()
-        return {"round": index, "domain": domain, "hung": hung, "exit_codes": codes,
+            if name not in hung and name not in unexpected:
+                stderr[name].unlink()
+        return {"round": index, "domain": domain, "hung": hung, "exit_codes": codes, "unexpected": unexpected,
                 "stop_s": round(time.monotonic() - start, 2)}
     finally:
         release_domains(domain)
@@ -82,7 +82,7 @@ def main(argv=None) -> int:
             log.write(line + "\n")
             log.flush()  # (a round's line is on disk while the next one runs)
             hangs += bool(result["hung"])
-            cut += any(code != INTERRUPTED.get(name, 0) for name, code in result["exit_codes"].items())
+            cut += bool(result["unexpected"])
     print(f"{hangs} of {args.rounds} rounds left a node running {STOP_WAIT:g} s after the SIGINT; in {cut} a node "
           "exited with another status than its interrupted one (stderr kept in --out)")
     return 1 if hangs else 0
