@@ -200,6 +200,7 @@ def run_patched_recorder(procs, tmp_bags, script):
     rc = rec.wait(timeout=60)
     return rc, rec.output(), bag, json.loads(summary_file.read_text()) if summary_file.exists() else None
 
+
 def test_messages_lost_before_delivery_make_exit_status_1_with_a_closed_bag(procs, tmp_bags):
     """dlo_bag README (recorder_node): dropped also counts messages the middleware reports lost; exit 1
     when messages were dropped (the bag is still closed); the launcher then exits 4."""

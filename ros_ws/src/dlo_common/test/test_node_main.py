@@ -129,18 +129,22 @@ sys.exit(run_node(Faulty, []))
 '''
 
 
-HUNG = '''import ctypes, os, signal, sys, time
+STOPS_ITSELF = '''import ctypes, io, os, signal, sys, time
 import rclpy.node
 from dlo_common import node_main
 
+
+class StopsItself(rclpy.node.Node):  # named after its class; sends itself a SIGINT once it spins
+    def __init__(self):
+        super().__init__(type(self).__name__.lower())
+        self.create_timer(0.05, lambda: os.kill(os.getpid(), signal.SIGINT))
+'''
+
+HUNG = STOPS_ITSELF + '''
 node_main.TEARDOWN_LIMIT = 1.0
 
 
-class Hung(rclpy.node.Node):
-    def __init__(self):
-        super().__init__("hung")
-        self.create_timer(0.05, lambda: os.kill(os.getpid(), signal.SIGINT))
-
+class Hung(StopsItself):
     def finish(self):  # the node's own closing work (saving a run): longer than the limit, and not cut
         time.sleep(2 * node_main.TEARDOWN_LIMIT)
         print("finished", flush=True)
@@ -152,16 +156,9 @@ class Hung(rclpy.node.Node):
 sys.exit(node_main.run_node(Hung, [], interrupted_rc={rc}))
 '''
 
-UNFINISHED = '''import os, signal, sys
-import rclpy.node
-from dlo_common.node_main import run_node
+UNFINISHED = STOPS_ITSELF + '''
 
-
-class Unfinished(rclpy.node.Node):
-    def __init__(self):
-        super().__init__("unfinished")
-        self.create_timer(0.05, lambda: os.kill(os.getpid(), signal.SIGINT))
-
+class Unfinished(StopsItself):
     def finish(self):  # saving the run on a full disk
         raise OSError(28, "No space left on device")
 
@@ -170,20 +167,15 @@ class Unfinished(rclpy.node.Node):
         super().destroy_node()
 
 
-sys.exit(run_node(Unfinished, [], interrupted_rc={rc}))
+sys.exit(node_main.run_node(Unfinished, [], interrupted_rc={rc}))
 '''
 
-GOES_ON = '''import io, os, signal, sys, time
-import rclpy.node
-from dlo_common import node_main
-
+GOES_ON = STOPS_ITSELF + '''
 node_main.TEARDOWN_LIMIT = 0.5
 
 
-class Quick(rclpy.node.Node):
-    def __init__(self):
-        super().__init__("quick")
-        self.create_timer(0.05, lambda: os.kill(os.getpid(), signal.SIGINT))
+class Quick(StopsItself):
+    pass
 
 
 print(node_main.run_node(Quick, []), flush=True)
@@ -193,6 +185,7 @@ sys.stderr = io.StringIO()  # a test's capture: no file descriptor
 with node_main.bounded():
     time.sleep(120)
 '''
+
 
 def default_sigint():
     """SIGINT at its default in the node, as in a terminal (a test run in the background inherits it ignored)."""
@@ -279,6 +272,7 @@ def test_the_teardown_limit_ends_with_the_teardown_and_reports_on_fd_2_when_stde
     result = run_script(GOES_ON, 0)
     assert result.stdout.splitlines()[-2:] == ["0", "still running"], result.stdout + result.stderr
     assert result.returncode == 1 and result.stderr.startswith("Timeout (0:00:00.500000)!\n"), result.stderr
+
 
 @pytest.mark.parametrize("rc", [0, 130])
 def test_a_finish_that_fails_is_one_line_and_exit_1_and_the_node_is_still_torn_down(rc):
