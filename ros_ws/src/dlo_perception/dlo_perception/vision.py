@@ -14,6 +14,23 @@ Not visible -> confidence = angle = y = 0.
 
 ``visual_pose`` measures it from the top-view image (what a real camera gives);
 ``visual_pose_ground_truth`` from the particles (to validate the image pipeline).
+
+``visual_pose_particles`` is the other source (``VISION_SOURCES``, env option and vision node
+parameter ``vision_source``): the paper's simplified scalars, computed as the authors' environment
+computes them (SoftSlidingGym ``rope_sliding_env.py`` ``_get_obs``, docs/FIDELITY.md row 11), by
+walking particle indices from the task rules' held set instead of looking at the cable:
+
+- edge: from the highest held index, at most ``WALK_STEPS`` indices up, the first particle right of
+  ``x_G + OCCLUSION_RADIUS``, or the one whose next index reaches the authors' segment count
+  s = n_c - 1 (their last index check); the highest held index if neither happens.
+- ``visible``: the edge's next index is below s (0 near the end: the edge at n_c - 2 or beyond).
+  ``y``: that next particle's y relative to y_G.
+- from the edge, at most ``WALK_STEPS`` indices up while x does not fall back more than
+  ``BACKTRACK`` below the edge's and the index stays below s - 1: the last one reached, r.
+  ``confidence`` = min(1, (x_r - x_edge) / CONFIDENCE_LENGTH) if x_r > x_edge, else 0;
+  ``angle`` = atan of the slope of a line y(x) through edge .. r - 1 (0 with fewer than two of them;
+  the authors' fit of one point is ill-posed), else 0.
+Fewer than two held particles (no contact, as the tactile reading): not visible, all zeros.
 """
 
 from dataclasses import dataclass
@@ -34,6 +51,10 @@ CONFIDENCE_LENGTH = 0.024  # m, dx giving q_V = 1
 TRACK_LENGTH = 0.043  # m, at most 10 particle spacings of the strand are followed
 ENTRY_BAND = 0.006  # m, ground truth: first particle beyond x_o lies within this band (> spacing)
 CABLE_RADIUS = 0.008  # m, drawn cable radius: the image strand ends this far past the last centre
+VISION_SOURCES = ("image", "particles")  # vision_source: the top-view image, or the authors' index walk
+DEFAULT_VISION_SOURCE = "image"  # what a camera gives: the default, for the graph and for real robots
+WALK_STEPS = 10  # particles, particles-source: how far each index walk goes (the authors' range(10))
+BACKTRACK = 0.25 * 0.008  # m, particles-source: the walk right stops where x falls back more than this
 
 
 @dataclass
@@ -234,3 +255,55 @@ def line_slope(xs, ys, mask) -> np.ndarray:
     sxx = (dx * dx).sum(axis=1)
     sxy = (dx * dy).sum(axis=1)
     return np.where((count >= 2) & (sxx > 0), sxy / np.where(sxx > 0, sxx, 1.0), 0.0)
+
+
+def check_vision_source(source) -> str:
+    """``source`` if it is one of VISION_SOURCES, else ValueError with a one-line reason."""
+    if source not in VISION_SOURCES:
+        raise ValueError(f"vision_source: expected one of {', '.join(VISION_SOURCES)}, got {source!r}")
+    return source
+
+
+def visual_pose_particles(positions, held, num_particles, gripper_xy) -> VisualPose:
+    """O_V as the authors' environment computes it (module docstring), batched.
+
+    positions: (N, P, >=2) particle positions [m]; held: (N, P) bool, the task rules' held set;
+    num_particles: (N,) n_c; gripper_xy: (N, >=2) [m]."""
+    positions = np.asarray(positions, dtype=np.float64)
+    n, p_max = positions.shape[:2]
+    x, y = positions[..., 0], positions[..., 1]
+    held = np.asarray(held, dtype=bool).reshape(n, p_max)
+    segments = np.asarray(num_particles).reshape(n).astype(np.int64) - 1  # the authors' segment count
+    gripper = np.asarray(gripper_xy, dtype=np.float64).reshape(n, -1)[:, :2] if n else np.empty((0, 2))
+    rows = np.arange(n)
+    count = held.sum(axis=1)
+    contact = count >= 2
+    last_held = np.where(count > 0, p_max - 1 - np.argmax(held[:, ::-1], axis=1), 0)
+    x_side = gripper[:, 0] + OCCLUSION_RADIUS
+
+    def x_at(index):
+        return x[rows, np.clip(index, 0, p_max - 1)]
+
+    edge, found = last_held.copy(), np.zeros(n, bool)
+    for j in range(WALK_STEPS):
+        index = last_held + j
+        hit = ~found & ((x_at(index) > x_side) | (index + 1 >= segments))
+        edge = np.where(hit, index, edge)
+        found |= hit
+    visible = contact & (edge + 1 < segments)
+    y_out = y[rows, np.clip(edge + 1, 0, p_max - 1)] - gripper[:, 1]
+
+    right, stopped = edge.copy(), np.zeros(n, bool)
+    x_edge = x_at(edge)
+    for j in range(WALK_STEPS):
+        index = edge + j
+        right = np.where(stopped, right, index)
+        stopped |= (x_at(index) - x_edge < -BACKTRACK) | (index + 1 >= segments)
+    dx = x_at(right) - x_edge
+    extends = contact & (dx > 0)
+    walk = edge[:, None] + np.arange(WALK_STEPS)[None, :]
+    fitted = walk < right[:, None]
+    walk = np.clip(walk, 0, p_max - 1)
+    slope = line_slope(x[rows[:, None], walk], y[rows[:, None], walk], fitted)
+    return VisualPose(visible, np.where(extends, np.minimum(dx / CONFIDENCE_LENGTH, 1.0), 0.0),
+                      np.where(extends, np.arctan(slope), 0.0), np.where(visible, y_out, 0.0))

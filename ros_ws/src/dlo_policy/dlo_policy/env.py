@@ -29,6 +29,14 @@ Options (keywords of both entry points):
     single_particle_grip=False  true: the grip carries ONE particle, the held one nearest the finger axis
                           (never particle 0), as the authors' code did (dlo_sim.grip, docs/FIDELITY.md
                           row 5); false: every held particle (or what a given sim_config says)
+    carry_law="paper"     "paper": the paper's grip law on the held set (and the finite grip); "authors": their
+                          carry law, one particle moved by the whole displacement above c 0.5, cancelled
+                          beyond 10 mm from a neighbour (dlo_sim.grip, docs/FIDELITY.md rows 5-6)
+    contact_radius=0.004  m, the cable's contact half-thickness (dlo_sim.SimConfig); above 0.00425 (half the
+                          finger gap) the fingers pinch the cable, as Flex's 5 mm collision distance does
+    vision_source="image" "image": V from the rendered top view (what a camera gives); "particles": the
+                          paper's simplified scalars, by the authors' index walk on the task rules' held set
+                          (dlo_perception.vision.visual_pose_particles, docs/FIDELITY.md row 11); no rendering
     physics_seed=-1       >= 0: every episode gets the stretch, bending and friction drawn from this seed
                           (the authors' one physics draw, docs/FIDELITY.md row 8; particle count and start
                           shape still per episode); -1: drawn per episode (or what a given sim_config says)
@@ -52,17 +60,19 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 
 from dlo_perception.camera import TopCamera
 from dlo_perception.tactile import noise_sigma
+from dlo_perception.vision import DEFAULT_VISION_SOURCE, check_vision_source
 from dlo_policy.modalities import VISION_PLANE_Z, by_name  # noqa: F401 (VISION_PLANE_Z: its old home)
 from dlo_policy.observation import build_observation, observation_bounds, parse_modalities
 from dlo_sim import task
 from dlo_sim.episode import TaskSim
-from dlo_sim.config import SimConfig
+from dlo_sim.config import MAX_CONTACT_RADIUS, SimConfig
+from dlo_sim.grip import CARRY_LAWS
 
 def check_options(options) -> None:
     """Raise ValueError with a one-line reason for an unknown option or a bad value (module
     docstring), before any simulator is built: what dlo-train checks its ``env_options`` with."""
     known = ("without", "tactile_noise", "horizon", "end_particles", "camera_resolution", "sim_config", "task_rules",
-             "single_particle_grip", "physics_seed")
+             "single_particle_grip", "physics_seed", "vision_source", "carry_law", "contact_radius")
     unknown = sorted(set(options) - set(known))
     if unknown:
         raise ValueError(f"unknown option(s) {', '.join(unknown)}; known: {', '.join(known)}")
@@ -75,11 +85,19 @@ def check_options(options) -> None:
         parse_modalities(options["without"])
     if "task_rules" in options:
         task.check_task_rules(options["task_rules"])
+    if "vision_source" in options:
+        check_vision_source(options["vision_source"])
     if not isinstance(options.get("single_particle_grip", False), bool):
         raise ValueError(f"single_particle_grip: expected true or false, got {options['single_particle_grip']!r}")
     seed = options.get("physics_seed", -1)
     if isinstance(seed, bool) or not isinstance(seed, int) or seed < -1:
         raise ValueError(f"physics_seed: expected an integer >= 0 (or -1: drawn per episode), got {seed!r}")
+    if "carry_law" in options and options["carry_law"] not in CARRY_LAWS:
+        raise ValueError(f"carry_law: expected one of {', '.join(CARRY_LAWS)}, got {options['carry_law']!r}")
+    if "contact_radius" in options:
+        radius = options["contact_radius"]
+        if isinstance(radius, bool) or not isinstance(radius, (int, float)) or not 0 < radius <= MAX_CONTACT_RADIUS:
+            raise ValueError(f"contact_radius: expected a number in (0, {MAX_CONTACT_RADIUS}] m, got {radius!r}")
     for name, low in (("horizon", 1), ("end_particles", 1), ("camera_resolution", 16)):
         value = options.get(name, low)
         if isinstance(value, bool) or not isinstance(value, int) or value < low:
@@ -92,8 +110,15 @@ class CableFollowingVecEnv(VectorEnv):
     def __init__(self, num_envs, modalities="All", seed=0, without=(), tactile_noise="none",
                  horizon=task.HORIZON, end_particles=task.END_PARTICLES, camera_resolution=128,
                  sim_config=None, autoreset=True, task_rules=task.DEFAULT_TASK_RULES, single_particle_grip=False,
-                 physics_seed=-1):
-        check_options({"single_particle_grip": single_particle_grip, "physics_seed": physics_seed})
+                 physics_seed=-1, vision_source=DEFAULT_VISION_SOURCE, carry_law=None, contact_radius=None):
+        check_options({"single_particle_grip": single_particle_grip, "physics_seed": physics_seed,
+                       "vision_source": vision_source, **({} if carry_law is None else {"carry_law": carry_law}),
+                       **({} if contact_radius is None else {"contact_radius": contact_radius})})
+        if carry_law is not None:
+            sim_config = dataclasses.replace(sim_config or SimConfig(), carry_law=carry_law)
+        if contact_radius is not None:
+            sim_config = dataclasses.replace(sim_config or SimConfig(), contact_radius=float(contact_radius))
+        self.vision_source = vision_source
         if single_particle_grip:
             sim_config = dataclasses.replace(sim_config or SimConfig(), single_particle_grip=True)
         if physics_seed >= 0:
@@ -111,7 +136,8 @@ class CableFollowingVecEnv(VectorEnv):
         self.action_space = gymnasium.vector.utils.batch_space(self.single_action_space, self.num_envs)
         self.task = TaskSim(self.num_envs, horizon=horizon, end_particles=end_particles, config=sim_config,
                             camera=TopCamera.covering_workspace(int(camera_resolution)),
-                            render=any(by_name(m).renders for m in self._observed()), task_rules=task_rules)
+                            render=vision_source == "image" and any(by_name(m).renders for m in self._observed()),
+                            task_rules=task_rules)
         self.sim, self.tracker = self.task.sim, self.task.tracker
         self.default_seed = int(seed)
         self.next_seed = None  # next unused episode seed; None until the first reset

@@ -33,7 +33,7 @@ import numpy as np
 from dlo_common.topics import topic as topic_record
 from dlo_perception.camera import WORKSPACE_HALF_WIDTH
 from dlo_perception.tactile import Y_LIMIT, TactilePose, tactile_pose
-from dlo_perception.vision import SEARCH_HALF_WIDTH, VisualPose, visual_pose
+from dlo_perception.vision import SEARCH_HALF_WIDTH, VisualPose, visual_pose, visual_pose_particles
 from dlo_sim.config import GRIPPER_HEIGHT
 
 # The gripper's height as the simulator stores (float32) and publishes it: the vision node computes
@@ -80,6 +80,15 @@ def _symmetric(limit: float) -> tuple:
     return (-limit, limit)
 
 
+def _observe_visual(env):
+    """O_V from the env's vision source (``vision_source``, dlo_perception.vision): the rendered top view
+    ("image") or the authors' index walk on the task rules' held set ("particles")."""
+    state = env.task.state
+    if env.vision_source == "particles":
+        return visual_pose_particles(state.positions, env.task.held_task, env.sim.num_particles, state.gripper[:, :2])
+    return visual_pose(state.image, env.sim.camera, state.gripper[:, :2], VISION_PLANE_Z)
+
+
 MODALITIES = (
     Modality(
         "K", "kinematic", ("x_G", "y_G", "c_G"),
@@ -99,8 +108,7 @@ MODALITIES = (
     Modality(
         "V", "visual", ("v_V", "q_V", "theta_V", "y_V"),
         ((0.0, 1.0), (0.0, 1.0), _symmetric(HALF_PI), _symmetric(SEARCH_HALF_WIDTH)),
-        observe=lambda env: visual_pose(env.task.state.image, env.sim.camera, env.task.state.gripper[:, :2],
-                                        VISION_PLANE_Z),
+        observe=lambda env: _observe_visual(env),
         columns=lambda visual: np.stack([np.asarray(visual.visible, dtype=np.float32), np.asarray(visual.confidence),
                                          np.asarray(visual.angle), np.asarray(visual.y)], axis=-1).reshape(-1, 4),
         topic="/dlo/vision/pose",

@@ -27,7 +27,8 @@ tested input set of one evaluation sees the same episodes). Each evaluation appe
                      drawn with a generator of their own: logging does not change the run)
 
 After the last step, the best evaluation's policy (best_policy.pt: highest hold-the-end
-fraction, then reward) is tested once on `train.test_episodes` held-out episodes, seeds
+fraction under the run's own task rules' outcome rule -- `hold_the_end_authors` for `authors_code`,
+`hold_the_end` for `paper_text` -- then reward; best.json names it in "selected_by") is tested once on `train.test_episodes` held-out episodes, seeds
 `train.test_seed + i` (below every evaluation seed: never seen during training or selection):
 test.json (dlo-evaluate's JSON; also test_without_X.json for each of `train.eval_without`).
 The paper reports the best evaluation during training; the held-out test is the unbiased number.
@@ -123,6 +124,9 @@ class Trainer:
         # the task rules are always recorded: a new run's are the default, an older run resumed keeps paper_text
         config = record_task_rules(config, LEGACY_TASK_RULES if resume else DEFAULT_TASK_RULES)
         self.config = config
+        # best_policy.pt is chosen by the outcome rule of the run's own task rules (module docstring)
+        self.selected_by = ("hold_the_end_authors" if config.env_options.get("task_rules") == "authors_code"
+                            else "hold_the_end")
         save_config(config, out_dir / CONFIG_FILE)
         self.threads = set_threads(config.train.num_threads)
         self.device = resolve_device(config.train.device)
@@ -181,10 +185,12 @@ class Trainer:
     def keep_if_best(self, row: dict[str, Any]) -> None:
         """Save the policy as best_policy.pt when this evaluation beats every earlier one
         (higher hold-the-end fraction, then higher episode reward), like SB3's EvalCallback."""
-        score = (row["hold_the_end"], row["episode_reward"])
-        if self.best is not None and score <= (self.best["hold_the_end"], self.best["episode_reward"]):
+        key = self.selected_by
+        score = (row[key], row["episode_reward"])
+        if self.best is not None and score <= (self.best.get(key, self.best["hold_the_end"]), self.best["episode_reward"]):
             return
-        self.best = {key: row[key] for key in ("step", "hold_the_end", "episode_reward")}
+        self.best = {name: row[name] for name in ("step", "hold_the_end", "hold_the_end_authors", "episode_reward")}
+        self.best["selected_by"] = key
         self.best_policy_state = self.agent.policy_state()
         self.write_best()
 

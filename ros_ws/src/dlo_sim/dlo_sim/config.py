@@ -28,6 +28,10 @@ GRAVITY = 9.8  # m/s^2
 IMAGE_CABLE = 255  # pixel value of cable in the rendered top view
 IMAGE_GRIPPER = 128  # pixel value of the gripper (drawn over the cable)
 IMAGE_BACKGROUND = 0
+# m, largest contact_radius. Above half the finger gap (FINGER_CLEARANCE / 2) a particle between the fingers is
+# pushed out by both every sub-step, with friction from both: a pinch, as Flex's collisionDistance 0.005 gives
+# (docs/FIDELITY.md). 6 mm keeps particles 3 apart at rest (12.9 mm) out of self-contact (SELF_EXCLUDE).
+MAX_CONTACT_RADIUS = 0.006
 
 
 @dataclass(frozen=True)
@@ -64,6 +68,10 @@ class SimConfig:
     # stretch, bending and friction drawn from this seed; the particle count and the start shape still come
     # from the episode's seed (their cached start configurations vary only those)
     physics_seed: int = -1
+    # how the grip carries the cable (dlo_sim.grip): "paper" (the paper's law, the finite grip) or "authors" (their
+    # Picker: one particle from their narrow held set moved by the whole displacement above c 0.5, cancelled
+    # beyond 10 mm from a neighbour; docs/FIDELITY.md rows 5-6), off ("paper") by default
+    carry_law: str = "paper"
 
     def __post_init__(self):
         self.validate()
@@ -74,9 +82,10 @@ class SimConfig:
             raise ValueError(f"substeps must be >= 1, got {self.substeps}")
         if self.damping < 0:
             raise ValueError(f"damping must be >= 0 1/s, got {self.damping}")
-        if not 0 < self.contact_radius <= 0.5 * FINGER_CLEARANCE:
-            raise ValueError(f"contact_radius must be in (0, {0.5 * FINGER_CLEARANCE}] m so the cable "
-                             f"fits between the fingers, got {self.contact_radius}")
+        if not 0 < self.contact_radius <= MAX_CONTACT_RADIUS:
+            raise ValueError(f"contact_radius must be in (0, {MAX_CONTACT_RADIUS}] m (above "
+                             f"{0.5 * FINGER_CLEARANCE} m the fingers pinch the cable between them, as Flex's "
+                             f"5 mm collision distance does), got {self.contact_radius}")
         for name in ("stretch_range", "bending_range"):
             lo, hi = getattr(self, name)
             if not 0 < lo <= hi:
@@ -96,6 +105,8 @@ class SimConfig:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
         if isinstance(self.physics_seed, bool) or not isinstance(self.physics_seed, int) or self.physics_seed < -1:
             raise ValueError(f"physics_seed must be an integer >= 0 (or -1: drawn per episode), got {self.physics_seed!r}")
+        if self.carry_law not in ("paper", "authors"):
+            raise ValueError(f"carry_law must be one of paper, authors, got {self.carry_law!r}")
         if not isinstance(self.single_particle_grip, bool):
             raise ValueError(f"single_particle_grip must be true or false, got {self.single_particle_grip!r}")
 

@@ -18,6 +18,17 @@ nearest the finger axis measured along x (the direction of travel, |x_i - x_G|, 
 ``action_space_sliding.py`` measures it), never the fixed end (particle 0), ties to the lower index,
 re-chosen every 0.01 s step from the held set at its start (``single_grip_particle``; the kernel's
 ``RopeKernels.single_grip_particle`` runs the same rule, ``test/test_kernel_rules.py`` checks they agree).
+
+The authors' carry law (``SimConfig.carry_law = "authors"``, off by default; SoftSlidingGym
+``action_space_sliding.py`` Picker.step; docs/FIDELITY.md rows 5 and 6): above c = 0.5 ONE particle is
+carried, picked every 0.01 s step from the authors' narrow held set (``dlo_sim.task.held_mask_authors``:
+under the ``authors_code`` task rules, the task's held set) nearest the finger axis in x, never particle 0
+(``authors_grip_particle``). It is moved by the WHOLE gripper displacement (the paper's law moves it by the
+fraction ``carried_fraction(c)``), then left to the constraints with inverse mass ``inverse_mass(c)``
+(their 4.5 - 5c at w_nom = 2): at c < 0.9 the cable pulls it back, at c >= 0.9 it is kinematic. Instead of
+the finite grip's stall and slip, a sub-step's motion is cancelled (gripper and particle stay) when it
+would take the particle more than AUTHORS_MAX_NEIGHBOUR_DISTANCE (10 mm) from a neighbour
+(``authors_cancel``). c <= 0.5 carries nothing.
 """
 
 from __future__ import annotations
@@ -29,6 +40,8 @@ from .config import REST_SPACING
 # a grip slips (c < 0.9) or stalls (c >= 0.9) once the straight line fixed end -> held particle exceeds
 # its rest length along the cable by this
 GRIP_SLIP_STRAIN = 0.0
+CARRY_LAWS = ("paper", "authors")  # SimConfig.carry_law (module docstring)
+AUTHORS_MAX_NEIGHBOUR_DISTANCE = 2.5 * 0.5 * 0.008  # m, the authors' cap: 2.5 x half their particle radius
 
 
 def inverse_mass(c, w_nom):
@@ -54,6 +67,38 @@ def single_grip_particle(positions, held, gripper_x) -> int:
         return -1
     distance = np.abs(x[candidates] - np.float32(gripper_x))
     return int(candidates[np.argmin(distance)])  # argmin: the first (lowest index) of equal distances
+
+
+def authors_grip_particle(positions, num_particles, gripper, c) -> int:
+    """The one particle the authors' carry law moves (module docstring), -1 if none: c > 0.5 and, in
+    their narrow held set (``dlo_sim.task.held_mask_authors``), the one nearest the finger axis in x, never
+    particle 0, ties to the lower index. positions (P, 3), gripper (3,) [m]; float32 as the kernel."""
+    from .task import held_mask_authors
+    if not c > 0.5:
+        return -1
+    positions = np.asarray(positions, dtype=np.float32)
+    held = held_mask_authors(positions[None], [num_particles], np.asarray(gripper, dtype=np.float32)[None])[0]
+    candidates = np.flatnonzero(held)
+    candidates = candidates[candidates >= 1]
+    if candidates.size == 0:
+        return -1
+    distance = np.abs(positions[candidates, 0] - np.float32(gripper[0]))
+    return int(candidates[np.argmin(distance)])
+
+
+def authors_cancel(positions, num_particles, carried_index, dg) -> np.ndarray:
+    """The authors' stretch limit (module docstring): ``dg`` (3,), or zeros when moving particle
+    ``carried_index`` (-1: none) by it would take it further than AUTHORS_MAX_NEIGHBOUR_DISTANCE from
+    particle i - 1 or i + 1."""
+    dg = np.asarray(dg, dtype=np.float64).reshape(3)
+    if carried_index < 1:
+        return dg
+    positions = np.asarray(positions, dtype=np.float64)
+    q = positions[carried_index] + dg
+    neighbours = [carried_index - 1] + ([carried_index + 1] if carried_index + 1 < num_particles else [])
+    if any(np.linalg.norm(q - positions[j]) > AUTHORS_MAX_NEIGHBOUR_DISTANCE for j in neighbours):
+        return np.zeros(3)
+    return dg
 
 
 def taut_reach(index):

@@ -13,7 +13,8 @@ from .config import (DT, FINGER_AXIS_OFFSET, FINGER_HALF_LENGTH, FINGER_RADIUS, 
                      GRIPPER_HEIGHT, GRIPPER_START_BEHIND, IMAGE_CABLE, IMAGE_GRIPPER,
                      MAX_DISPLACEMENT, NOMINAL_INVERSE_MASS, P_MAX, PARTICLE_RADIUS, REST_SPACING,
                      WORKSPACE_HALF_WIDTH)
-from .grip import GRIP_SLIP_STRAIN  # taut_reach, stall_firm_grip: dlo_sim.grip states the rule in numpy
+from .grip import AUTHORS_MAX_NEIGHBOUR_DISTANCE, GRIP_SLIP_STRAIN  # dlo_sim.grip states the rules in numpy
+from .task import AUTHORS_HELD_ABOVE, AUTHORS_HELD_DISTANCE, AUTHORS_HELD_HALF_WIDTH
 
 HELD_DISTANCE = PARTICLE_RADIUS + FINGER_RADIUS + REST_SPACING  # m, held rule (docs/ARCHITECTURE.md#constants)
 MAX_CORRECTION = 0.25 * REST_SPACING  # m, per sub-step cap on a particle's direct-solve correction
@@ -39,6 +40,7 @@ class RopeKernels:
         self.max_speed = float(cfg.max_speed)
         self.max_distance = float(cfg.max_distance)
         self.single_particle_grip = bool(cfg.single_particle_grip)  # compile-time: off compiles today's kernel
+        self.authors_carry = cfg.carry_law == "authors"  # compile-time: "paper" compiles today's kernel
         self.cam_f = (float(camera.fx), float(camera.fy))
         self.cam_c = (float(camera.cx), float(camera.cy))
         self.cam_pos = tuple(float(p) for p in camera.position)
@@ -115,22 +117,59 @@ class RopeKernels:
         return chosen
 
     @ti.func
+    def authors_grip_particle(self, e, g):
+        """The authors' carry law's particle (``dlo_sim.grip.authors_grip_particle``): in their narrow held set
+        (``dlo_sim.task.held_mask_authors``), the one nearest the finger axis in x, never particle 0, ties to
+        the lower index; -1 if that set is empty."""
+        chosen = -1
+        nearest = 0.0
+        for i in range(1, self.n[e]):
+            q = self.x[e, i]
+            dx = q.x - g.x
+            dz = q.z - (g.z - FINGER_AXIS_OFFSET)
+            if (ti.abs(q.y - g.y) < AUTHORS_HELD_HALF_WIDTH and dx * dx + dz * dz < AUTHORS_HELD_DISTANCE ** 2
+                    and dz > AUTHORS_HELD_ABOVE):
+                d = ti.abs(dx)
+                if chosen < 0 or d < nearest:
+                    chosen = i
+                    nearest = d
+        return chosen
+
+    @ti.func
+    def authors_cancel(self, e, dg):
+        """The authors' carry law's stretch limit: the sub-step's gripper motion ``dg`` is cancelled (0) when it
+        would take the carried particle further than AUTHORS_MAX_NEIGHBOUR_DISTANCE from a neighbour."""
+        for i in range(1, self.n[e]):
+            if self.carry[e, i] > 0.0:
+                q = self.x[e, i] + dg
+                if (q - self.x[e, i - 1]).norm() > AUTHORS_MAX_NEIGHBOUR_DISTANCE:
+                    dg = ti.Vector([0.0, 0.0, 0.0])
+                elif i + 1 < self.n[e] and (q - self.x[e, i + 1]).norm() > AUTHORS_MAX_NEIGHBOUR_DISTANCE:
+                    dg = ti.Vector([0.0, 0.0, 0.0])
+        return dg
+
+    @ti.func
     def update_grip(self, e, g, c):
         """Held rule + grip law: inverse mass and carried fraction of every particle for this step.
         With ``single_particle_grip`` the law acts on one held particle only (``single_grip_particle``)."""
         w_held = self.grip_inverse_mass(c)
         chosen = -1
-        if ti.static(self.single_particle_grip):
+        if ti.static(self.authors_carry):
+            if c > 0.5:
+                chosen = self.authors_grip_particle(e, g)
+        elif ti.static(self.single_particle_grip):
             chosen = self.single_grip_particle(e, g)
         for i in range(self.n[e]):
             inside = self.is_held(e, i, g)
-            if ti.static(self.single_particle_grip):
+            if ti.static(self.single_particle_grip or self.authors_carry):
                 inside = i == chosen
             w = NOMINAL_INVERSE_MASS
             carry = 0.0
             if inside:
                 w = w_held
                 carry = 1.0 - w_held / NOMINAL_INVERSE_MASS
+                if ti.static(self.authors_carry):
+                    carry = 1.0  # moved by the whole displacement; w_held still weighs it in the constraints
             if i == 0 or i == self.pick[e]:
                 w = 0.0
                 carry = 0.0
@@ -154,7 +193,16 @@ class RopeKernels:
             else:
                 v = self.v[e, i] * self.damping_factor + ti.Vector([0.0, 0.0, -GRAVITY * h])
                 f = self.carry[e, i]
-                self.x[e, i] = (1.0 - f) * (q + v * h) + f * (q + dg)
+                if ti.static(self.authors_carry):
+                    if f > 0.0:  # set to the displaced position (the step starts there), then free with w
+                        self.x_old[e, i] = q + dg
+                        self.x[e, i] = q + dg
+                        if self.w[e, i] > 0.0:
+                            self.x[e, i] += v * h
+                    else:
+                        self.x[e, i] = q + v * h
+                else:
+                    self.x[e, i] = (1.0 - f) * (q + v * h) + f * (q + dg)
 
     @ti.func
     def taut_reach(self, i):
@@ -323,7 +371,10 @@ class RopeKernels:
                         normal = ti.Vector([0.0, 0.0, -sign])
                         if dist > 1e-9:
                             normal = d / dist
-                        self.contact(e, i, normal, reach - dist, dg)
+                        surface_motion = dg
+                        if ti.static(self.authors_carry):  # the carried particle starts the step displaced
+                            surface_motion = dg * (1.0 - self.carry[e, i])
+                        self.contact(e, i, normal, reach - dist, surface_motion)
 
     @ti.func
     def solve_table(self, e):
@@ -368,10 +419,15 @@ class RopeKernels:
         dg_commanded = (g1 - g0) / self.substeps
         g = g0
         for _k in range(self.substeps):
-            dg = self.stall_firm_grip(e, dg_commanded)
+            dg = dg_commanded
+            if ti.static(self.authors_carry):
+                dg = self.authors_cancel(e, dg_commanded)
+            else:
+                dg = self.stall_firm_grip(e, dg_commanded)
             g = g + dg
             self.predict(e, dg)
-            self.slip_taut_grip(e)
+            if ti.static(not self.authors_carry):
+                self.slip_taut_grip(e)
             self.solve_bending(e)
             longest = self.solve_stretch(e)
             self.solve_self_collision(e, longest)
