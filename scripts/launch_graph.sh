@@ -28,6 +28,11 @@ usage: scripts/launch_graph.sh [options]
   --single-particle-grip [true|false]  the grip carries one particle, as the authors' code did (the
                        sim's single_particle_grip parameter; alone = true). Default: what the --policy sac
                        checkpoint was trained on (env_options.single_particle_grip), else false.
+  --carry-law L        paper or authors: how the grip carries the cable (the sim's carry_law parameter)
+  --contact-radius R   the cable's contact half-thickness [m], up to 0.006 (the sim's contact_radius)
+  --vision-source S    image or particles: where the vision node's O_V comes from (its vision_source)
+                       These three default to what the --policy sac checkpoint was trained on (its
+                       env_options), else paper, 0.004 and image.
                        Settings that differ from the checkpoint's training are run as asked, with a note
   --record DIR         record every /dlo topic to the rosbag2 (MCAP) directory DIR
   --foxglove [PORT]    live view: also start the Foxglove bridge (dlo_viz foxglove_bridge) on
@@ -61,11 +66,13 @@ EOF
 
 episodes=5 seed=0 mode=step_locked rate=1.0 policy=sac checkpoint="" without="" noise=none record="" logs=""
 task_rules="" single_grip=""  # "" = as the sac checkpoint was trained (else authors_code, false)
+carry_law="" contact_radius="" vision_source=""  # "" = as the sac checkpoint was trained (else paper, 0.004, image)
 train_out="" train_config="" domain="" namespace="" foxglove="" status_period=10
 while [ $# -gt 0 ]; do
   case "$1" in
     --episodes|--seed|--mode|--rate-factor|--policy|--checkpoint|--without|--tactile-noise|--record|\
-    --task-rules|--train-out|--train-config|--logs|--domain-id|--namespace|--status-period)
+    --task-rules|--train-out|--train-config|--logs|--domain-id|--namespace|--status-period|--carry-law|\
+    --contact-radius|--vision-source)
       [ $# -ge 2 ] || { echo "launch_graph: $1 needs a value (options: scripts/launch_graph.sh --help)" >&2
                         exit $EXIT_USAGE; } ;;
   esac
@@ -79,6 +86,9 @@ while [ $# -gt 0 ]; do
     --without) without="$2"; shift 2 ;;
     --tactile-noise) noise="$2"; shift 2 ;;
     --task-rules) task_rules="$2"; shift 2 ;;
+    --carry-law) carry_law="$2"; shift 2 ;;
+    --contact-radius) contact_radius="$2"; shift 2 ;;
+    --vision-source) vision_source="$2"; shift 2 ;;
     --single-particle-grip)
       if [[ "${2:-}" =~ ^(true|false)$ ]]; then single_grip="$2"; shift 2; else single_grip=true; shift; fi ;;
     --record) record="$2"; shift 2 ;;
@@ -99,6 +109,11 @@ bad() { echo "launch_graph: $*" >&2; exit $EXIT_USAGE; }
 [[ "$seed" =~ ^[0-9]+$ ]] || bad "--seed must be a number >= 0, got '$seed'"
 case "$mode" in step_locked|real_time) ;; *) bad "--mode must be step_locked or real_time" ;; esac
 case "$task_rules" in ""|paper_text|authors_code) ;; *) bad "--task-rules must be paper_text or authors_code, got '$task_rules'" ;; esac
+case "$carry_law" in ""|paper|authors) ;; *) bad "--carry-law must be paper or authors, got '$carry_law'" ;; esac
+case "$vision_source" in ""|image|particles) ;; *) bad "--vision-source must be image or particles, got '$vision_source'" ;; esac
+if [ -n "$contact_radius" ] && ! awk -v r="$contact_radius" 'BEGIN { exit !(r ~ /^[0-9]*[.]?[0-9]+$/ && r + 0 > 0 && r + 0 <= 0.006) }'; then
+  bad "--contact-radius must be a number in (0, 0.006] m, got '$contact_radius'"
+fi
 case "$policy" in sac|tactile_reactive|oracle|random) ;;
   *) bad "--policy must be one of sac, tactile_reactive, oracle, random, got '$policy'" ;; esac
 if [ -n "$checkpoint" ] && [ ! -f "$checkpoint" ]; then bad "--checkpoint $checkpoint: no such file"; fi
@@ -141,14 +156,20 @@ if [ "$policy" = sac ] && [ -z "$train_out" ]; then
   trained="$("$PY" -m dlo_policy.rundir --sim-settings "$checkpoint" 2>&1)" || bad "--checkpoint: ${trained##*$'\n'}"
   trained="${trained##*$'\n'}"
   if [ "$trained" != unknown ]; then
-    read -r trained_rules trained_grip <<<"$trained"
+    read -r trained_rules trained_grip trained_carry trained_contact trained_vision <<<"$trained"
     task_rules="${task_rules:-$trained_rules}" single_grip="${single_grip:-$trained_grip}"
+    carry_law="${carry_law:-$trained_carry}" contact_radius="${contact_radius:-$trained_contact}"
+    vision_source="${vision_source:-$trained_vision}"
+    if [ "$carry_law" != "$trained_carry" ] || [ "$contact_radius" != "$trained_contact" ] || [ "$vision_source" != "$trained_vision" ]; then
+      echo "[launch] note: the policy was trained with carry_law=$trained_carry, contact_radius=$trained_contact, vision_source=$trained_vision; this graph runs carry_law=$carry_law, contact_radius=$contact_radius, vision_source=$vision_source (as asked)" >&2
+    fi
     if [ "$task_rules" != "$trained_rules" ] || [ "$single_grip" != "$trained_grip" ]; then
       echo "[launch] note: the policy was trained with task_rules=$trained_rules, single_particle_grip=$trained_grip; this graph runs task_rules=$task_rules, single_particle_grip=$single_grip (as asked)" >&2
     fi
   fi
 fi
 task_rules="${task_rules:-authors_code}" single_grip="${single_grip:-false}"
+carry_law="${carry_law:-paper}" contact_radius="${contact_radius:-0.004}" vision_source="${vision_source:-image}"
 monitor_pid=""
 logs="${logs:-$(mktemp -d -t dlo-graph-XXXXXX)}"
 mkdir -p "$logs"
@@ -286,7 +307,7 @@ subscribers=3 sim_extra=()
 # starts before it has looked (no second graph's nodes answering, publishing or recording into the first).
 start sim dlo_sim sim_node --ros-args -p mode:="$mode" -p seed:="$seed" -p episodes:="$episodes" \
   -p rate_factor:="$rate" -p min_subscribers:="$subscribers" -p summary_file:="$outcomes" -p task_rules:="$task_rules" \
-  -p single_particle_grip:="$single_grip" \
+  -p single_particle_grip:="$single_grip" -p carry_law:="$carry_law" -p contact_radius:="$contact_radius" \
   ${sim_extra[@]+"${sim_extra[@]}"} ${remap[@]+"${remap[@]}"}
 sim_index=0
 sim_pid="${pids[0]}"
@@ -318,7 +339,7 @@ if [ -n "$foxglove" ]; then
   fi
 fi
 start tactile dlo_perception tactile_node --ros-args -p tactile_noise:="$noise" -p seed:="$seed" ${remap[@]+"${remap[@]}"}
-start vision dlo_perception vision_node --ros-args ${remap[@]+"${remap[@]}"}
+start vision dlo_perception vision_node --ros-args -p vision_source:="$vision_source" ${remap[@]+"${remap[@]}"}
 policy_args=(-p policy:="$policy")
 [ -n "$checkpoint" ] && policy_args+=(-p checkpoint:="$checkpoint")
 [ -n "$without" ] && policy_args+=(-p without:="$without")

@@ -16,7 +16,10 @@ ROOT = pathlib.Path(__file__).resolve().parents[1]
 SEED = 7005
 # (task rules, the grip): the shipped policy's own settings under both task rules, and the other grip
 CASES = {"paper_text": ("paper_text", None, 6), "authors_code": ("authors_code", None, 4),  # seeds 7005 .. 7010 / 7008
-         "authors_code_other_grip": ("authors_code", "other", 4)}
+         "authors_code_other_grip": ("authors_code", "other", 4),
+         "authors_code_fidelity_levers": ("authors_code", None, 3)}
+# the fidelity levers (docs/FIDELITY.md), each a parameter of the sim or the vision node: all at once
+LEVERS = {"authors_code_fidelity_levers": {"carry_law": "authors", "contact_radius": 0.005, "vision_source": "particles"}}
 
 
 def shipped_grip() -> bool:
@@ -30,13 +33,15 @@ def shipped_grip() -> bool:
 def graph_episodes(request, tmp_path_factory):
     rules, grip, episodes = CASES[request.param]
     grip = shipped_grip() if grip is None else not shipped_grip()
+    levers = LEVERS.get(request.param, {})
     logs = tmp_path_factory.mktemp(f"graph_sac_{request.param}") / "logs"
+    lever_args = [arg for name, value in levers.items() for arg in ("--" + name.replace("_", "-"), str(value))]
     result = subprocess.run(["bash", str(ROOT / "scripts" / "launch_graph.sh"), "--episodes", str(episodes),
                              "--seed", str(SEED), "--logs", str(logs), "--task-rules", rules,
-                             "--single-particle-grip", str(grip).lower()],
+                             "--single-particle-grip", str(grip).lower(), *lever_args],
                             capture_output=True, text=True, timeout=900, env={**os.environ, "DLO_USE_ROS2RUN": "1"})
     assert result.returncode == 0, result.stdout[-2000:] + result.stderr[-2000:]
-    return rules, grip, episodes, [json.loads(line) for line in (logs / "outcomes.jsonl").read_text().splitlines()]
+    return rules, grip, levers, episodes, [json.loads(line) for line in (logs / "outcomes.jsonl").read_text().splitlines()]
 
 
 def test_shipped_policy_episodes_in_the_graph_equal_the_in_process_env(graph_episodes):
@@ -44,12 +49,14 @@ def test_shipped_policy_episodes_in_the_graph_equal_the_in_process_env(graph_epi
     from dlo_policy.policy_node import shipped_policy_path
     from dlo_policy.sac import SAC
 
-    rules, grip, count, episodes = graph_episodes
+    rules, grip, levers, count, episodes = graph_episodes
     agent = SAC.load(shipped_policy_path())
-    env = make_env("All", seed=SEED, task_rules=rules, single_particle_grip=grip)
+    env = make_env("All", seed=SEED, task_rules=rules, single_particle_grip=grip, **levers)
     assert [e["seed"] for e in episodes] == list(range(SEED, SEED + count))
     assert {e["task_rules"] for e in episodes} == {rules}
     assert {e["single_particle_grip"] for e in episodes} == {grip}  # the sim notes its grip
+    for name in ("carry_law", "contact_radius"):  # and its carry law and contact radius
+        assert {e[name] for e in episodes} == {levers.get(name, {"carry_law": "paper", "contact_radius": 0.004}[name])}
     for live in episodes:
         observation, _ = env.reset(seed=live["seed"])
         done, info = False, {}

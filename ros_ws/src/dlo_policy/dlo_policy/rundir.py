@@ -26,6 +26,8 @@ import os
 from pathlib import Path
 from typing import Any, Optional
 
+from dlo_perception.vision import DEFAULT_VISION_SOURCE
+from dlo_sim.config import SimConfig
 from dlo_sim.task import LEGACY_TASK_RULES
 
 from .config import RunConfig, load_config, record_task_rules
@@ -144,15 +146,19 @@ def shipped_policy_path() -> Path:
 
 def trained_sim_settings(policy_file: Path) -> Optional[dict[str, Any]]:
     """The simulator settings a policy file (policy.pt, best_policy.pt, checkpoint.pt) learned its task
-    under, from its run's config.yaml: ``{"task_rules", "single_particle_grip"}`` (what the sim node must
-    run for the policy to meet the task it was trained on); None when no config.yaml is beside the file.
+    under, from its run's config.yaml: ``{"task_rules", "single_particle_grip", "carry_law", "contact_radius",
+    "vision_source"}`` (what the sim and vision nodes must run for the policy to meet the task and the
+    observation it was trained on); None when no config.yaml is beside the file.
     ConfigError or OSError when that config.yaml cannot be read."""
     run_dir = Path(policy_file).parent
     if not (run_dir / CONFIG_FILE).exists():
         return None
     options = read_trained_config(run_dir).env_options
     return {"task_rules": options.get("task_rules", LEGACY_TASK_RULES),
-            "single_particle_grip": bool(options.get("single_particle_grip", False))}
+            "single_particle_grip": bool(options.get("single_particle_grip", False)),
+            "carry_law": options.get("carry_law", SimConfig.carry_law),
+            "contact_radius": float(options.get("contact_radius", SimConfig.contact_radius)),
+            "vision_source": options.get("vision_source", DEFAULT_VISION_SOURCE)}
 
 
 def read_eval_rows(run_dir: Path) -> list[dict[str, str]]:
@@ -204,7 +210,8 @@ class EvalLog:
 
 def main(argv=None) -> int:
     """``python -m dlo_policy.rundir --sim-settings POLICY_FILE``: the sim settings the policy file was trained
-    under as one line ``TASK_RULES GRIP`` (e.g. ``authors_code false``; GRIP = single_particle_grip), or
+    under as one line ``TASK_RULES GRIP CARRY_LAW CONTACT_RADIUS VISION_SOURCE`` (e.g.
+    ``authors_code false paper 0.004 image``; GRIP = single_particle_grip), or
     ``unknown`` when no config.yaml is beside it; an empty POLICY_FILE is the shipped policy. Exit 2 with
     one line on stderr when the file or its config.yaml cannot be read (scripts/launch_graph.sh uses it)."""
     import argparse
@@ -228,7 +235,8 @@ def main(argv=None) -> int:
     if settings is None:
         print("unknown")
     else:
-        print(f"{settings['task_rules']} {'true' if settings['single_particle_grip'] else 'false'}")
+        print(f"{settings['task_rules']} {'true' if settings['single_particle_grip'] else 'false'} "
+              f"{settings['carry_law']} {settings['contact_radius']} {settings['vision_source']}")
     return 0
 
 

@@ -47,7 +47,9 @@ from dlo_msgs.srv import ResetEpisode
 from dlo_perception.camera import CAMERA_FRAME, TopCamera, camera_info
 from dlo_perception.cloud import particle_cloud
 from dlo_sim.command import CommandError, RejectionLog, command_mismatch, command_to_action, hold_action
-from dlo_sim.config import DT, FINGER_CLEARANCE, FINGER_HALF_LENGTH, FINGER_RADIUS, SUBSTEPS_PER_ACTION, SimConfig
+from dlo_sim.config import (DT, FINGER_CLEARANCE, FINGER_HALF_LENGTH, FINGER_RADIUS, MAX_CONTACT_RADIUS,
+                            SUBSTEPS_PER_ACTION, SimConfig)
+from dlo_sim.grip import CARRY_LAWS
 from dlo_sim.episode import TaskSim
 from dlo_sim.task import DEFAULT_TASK_RULES, HORIZON, TASK_RULES
 from dlo_common.node_util import NodeStartError, declare_parameters
@@ -68,6 +70,12 @@ PARAMETERS = (
     Param("physics_seed", -1, "-1: stretch, bending and friction drawn per episode; >= 0: every episode gets those "
                               "drawn from this seed (the authors' one physics draw, docs/FIDELITY.md row 8)",
           at_least=-1),
+    Param("carry_law", "paper", "how the grip carries the cable: paper (the paper's law on the held set) or authors "
+                                "(their carry law: one particle moved by the whole displacement above closure 0.5; "
+                                "docs/FIDELITY.md rows 5-6)", choices=CARRY_LAWS),
+    Param("contact_radius", SimConfig.contact_radius, "the cable's contact half-thickness [m]; above half the finger "
+          f"gap ({FINGER_CLEARANCE / 2}) the fingers pinch the cable, as Flex's 5 mm collision distance does",
+          above=0.0, at_most=MAX_CONTACT_RADIUS),
     Param("rate_factor", 1.0, "real_time mode: simulation speed relative to wall time", above=0.0),
     Param("command_timeout", 0.5, "real_time mode: a command older than this [s] stops the gripper", above=0.0),
     Param("step_timeout", 1.0, "step_locked mode: republish the state after this long [s] without a command",
@@ -140,13 +148,16 @@ class SimNode(Node):
         self.camera = TopCamera.covering_workspace(p["camera_resolution"])
         self.task = TaskSim(1, horizon=p["horizon"], render=True, camera=self.camera, task_rules=p["task_rules"],
                             config=SimConfig(single_particle_grip=p["single_particle_grip"],
-                                             physics_seed=p["physics_seed"]))
+                                             physics_seed=p["physics_seed"], carry_law=p["carry_law"],
+                                             contact_radius=p["contact_radius"]))
 
         if p["mode"] == "real_time":
             self.create_timer(DT * SUBSTEPS_PER_ACTION / p["rate_factor"], self.on_real_time_tick)
         self.create_timer(0.05, self.on_watchdog)
         self.get_logger().info(f"{p['mode']} simulation, seed {p['seed']}, task rules {p['task_rules']}, "
                                f"{'single-particle grip, ' if p['single_particle_grip'] else ''}"
+                               f"{'the authors carry law, ' if p['carry_law'] == 'authors' else ''}"
+                               f"contact radius {p['contact_radius']} m, "
                                f"{'one physics draw (seed %d), ' % p['physics_seed'] if p['physics_seed'] >= 0 else ''}"
                                f"{p['episodes'] or 'unlimited'} episodes of {p['horizon']} steps")
 
@@ -173,7 +184,8 @@ class SimNode(Node):
 
     def finish_episode(self):
         summary = {"episode": self.episode, "seed": self.episode_seed, **self.task.tracker.summary(0),
-                   "single_particle_grip": self.p["single_particle_grip"]}
+                   "single_particle_grip": self.p["single_particle_grip"], "carry_law": self.p["carry_law"],
+                   "contact_radius": self.p["contact_radius"]}
         self.finished.append(summary)
         self.get_logger().info(f"episode {self.episode} (seed {self.episode_seed}): {summary['outcome']} "
                                f"(authors' rule: {summary['outcome_authors']}), "
