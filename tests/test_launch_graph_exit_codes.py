@@ -272,6 +272,13 @@ BAD_OPTIONS = {
     "record_exists": (["--record", "EXISTING"], "launch_graph: --record EXISTING already exists; choose a new directory"),
     "unknown": (["--bogus"], "launch_graph: unknown option '--bogus' (options: scripts/launch_graph.sh --help)"),
     "no_value": (["--seed"], "launch_graph: --seed needs a value (options: scripts/launch_graph.sh --help)"),
+    "carry_law": (["--carry-law", "flex"], "launch_graph: --carry-law must be paper or authors, got 'flex'"),
+    "vision_source": (["--vision-source", "camera"],
+                      "launch_graph: --vision-source must be image or particles, got 'camera'"),
+    "contact_radius": (["--contact-radius", "0.007"],
+                       "launch_graph: --contact-radius must be a number in (0, 0.006] m, got '0.007'"),
+    "contact_radius_text": (["--contact-radius", "5e-3"],
+                            "launch_graph: --contact-radius must be a number in (0, 0.006] m, got '5e-3'"),
 }
 
 

@@ -131,3 +131,30 @@ def test_physics_seed_option_reaches_the_simulator_and_a_bad_value_is_a_one_line
                                           r"episode\), got -5$"):
         check_env_options(load_config(None, ["env_options.physics_seed=-5"]))
     check_env_options(load_config(None, ["env_options.physics_seed=0"]))
+
+
+def test_fidelity_lever_options_reach_the_simulator_and_bad_values_are_one_line_errors():
+    """env_options carry_law, contact_radius and vision_source (docs/FIDELITY.md): absent, today's physics and the
+    image; given, the simulator's config carries them (a particles-source env renders nothing); anything else is
+    refused with one line before a simulator is built."""
+    from dlo_policy.config import ConfigError, check_env_options, load_config
+    from dlo_sim import SimConfig
+    plain = make_vec_env(1, "V", seed=0)
+    assert (plain.sim.config.carry_law, plain.sim.config.contact_radius, plain.vision_source) == ("paper", 0.004, "image")
+    assert plain.task.render
+    env = make_vec_env(1, "V", seed=0, sim_config=SimConfig(damping=3.0), carry_law="authors", contact_radius=0.005,
+                       vision_source="particles")
+    assert env.sim.config == SimConfig(damping=3.0, carry_law="authors", contact_radius=0.005)
+    assert not env.task.render and env.vision_source == "particles"
+    observation, _ = env.reset(seed=0)
+    assert observation.shape == (1, 4) and np.isfinite(observation).all()
+    for options, message in (({"carry_law": "flex"}, "carry_law: expected one of paper, authors, got 'flex'"),
+                             ({"contact_radius": 0.007}, r"contact_radius: expected a number in \(0, 0.006\] m"),
+                             ({"contact_radius": "0.005"}, r"contact_radius: expected a number in \(0, 0.006\] m"),
+                             ({"vision_source": "camera"}, "vision_source: expected one of image, particles")):
+        with pytest.raises(ValueError, match=message):
+            make_env("V", **options)
+    with pytest.raises(ConfigError, match=r"^env_options: vision_source: expected one of image, particles, got 'x'$"):
+        check_env_options(load_config(None, ["env_options.vision_source=x"]))
+    check_env_options(load_config(None, ["env_options.vision_source=particles", "env_options.carry_law=authors",
+                                         "env_options.contact_radius=0.005"]))

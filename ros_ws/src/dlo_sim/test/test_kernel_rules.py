@@ -320,3 +320,77 @@ def test_held_rule_is_relative_to_the_gripper_and_its_distance_bound_is_inclusiv
     probes = [(d, 0.0, hair), (-d, 0.0, hair), (np.nextafter(d, F32(1)), 0.0, hair), (0.0, extent - 1e-4, 0.002),
               (0.0, -(extent - 1e-4), 0.002), (0.0, extent + 1e-4, 0.002), (0.0, -(extent + 1e-4), 0.002)]
     assert place(sim, probes) == [True, True, False, True, True, False, False]
+
+
+@pytest.fixture(scope="module")
+def authors_sim():
+    from dlo_sim import SimConfig
+    return RopeSim(1, SimConfig(carry_law="authors"))
+
+
+def test_authors_carry_law_kernel_choice_equals_the_numpy_rule(authors_sim):
+    """SimConfig.carry_law = "authors" (docs/FIDELITY.md rows 5-6): at every 0.01 s step the kernel carries
+    exactly the particle ``dlo_sim.grip.authors_grip_particle`` names (their narrow held set, nearest the
+    finger axis in x, never particle 0; none at c <= 0.5), moved by the WHOLE displacement (carry 1) with
+    the grip law's inverse mass; every other particle keeps w_nom and is not carried."""
+    from dlo_sim.grip import authors_grip_particle
+    rng = np.random.default_rng(23)
+    carried = none = 0
+    for seed in (0, 5, 11):
+        authors_sim.reset(np.array([seed]))
+        n = int(authors_sim.num_particles[0])
+        for _ in range(48):
+            before = authors_sim.snapshot(render=False)
+            c = float(rng.choice([0.3, 0.5, 0.6, 0.7, 0.8, 0.95, 1.0]))
+            action = closure_action(c, rng.uniform(0.2, 1.0), rng.uniform(-0.4, 0.4))
+            c_kernel = float(0.5 * (action[0, 2] + 1.0))
+            chosen = authors_grip_particle(before.positions[0, :n], n, before.gripper[0, :3], c_kernel)
+            authors_sim.step_physics(action, 1)
+            expected_w = np.full(n, NOMINAL_INVERSE_MASS)
+            expected_carry = np.zeros(n)
+            if chosen >= 0:
+                expected_w[chosen] = inverse_mass(c_kernel, NOMINAL_INVERSE_MASS)
+                expected_carry[chosen] = 1.0
+            expected_w[0] = 0.0
+            np.testing.assert_allclose(authors_sim._k.w.to_numpy()[0, :n], expected_w, atol=2e-6)
+            np.testing.assert_allclose(authors_sim._k.carry.to_numpy()[0, :n], expected_carry, atol=0)
+            carried += chosen >= 1
+            none += chosen == -1
+    assert carried >= 50 and none >= 10, (carried, none)  # both branches compared
+
+
+@ti.kernel
+def _kernel_cancel(k: ti.template(), dg: ti.types.vector(3, ti.f32)) -> ti.types.vector(3, ti.f32):
+    result = ti.Vector([0.0, 0.0, 0.0])
+    for _ in range(1):
+        result = k.authors_cancel(0, dg)
+    return result
+
+
+def test_authors_cancel_equals_the_numpy_rule_and_cuts_at_ten_millimetres(authors_sim):
+    """The authors' stretch limit: the sub-step motion is cancelled (0) when it would take the carried particle
+    more than 10 mm from particle i - 1 or i + 1, kept otherwise; the kernel equals ``grip.authors_cancel``."""
+    from dlo_sim.grip import AUTHORS_MAX_NEIGHBOUR_DISTANCE, authors_cancel
+    assert AUTHORS_MAX_NEIGHBOUR_DISTANCE == pytest.approx(0.01)
+    n = 20
+    positions = np.stack([FIXED_END[0] + REST_SPACING * np.arange(n), np.zeros(n), np.full(n, FIXED_END[2])], 1)
+    rng = np.random.default_rng(3)
+    kept = cancelled = 0
+    for _ in range(200):
+        index = int(rng.integers(1, n))
+        carried = np.zeros(n)
+        carried[index] = 1.0
+        dg = rng.uniform(-0.008, 0.008, 3) * np.array([1.0, 1.0, 0.0])
+        load_particles(authors_sim, positions.astype(np.float32), carried)
+        kernel = np.array(_kernel_cancel(authors_sim._k, ti.Vector(dg.astype(np.float32))))
+        numpy = authors_cancel(positions.astype(np.float32), n, index, dg.astype(np.float32))
+        np.testing.assert_allclose(kernel, numpy, atol=1e-7)
+        kept += bool(np.any(numpy))
+        cancelled += not np.any(numpy)
+    assert kept >= 20 and cancelled >= 20, (kept, cancelled)
+    # the bound itself: 10 mm - 0.1 mm from the neighbour kept, 10 mm + 0.1 mm cancelled (last particle: one neighbour)
+    for extra, moves in ((-0.0001, True), (0.0001, False)):
+        dg = np.array([0.01 + extra - REST_SPACING, 0.0, 0.0])
+        assert bool(np.any(authors_cancel(positions, n, n - 1, dg))) is moves
+    assert not np.any(authors_cancel(positions, n, -1, np.zeros(3)))  # nothing carried: nothing to cancel
+    assert np.all(authors_cancel(positions, n, -1, np.ones(3)) == 1.0)
