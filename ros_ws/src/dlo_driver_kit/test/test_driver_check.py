@@ -25,6 +25,7 @@ from dlo_driver_kit.driver_check import (RULES, CloudSample, ImageSample, InfoSa
                                          Settings, StateSample, check_stale, check_workspace, cloud_layout_problem,
                                          evaluate, schedule)
 from dlo_common.testing import ROS2RUN, Procs, reserved_domain  # noqa: E402
+from dlo_sim.task import TASK_RULES  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 CHECK = [sys.executable, "-m", "dlo_driver_kit.driver_check"]
@@ -77,14 +78,19 @@ def test_mock_driver_passes_every_rule_in_a_namespace(procs, ros_env):
         assert cause in out, out  # each rejection / the stale stop was logged
 
 
-def test_sim_node_in_real_time_passes_every_rule(procs, ros_env):
-    # paper_text: the check's sideways test moves end authors_code episodes every few steps (WRITE_YOUR_DRIVER.md)
+@pytest.mark.parametrize("task_rules", TASK_RULES)
+def test_sim_node_in_real_time_passes_every_rule(procs, ros_env, task_rules):
+    """Our own simulator passes under every task-rules setting: under authors_code the check's sideways moves end
+    an episode every step (the cable leaves the authors' narrow held set), and each phase is judged on its steps
+    in every episode (driver_check.acting)."""
     sim = procs("sim", [str(ROS2RUN), "dlo_sim", "sim_node", "--ros-args", "-p", "mode:=real_time",
-                        "-p", "task_rules:=paper_text"])
+                        "-p", f"task_rules:={task_rules}"])
     sim.wait_line("real_time simulation", timeout=180)
     result = run_check_timed(ros_env, "--timeout", "60")
     assert result.returncode == 0, result.stdout + result.stderr + sim.output()[-3000:]
     assert set(verdicts(result.stdout).values()) == {"PASS"}
+    episodes = int(re.search(r"\((\d+) new episode\(s\) from step 0\)", result.stdout).group(1))
+    assert episodes >= (10 if task_rules == "authors_code" else 1), result.stdout  # the sim's own, then the reset
 
 
 BATCH = 4  # broken drivers checked at once, each with its checker on a ROS domain of its own
@@ -220,9 +226,18 @@ def test_no_driver_is_one_clear_line_and_bad_usage_exits_2(ros_env):
 
 
 # ------------------------------------------------------------------------------------ without ROS
+DROP_SIDEWAYS = 0.005  # m: the 'drops' driver ends its episode when the gripper is this far from the cable (y = 0)
+RESET_DELAY = 0.015  # s: its new episode's state 0 comes this long after the final state
+
+
 def ideal_recording(s: Settings, fault: str = "") -> Recording:
-    """What a perfect 12.5 Hz driver shows the checker (``fault``: 'late_stop', 'outside')."""
+    """What a perfect 12.5 Hz driver shows the checker (``fault``: 'late_stop', 'outside'; 'drops': no fault, a
+    driver that ends its episode whenever the gripper is more than DROP_SIDEWAYS from the cable along y = 0, as
+    the sim does under the authors' task rules: the final state, RESET_DELAY s later the next episode's state 0 at
+    the start pose, without a command until the checker answers it; each step moves over the time since the state
+    before it, as a real-time driver measures it)."""
     rec, t, x, y, closure, step, last_valid = Recording(), 0.0, -0.25, 0.0, 0.0, 0, None
+    episode, previous = 0, 0.0
     period = 1.0 / s.rate
     command = None
     for phase in schedule(s):
@@ -231,12 +246,20 @@ def ideal_recording(s: Settings, fault: str = "") -> Recording:
             if command is not None and (t - last_valid <= s.command_timeout or fault == "late_stop"):
                 vx, vy, c = command
                 if all(math.isfinite(v) for v in command) and abs(vx) <= 0.25 and abs(vy) <= 0.25 and 0 <= c <= 1:
-                    x, y, closure = x + vx * period, y + vy * period, c
+                    dt = t - previous if fault == "drops" else period
+                    x, y, closure = x + vx * dt, y + vy * dt, c
                     if fault != "outside":
                         x, y = min(max(x, -s.workspace), s.workspace), min(max(y, -s.workspace), s.workspace)
-            rec.states.append(StateSample(t, t, 0, step, x, y, closure))
+            wall = t
+            if fault == "drops" and abs(y) > DROP_SIDEWAYS:  # the final state, then a new episode at the start
+                rec.states.append(StateSample(t, t, episode, step, x, y, closure))
+                if phase.command is not None:
+                    rec.answered[(episode, step)] = phase.name  # an answer to the previous episode: ignored
+                episode, step, x, y, command, wall = episode + 1, 0, -0.25, 0.0, None, t + RESET_DELAY
+            rec.states.append(StateSample(wall, wall, episode, step, x, y, closure))
+            previous = wall
             if phase.command is not None:
-                rec.answered[(0, step)] = phase.name
+                rec.answered[(episode, step)] = phase.name
                 rec.last_command_wall = t
                 cmd = phase.command
                 valid = all(math.isfinite(v) for v in cmd) and abs(cmd[0]) <= 0.25 and 0 <= cmd[2] <= 1
@@ -302,6 +325,23 @@ def test_analyze_of_a_driver_bag_says_it_has_no_task_state(tmp_path, capsys):
     out, err = capsys.readouterr()
     assert out == ""  # no empty outcome table
     assert err.count("\n") == 1 and "has no /dlo/task/state: a driver bag (5 gripper states)" in err
+
+
+def test_a_driver_whose_episodes_end_every_step_sideways_passes():
+    """A driver may end its episodes (the sim does when the cable is dropped: under the authors' task rules the
+    check's sideways moves end one every step): each phase is judged on its steps within the episodes, a new
+    episode's first step included (it runs under the command answering its state 0), pooled across them; the rate
+    from the driver's ticks (a new episode's state 0 comes right after the final state)."""
+    s = Settings()
+    rec = ideal_recording(s, "drops")
+    ends = sum(b.episode != a.episode for a, b in zip(rec.states, rec.states[1:]))
+    sideways = [x for x in rec.states if x.episode > 0 and rec.answered.get((x.episode, x.step)) in ("+y", "-y")]
+    assert ends >= 20 and max(x.step for x in sideways) == 1  # moved sideways, an episode lasts one step
+    results = {r.rule: r for r in evaluate(rec, s)}
+    for rule in ("rate", "stamps", "obey", "invalid", "stale", "workspace"):
+        assert results[rule].status == "PASS", results[rule]
+    assert "+y 0.100 m/s at 0 deg, -y 0.100 m/s at 0 deg" in results["obey"].reason
+    assert results["rate"].reason.startswith("12.50 Hz")
 
 
 def test_a_reset_during_the_silence_is_not_motion():

@@ -81,6 +81,11 @@ def test_typical_period_is_the_median_positive_difference():
     assert typical_period(Recording(states=states([0.0, 0.1, 0.2, 0.3]))) == pytest.approx(0.1)
     assert typical_period(Recording()) == 1.0 / CONTROL_RATE == pytest.approx(0.08)  # nothing to measure
     assert typical_period(Recording(states=states([1.0, 1.0]))) == pytest.approx(0.08)
+    # episodes of one step, each new one's state 0 1 ms after the previous final state (the sim, moved sideways
+    # under the authors' task rules): those 1 ms are no period; the steps of one episode are
+    walls = [0.0, 0.08, 0.081, 0.16, 0.161, 0.24, 0.241, 0.32, 0.321]
+    churn = Recording(states=states(walls, steps=[0, 1] * 4 + [0], episodes=[0, 0, 1, 1, 2, 2, 3, 3, 4]))
+    assert typical_period(churn, "wall") == pytest.approx(0.079)
 
 
 def test_motion_is_timed_by_stamps_when_at_least_half_the_steps_have_a_plausible_stamp_difference():
@@ -105,13 +110,15 @@ def test_steps_in_takes_consecutive_steps_whose_answer_and_the_one_before_came_f
     rec.answered = {(0, 0): "a", (0, 1): "a", (0, 2): "a", (0, 3): "b", (0, 4): "b", (0, 6): "b", (0, 7): "b",
                     (0, 8): "b"}
     pairs = lambda names: [(a.step, b.step) for a, b in steps_in(rec, names)]  # noqa: E731
-    assert pairs("a") == [(1, 2), (2, 3)]  # not (0, 1): step -1 was not answered by "a"
+    # (0, 1): a new episode's first step runs under the answer to its state 0 alone (a driver acts only on commands
+    # of its current episode)
+    assert pairs("a") == [(0, 1), (1, 2), (2, 3)]
     assert pairs("b") == [(7, 8)]  # (3, 4): step 2 was "a"; (4, 6) is a jump; (6, 7): step 5 unanswered
-    assert pairs(("a", "b")) == [(1, 2), (2, 3), (7, 8)]
+    assert pairs(("a", "b")) == [(0, 1), (1, 2), (2, 3), (7, 8)]
     rec.answered[(0, 5)] = "b"
     assert pairs("b") == [(6, 7), (7, 8)]
     late = lambda names: [(a.step, b.step) for a, b in steps_in(rec, names, react=2)]  # noqa: E731
-    assert late("a") == [(2, 3)]  # (1, 2): step -1 unanswered
+    assert late("a") == [(0, 1), (1, 2), (2, 3)]  # before step 0 nothing of this episode answered
     assert late("b") == [(6, 7), (7, 8)]  # (3, 4): steps 1 and 2 were "a"; (4, 6) is a jump
     del rec.answered[(0, 4)]
     assert late("b") == [(7, 8)] and pairs("b") == [(6, 7), (7, 8)]  # (6, 7) needs step 4's answer too
@@ -188,6 +195,20 @@ def test_rate_is_the_median_period_of_consecutive_steps_of_one_episode():
     assert short.status == "FAIL" and short.reason == "2 consecutive steps in 4 states"
 
 
+def test_rate_leaves_out_the_steps_from_a_new_episodes_state_0_that_came_off_the_tick():
+    """A driver whose episodes end every two steps (the sim under the authors' task rules, moved sideways)
+    publishes each new episode's state 0 right after the final state (here 0.03 s after the tick): the steps from
+    it are shorter than a period and would be half of all steps; the rate is the driver's tick, from the others."""
+    walls, steps, episodes = [], [], []
+    for k in range(6):
+        walls += [0.16 * k + 0.03, 0.16 * k + 0.08, 0.16 * k + 0.16]
+        steps += [0, 1, 2]
+        episodes += [k] * 3
+    result = check_rate(idle_recording(walls, (0.0, 2.0), steps=steps, episodes=episodes), Settings())
+    assert result.status == "PASS" and result.reason.startswith("12.50 Hz ("), result
+    assert "median of 6 steps" in result.reason  # one per episode: step 1 -> 2
+
+
 def test_the_rate_tolerance_is_twenty_percent_either_way_and_stamps_give_their_own_rate():
     for period, rate, status in ((0.0625, 20.0, "PASS"), (0.125, 10.0, "PASS"), (0.2, 12.5, "FAIL"),
                                  (0.05, 12.5, "FAIL")):
@@ -199,7 +220,8 @@ def test_the_rate_tolerance_is_twenty_percent_either_way_and_stamps_give_their_o
     assert result.reason.startswith("12.50 Hz (10.00 Hz by stamps;")
     stamps[3] = stamps[2]  # one repeated stamp: no rate by stamps (that is for 'stamps' to judge)
     result = check_rate(idle_recording([0.08 * k for k in range(6)], (0.0, 10.0), stamps=stamps), Settings())
-    assert "12.50 Hz (no rate by stamps: they do not strictly increase, see 'stamps'; median of 5 steps)" \
+    # (median of the 4 steps from step 1 on: the step from state 0 is left out, it may come off the tick)
+    assert "12.50 Hz (no rate by stamps: they do not strictly increase, see 'stamps'; median of 4 steps)" \
         in result.reason and result.status == "PASS"
 
 
@@ -359,12 +381,13 @@ def test_obey_uses_the_steps_half_to_twice_a_period_long_and_wants_two_of_them()
     assert check_obey(edges, s).status == "PASS", check_obey(edges, s)
     # (the last step of the phase is stamped P after the one before: the only usable one)
     beyond = check_obey(driven(obey_spec(**{"+x": (6, (0.0, 0.0, 0.0), 2.5 * P)})), s)
-    assert beyond.reason == "+x: 1 usable step(s) (episodes reset or states missing)"
+    assert beyond.reason == "+x: 1 usable step(s) (states missing, or not half to twice a period apart)"
     beyond = check_obey(driven(obey_spec(**{"+x": (6, (0.0, 0.0, 0.0), 0.4 * P)})), s)
-    assert beyond.reason == "+x: 1 usable step(s) (episodes reset or states missing)"
+    assert beyond.reason == "+x: 1 usable step(s) (states missing, or not half to twice a period apart)"
     assert check_obey(driven(obey_spec(**{"+x": (3, (0.1, 0.0, 0.0), P)})), s).status == "PASS"
     two = check_obey(driven(obey_spec(**{"+x": (2, (0.1, 0.0, 0.0), P)})), s)
-    assert two.status == "FAIL" and two.reason == "+x: 1 usable step(s) (episodes reset or states missing)"
+    assert two.status == "FAIL"
+    assert two.reason == "+x: 1 usable step(s) (states missing, or not half to twice a period apart)"
 
 
 def invalid_spec(**phases):
@@ -484,7 +507,9 @@ def test_the_closure_kept_is_the_one_the_gripper_had_in_the_states_episode():
         if name is not None:
             answered[(x.episode, x.step)] = name
     rec.answered = answered
-    assert [(a.episode, a.step) for a, b in steps_in(rec, "nan", react=2)] == [(0, 12), (0, 13), (1, 2), (1, 3), (1, 4)]
+    # episode 1 from its state 0 on: its commands are all of the phase (none of episode 0 acts in it)
+    assert [(a.episode, a.step) for a, b in steps_in(rec, "nan", react=2)] == [(0, 12), (0, 13), (1, 0), (1, 1), (1, 2),
+                                                                              (1, 3), (1, 4)]
     result = check_invalid(rec, s)
     assert result.status == "PASS" and "nan 0.00 mm/step, closure +0.000" in result.reason, result
     for x in rec.states:
