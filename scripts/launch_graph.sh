@@ -31,8 +31,9 @@ usage: scripts/launch_graph.sh [options]
   --carry-law L        paper or authors: how the grip carries the cable (the sim's carry_law parameter)
   --contact-radius R   the cable's contact half-thickness [m], up to 0.006 (the sim's contact_radius)
   --vision-source S    image or particles: where the vision node's O_V comes from (its vision_source)
-                       These three default to what the --policy sac checkpoint was trained on (its
-                       env_options), else paper, 0.004 and image.
+  --start-pose P       ours or authors: where the gripper starts (the sim's start_pose)
+                       These four default to what the --policy sac checkpoint was trained on (its
+                       env_options), else paper, 0.004, image and ours.
                        Settings that differ from the checkpoint's training are run as asked, with a note
   --record DIR         record every /dlo topic to the rosbag2 (MCAP) directory DIR
   --foxglove [PORT]    live view: also start the Foxglove bridge (dlo_viz foxglove_bridge) on
@@ -66,13 +67,13 @@ EOF
 
 episodes=5 seed=0 mode=step_locked rate=1.0 policy=sac checkpoint="" without="" noise=none record="" logs=""
 task_rules="" single_grip=""  # "" = as the sac checkpoint was trained (else authors_code, false)
-carry_law="" contact_radius="" vision_source=""  # "" = as the sac checkpoint was trained (else paper, 0.004, image)
+carry_law="" contact_radius="" vision_source="" start_pose=""  # "" = as the sac checkpoint was trained
 train_out="" train_config="" domain="" namespace="" foxglove="" status_period=10
 while [ $# -gt 0 ]; do
   case "$1" in
     --episodes|--seed|--mode|--rate-factor|--policy|--checkpoint|--without|--tactile-noise|--record|\
     --task-rules|--train-out|--train-config|--logs|--domain-id|--namespace|--status-period|--carry-law|\
-    --contact-radius|--vision-source)
+    --contact-radius|--vision-source|--start-pose)
       [ $# -ge 2 ] || { echo "launch_graph: $1 needs a value (options: scripts/launch_graph.sh --help)" >&2
                         exit $EXIT_USAGE; } ;;
   esac
@@ -89,6 +90,7 @@ while [ $# -gt 0 ]; do
     --carry-law) carry_law="$2"; shift 2 ;;
     --contact-radius) contact_radius="$2"; shift 2 ;;
     --vision-source) vision_source="$2"; shift 2 ;;
+    --start-pose) start_pose="$2"; shift 2 ;;
     --single-particle-grip)
       if [[ "${2:-}" =~ ^(true|false)$ ]]; then single_grip="$2"; shift 2; else single_grip=true; shift; fi ;;
     --record) record="$2"; shift 2 ;;
@@ -110,6 +112,7 @@ bad() { echo "launch_graph: $*" >&2; exit $EXIT_USAGE; }
 case "$mode" in step_locked|real_time) ;; *) bad "--mode must be step_locked or real_time" ;; esac
 case "$task_rules" in ""|paper_text|authors_code) ;; *) bad "--task-rules must be paper_text or authors_code, got '$task_rules'" ;; esac
 case "$carry_law" in ""|paper|authors) ;; *) bad "--carry-law must be paper or authors, got '$carry_law'" ;; esac
+case "$start_pose" in ""|ours|authors) ;; *) bad "--start-pose must be ours or authors, got '$start_pose'" ;; esac
 case "$vision_source" in ""|image|particles) ;; *) bad "--vision-source must be image or particles, got '$vision_source'" ;; esac
 if [ -n "$contact_radius" ] && ! awk -v r="$contact_radius" 'BEGIN { exit !(r ~ /^[0-9]*[.]?[0-9]+$/ && r + 0 > 0 && r + 0 <= 0.006) }'; then
   bad "--contact-radius must be a number in (0, 0.006] m, got '$contact_radius'"
@@ -156,12 +159,12 @@ if [ "$policy" = sac ] && [ -z "$train_out" ]; then
   trained="$("$PY" -m dlo_policy.rundir --sim-settings "$checkpoint" 2>&1)" || bad "--checkpoint: ${trained##*$'\n'}"
   trained="${trained##*$'\n'}"
   if [ "$trained" != unknown ]; then
-    read -r trained_rules trained_grip trained_carry trained_contact trained_vision <<<"$trained"
+    read -r trained_rules trained_grip trained_carry trained_contact trained_vision trained_start <<<"$trained"
     task_rules="${task_rules:-$trained_rules}" single_grip="${single_grip:-$trained_grip}"
     carry_law="${carry_law:-$trained_carry}" contact_radius="${contact_radius:-$trained_contact}"
-    vision_source="${vision_source:-$trained_vision}"
-    if [ "$carry_law" != "$trained_carry" ] || [ "$contact_radius" != "$trained_contact" ] || [ "$vision_source" != "$trained_vision" ]; then
-      echo "[launch] note: the policy was trained with carry_law=$trained_carry, contact_radius=$trained_contact, vision_source=$trained_vision; this graph runs carry_law=$carry_law, contact_radius=$contact_radius, vision_source=$vision_source (as asked)" >&2
+    vision_source="${vision_source:-$trained_vision}" start_pose="${start_pose:-$trained_start}"
+    if [ "$carry_law" != "$trained_carry" ] || [ "$contact_radius" != "$trained_contact" ] || [ "$vision_source" != "$trained_vision" ] || [ "$start_pose" != "$trained_start" ]; then
+      echo "[launch] note: the policy was trained with carry_law=$trained_carry, contact_radius=$trained_contact, vision_source=$trained_vision, start_pose=$trained_start; this graph runs carry_law=$carry_law, contact_radius=$contact_radius, vision_source=$vision_source, start_pose=$start_pose (as asked)" >&2
     fi
     if [ "$task_rules" != "$trained_rules" ] || [ "$single_grip" != "$trained_grip" ]; then
       echo "[launch] note: the policy was trained with task_rules=$trained_rules, single_particle_grip=$trained_grip; this graph runs task_rules=$task_rules, single_particle_grip=$single_grip (as asked)" >&2
@@ -170,6 +173,7 @@ if [ "$policy" = sac ] && [ -z "$train_out" ]; then
 fi
 task_rules="${task_rules:-authors_code}" single_grip="${single_grip:-false}"
 carry_law="${carry_law:-paper}" contact_radius="${contact_radius:-0.004}" vision_source="${vision_source:-image}"
+start_pose="${start_pose:-ours}"
 monitor_pid=""
 logs="${logs:-$(mktemp -d -t dlo-graph-XXXXXX)}"
 mkdir -p "$logs"
@@ -308,6 +312,7 @@ subscribers=3 sim_extra=()
 start sim dlo_sim sim_node --ros-args -p mode:="$mode" -p seed:="$seed" -p episodes:="$episodes" \
   -p rate_factor:="$rate" -p min_subscribers:="$subscribers" -p summary_file:="$outcomes" -p task_rules:="$task_rules" \
   -p single_particle_grip:="$single_grip" -p carry_law:="$carry_law" -p contact_radius:="$contact_radius" \
+  -p start_pose:="$start_pose" \
   ${sim_extra[@]+"${sim_extra[@]}"} ${remap[@]+"${remap[@]}"}
 sim_index=0
 sim_pid="${pids[0]}"

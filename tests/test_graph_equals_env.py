@@ -19,7 +19,8 @@ CASES = {"paper_text": ("paper_text", None, 6), "authors_code": ("authors_code",
          "authors_code_other_grip": ("authors_code", "other", 4),
          "authors_code_fidelity_levers": ("authors_code", None, 3)}
 # the fidelity levers (docs/FIDELITY.md), each a parameter of the sim or the vision node: all at once
-LEVERS = {"authors_code_fidelity_levers": {"carry_law": "authors", "contact_radius": 0.005, "vision_source": "particles"}}
+LEVERS = {"authors_code_fidelity_levers": {"carry_law": "authors", "contact_radius": 0.005, "vision_source": "particles",
+                                           "start_pose": "authors"}}
 
 
 def shipped_grip() -> bool:
@@ -55,8 +56,8 @@ def test_shipped_policy_episodes_in_the_graph_equal_the_in_process_env(graph_epi
     assert [e["seed"] for e in episodes] == list(range(SEED, SEED + count))
     assert {e["task_rules"] for e in episodes} == {rules}
     assert {e["single_particle_grip"] for e in episodes} == {grip}  # the sim notes its grip
-    for name in ("carry_law", "contact_radius"):  # and its carry law and contact radius
-        assert {e[name] for e in episodes} == {levers.get(name, {"carry_law": "paper", "contact_radius": 0.004}[name])}
+    for name, default in (("carry_law", "paper"), ("contact_radius", 0.004), ("start_pose", "ours")):  # and the levers
+        assert {e[name] for e in episodes} == {levers.get(name, default)}
     for live in episodes:
         observation, _ = env.reset(seed=live["seed"])
         done, info = False, {}

@@ -34,6 +34,8 @@ Options (keywords of both entry points):
                           beyond 10 mm from a neighbour (dlo_sim.grip, docs/FIDELITY.md rows 5-6)
     contact_radius=0.004  m, the cable's contact half-thickness (dlo_sim.SimConfig); above 0.00425 (half the
                           finger gap) the fingers pinch the cable, as Flex's 5 mm collision distance does
+    start_pose="ours"     "ours": the gripper starts 5 mm behind the fixed end, at its height; "authors": 8 mm
+                          behind and 2.25 mm lower, as their Picker.reset (dlo_sim.config.START_POSES)
     vision_source="image" "image": V from the rendered top view (what a camera gives); "particles": the
                           paper's simplified scalars, by the authors' index walk on the task rules' held set
                           (dlo_perception.vision.visual_pose_particles, docs/FIDELITY.md row 11); no rendering
@@ -65,14 +67,14 @@ from dlo_policy.modalities import VISION_PLANE_Z, by_name  # noqa: F401 (VISION_
 from dlo_policy.observation import build_observation, observation_bounds, parse_modalities
 from dlo_sim import task
 from dlo_sim.episode import TaskSim
-from dlo_sim.config import MAX_CONTACT_RADIUS, SimConfig
+from dlo_sim.config import MAX_CONTACT_RADIUS, START_POSES, SimConfig
 from dlo_sim.grip import CARRY_LAWS
 
 def check_options(options) -> None:
     """Raise ValueError with a one-line reason for an unknown option or a bad value (module
     docstring), before any simulator is built: what dlo-train checks its ``env_options`` with."""
     known = ("without", "tactile_noise", "horizon", "end_particles", "camera_resolution", "sim_config", "task_rules",
-             "single_particle_grip", "physics_seed", "vision_source", "carry_law", "contact_radius")
+             "single_particle_grip", "physics_seed", "vision_source", "carry_law", "contact_radius", "start_pose")
     unknown = sorted(set(options) - set(known))
     if unknown:
         raise ValueError(f"unknown option(s) {', '.join(unknown)}; known: {', '.join(known)}")
@@ -94,6 +96,8 @@ def check_options(options) -> None:
         raise ValueError(f"physics_seed: expected an integer >= 0 (or -1: drawn per episode), got {seed!r}")
     if "carry_law" in options and options["carry_law"] not in CARRY_LAWS:
         raise ValueError(f"carry_law: expected one of {', '.join(CARRY_LAWS)}, got {options['carry_law']!r}")
+    if "start_pose" in options and options["start_pose"] not in START_POSES:
+        raise ValueError(f"start_pose: expected one of {', '.join(START_POSES)}, got {options['start_pose']!r}")
     if "contact_radius" in options:
         radius = options["contact_radius"]
         if isinstance(radius, bool) or not isinstance(radius, (int, float)) or not 0 < radius <= MAX_CONTACT_RADIUS:
@@ -110,10 +114,14 @@ class CableFollowingVecEnv(VectorEnv):
     def __init__(self, num_envs, modalities="All", seed=0, without=(), tactile_noise="none",
                  horizon=task.HORIZON, end_particles=task.END_PARTICLES, camera_resolution=128,
                  sim_config=None, autoreset=True, task_rules=task.DEFAULT_TASK_RULES, single_particle_grip=False,
-                 physics_seed=-1, vision_source=DEFAULT_VISION_SOURCE, carry_law=None, contact_radius=None):
+                 physics_seed=-1, vision_source=DEFAULT_VISION_SOURCE, carry_law=None, contact_radius=None,
+                 start_pose=None):
         check_options({"single_particle_grip": single_particle_grip, "physics_seed": physics_seed,
                        "vision_source": vision_source, **({} if carry_law is None else {"carry_law": carry_law}),
-                       **({} if contact_radius is None else {"contact_radius": contact_radius})})
+                       **({} if contact_radius is None else {"contact_radius": contact_radius}),
+                       **({} if start_pose is None else {"start_pose": start_pose})})
+        if start_pose is not None:
+            sim_config = dataclasses.replace(sim_config or SimConfig(), start_pose=start_pose)
         if carry_law is not None:
             sim_config = dataclasses.replace(sim_config or SimConfig(), carry_law=carry_law)
         if contact_radius is not None:

@@ -86,7 +86,8 @@ def _observe_visual(env):
     state = env.task.state
     if env.vision_source == "particles":
         return visual_pose_particles(state.positions, env.task.held_task, env.sim.num_particles, state.gripper[:, :2])
-    return visual_pose(state.image, env.sim.camera, state.gripper[:, :2], VISION_PLANE_Z)
+    plane_z = float(np.float32(env.sim.config.gripper_height))  # VISION_PLANE_Z at the default start pose
+    return visual_pose(state.image, env.sim.camera, state.gripper[:, :2], plane_z)
 
 
 MODALITIES = (

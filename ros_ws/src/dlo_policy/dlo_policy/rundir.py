@@ -147,7 +147,7 @@ def shipped_policy_path() -> Path:
 def trained_sim_settings(policy_file: Path) -> Optional[dict[str, Any]]:
     """The simulator settings a policy file (policy.pt, best_policy.pt, checkpoint.pt) learned its task
     under, from its run's config.yaml: ``{"task_rules", "single_particle_grip", "carry_law", "contact_radius",
-    "vision_source"}`` (what the sim and vision nodes must run for the policy to meet the task and the
+    "vision_source", "start_pose"}`` (what the sim and vision nodes must run for the policy to meet the task and the
     observation it was trained on); None when no config.yaml is beside the file.
     ConfigError or OSError when that config.yaml cannot be read."""
     run_dir = Path(policy_file).parent
@@ -158,7 +158,8 @@ def trained_sim_settings(policy_file: Path) -> Optional[dict[str, Any]]:
             "single_particle_grip": bool(options.get("single_particle_grip", False)),
             "carry_law": options.get("carry_law", SimConfig.carry_law),
             "contact_radius": float(options.get("contact_radius", SimConfig.contact_radius)),
-            "vision_source": options.get("vision_source", DEFAULT_VISION_SOURCE)}
+            "vision_source": options.get("vision_source", DEFAULT_VISION_SOURCE),
+            "start_pose": options.get("start_pose", SimConfig.start_pose)}
 
 
 def read_eval_rows(run_dir: Path) -> list[dict[str, str]]:
@@ -210,8 +211,8 @@ class EvalLog:
 
 def main(argv=None) -> int:
     """``python -m dlo_policy.rundir --sim-settings POLICY_FILE``: the sim settings the policy file was trained
-    under as one line ``TASK_RULES GRIP CARRY_LAW CONTACT_RADIUS VISION_SOURCE`` (e.g.
-    ``authors_code false paper 0.004 image``; GRIP = single_particle_grip), or
+    under as one line ``TASK_RULES GRIP CARRY_LAW CONTACT_RADIUS VISION_SOURCE START_POSE`` (e.g.
+    ``authors_code false paper 0.004 image ours``; GRIP = single_particle_grip), or
     ``unknown`` when no config.yaml is beside it; an empty POLICY_FILE is the shipped policy. Exit 2 with
     one line on stderr when the file or its config.yaml cannot be read (scripts/launch_graph.sh uses it)."""
     import argparse
@@ -236,7 +237,8 @@ def main(argv=None) -> int:
         print("unknown")
     else:
         print(f"{settings['task_rules']} {'true' if settings['single_particle_grip'] else 'false'} "
-              f"{settings['carry_law']} {settings['contact_radius']} {settings['vision_source']}")
+              f"{settings['carry_law']} {settings['contact_radius']} {settings['vision_source']} "
+              f"{settings['start_pose']}")
     return 0
 
 

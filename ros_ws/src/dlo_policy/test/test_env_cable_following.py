@@ -143,18 +143,46 @@ def test_fidelity_lever_options_reach_the_simulator_and_bad_values_are_one_line_
     assert (plain.sim.config.carry_law, plain.sim.config.contact_radius, plain.vision_source) == ("paper", 0.004, "image")
     assert plain.task.render
     env = make_vec_env(1, "V", seed=0, sim_config=SimConfig(damping=3.0), carry_law="authors", contact_radius=0.005,
-                       vision_source="particles")
-    assert env.sim.config == SimConfig(damping=3.0, carry_law="authors", contact_radius=0.005)
+                       vision_source="particles", start_pose="authors")
+    assert env.sim.config == SimConfig(damping=3.0, carry_law="authors", contact_radius=0.005, start_pose="authors")
     assert not env.task.render and env.vision_source == "particles"
     observation, _ = env.reset(seed=0)
     assert observation.shape == (1, 4) and np.isfinite(observation).all()
     for options, message in (({"carry_law": "flex"}, "carry_law: expected one of paper, authors, got 'flex'"),
                              ({"contact_radius": 0.007}, r"contact_radius: expected a number in \(0, 0.006\] m"),
                              ({"contact_radius": "0.005"}, r"contact_radius: expected a number in \(0, 0.006\] m"),
-                             ({"vision_source": "camera"}, "vision_source: expected one of image, particles")):
+                             ({"vision_source": "camera"}, "vision_source: expected one of image, particles"),
+                             ({"start_pose": "theirs"}, "start_pose: expected one of ours, authors, got 'theirs'")):
         with pytest.raises(ValueError, match=message):
             make_env("V", **options)
     with pytest.raises(ConfigError, match=r"^env_options: vision_source: expected one of image, particles, got 'x'$"):
         check_env_options(load_config(None, ["env_options.vision_source=x"]))
     check_env_options(load_config(None, ["env_options.vision_source=particles", "env_options.carry_law=authors",
                                          "env_options.contact_radius=0.005"]))
+
+
+def test_the_authors_start_pose_starts_8_mm_behind_and_2_25_mm_lower_and_the_image_is_read_at_that_height():
+    """start_pose=authors (their Picker.reset): the gripper starts 8 mm behind the fixed end and 2.25 mm below it and
+    moves in that plane; the image source reads V at the gripper's own height, as the vision node does with the
+    published gripper z."""
+    from dlo_perception.vision import visual_pose
+    from dlo_sim.config import FIXED_END, GRIPPER_HEIGHT
+    env = make_vec_env(1, "V", seed=0, start_pose="authors")
+    observation, _ = env.reset(seed=0)
+    gripper = env.task.state.gripper[0]
+    np.testing.assert_allclose(gripper[:3], [FIXED_END[0] - 0.008, FIXED_END[1], GRIPPER_HEIGHT - 0.00225], atol=1e-7)
+    differs = 0
+    rng = np.random.default_rng(4)
+    for _ in range(40):
+        observation, _, terminated, truncated, _ = env.step(np.array([[0.8, rng.uniform(-0.5, 0.5), 0.6]], np.float32))
+        if terminated[0] or truncated[0]:
+            break
+        state = env.task.state
+        assert state.gripper[0, 2] == np.float32(GRIPPER_HEIGHT - 0.00225)  # it moves in that plane
+        node = visual_pose(state.image, env.sim.camera, state.gripper[:, :2], float(state.gripper[0, 2]))
+        np.testing.assert_array_equal(observation[0], np.array([node.visible[0], node.confidence[0], node.angle[0],
+                                                                node.y[0]], np.float32))
+        at_default = visual_pose(state.image, env.sim.camera, state.gripper[:, :2], GRIPPER_HEIGHT)
+        differs += not np.array_equal(observation[0], np.array([at_default.visible[0], at_default.confidence[0],
+                                                                at_default.angle[0], at_default.y[0]], np.float32))
+    assert differs >= 1  # the height matters: read at the default height, V would differ

@@ -201,14 +201,14 @@ def test_sim_settings_are_what_the_policy_file_was_trained_on(tmp_path, capsys):
         (tmp_path / name).mkdir()
         save_config(load_config(None, overrides), tmp_path / name / rundir.CONFIG_FILE)
         (tmp_path / name / "policy.pt").write_bytes(b"")
-    defaults = {"carry_law": "paper", "contact_radius": 0.004, "vision_source": "image"}
+    defaults = {"carry_law": "paper", "contact_radius": 0.004, "vision_source": "image", "start_pose": "ours"}
     assert rundir.trained_sim_settings(tmp_path / "old" / "policy.pt") == {
         "task_rules": "paper_text", "single_particle_grip": False, **defaults}  # from before the options
     assert rundir.trained_sim_settings(tmp_path / "spg" / "checkpoint.pt") == {
         "task_rules": "authors_code", "single_particle_grip": True, **defaults}
     assert rundir.trained_sim_settings(tmp_path / "levers" / "policy.pt") == {
         "task_rules": "authors_code", "single_particle_grip": False, "carry_law": "authors", "contact_radius": 0.005,
-        "vision_source": "particles"}
+        "vision_source": "particles", "start_pose": "ours"}
     (tmp_path / "bare").mkdir()
     (tmp_path / "bare" / "policy.pt").write_bytes(b"")
     assert rundir.trained_sim_settings(tmp_path / "bare" / "policy.pt") is None
@@ -216,11 +216,11 @@ def test_sim_settings_are_what_the_policy_file_was_trained_on(tmp_path, capsys):
     for name in ("spg", "text", "old", "bare", "levers"):
         assert rundir.main(["--sim-settings", str(tmp_path / name / "policy.pt")]) == 0
         said[name] = capsys.readouterr().out
-    assert said == {"spg": "authors_code true paper 0.004 image\n", "text": "paper_text false paper 0.004 image\n",
-                    "old": "paper_text false paper 0.004 image\n", "bare": "unknown\n",
-                    "levers": "authors_code false authors 0.005 particles\n"}
+    assert said == {"spg": "authors_code true paper 0.004 image ours\n", "text": "paper_text false paper 0.004 image ours\n",
+                    "old": "paper_text false paper 0.004 image ours\n", "bare": "unknown\n",
+                    "levers": "authors_code false authors 0.005 particles ours\n"}
     assert rundir.main(["--sim-settings", ""]) == 0  # the shipped policy: the study's authors_code, one-particle grip
-    assert capsys.readouterr().out == "authors_code true paper 0.004 image\n"
+    assert capsys.readouterr().out == "authors_code true paper 0.004 image ours\n"
 
 
 def test_sim_settings_of_a_missing_file_or_a_bad_config_is_one_line_and_exit_2(tmp_path, capsys):

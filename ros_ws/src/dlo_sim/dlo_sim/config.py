@@ -22,6 +22,10 @@ GRIPPER_HEIGHT = 0.1  # m, height of the gripper centre (midway between the fing
 FINGER_AXIS_OFFSET = FINGER_RADIUS + 0.5 * FINGER_CLEARANCE  # m, each finger's axis above/below the gripper centre
 FIXED_END = (-0.25, 0.0, 0.1)  # m, where particle 0 is pinned
 GRIPPER_START_BEHIND = 0.005  # m, the gripper starts this far behind (-x) the fixed end
+# SimConfig.start_pose: where the gripper starts, (behind the fixed end in -x, below it in -z) [m]. "authors": their
+# Picker.reset puts the lower finger's axis 8 mm behind and 19 mm below particle 0, the upper 14.5 mm above it
+# (SoftSlidingGym action_space_sliding.py:99): the gripper centre 8 mm behind and 2.25 mm below
+START_POSES = {"ours": (GRIPPER_START_BEHIND, 0.0), "authors": (0.008, 0.00225)}
 WORKSPACE_HALF_WIDTH = 0.3  # m, gripper x and y are clipped to [-0.3, 0.3]
 NOMINAL_INVERSE_MASS = 2.0  # 1/kg, w_nom (particle mass 0.5 kg)
 GRAVITY = 9.8  # m/s^2
@@ -72,6 +76,14 @@ class SimConfig:
     # Picker: one particle from their narrow held set moved by the whole displacement above c 0.5, cancelled
     # beyond 10 mm from a neighbour; docs/FIDELITY.md rows 5-6), off ("paper") by default
     carry_law: str = "paper"
+    # where the gripper starts and moves (START_POSES): "ours" (5 mm behind the fixed end, at its height) or "authors"
+    # (8 mm behind, 2.25 mm lower; docs/FIDELITY.md), off ("ours") by default
+    start_pose: str = "ours"
+
+    @property
+    def gripper_height(self) -> float:
+        """Height [m] of the gripper centre, the plane it moves in (START_POSES)."""
+        return GRIPPER_HEIGHT - START_POSES[self.start_pose][1]
 
     def __post_init__(self):
         self.validate()
@@ -105,6 +117,8 @@ class SimConfig:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
         if isinstance(self.physics_seed, bool) or not isinstance(self.physics_seed, int) or self.physics_seed < -1:
             raise ValueError(f"physics_seed must be an integer >= 0 (or -1: drawn per episode), got {self.physics_seed!r}")
+        if self.start_pose not in START_POSES:
+            raise ValueError(f"start_pose must be one of {', '.join(START_POSES)}, got {self.start_pose!r}")
         if self.carry_law not in ("paper", "authors"):
             raise ValueError(f"carry_law must be one of paper, authors, got {self.carry_law!r}")
         if not isinstance(self.single_particle_grip, bool):

@@ -10,7 +10,7 @@ from dlo_common.taichi_runtime import init as init_taichi  # before taichi: no "
 import taichi as ti
 
 from .config import (DT, FINGER_AXIS_OFFSET, FINGER_HALF_LENGTH, FINGER_RADIUS, FIXED_END, GRAVITY,
-                     GRIPPER_HEIGHT, GRIPPER_START_BEHIND, IMAGE_CABLE, IMAGE_GRIPPER,
+                     GRIPPER_HEIGHT, IMAGE_CABLE, IMAGE_GRIPPER, START_POSES,
                      MAX_DISPLACEMENT, NOMINAL_INVERSE_MASS, P_MAX, PARTICLE_RADIUS, REST_SPACING,
                      WORKSPACE_HALF_WIDTH)
 from .grip import AUTHORS_MAX_NEIGHBOUR_DISTANCE, GRIP_SLIP_STRAIN  # dlo_sim.grip states the rules in numpy
@@ -41,6 +41,8 @@ class RopeKernels:
         self.max_distance = float(cfg.max_distance)
         self.single_particle_grip = bool(cfg.single_particle_grip)  # compile-time: off compiles today's kernel
         self.authors_carry = cfg.carry_law == "authors"  # compile-time: "paper" compiles today's kernel
+        behind, below = START_POSES[cfg.start_pose]
+        self.gripper_start = (float(FIXED_END[0] - behind), float(FIXED_END[1]), float(GRIPPER_HEIGHT - below))
         self.cam_f = (float(camera.fx), float(camera.fy))
         self.cam_c = (float(camera.cx), float(camera.cy))
         self.cam_pos = tuple(float(p) for p in camera.position)
@@ -80,7 +82,7 @@ class RopeKernels:
                     self.x[e, i] = p
                     self.x_old[e, i] = p
                     self.v[e, i] = ti.Vector([0.0, 0.0, 0.0])
-                self.gripper[e] = ti.Vector([FIXED_END[0] - GRIPPER_START_BEHIND, FIXED_END[1], GRIPPER_HEIGHT])
+                self.gripper[e] = ti.Vector(self.gripper_start)
                 self.closure[e] = 0.0
                 self.pick[e] = -1
                 self.bad[e] = 0

@@ -48,7 +48,7 @@ from dlo_perception.camera import CAMERA_FRAME, TopCamera, camera_info
 from dlo_perception.cloud import particle_cloud
 from dlo_sim.command import CommandError, RejectionLog, command_mismatch, command_to_action, hold_action
 from dlo_sim.config import (DT, FINGER_CLEARANCE, FINGER_HALF_LENGTH, FINGER_RADIUS, MAX_CONTACT_RADIUS,
-                            SUBSTEPS_PER_ACTION, SimConfig)
+                            START_POSES, SUBSTEPS_PER_ACTION, SimConfig)
 from dlo_sim.grip import CARRY_LAWS
 from dlo_sim.episode import TaskSim
 from dlo_sim.task import DEFAULT_TASK_RULES, HORIZON, TASK_RULES
@@ -76,6 +76,8 @@ PARAMETERS = (
     Param("contact_radius", SimConfig.contact_radius, "the cable's contact half-thickness [m]; above half the finger "
           f"gap ({FINGER_CLEARANCE / 2}) the fingers pinch the cable, as Flex's 5 mm collision distance does",
           above=0.0, at_most=MAX_CONTACT_RADIUS),
+    Param("start_pose", "ours", "where the gripper starts: ours (5 mm behind the fixed end, at its height) or authors "
+                                "(8 mm behind, 2.25 mm lower, as the authors' code)", choices=tuple(START_POSES)),
     Param("rate_factor", 1.0, "real_time mode: simulation speed relative to wall time", above=0.0),
     Param("command_timeout", 0.5, "real_time mode: a command older than this [s] stops the gripper", above=0.0),
     Param("step_timeout", 1.0, "step_locked mode: republish the state after this long [s] without a command",
@@ -149,7 +151,7 @@ class SimNode(Node):
         self.task = TaskSim(1, horizon=p["horizon"], render=True, camera=self.camera, task_rules=p["task_rules"],
                             config=SimConfig(single_particle_grip=p["single_particle_grip"],
                                              physics_seed=p["physics_seed"], carry_law=p["carry_law"],
-                                             contact_radius=p["contact_radius"]))
+                                             contact_radius=p["contact_radius"], start_pose=p["start_pose"]))
 
         if p["mode"] == "real_time":
             self.create_timer(DT * SUBSTEPS_PER_ACTION / p["rate_factor"], self.on_real_time_tick)
@@ -185,7 +187,7 @@ class SimNode(Node):
     def finish_episode(self):
         summary = {"episode": self.episode, "seed": self.episode_seed, **self.task.tracker.summary(0),
                    "single_particle_grip": self.p["single_particle_grip"], "carry_law": self.p["carry_law"],
-                   "contact_radius": self.p["contact_radius"]}
+                   "contact_radius": self.p["contact_radius"], "start_pose": self.p["start_pose"]}
         self.finished.append(summary)
         self.get_logger().info(f"episode {self.episode} (seed {self.episode_seed}): {summary['outcome']} "
                                f"(authors' rule: {summary['outcome_authors']}), "
