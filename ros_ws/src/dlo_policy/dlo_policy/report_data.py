@@ -335,12 +335,16 @@ class Summary:
     ratio: float
     test: Stat
     test_authors: Stat
+    last_authors: Stat = Stat(math.nan, math.nan, 0)
+    ratio_authors: float = math.nan
 
 
 def summarize(name: str, curves: Curves) -> Summary:
     best, best_step = best_smoothed(curves, HOLD)
     best_authors, best_authors_step = best_smoothed(curves, HOLD_AUTHORS)
     last = last_mean(curves, HOLD)
+    last_authors = last_mean(curves, HOLD_AUTHORS)
     return Summary(name, curves.seeds, curves.finished_seeds, int(curves.steps[-1]), curves.total_steps,
                    best, best_step, best_authors, best_authors_step, last, level_ratio(last, best),
-                   held_out_test(curves), held_out_test(curves, authors=True))
+                   held_out_test(curves), held_out_test(curves, authors=True), last_authors,
+                   level_ratio(last_authors, best_authors))

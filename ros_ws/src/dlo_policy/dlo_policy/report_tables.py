@@ -48,14 +48,15 @@ def row_name(label: str, without: str) -> str:
 
 
 SUMMARY_HEADER = ("seeds (finished/total) × steps", "best smoothed mean hold the end, paper rule (at step)",
-                  "same, authors' rule", "last-5 mean, paper rule", "last-5 / best",
-                  "held-out test, paper rule", "held-out test, authors' rule")
+                  "same, authors' rule", "last-5 mean, paper rule", "same, authors' rule", "last-5 / best, paper rule",
+                  "same, authors' rule", "held-out test, paper rule", "held-out test, authors' rule")
 
 
 def summary_cells(summary: Summary) -> list[str]:
     return [format_seeds(summary), format_best(summary.best, summary.best_step),
             format_best(summary.best_authors, summary.best_authors_step), format_stat(summary.last),
-            format_ratio(summary.ratio), format_test(summary.test, summary.finished),
+            format_stat(summary.last_authors), format_ratio(summary.ratio), format_ratio(summary.ratio_authors),
+            format_test(summary.test, summary.finished),
             format_test(summary.test_authors, summary.finished)]
 
 
@@ -78,8 +79,11 @@ def definitions(runs_list: Sequence[Runs]) -> str:
         "evaluation steps (the step is shown): the paper's \"best mean\". "
         "*± x%*: 95% confidence half-width of the mean over seeds (Student t, n - 1 degrees of freedom), "
         "written for >= 2 seeds only; \"(1 seed)\" marks a single seed's value. "
+        "The best is a maximum over the evaluation steps of a noisy curve: it and its interval are biased upwards "
+        "(the more evaluations and the fewer seeds, the more); the last-5 mean is taken at a fixed step, unbiased. "
         f"*Last-5 mean*: per seed the mean of its last {FINAL_EVALUATIONS} (unsmoothed) evaluations, averaged over "
-        f"seeds; *last-5 / best* (printed rounded down) >= {HOLDS_LEVEL_RATIO}: training holds its level, else it sags. "
+        f"seeds; *last-5 / best* (printed rounded down, under each rule against that rule's best) >= "
+        f"{HOLDS_LEVEL_RATIO}: training holds its level, else it sags. "
         "*Seeds*: finished (done.json) / all seeds; unfinished seeds count up to the last step every seed has "
         "reached (steps column; \"of N\": the configured length). "
         f"*Held-out test*: each finished seed's best evaluation policy (highest hold the end, then reward) tested "
@@ -135,7 +139,8 @@ def compare_table(named: Sequence[tuple[str, Runs]], warnings: Sequence[str] = (
     for label, without in keys:
         for name, runs in named:
             curves = runs.get(label, {}).get(without)
-            cells = summary_cells(summarize(name, curves)) if curves is not None else ["no runs"] + [""] * 6
+            cells = (summary_cells(summarize(name, curves)) if curves is not None
+                     else ["no runs"] + [""] * (len(SUMMARY_HEADER) - 1))
             rows.append([row_name(label, without), name, *cells])
     text = "\n".join(markdown_table(["configuration", "setting", *SUMMARY_HEADER], rows))
     text += ("\n\n" + definitions([runs for _, runs in named])

@@ -26,7 +26,6 @@ import os
 from pathlib import Path
 from typing import Any, Optional
 
-from dlo_perception.vision import DEFAULT_VISION_SOURCE
 from dlo_sim.config import SimConfig
 from dlo_sim.task import LEGACY_TASK_RULES
 
@@ -150,6 +149,8 @@ def trained_sim_settings(policy_file: Path) -> Optional[dict[str, Any]]:
     "vision_source", "start_pose"}`` (what the sim and vision nodes must run for the policy to meet the task and the
     observation it was trained on); None when no config.yaml is beside the file.
     ConfigError or OSError when that config.yaml cannot be read."""
+    from dlo_perception.vision import DEFAULT_VISION_SOURCE  # here: taichi only for those who ask
+
     run_dir = Path(policy_file).parent
     if not (run_dir / CONFIG_FILE).exists():
         return None

@@ -124,7 +124,9 @@ def test_last5_over_best_ratio_on_a_hand_made_curve():
 def test_ratio_in_the_table_of_a_hand_made_run(tmp_path):
     write_run(tmp_path, "V", 0, [0, 0.2, 0.4, 0.6, 0.8, 1, 1, 1, 1, 1, 0.7, 0.7, 0.7, 0.7, 0.7])
     row = table_rows(report_tables.results_table(report_data.load_runs(tmp_path)))["V"]
-    assert row[2] == f"100% (1 seed) at {9 * EVERY:,}" and row[4] == "70% (1 seed)" and row[5] == "0.70 (sags)"
+    assert row[2] == f"100% (1 seed) at {9 * EVERY:,}" and row[4] == "70% (1 seed)" and row[6] == "0.70 (sags)"
+    # the authors' rule (hold - 0.1 here): best smoothed 90%, last-5 60%, its own ratio 0.6 / 0.9
+    assert row[3] == f"90% (1 seed) at {9 * EVERY:,}" and row[5] == "60% (1 seed)" and row[7] == "0.66 (sags)"
 
 
 def test_the_unsmoothed_best_is_the_highest_evaluation_of_the_seed_averaged_curve(tmp_path):
@@ -215,9 +217,9 @@ def test_single_seed_rows_show_no_plus_minus(tmp_path):
         write_run(tmp_path, "V", seed, [0.5, 0.6, 0.7, 0.8, 0.8, 0.8 + 0.1 * seed], test=(0.8, 0.7))
     rows = table_rows(report_tables.results_table(report_data.load_runs(tmp_path)))
     assert not any("±" in cell for cell in rows["T"])
-    assert rows["T"][1] == "1/1 × 500" and rows["T"][6:8] == ["25% (1 seed)", "20% (1 seed)"]
+    assert rows["T"][1] == "1/1 × 500" and rows["T"][8:10] == ["25% (1 seed)", "20% (1 seed)"]
     assert "(1 seed)" in rows["T"][2] and rows["T"][-1] == "12%"
-    assert "±" in rows["V"][2] and "±" in rows["V"][6] and "(1 seed)" not in " ".join(rows["V"])
+    assert "±" in rows["V"][2] and "±" in rows["V"][8] and "(1 seed)" not in " ".join(rows["V"])
 
 
 def test_held_out_test_means_come_from_test_json_of_finished_seeds(tmp_path):
@@ -236,8 +238,8 @@ def test_held_out_test_means_come_from_test_json_of_finished_seeds(tmp_path):
     assert (authors.mean, authors.ci) == pytest.approx((0.5, half_width))
     rows = table_rows(report_tables.results_table(runs))
     assert rows["All"][1] == "3/4 × 700 (of 1,100)"
-    assert rows["All"][6:8] == [f"80% ± {half_width:.0%}", f"50% ± {half_width:.0%}"]
-    assert rows["All, tested without T"][6:8] == [f"30% ± {half_width:.0%}", f"20% ± {half_width:.0%}"]
+    assert rows["All"][8:10] == [f"80% ± {half_width:.0%}", f"50% ± {half_width:.0%}"]
+    assert rows["All, tested without T"][8:10] == [f"30% ± {half_width:.0%}", f"20% ± {half_width:.0%}"]
     assert rows["All"][-1] == "92%" and rows["All, tested without T"][-1] == "—"
 
 
@@ -247,8 +249,8 @@ def test_held_out_test_without_authors_rule_is_na(tmp_path):
     write_run(tmp_path, "V", 0, FLAT, test=(0.3, 0.2))
     (tmp_path / "V" / "seed0" / "test.json").unlink()
     rows = table_rows(report_tables.results_table(report_data.load_runs(tmp_path)))
-    assert rows["K"][6].startswith("30% ± ") and rows["K"][7] == "n/a"
-    assert rows["V"][6:8] == ["n/a", "n/a"]
+    assert rows["K"][8].startswith("30% ± ") and rows["K"][9] == "n/a"
+    assert rows["V"][8:10] == ["n/a", "n/a"]
 
 
 def test_old_eval_csv_without_authors_columns_gives_na(tmp_path, capsys):
@@ -281,11 +283,11 @@ def test_compare_writes_both_settings_with_their_numbers(tmp_path, capsys):
     frozen, running = rows[("All", "frozen")], rows[("All", "running")]
     # frozen: smoothed 1.0 first at evaluation 8 (evaluations 4..8 are 1.0); last-5 1.0
     assert frozen[2] == "3/3 × 1,000" and frozen[3] == f"100% ± 0% at {8 * EVERY:,}"
-    assert frozen[5:9] == ["100% ± 0%", "1.00 (holds)", "90% ± 0%", "80% ± 0%"]
+    assert frozen[5:11] == ["100% ± 0%", "90% ± 0%", "1.00 (holds)", "1.00 (holds)", "90% ± 0%", "80% ± 0%"]
     # running: smoothed best (0.5 + 0.75 + 1 + 0.5 + 0.5) / 5 = 0.65 first at evaluation 6; last-5 0.5
     assert running[3] == f"65% ± 0% at {6 * EVERY:,}" and running[5] == "50% ± 0%"
-    assert running[6] == "0.76 (sags)"  # 0.5 / 0.65 = 0.769, rounded down
-    assert running[7:9] == [f"70% ± {4.303 * 0.1 / math.sqrt(3):.0%}", "50% ± 0%"]
+    assert running[7] == "0.76 (sags)"  # 0.5 / 0.65 = 0.769, rounded down
+    assert running[9:11] == [f"70% ± {4.303 * 0.1 / math.sqrt(3):.0%}", "50% ± 0%"]
     assert (out / "compare.png").read_bytes().startswith(PNG_MAGIC)
     assert not (out / "results.md").exists()
 
@@ -376,8 +378,8 @@ def test_report_reads_what_dlo_train_writes(tmp_path, capsys):
     rows = table_rows((out / "results.md").read_text())
     test = json.loads((spec.directory(tmp_path) / "test.json").read_text())
     assert rows["All"][1] == "1/1 × 100"
-    assert rows["All"][6] == f"{test['hold_the_end']:.0%} (1 seed)"
-    assert rows["All"][7] == f"{test['authors_code']['hold_the_end']:.0%} (1 seed)"
+    assert rows["All"][8] == f"{test['hold_the_end']:.0%} (1 seed)"
+    assert rows["All"][9] == f"{test['authors_code']['hold_the_end']:.0%} (1 seed)"
     assert "All, tested without T" in rows and rows["All, tested without T"][6] != "n/a"
     assert (out / "ablation.png").read_bytes().startswith(PNG_MAGIC)
     assert "warning" not in capsys.readouterr().err
