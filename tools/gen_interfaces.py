@@ -47,8 +47,8 @@ PROBE_NODE = "interfaces_probe"
 EXIT_STALE, EXIT_ERROR = 1, 2
 
 # Topics docs/ARCHITECTURE.md#topics lists (the contract): the registry's (dlo_common.topics) but the simulator's
-# internal ones; the live graph is compared with it.
-CONTRACT_TOPICS = tuple(t.name for t in select(exclude=("internal",)))
+# internal ones and the run's provenance (no data of a step); the live graph is compared with it.
+CONTRACT_TOPICS = tuple(t.name for t in select(exclude=("internal", "provenance")))
 INFRASTRUCTURE_TOPICS = ("/parameter_events", "/rosout")
 PARAMETER_SERVICES = ("describe_parameters", "get_parameters", "get_parameter_types", "list_parameters",
                       "set_parameters", "set_parameters_atomically", "get_type_description")
@@ -123,6 +123,10 @@ def semantics() -> dict:
         "/dlo/sim/instance": dict(
             units="JSON {host, pid, started_ns}: the simulator on this domain",
             driver="simulator-internal (two simulators on one domain: the later one leaves)"),
+        "/dlo/policy/info": dict(
+            units="JSON {policy, checkpoint, sha256, shipped, modalities, without, task_rules, single_particle_grip, "
+                  "env_options, ...}: the policy node's policy and what it was trained under, published once",
+            driver="nothing (the policy node publishes it; the recorder keeps it in the bag for dlo-analyze)"),
     }
     entries = {}
     for t in select():

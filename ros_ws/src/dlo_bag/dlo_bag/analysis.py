@@ -13,6 +13,12 @@ changes are shaded. Videos (``--video``, :mod:`dlo_bag.video`): one MP4 (or GIF)
 top camera + side view + signal strip, one frame per control step, real time by default; progress on
 stderr (one line per finished video with its path and the time it took; on a terminal a bar too).
 
+What drove the run is read from the bag too (:func:`policy_records`: the policy node's ``/dlo/policy/info``,
+or its copy in the metadata): the policy, its checkpoint and sha256, the modalities and the task rules, grip and
+env_options it was trained under. ``dlo-analyze`` prints it above the table (``policy: ...``), puts it into
+every episode of ``--json`` and into the video titles; ``--policy TEXT`` overrides the titles' label (a bag
+recorded before the policy node published it has none: its titles say "policy not recorded").
+
 A bag without ``/dlo/task/state`` (recorded from a robot driver, not the sim) has no outcomes: it
 says so in one line and exits 3. Exit status (the same table for every bag tool, ``dlo_bag.bag``):
 0 analysed, 1 a recomputed outcome differs from the recorded one or the bag is damaged (run
@@ -33,8 +39,10 @@ from dlo_common.topics import select, topic
 from dlo_perception.cloud import unpack_particles
 from dlo_perception.sync import stamp_to_ns
 from dlo_sim.task import LEGACY_TASK_RULES, OUTCOME_NAMES, EpisodeTracker
-from dlo_bag.bag import EXIT_BAD_BAG, EXIT_NO_TASK_STATE, EXIT_USAGE, BagError, NotABagError, read_messages
+from dlo_bag.bag import (EXIT_BAD_BAG, EXIT_NO_TASK_STATE, EXIT_USAGE, BagError, NotABagError, bag_info,
+                         read_messages)
 from dlo_bag.outcome_table import outcome_table
+from dlo_bag.recording import POLICY_KEY, POLICY_TOPIC
 
 # What an episode is read from, {topic: stream} (the registry, dlo_common.topics): the topics of a control step that
 # carry its episode and step (state, command, task), the observations (matched to a step by stamp) and the particle
@@ -67,6 +75,61 @@ def read_run(path, extra: dict[str, str] | None = None) -> dict:
                 episode, step = stamp_episode_step[stamp]
                 episodes[episode][stream][step] = msg
     return {e: dict(streams) for e, streams in sorted(episodes.items())}
+
+
+def policy_records(path) -> list[dict]:
+    """What drove the run: the policy records of a bag (``dlo_policy.policy_node.policy_record``, JSON on
+    ``/dlo/policy/info``), distinct, in the order recorded; a bag part without the message (a later part of a split
+    recording) has its copy in the metadata (``dlo_bag.recording.POLICY_KEY``). [] for a bag recorded without a
+    policy node or before the record existed. A record that is not a JSON object is kept as ``{"policy": text}``."""
+    texts = [str(item.msg.data) for item in read_messages(path, [POLICY_TOPIC])]
+    if not texts:
+        texts = [custom[POLICY_KEY] for custom in bag_info(path).custom_data if custom.get(POLICY_KEY)]
+    records = []
+    for text in texts:
+        try:
+            record = json.loads(text)
+        except ValueError:
+            record = None
+        record = record if isinstance(record, dict) else {"policy": text}
+        if record not in records:
+            records.append(record)
+    return records
+
+
+# env_options a policy may be trained under, in the label's order, with the value that goes without saying (left out)
+TRAINED_DEFAULTS = {"carry_law": "paper", "contact_radius": 0.004, "vision_source": "image"}
+
+
+def policy_label(record: dict) -> str:
+    """One line naming a policy record, for titles and the ``policy:`` line: kind, checkpoint (run directory and
+    file, ``shipped`` for the bundled one) with the start of its sha256, the modalities observed and ablated, and
+    what it was trained under (task rules, grip, env_options that differ from the defaults), e.g.
+    ``sac shipped all/policy.pt (sha256 e9d241f8) on K+T+V; trained authors_code, single-particle grip``."""
+    text = str(record.get("policy") or "unknown policy")
+    if record.get("train_out"):
+        text += f" learning online into {record['train_out']}"
+    elif record.get("checkpoint"):
+        path = Path(str(record["checkpoint"]))
+        text += f" {'shipped ' if record.get('shipped') else ''}{path.parent.name}/{path.name}"
+        if record.get("sha256"):
+            text += f" (sha256 {str(record['sha256'])[:8]})"
+    if record.get("modalities"):
+        text += f" on {record['modalities']}"
+    if record.get("without"):
+        text += f" without {record['without']}"
+    trained = [str(record["task_rules"])] if record.get("task_rules") else []
+    if record.get("single_particle_grip") is not None:
+        trained.append("single-particle grip" if record["single_particle_grip"] else "finite grip")
+    options = record.get("env_options") if isinstance(record.get("env_options"), dict) else {}
+    trained += [f"{key} {options[key]}" for key, default in TRAINED_DEFAULTS.items()
+                if key in options and options[key] != default]
+    return text + (f"; trained {', '.join(trained)}" if trained else "")
+
+
+def recorded_policy(records: list) -> str | None:
+    """The label of a bag's policy records (:func:`policy_label`; several: joined by ', then '), None for none."""
+    return ", then ".join(policy_label(r) for r in records) or None
 
 
 def recompute_episode(task_states: dict) -> dict:
@@ -255,17 +318,23 @@ class NoTaskState(ValueError):
                          "need the task state (the sim publishes it)")
 
 
-def analyse(path, plots: Path | None = None, video: dict | None = None) -> list:
+def analyse(path, plots: Path | None = None, video: dict | None = None, records: list | None = None) -> list:
     """Per-episode recomputed summaries of a bag (optionally writing one plot and one video per
-    episode; ``video``: keyword arguments of :func:`write_videos`, ``out`` included)."""
+    episode; ``video``: keyword arguments of :func:`write_videos`, ``out`` included; its ``policy`` label
+    defaults to the bag's own record). Each summary carries the bag's policy record (``policy``, the last one
+    recorded; None without one; ``records``: :func:`policy_records` of the bag, read here when not given)."""
     run = read_run(path, extra={topic("image").name: "image"} if video else None)
     if not any("task" in streams for streams in run.values()):
         raise NoTaskState(path, sum(len(streams.get("gripper", {})) for streams in run.values()))
+    records = policy_records(path) if records is None else records
+    if video and not video.get("policy"):
+        video = {**video, "policy": recorded_policy(records)}
     summaries = []
     for episode, streams in run.items():
         if "task" not in streams:
             continue
-        summary = {"episode": int(episode), **recompute_episode(streams["task"])}
+        summary = {"episode": int(episode), **recompute_episode(streams["task"]),
+                   "policy": records[-1] if records else None}
         summaries.append(summary)
         if plots is not None:
             plots.mkdir(parents=True, exist_ok=True)
@@ -295,8 +364,11 @@ def main(argv=None) -> int:
                         help="playback speed: 1.0 = real time (12.5 frames/s, default), 2.0 = twice as fast")
     parser.add_argument("--video-width", type=int, default=None,
                         help="frame width in pixels (height = 3/4); default 960 (mp4), 480 (gif)")
-    parser.add_argument("--policy", default=None,
-                        help="policy name for the video titles (bags do not record it), e.g. 'sac (shipped)'")
+    parser.add_argument("--policy", default=None, metavar="TEXT",
+                        help="label the video titles with TEXT instead of the policy the bag records (the policy "
+                             "node's /dlo/policy/info: checkpoint and sha256, modalities, the task rules and grip it "
+                             "was trained under); for a bag recorded before that, whose titles otherwise say "
+                             "'policy not recorded', e.g. 'sac (shipped)'")
     args = parser.parse_args(argv)
     if args.video_speed <= 0:
         parser.error("--video-speed must be > 0")
@@ -307,7 +379,8 @@ def main(argv=None) -> int:
         video = {"out": args.video, "fmt": args.video_format, "policy": args.policy,
                  "speed": args.video_speed, "width": args.video_width, "log": sys.stderr}
     try:
-        summaries = analyse(args.bag, args.plots, video)
+        records = policy_records(args.bag)
+        summaries = analyse(args.bag, args.plots, video, records)
     except NoTaskState as error:
         print(f"dlo-analyze: {error}", file=sys.stderr)
         return EXIT_NO_TASK_STATE
@@ -321,6 +394,8 @@ def main(argv=None) -> int:
         print(f"dlo-analyze: video: {error}", file=sys.stderr)
         return 2
     complete = [s for s in summaries if s["complete"]]
+    if records:
+        print(f"policy: {recorded_policy(records)}")
     print(outcome_table(complete))
     if len(complete) < len(summaries):
         print(f"({len(summaries) - len(complete)} episode(s) unfinished in the bag, not counted)")

@@ -7,6 +7,10 @@ and :meth:`Recorder.close` finalises the bag and returns the received/written co
 (dropped = received - written, must be 0). A write error (disk full, I/O, permission) is fatal:
 :attr:`Recorder.failure` names the cause, nothing more is written, and :meth:`Recorder.close`
 still closes the bag with everything written before the error.
+
+What drives the run (the policy node's latched ``/dlo/policy/info``, JSON) is recorded like every topic and
+also copied into the bag's metadata (``custom_data`` key :data:`POLICY_KEY`), so that every part of a split
+recording says it, not only the first (where the latched message lands).
 """
 
 from __future__ import annotations
@@ -28,6 +32,9 @@ from .mcap_file import WRITER_NAME
 
 TASK_TOPIC = topic_record("task").name  # the topic that marks episodes (dlo_common.topics)
 TASK_TYPE = topic_record("task").type
+POLICY_TOPIC = topic_record("policy_info").name  # what drives the run (dlo_policy.policy_node.policy_record)
+POLICY_TYPE = topic_record("policy_info").type
+POLICY_KEY = f"{WRITER_NAME}.policy"  # its copy in the bag's metadata (custom_data)
 
 
 def default_output(root: str | os.PathLike = "bags") -> Path:
@@ -161,6 +168,14 @@ class Recorder:
         self.writer.custom_data[f"{WRITER_NAME}.episodes"] = (
             f"{min(self._episodes)}-{max(self._episodes)}")
 
+    def _note_policy(self, data: bytes) -> None:
+        """Copy the policy record (a std_msgs/String) into the bag's metadata; a message that does not decode is
+        recorded all the same, without the copy."""
+        try:
+            self.writer.custom_data[POLICY_KEY] = str(self.typestore.deserialize_cdr(data, POLICY_TYPE).data)
+        except Exception:  # noqa: BLE001 - the message itself is still written
+            pass
+
     def _failed(self, err: BagWriteError) -> str:
         if not self.failure:
             self.errors += 1
@@ -180,6 +195,8 @@ class Recorder:
         try:
             if self.split_episodes and topic == self.task_topic:
                 self._episode_boundary(bytes(data))
+            if topic.endswith(POLICY_TOPIC):  # /dlo/policy/info, also under a namespace (/NS/dlo/policy/info)
+                self._note_policy(bytes(data))
             self.writer.write(topic, data, timestamp)
         except BagWriteError as err:
             return self._failed(err)

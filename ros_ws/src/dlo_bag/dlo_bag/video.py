@@ -3,7 +3,8 @@
 Each frame shows the top camera's image of that step, a side view (x-z) of the particles (held
 ones red) with the two fingers and the fixed end, and a strip of closure / distilled poses /
 reward over the whole episode with a cursor at the current step; the title names the episode,
-seed, policy, the outcome under both rules (paper text, authors' code) and the return. Frames
+seed and return, the policy (``dlo-analyze`` passes the bag's own record: ``dlo_bag.analysis.policy_label``)
+and the outcome under both rules (paper text, authors' code). Frames
 are drawn with matplotlib (Agg, no display) and encoded by the ffmpeg that ``imageio-ffmpeg``
 ships (libx264, yuv420p, +faststart: plays in browsers and players; GIF: a palette per video).
 
@@ -15,6 +16,7 @@ Real time by default: a control step lasts 0.08 s, so ``fps = 12.5 * speed``.
 
 from __future__ import annotations
 
+import textwrap
 import time
 from pathlib import Path
 
@@ -35,18 +37,24 @@ class VideoError(RuntimeError):
     """The video cannot be written (encoder missing or failing)."""
 
 
+TITLE_CHARS = 100  # characters of a title line in a frame of any width (the font follows the width): a longer
+# policy label is wrapped onto a second line
+
+
 def video_title(episode: int, summary: dict, policy: str | None) -> str:
-    """Two lines: who and what (episode, seed, policy, return), then the outcome under both rules."""
+    """Three lines: the episode (episode, seed, return), the policy that drove it (``policy``: a label such as
+    ``dlo_bag.analysis.policy_label`` makes of the bag's record; None: 'not recorded'; wrapped onto a fourth line
+    beyond TITLE_CHARS), then the outcome under both rules."""
     seed = summary.get("seed", "?")
     ret = summary.get("episode_return", summary.get("recorded_return"))
-    head = (f"episode {episode}  ·  seed {seed}  ·  policy {policy or 'not recorded'}"
-            + (f"  ·  return {ret:.2f}" if ret is not None else ""))
+    head = f"episode {episode}  ·  seed {seed}" + (f"  ·  return {ret:.2f}" if ret is not None else "")
     if summary.get("complete", True):
         tail = (f"outcome: {summary.get('outcome', '?')} (paper rule)  ·  "
                 f"{summary.get('outcome_authors', '?')} (authors' rule)")
     else:
         tail = "episode unfinished in the bag: no outcome"
-    return head + "\n" + tail
+    who = textwrap.fill(f"policy {policy or 'not recorded'}", TITLE_CHARS, break_on_hyphens=False)
+    return head + "\n" + who + "\n" + tail
 
 
 class EpisodeFrames:
@@ -70,7 +78,7 @@ class EpisodeFrames:
         self.canvas = FigureCanvasAgg(fig)
         self.fig = fig
         fs = max(5.0, 9.0 * scale)
-        fig.suptitle(video_title(episode, summary, policy), fontsize=fs * 1.15, y=0.985)
+        title = fig.suptitle(video_title(episode, summary, policy), fontsize=fs * 1.15, y=0.985)
         outer = fig.add_gridspec(2, 1, height_ratios=[3.0, 1.7], left=0.08, right=0.86, top=0.83,
                                  bottom=0.075, hspace=0.2)
         views = outer[0].subgridspec(1, 2, width_ratios=[1.0, 2.0], wspace=0.22)
@@ -103,7 +111,9 @@ class EpisodeFrames:
         ax.plot([], [], "o", color="tab:red", ms=4 * scale, label="held particle")
         ax.plot([], [], "o", color="tab:blue", alpha=0.5, ms=8 * scale, label="finger (closure)")
         ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=fs * 0.85, frameon=False)
-        self.status = fig.text(0.5, 0.885, "", ha="center", fontsize=fs, family="monospace")
+        # the status line just below the title, however many lines it has (a long policy label wraps)
+        below = title.get_window_extent(self.canvas.get_renderer()).transformed(fig.transFigure.inverted()).y0
+        self.status = fig.text(0.5, below - 0.012, "", ha="center", va="top", fontsize=fs, family="monospace")
         # strip: closure, poses, reward over the episode, with a cursor
         steps = np.asarray(self.steps)
         strips = [

@@ -71,7 +71,7 @@ def make_message(topic: str, i: int, episode_every: int = 0):
         msg.visible, msg.confidence, msg.angle, msg.y = True, 0.8, -0.2, 0.004
     elif topic == "/dlo/task/state":
         msg.episode = i // episode_every if episode_every else 0
-        msg.step, msg.seed = i, 42
+        msg.step, msg.seed = (i % episode_every if episode_every else i), 42  # each episode from step 0
         msg.held_indices = [3, 4, 5]
         msg.n_held, msg.mean_held_index = 3, 4.0
         msg.num_particles, msg.cable_length = 40, 0.4

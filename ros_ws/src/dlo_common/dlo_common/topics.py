@@ -37,6 +37,7 @@ ROLES = {
     "task": "the task's ground truth: held particles, reward, outcome",
     "visualisation": "for viewers only",
     "internal": "the simulator's own bookkeeping",
+    "provenance": "what drives the run (the policy and what it was trained under): recorded in bags, for their readers",
 }
 RATES = ("step", "latched")
 
@@ -97,6 +98,10 @@ TOPICS = (
     Topic("/dlo/sim/instance", "std_msgs/msg/String", "sim_node", "internal",
           "which simulator runs on this domain (two simulators: the later one leaves)", key="instance",
           rate="latched", sim_only=True),
+    Topic("/dlo/policy/info", "std_msgs/msg/String", "policy_node", "provenance",
+          "which policy drives the graph (JSON: policy, checkpoint and its sha256, modalities, the task rules, grip "
+          "and env_options it was trained under): dlo-analyze and its video titles read it from the bag",
+          key="policy_info", rate="latched"),
 )
 SERVICES = (
     Service("/dlo/sim/reset", "dlo_msgs/srv/ResetEpisode", "sim_node", "start a new episode (with a seed)"),

@@ -10,15 +10,24 @@ subscribes to the topic of each observed modality and converts its message with 
 (``dlo_policy.modalities``; topics and types from ``dlo_common.topics``).
 Inputs that a step does not deliver within ``input_timeout`` s are reported as an error naming the
 missing topic; the sim node then republishes the step, so nothing deadlocks.
+
+At start it publishes what drives the graph once, latched, on ``/dlo/policy/info`` (std_msgs/String, JSON:
+:func:`policy_record`): the policy, its checkpoint file and that file's sha256, the modalities observed and
+ablated, and from the checkpoint's run config the task rules, grip and env_options it was trained under. The
+recorder keeps it in the bag; ``dlo-analyze`` and its video titles read it.
 """
 
 from __future__ import annotations
 
+import hashlib
+import json
 import time
 from pathlib import Path
 
 import numpy as np
 from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile
+from std_msgs.msg import String
 
 from dlo_common.node_util import ParameterError, declare_parameters
 from dlo_common.params import Param
@@ -28,6 +37,7 @@ from dlo_perception.cloud import unpack_particles
 from dlo_perception.sync import IncompleteSteps, StampSync, stamp_to_ns
 from dlo_policy.modalities import ALL, ALL_NAME, by_name, names
 from dlo_policy.observation import build_observation, observation_size, parse_modalities
+from dlo_policy.rundir import CONFIG_FILE, read_trained_config
 from dlo_policy.rundir import SHIPPED_POLICY, shipped_policy_path  # noqa: F401 (SHIPPED_POLICY: re-exported)
 from dlo_sim.command import action_to_command
 from dlo_sim.task import LEGACY_TASK_RULES, dropped
@@ -117,6 +127,50 @@ def load_policy(kind: str, checkpoint: str, modalities: str, seed: int):
     return (lambda obs, new_episode, truth: rng.uniform(-1.0, 1.0, (1, 3)).astype(np.float32)), modalities
 
 
+def file_sha256(path) -> str:
+    """The sha256 of a file's bytes, hex."""
+    digest = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def policy_record(kind: str, checkpoint: str, modalities, without=(), *, seed: int = 0, train: bool = False,
+                  train_out: str = "", train_config: str = "") -> dict:
+    """What drives the graph, as ``/dlo/policy/info`` carries it (JSON): ``policy`` (its kind), ``checkpoint`` (the
+    policy file's absolute path, None without one), ``sha256`` (of that file), ``shipped`` (the bundled All policy),
+    ``modalities`` and ``without`` ('+'-joined), and from the run config beside the file (or, learning online, the
+    ``train_config``) ``task_rules``, ``single_particle_grip`` and every ``env_options`` entry it names (e.g.
+    vision_source, carry_law, contact_radius), ``trained_label``; None where nothing says (a scripted policy: the
+    sim's own task rules are in its TaskState). A config that cannot be read leaves them None and says why in
+    ``config_error``."""
+    record = {"policy": kind, "checkpoint": None, "sha256": None, "shipped": False,
+              "modalities": "+".join(modalities), "without": "+".join(without), "task_rules": None,
+              "single_particle_grip": None, "env_options": None, "trained_label": None}
+    config = None
+    try:
+        if train:
+            from dlo_policy.config import load_config
+
+            record["train_out"] = str(Path(train_out).resolve())
+            config = load_config(train_config or None, values={"modalities": "+".join(modalities), "seed": seed})
+        elif kind == "sac":
+            path = Path(checkpoint) if checkpoint else shipped_policy_path()
+            record.update(checkpoint=str(path.resolve()), sha256=file_sha256(path), shipped=not checkpoint)
+            if (path.parent / CONFIG_FILE).exists():
+                config = read_trained_config(path.parent)
+    except (ValueError, OSError) as error:
+        record["config_error"] = str(error)
+    if kind == "random":
+        record["seed"] = seed
+    if config is not None:
+        options = dict(config.env_options)
+        record.update(task_rules=options.get("task_rules"), env_options=options, trained_label=config.name,
+                      single_particle_grip=bool(options.get("single_particle_grip", False)))
+    return record
+
+
 class PolicyNode(Node):
     """Closes the loop: observations in, one gripper command per control step out."""
 
@@ -153,6 +207,12 @@ class PolicyNode(Node):
         self.incomplete = IncompleteSteps(self.input_timeout, first_seen=self.first_seen)  # check_missing_inputs
         self.last = (None, None)  # (stamp_ns, GripperCommand): a republished step gets the same answer
         self.publisher = self.create_publisher(GripperCommand, topic("command").name, 10)
+        # what drives the graph, once, latched: the recorder keeps it in the bag (dlo-analyze, video titles)
+        self.record = policy_record(p["policy"], p["checkpoint"], self.modalities, self.without, seed=p["seed"],
+                                    train=p["train"], train_out=p["train_out"], train_config=p["train_config"])
+        self.info_publisher = self.create_publisher(String, topic("policy_info").name,
+                                                    QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL))
+        self.info_publisher.publish(String(data=json.dumps(self.record, sort_keys=True)))
         for key in inputs:
             t = topic(key)
             self.create_subscription(message_class(t.type), t.name, lambda m, key=key: self.on_input(key, m), 10)
