@@ -55,6 +55,9 @@ from dlo_sim.task import DEFAULT_TASK_RULES, HORIZON, TASK_RULES
 from dlo_common.node_util import NodeStartError, declare_parameters
 from dlo_common.params import Param
 
+# the parameters that decide what an episode is (the task and the physics), published with the instance record
+SETTINGS = ("mode", "seed", "horizon", "task_rules", "single_particle_grip", "physics_seed", "carry_law",
+            "contact_radius", "start_pose", "camera_resolution")
 CONTROL_PERIOD_NS = int(round(DT * SUBSTEPS_PER_ACTION * 1e9))  # 0.08 s of simulation time per action
 MODES = ("step_locked", "real_time")
 PARAMETERS = (
@@ -136,7 +139,9 @@ class SimNode(Node):
         self.sub_command = self.create_subscription(GripperCommand, topic("command").name, self.on_command, qos)
         self.last_command_wall = None  # real_time: when the last command arrived (or the episode clock started)
         self.create_service(ResetEpisode, "/dlo/sim/reset", self.on_reset_service)
-        self.instance = {"host": socket.gethostname(), "pid": os.getpid(), "started_ns": time.time_ns()}
+        self.instance = {"host": socket.gethostname(), "pid": os.getpid(), "started_ns": time.time_ns(),
+                         # what the episodes run under: latched and recorded, so a bag says it (dlo-analyze)
+                         "settings": {name: p[name] for name in SETTINGS}}
         self.create_subscription(String, INSTANCE_TOPIC, self.on_instance,  # several publishers: more than 1 deep
                                  QoSProfile(depth=10, durability=DurabilityPolicy.TRANSIENT_LOCAL))
 

@@ -17,6 +17,7 @@ monotonic clock.
 """
 
 import math
+import json
 import os
 import time
 
@@ -391,3 +392,12 @@ def test_the_reset_service_starts_a_waiting_or_finished_node_and_camera_info_is_
         assert len(published) == 1  # camera_info is latched: published once
     finally:
         node.started, node.info_published, node.closing_since = True, True, None
+
+
+def test_the_instance_record_carries_the_settings_an_episode_runs_under(node):
+    """/dlo/sim/instance (latched, recorded): besides who runs, every parameter that decides what an episode is,
+    so a bag says which task rules, grip, carry law, contact radius and start pose produced it."""
+    assert set(node.instance["settings"]) == set(sim_node_module.SETTINGS)
+    for name in ("task_rules", "single_particle_grip", "carry_law", "contact_radius", "start_pose", "physics_seed"):
+        assert node.instance["settings"][name] == node.p[name]
+    json.dumps(node.instance)  # it is sent as JSON
