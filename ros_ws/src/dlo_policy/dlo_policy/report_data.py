@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, NamedTuple, Optional, Sequence
@@ -125,9 +126,11 @@ def read_run(config_path: Path, warnings: list[str]) -> Optional[RunDir]:
 
 
 def read_runs(results: Path, warnings: Optional[list[str]] = None) -> list[RunDir]:
-    """Every readable run directory below `results` (sorted by path)."""
+    """Every readable run directory below `results` (sorted by path), also behind symbolic links (a results
+    directory may link another's seeds, as results/fidelity/screen_baseline_15k does)."""
     warnings = [] if warnings is None else warnings
-    runs = [read_run(path, warnings) for path in sorted(results.rglob(CONFIG_FILE))]
+    found = [Path(folder) / CONFIG_FILE for folder, _, files in os.walk(results, followlinks=True) if CONFIG_FILE in files]
+    runs = [read_run(path, warnings) for path in sorted(found)]
     return [run for run in runs if run is not None and any(run.rows.values())]
 
 

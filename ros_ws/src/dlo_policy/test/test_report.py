@@ -399,3 +399,14 @@ def test_reading_runs_loads_no_learner():
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert result.returncode == 0, result.stderr
     assert result.stdout.split("\n")[0] == "[] []", result.stdout
+
+
+def test_runs_behind_symbolic_links_are_read(tmp_path):
+    """A results directory may link another's seed directories (results/fidelity/screen_baseline_15k)."""
+    for seed in range(2):
+        write_run(tmp_path / "study", "V", seed, FLAT, test=(0.5, 0.4))
+    (tmp_path / "linked" / "V").mkdir(parents=True)
+    for seed in range(2):
+        (tmp_path / "linked" / "V" / f"seed{seed}").symlink_to(tmp_path / "study" / "V" / f"seed{seed}")
+    runs = report_data.load_runs(tmp_path / "linked")
+    assert runs["V"][""].seeds == 2
