@@ -10,7 +10,7 @@ OUT/hang_<round>_<node>.txt (dlo_common.testing.hang_report: gdb, then SIGABRT) 
 exits with another status than its interrupted one (1: its middleware teardown was cut after
 dlo_common.node_main.TEARDOWN_LIMIT s) keeps its stderr in OUT/stderr_<round>_<node>.txt. One JSON line per
 round on stdout and in OUT/rounds.jsonl.
-A diagnostic for the middleware's teardown (tests/README.md: rehearsals 98 and 99), not a product command.
+A diagnostic for the middleware's teardown (docs/appendix/REHEARSALS.md: rehearsals 98 and 99), not a product command.
 Needs scripts/env.sh sourced and gdb for the stacks.
 """
 from __future__ import annotations
