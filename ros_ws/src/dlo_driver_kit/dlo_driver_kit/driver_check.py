@@ -7,7 +7,7 @@ It acts as the policy would: it answers every ``/dlo/gripper/state`` with a ``/d
 stamped with that state's episode and step, following a fixed schedule of phases (hold still,
 close, open, move +x / +y / -y, go silent, drive to the workspace corner, send invalid commands,
 start a new episode through ``/dlo/sim/reset`` when the driver serves it),
-records what the driver publishes and judges it rule by rule (DESIGN.md section 6; the driver
+records what the driver publishes and judges it rule by rule (docs/ARCHITECTURE.md#topics; the driver
 guide docs/WRITE_YOUR_DRIVER.md). The rules are what the unchanged graph needs to run a step:
 tactile_node, vision_node and policy_node match a step's inputs by their exact header stamp
 (``dlo_perception.sync.StampSync``), vision_node reads mono8 segmentation images only and

@@ -1,7 +1,7 @@
 """mock_driver_node: the reference driver skeleton for a real robot (a kinematic stand-in, not the simulator).
 
 Copy this file to write the driver of a real gripper (guide: docs/WRITE_YOUR_DRIVER.md); the places
-to change are marked ``# ROBOT:``. It does what the rest of the graph relies on (DESIGN.md section 6;
+to change are marked ``# ROBOT:``. It does what the rest of the graph relies on (docs/ARCHITECTURE.md#topics;
 ``dlo-driver-check`` verifies it rule by rule):
 
 - publishes, once per control period (``rate``, 12.5 Hz = 0.08 s), ``/dlo/gripper/state``
