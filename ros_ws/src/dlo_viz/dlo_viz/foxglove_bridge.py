@@ -14,6 +14,19 @@ forwarded to at least one client) are kept in :attr:`FoxgloveBridge.stats`.
 
 Topics published with transient-local durability (``camera_info``) are latched: their last
 message is sent again when a client subscribes, as a ROS subscriber would receive it.
+
+Clients must offer the WebSocket subprotocol ``foxglove.sdk.v1`` (:data:`SUBPROTOCOL`, what the SDK's
+server speaks, as foxglove_bridge 3.x): one that offers only the older ``foxglove.websocket.v1`` is
+refused with HTTP 400 by the SDK; the bridge counts it (``clients_refused``), says why in one line and
+serves the other clients as before.
+
+A channel created while clients are connected can lose a client's subscription: with the installed
+foxglove-sdk a client that subscribes as soon as the advertisement arrives can be answered
+``Unknown channel ID`` (the server has not yet registered the channel for that client) and then gets
+nothing on that topic. The SDK reports it in its log; the bridge then advertises that topic again
+(unadvertise, then a new channel id) from the owner's thread (:meth:`FoxgloveBridge.maintain`), so
+every client, the one that lost its subscription included, subscribes again as the protocol
+requires. The ROS side sees no change (:meth:`FoxgloveBridge.watched` holds for a grace period).
 """
 
 from __future__ import annotations
@@ -38,6 +51,14 @@ DEFAULT_ADDRESS = "127.0.0.1"
 DEFAULT_CLIENT_BACKLOG = 1024
 SDK_LOGGER = "foxglove"
 STOP_TIMEOUT = 2.0  # the SDK's stop() waits for clients that stopped reading; never longer than this
+SUBPROTOCOL = "foxglove.sdk.v1"  # the WebSocket subprotocol a client must offer (the SDK also takes foxglove.sdk.v1.1)
+OLD_SUBPROTOCOL = "foxglove.websocket.v1"  # older Foxglove/Lichtblick releases and scripts: refused (HTTP 400)
+READVERTISE_GRACE = 2.0  # s a watched topic stays watched after it was advertised again (its clients subscribe again)
+# No channel is closed (to advertise it again) until the SDK has reported no subscription to an unknown channel for
+# this long: the SDK logs that report while it holds the client's channel table, and Python logging needs the GIL,
+# which a Python thread closing a channel holds while it waits for that table (a deadlock of the whole process).
+UNKNOWN_QUIET = 0.25
+UNRESOLVED_WAIT = 1.0  # s a reported channel id may take to become known (created on another thread)
 
 
 def topic_matches(topic: str, patterns: Iterable[str]) -> bool:
@@ -68,14 +89,18 @@ class BridgeStats:
     lost: Counter = field(default_factory=Counter)  # reported lost by the middleware before delivery
     clients_connected: int = 0  # connections so far
     clients_now: int = 0
+    clients_refused: int = 0  # failed WebSocket handshakes (a client that offers only foxglove.websocket.v1)
     subscriptions: int = 0  # subscribe requests so far
+    subscriptions_lost: int = 0  # subscribe requests the SDK refused as 'Unknown channel ID' for a channel of ours
+    readvertised: int = 0  # channels advertised again for them
     slow_client_reports: list[str] = field(default_factory=list)  # SDK: a client's outbox overflowed
 
     def to_dict(self) -> dict:
         return {"received": sum(self.received.values()), "forwarded": sum(self.forwarded.values()),
                 "lost": sum(self.lost.values()), "clients_connected": self.clients_connected,
-                "clients_now": self.clients_now, "subscriptions": self.subscriptions,
-                "slow_client_reports": list(self.slow_client_reports),
+                "clients_now": self.clients_now, "clients_refused": self.clients_refused,
+                "subscriptions": self.subscriptions, "subscriptions_lost": self.subscriptions_lost,
+                "readvertised": self.readvertised, "slow_client_reports": list(self.slow_client_reports),
                 "topics": {t: {"received": self.received.get(t, 0), "forwarded": self.forwarded.get(t, 0),
                                "lost": self.lost.get(t, 0)}
                            for t in sorted(set(self.received) | set(self.forwarded))}}
@@ -84,6 +109,8 @@ class BridgeStats:
 _REGISTERED = re.compile(r"^Registered client (\S+)")
 _UNREGISTERED = re.compile(r"^Unregistered client (\S+)")
 _OUTBOX_FULL = re.compile(r"^outbox for client (\S+) full")
+_HANDSHAKE_FAILED = re.compile(r"^Dropping client (\S+): (?:secure )?handshake failed")
+_UNKNOWN_CHANNEL = re.compile(r"^Client (\S+) attempted to subscribe to unknown channel: (\d+)")
 
 
 class _SdkLogHandler(logging.Handler):
@@ -137,11 +164,18 @@ class FoxgloveBridge:
         self.stats = BridgeStats()
         self.channels: dict[str, Any] = {}  # topic -> foxglove Channel
         self.types: dict[str, str] = {}
+        self._schemas: dict[str, bytes] = {}  # topic -> ros2msg definition
         self.latched: dict[str, bytes] = {}  # last message of transient-local topics
         self._latched_topics: set[str] = set()
         self._resend: queue.SimpleQueue[str] = queue.SimpleQueue()
         self.subscribers: Counter = Counter()  # topic -> client subscriptions now
         self._changed: queue.SimpleQueue[str] = queue.SimpleQueue()  # topics whose subscribers changed
+        self._topic_of_id: dict[int, str] = {}  # every channel id this bridge advertised (also replaced ones)
+        self._lost: queue.SimpleQueue[tuple[str, int, float]] = queue.SimpleQueue()  # SDK: (client, channel id, when)
+        self._unresolved: list[tuple[str, int, float]] = []  # such reports not matched to a channel yet
+        self._pending: dict[str, set[int]] = {}  # lost channels not yet advertised again (owner's thread)
+        self._last_unknown = float("-inf")  # monotonic time of the SDK's last 'unknown channel' report
+        self._held: dict[str, float] = {}  # topic -> until when it counts as watched (advertised again)
         self._lock = threading.Lock()
         self._server: Any = None
         self._bound_port: int | None = None
@@ -192,11 +226,12 @@ class FoxgloveBridge:
             worker.start()
             worker.join(timeout)
             stopped = not worker.is_alive()
-        for channel in self.channels.values():
-            try:
-                channel.close()
-            except Exception:  # noqa: BLE001 - already gone with the server
-                pass
+        if stopped:  # (a client the SDK still serves could hold a channel table while it waits for the GIL)
+            for channel in self.channels.values():
+                try:
+                    channel.close()
+                except Exception:  # noqa: BLE001 - already gone with the server
+                    pass
         if self._handler is not None:
             logging.getLogger(SDK_LOGGER).removeHandler(self._handler)
             self._handler = None
@@ -208,19 +243,26 @@ class FoxgloveBridge:
 
         Raises :class:`dlo_bag.bag.BagError` for a type that is not installed.
         """
-        from foxglove import Channel, Schema
-
         channel = self.channels.get(topic)
         if channel is not None:
             return channel
         msgdef, _rihs01 = message_definition(self.typestore, msgtype)
-        channel = Channel(topic, schema=Schema(name=msgtype, encoding="ros2msg", data=msgdef.encode()),
-                          message_encoding="cdr", context=self._context)
         with self._lock:
-            self.channels[topic] = channel
             self.types[topic] = msgtype
+            self._schemas[topic] = msgdef.encode()
             if latched:
                 self._latched_topics.add(topic)
+        return self._advertise(topic)
+
+    def _advertise(self, topic: str) -> Any:
+        """A new channel for ``topic`` (the SDK advertises it to every connected client)."""
+        from foxglove import Channel, Schema
+
+        channel = Channel(topic, schema=Schema(name=self.types[topic], encoding="ros2msg", data=self._schemas[topic]),
+                          message_encoding="cdr", context=self._context)
+        with self._lock:
+            self._topic_of_id[int(channel.id())] = topic
+            self.channels[topic] = channel
         return channel
 
     def forward(self, topic: str, data: bytes, log_time: int | None = None) -> bool:
@@ -237,6 +279,59 @@ class FoxgloveBridge:
         channel.log(bytes(data), log_time=log_time if log_time is not None else time.time_ns())
         self.stats.forwarded[topic] += 1
         return True
+
+    def maintain(self) -> None:
+        """The bridge's periodic work on the owner's thread (the thread that calls :meth:`forward`; the node:
+        every 50 ms): advertise again the channels a client lost (:meth:`readvertise`), then send the latched
+        messages new subscribers wait for (:meth:`resend_latched`)."""
+        self.readvertise()
+        self.resend_latched()
+
+    def readvertise(self) -> int:
+        """Advertise again (unadvertise, then a new channel id) each channel whose subscription a client lost
+        because it subscribed before the SDK had registered the channel for it (the SDK answered 'Unknown
+        channel ID'). Every client subscribes again (as the protocol requires after unadvertise/advertise);
+        a watched topic stays :meth:`watched` meanwhile. Waits while the SDK still reports such subscriptions
+        (see ``UNKNOWN_QUIET``): they are then done on a later call. Returns how many channels were
+        advertised again."""
+        while True:
+            try:
+                self._unresolved.append(self._lost.get_nowait())
+            except queue.Empty:
+                break
+        unresolved, self._unresolved = self._unresolved, []
+        for client, channel_id, when in unresolved:
+            topic = self._topic_of_id.get(channel_id)
+            channel = self.channels.get(topic) if topic is not None else None
+            if channel is not None and int(channel.id()) == channel_id:
+                if channel_id not in self._pending.get(topic, ()):
+                    self.log(logging.INFO, f"{topic}: client {client} subscribed before the server had registered "
+                                           f"channel {channel_id} for it (foxglove-sdk): advertised again")
+                self.stats.subscriptions_lost += 1
+                self._pending.setdefault(topic, set()).add(channel_id)
+            elif topic is not None:  # a channel advertised again meanwhile: the client has the new one too
+                self.log(logging.DEBUG, f"{topic}: client {client} subscribed to the replaced channel {channel_id}")
+            elif time.monotonic() - when < UNRESOLVED_WAIT:  # maybe a channel still being created on another thread
+                self._unresolved.append((client, channel_id, when))
+            else:
+                self.log(logging.WARNING, f"client {client} subscribed to channel {channel_id}, which this bridge "
+                                          "never advertised (refused; the client is served as before)")
+        if not self._pending:
+            return 0
+        time.sleep(0.005)  # (lets an SDK thread that waits for the GIL to report such a subscription do so)
+        if time.monotonic() - self._last_unknown < UNKNOWN_QUIET or self._server is None:
+            return 0
+        pending, self._pending = self._pending, {}
+        lost = [topic for topic, ids in pending.items()
+                if topic in self.channels and int(self.channels[topic].id()) in ids]  # not already replaced
+        for topic in lost:
+            if self.subscribers.get(topic, 0) > 0 or topic in self._held:
+                self._held[topic] = time.monotonic() + READVERTISE_GRACE
+            self.channels[topic].close()  # unadvertised: the SDK drops the clients' subscriptions of it
+        for topic in lost:
+            self._advertise(topic)
+            self.stats.readvertised += 1
+        return len(lost)
 
     def resend_latched(self) -> int:
         """Send the last message of latched topics that a client subscribed to since the last call
@@ -272,12 +367,19 @@ class FoxgloveBridge:
         self._changed.put(topic)
 
     def watched(self, topic: str) -> bool:
-        """True while at least one client subscribes to ``topic``."""
-        return self.subscribers.get(topic, 0) > 0
+        """True while at least one client subscribes to ``topic`` (and for ``READVERTISE_GRACE`` s after a
+        watched topic was advertised again, while its clients subscribe again)."""
+        return self.subscribers.get(topic, 0) > 0 or self._held.get(topic, float("-inf")) > time.monotonic()
 
     def changed_topics(self) -> set[str]:
-        """Topics whose client subscriptions changed since the last call (for the owner's thread)."""
+        """Topics whose client subscriptions changed since the last call (for the owner's thread), and those
+        whose grace period after being advertised again is over."""
         topics: set[str] = set()
+        now = time.monotonic()
+        for topic, until in list(self._held.items()):
+            if until <= now:
+                del self._held[topic]
+                topics.add(topic)
         while True:
             try:
                 topics.add(self._changed.get_nowait())
@@ -298,5 +400,15 @@ class FoxgloveBridge:
                      f"client {m.group(1)} reads slower than the graph publishes: its queue of "
                      f"{self.client_backlog} messages is full and its oldest messages are dropped "
                      "(the graph is not slowed; the SDK reports this once)")
+        elif m := _HANDSHAKE_FAILED.match(text):
+            self.stats.clients_refused += 1
+            self.log(logging.WARNING,
+                     f"client {m.group(1)} refused: its WebSocket handshake failed (a client must offer the "
+                     f"subprotocol {SUBPROTOCOL}; one that offers only {OLD_SUBPROTOCOL}, as older Foxglove and "
+                     "Lichtblick releases do, gets HTTP 400; dlo_viz README); the other clients are served as before")
+        elif m := _UNKNOWN_CHANNEL.match(text):
+            # (the SDK reports it while it still creates the channel: which topic it is, readvertise() finds out)
+            self._last_unknown = time.monotonic()
+            self._lost.put((m.group(1), int(m.group(2)), self._last_unknown))
         elif level >= logging.WARNING:
             self.log(level, f"foxglove-sdk: {text}")

@@ -18,6 +18,10 @@ always), so a bridge nobody watches costs the graph nothing; clients may connect
 any time; a slow client loses its oldest queued messages instead of slowing the graph. At shutdown it logs how many
 messages it received and forwarded per topic (``summary_file``: the same as JSON).
 
+Clients must offer the WebSocket subprotocol ``foxglove.sdk.v1`` (as foxglove_bridge 3.x): one that offers only
+``foxglove.websocket.v1`` (older Foxglove and Lichtblick releases, scripts) is refused with HTTP 400 and one
+warning line, and the bridge goes on serving the others.
+
 Exit status: 0 after SIGINT/SIGTERM, 2 = bad parameter, 3 = the address/port cannot be bound.
 """
 
@@ -74,6 +78,7 @@ class FoxgloveBridgeNode(Node):
 
     def __init__(self) -> None:
         super().__init__("foxglove_bridge")
+        self._name = self.get_name()  # for lines after the node is destroyed (the SDK's threads may still log)
         p = declare_parameters(self, PARAMETERS)
         if p["nice"]:
             os.nice(p["nice"])
@@ -158,10 +163,11 @@ class FoxgloveBridgeNode(Node):
             self.destroy_subscription(self._served.pop(topic))
 
     def sync_subscriptions(self) -> None:
-        """Follow the clients' subscriptions (lazy) and resend latched messages to new subscribers."""
+        """Follow the clients' subscriptions (lazy), advertise again the channels a client lost to the SDK's
+        race and resend latched messages to new subscribers (FoxgloveBridge.maintain)."""
         for topic in self.bridge.changed_topics():
             self._update_subscription(topic)
-        self.bridge.resend_latched()
+        self.bridge.maintain()
 
     def _on_message(self, topic: str, data: bytes) -> None:
         self.bridge.forward(topic, data)
@@ -174,11 +180,29 @@ class FoxgloveBridgeNode(Node):
         return (now.user - self._cpu0.user) + (now.system - self._cpu0.system)
 
     def _say(self, text: str, level: str = "info") -> None:
-        """Log through ROS while the context lives; after a signal shut it down, to stderr."""
-        if self.context.ok():
-            getattr(self.get_logger(), level)(text)
-        else:
-            print(f"[{level.upper()}] [{self.get_name()}]: {text}", file=sys.stderr, flush=True)
+        """Log through ROS while the context lives; after a signal shut it down, to stderr. Never raises: the
+        SDK's threads call it (the bridge's lines about clients), and a log line must not end the node.
+
+        rclpy ties a severity to each calling line (a second severity from the same line raises ValueError),
+        so every severity has its own call here."""
+        try:
+            if self.context.ok():
+                logger = self.get_logger()
+                if level == "debug":
+                    logger.debug(text)
+                elif level == "info":
+                    logger.info(text)
+                elif level == "warning":
+                    logger.warning(text)
+                else:
+                    logger.error(text)
+                return
+        except Exception:  # noqa: BLE001 - the context went down meanwhile, or the logger refused: stderr below
+            pass
+        try:
+            print(f"[{level.upper()}] [{self._name}]: {text}", file=sys.stderr, flush=True)
+        except Exception:  # noqa: BLE001 - no stderr left: the line is lost, the node goes on
+            pass
 
     def log_stats(self) -> None:
         s = self.bridge.stats
@@ -186,7 +210,9 @@ class FoxgloveBridgeNode(Node):
             f"{len(self._qos)} topics ({len(self._served)} subscribed), {s.clients_now} client(s) connected; received "
             f"{sum(s.received.values())}, forwarded {sum(s.forwarded.values())}"
             + (f", lost before delivery {sum(s.lost.values())}" if s.lost else "")
-            + (f", slow clients reported {len(s.slow_client_reports)}" if s.slow_client_reports else ""))
+            + (f", slow clients reported {len(s.slow_client_reports)}" if s.slow_client_reports else "")
+            + (f", clients refused {s.clients_refused}" if s.clients_refused else "")
+            + (f", channels advertised again {s.readvertised}" if s.readvertised else ""))
 
     def finish(self) -> dict:
         """Stop the server (bounded time) and report the counts (run_node calls this once the node stops)."""

@@ -10,6 +10,13 @@ encoding, schemaName, schema, schemaEncoding}``); the client sends ``{"op": "sub
 Payloads are decoded with a typestore built only from the advertised ``ros2msg`` schema text
 (rosbags ``get_types_from_msg`` on an empty store), so a decoded message proves that the
 advertised schema describes the bytes.
+
+``eager=True`` makes a client that subscribes to each channel the moment its advertisement arrives
+(from the reader thread, as scripts and step-locked tools do); after an ``unadvertise`` its
+subscriptions of those channels are gone (the server drops them), so an eager client subscribes
+again when the topic is advertised again. ``subprotocols`` chooses what the handshake offers
+(``("foxglove.websocket.v1",)``: an older client); :meth:`FoxgloveTestClient.drop` leaves without
+a closing handshake, as a crashed or disconnected client does.
 """
 
 from __future__ import annotations
@@ -21,7 +28,8 @@ import time
 from dataclasses import dataclass, field
 from typing import Any
 
-SUBPROTOCOLS = ("foxglove.sdk.v1", "foxglove.websocket.v1")
+SUBPROTOCOLS = ("foxglove.sdk.v1", "foxglove.websocket.v1")  # what current Foxglove releases offer
+OLD_SUBPROTOCOLS = ("foxglove.websocket.v1",)  # older Foxglove and Lichtblick releases, older scripts
 OP_MESSAGE_DATA = 0x01
 OP_TIME = 0x02
 
@@ -40,6 +48,8 @@ class FoxgloveTestClient:
     """Connects, records advertisements, subscribes, collects Message Data frames (in a thread)."""
 
     url: str
+    eager: bool = False  # subscribe to every channel as soon as it is advertised
+    subprotocols: tuple[str, ...] = SUBPROTOCOLS
     channels: dict[int, dict] = field(default_factory=dict)  # channel id -> advertised channel
     removed: list[int] = field(default_factory=list)
     server_info: dict | None = None
@@ -58,7 +68,7 @@ class FoxgloveTestClient:
         from websockets.sync.client import connect
 
         assert self.url.startswith("ws://127.0.0.1:"), "tests connect to 127.0.0.1 only"
-        self._ws = connect(self.url, subprotocols=list(SUBPROTOCOLS), max_size=None, open_timeout=timeout)
+        self._ws = connect(self.url, subprotocols=list(self.subprotocols), max_size=None, open_timeout=timeout)
         self._thread = threading.Thread(target=self._run, daemon=True)
         self._thread.start()
         self.wait(lambda: self.server_info is not None, timeout, "serverInfo")
@@ -99,8 +109,24 @@ class FoxgloveTestClient:
                 for cid in msg["channelIds"]:
                     self.channels.pop(int(cid), None)
                     self.removed.append(int(cid))
+                    for sub_id in [s for s, c in self._subs.items() if c == int(cid)]:
+                        del self._subs[sub_id]  # the server dropped it with the channel
             elif op == "status":
                 self.statuses.append(msg)
+        if op == "advertise" and self.eager:
+            self.subscribe_ids([int(ch["id"]) for ch in msg["channels"]])
+
+    def subscribe_ids(self, channel_ids: list[int]) -> None:
+        """Subscribe to these advertised channels (those not subscribed yet), in one request."""
+        with self._lock:
+            subs = []
+            for cid in channel_ids:
+                if cid in self.channels and cid not in self._subs.values():
+                    sub_id, self._next_sub = self._next_sub, self._next_sub + 1
+                    self._subs[sub_id] = cid
+                    subs.append({"id": sub_id, "channelId": cid})
+        if subs:
+            self._ws.send(json.dumps({"op": "subscribe", "subscriptions": subs}))
 
     def wait(self, condition, timeout: float, what: str = "condition") -> None:
         end = time.monotonic() + timeout
@@ -155,6 +181,29 @@ class FoxgloveTestClient:
             store.register(get_types_from_msg(channel["schema"], channel["schemaName"]))
             self._stores[item.channel_id] = store
         return store.deserialize_cdr(item.payload, channel["schemaName"])
+
+    def subscribed_topics(self) -> set[str]:
+        """The topics of the advertised channels this client subscribes to now."""
+        with self._lock:
+            return {self.channels[c]["topic"] for c in self._subs.values() if c in self.channels}
+
+    def errors(self) -> list[str]:
+        """The messages of the error statuses (level 2) the server sent."""
+        with self._lock:
+            return [s.get("message", "") for s in self.statuses if s.get("level") == 2]
+
+    def drop(self) -> None:
+        """Leave without a closing handshake (a crashed client, a cable pulled): the socket just closes."""
+        import socket
+
+        if self._ws is not None:
+            try:
+                self._ws.socket.shutdown(socket.SHUT_RDWR)
+            except OSError:
+                pass
+            self._ws.socket.close()
+        if self._thread is not None:
+            self._thread.join(5)
 
     def close(self) -> None:
         if self._ws is not None:
