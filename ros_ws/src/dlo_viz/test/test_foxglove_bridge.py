@@ -9,7 +9,11 @@ it serves, from the advertised ros2msg schemas only.
   /dlo topic + /clock (also those that appear after the client connected), decoded from the
   schemas, with consistent frames; a second client joins mid-run; the bridge subscribes to a topic
   in the ROS graph only while a client watches it (transient-local topics always); it stops
-  cleanly with the graph and logs its counts; a port in use is one line and exit 3.
+  cleanly with the graph and logs its counts; a port in use is one line and exit 3;
+- every client, every log line: a client offering only foxglove.websocket.v1 is refused in one line and ends
+  nothing (the node alone, and in the launched graph); no log line of the node can raise; a subscription the
+  SDK refused as 'Unknown channel ID' gets its channel advertised again; many step-locked sessions of eager
+  clients and 50 clients (old, eager, late, dropping mid-stream) against the node (foxglove_stress.py).
 """
 
 from __future__ import annotations
@@ -349,6 +353,10 @@ def test_launch_graph_foxglove_serves_every_graph_topic_live(launcher, tmp_path,
     observer = GraphObserver(domain)
     client = FoxgloveTestClient(url).connect()
     second = None
+    from foxglove_stress import refused_status
+
+    for _ in range(3):  # clients offering only foxglove.websocket.v1: refused, and the run goes on
+        assert refused_status(url) == (400, "Missing expected sec-websocket-protocol header")
 
     def bridge_subscribes(wanted: set[str], what: str) -> None:
         end = time.monotonic() + 120
@@ -412,6 +420,7 @@ def test_launch_graph_foxglove_serves_every_graph_topic_live(launcher, tmp_path,
     forwarded = re.findall(r"forwarded (\d+)", bridge_log)
     assert forwarded and int(forwarded[-1]) > 0, bridge_log[-1500:]
     assert "client 127.0.0.1" in bridge_log  # connections are logged
+    assert bridge_log.count(" refused: its WebSocket handshake failed") == 3, bridge_log[-1500:]
     # its counts at shutdown: every topic advertised, the transient-local ones still subscribed
     topics, subscribed = map(int, re.findall(r"(\d+) topics \((\d+) subscribed\)", bridge_log)[-1])
     assert topics >= len(GRAPH_TYPES) and subscribed == len(latched), bridge_log[-1500:]
