@@ -9,6 +9,9 @@
   shared by the vision kernel and the simulator; Taichi is imported only when it starts.
 - :mod:`dlo_common.topics`: the registry of the graph's topics and services (name, type, publisher,
   role, ...) that nodes and tools read instead of lists of their own; plain data, no ROS imports.
+- :mod:`dlo_common.console`: what the console commands (dlo-train, dlo-evaluate, dlo-bag-info, ...) share about
+  their output: a quiet end on a broken pipe or Ctrl-C (``console_main``), progress on stderr as a bar on a
+  terminal and plain lines elsewhere (``Progress``); standard library only.
 - :mod:`dlo_common.testing`: what the packages' tests share to run nodes as processes (``Proc``, an
   isolated test domain, ``Procs`` that stops every process it started); standard library only.
 """

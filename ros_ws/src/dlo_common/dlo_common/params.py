@@ -181,10 +181,16 @@ def example(param: Param) -> str:
     return f"-p {param.name}:={value}"
 
 
-def unknown_parameter(name: str, known: Iterable[str]) -> UnknownParameterError:
-    """``unknown parameter 'nosuch'; did you mean 'noise'?`` (the closest of ``known``, by difflib)."""
+def did_you_mean(name: str, known: Iterable[str]) -> str:
+    """``; did you mean 'noise'?`` (the closest of ``known`` to ``name``, by difflib), or '' when ``known`` is
+    empty: the end of an "unknown name" message (node parameters, dlo-train's config keys)."""
     closest = difflib.get_close_matches(name, list(known), n=1, cutoff=0.0)
-    return UnknownParameterError(f"unknown parameter {name!r}" + (f"; did you mean {closest[0]!r}?" if closest else ""))
+    return f"; did you mean {closest[0]!r}?" if closest else ""
+
+
+def unknown_parameter(name: str, known: Iterable[str]) -> UnknownParameterError:
+    """``unknown parameter 'nosuch'; did you mean 'noise'?`` (:func:`did_you_mean`)."""
+    return UnknownParameterError(f"unknown parameter {name!r}" + did_you_mean(name, known))
 
 
 def renamed_notice(old_names: Sequence[str], new_name: str) -> str:

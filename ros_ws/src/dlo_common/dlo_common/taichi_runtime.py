@@ -15,13 +15,18 @@ with the same options.
 killed meanwhile (SIGKILL, out of memory) leaves it, and every later process then failed to save its
 kernels ("Lock .../ticache.lock failed") and compiled them again at each start.
 
-Taichi is imported inside ``init`` only, so importing ``dlo_common`` stays light. Importing this
-module keeps Taichi's "[Taichi] version ..." banner off stdout (it would precede a command's
-``--help`` text or its one-line error; ``ENABLE_TAICHI_HEADER_PRINT=1`` brings it back).
+Taichi is imported inside ``init`` only, so importing ``dlo_common`` stays light. Taichi's own lines
+stay off stdout, which carries what each command promises (dlo-train's JSON summary, dlo-evaluate's
+table): importing this module keeps its "[Taichi] version ..." banner away, and ``init`` keeps the
+"[Taichi] Starting on arch=..." line that ``ti.init`` prints (with ``print``, whatever the log level);
+``ENABLE_TAICHI_HEADER_PRINT=1`` brings both back, on stderr for the second.
 """
 from __future__ import annotations
 
+import contextlib
+import io
 import os
+import sys
 import time
 from pathlib import Path
 from typing import Optional
@@ -73,13 +78,22 @@ def init(arch: Optional[str] = None) -> None:
         raise ValueError(f"{ENV_VAR}={name!r}: expected one of {', '.join(ARCHS)}")
     import taichi as ti  # noqa: PLC0415 (light dlo_common: Taichi only when a kernel is about to run)
 
-    ti.init(arch=getattr(ti, name), fast_math=True, default_fp=ti.f32, offline_cache=True,
-            log_level=ti.WARN if name == "cpu" else ti.ERROR)  # a missing GPU: our one line, not Taichi's three
+    printed = io.StringIO()  # ti.init's "[Taichi] Starting on arch=x64": never on stdout (module docstring)
+    with contextlib.redirect_stdout(printed):
+        ti.init(arch=getattr(ti, name), fast_math=True, default_fp=ti.f32, offline_cache=True,
+                log_level=ti.WARN if name == "cpu" else ti.ERROR)  # a missing GPU: our one line, not Taichi's three
+    if printed.getvalue() and _header_wanted():
+        sys.stderr.write(printed.getvalue())
     _running = name
     clear_stale_cache_lock(ti.lang.impl.current_cfg().offline_cache_file_path)
     if name == "cuda" and ti.lang.impl.current_cfg().arch != ti.cuda:  # Taichi falls back to the CPU silently
         raise ValueError(f"Taichi arch cuda asked for ({ENV_VAR} / train.sim_arch), but Taichi found no "
                          "CUDA device and fell back to the CPU (use cpu)")
+
+
+def _header_wanted() -> bool:
+    """Whether the user asked for Taichi's own lines (ENABLE_TAICHI_HEADER_PRINT, read as Taichi reads it)."""
+    return os.environ.get("ENABLE_TAICHI_HEADER_PRINT", "0").lower() not in ("false", "0", "f")
 
 
 def clear_stale_cache_lock(cache_dir: str | os.PathLike, now: Optional[float] = None) -> bool:

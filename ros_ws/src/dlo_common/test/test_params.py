@@ -131,6 +131,14 @@ def test_an_unknown_name_suggests_the_closest_declared_one():
     assert str(unknown_parameter("x", [])) == "unknown parameter 'x'"
 
 
+def test_did_you_mean_names_the_closest_known_name_for_any_unknown_one():
+    """params.did_you_mean: the end of every "unknown name" message (node parameters, dlo-train's config keys)."""
+    from dlo_common.params import did_you_mean
+
+    assert did_you_mean("sac.batch_sise", ["sac.batch_size", "train.eval_every"]) == "; did you mean 'sac.batch_size'?"
+    assert did_you_mean("x", []) == ""
+
+
 def level(value):
     """A check as dlo_perception.tactile.noise_setting is one: a name or a pair of numbers."""
     if value in ("low", "high"):

@@ -117,3 +117,23 @@ def test_a_recent_lock_is_left_to_the_process_writing_the_cache(tmp_path):
     assert clear_stale_cache_lock(tmp_path) is False and lock.exists()  # just written
     assert clear_stale_cache_lock(tmp_path, now=written + STALE_LOCK_AGE) is False and lock.exists()
     assert clear_stale_cache_lock(tmp_path, now=written + STALE_LOCK_AGE + 0.01) is True and not lock.exists()
+
+
+QUIET_PROBE = """
+import dlo_common.taichi_runtime as runtime
+runtime.init()
+"""
+
+
+def test_starting_taichi_prints_nothing_on_stdout():
+    """dlo_common README: stdout carries what a command promises (dlo-train's JSON summary, dlo-evaluate's
+    table): ti.init's own "[Taichi] Starting on arch=x64" line (a print, whatever the log level) stays off it;
+    ENABLE_TAICHI_HEADER_PRINT=1, the user's switch for Taichi's lines, shows it on stderr."""
+    env = {k: v for k, v in os.environ.items() if k not in ("DLO_TI_ARCH", "ENABLE_TAICHI_HEADER_PRINT")}
+    result = subprocess.run([sys.executable, "-c", QUIET_PROBE], capture_output=True, text=True, timeout=300, env=env)
+    assert result.returncode == 0, result.stderr
+    assert result.stdout == "" and "[Taichi]" not in result.stderr, result.stdout + result.stderr
+    env["ENABLE_TAICHI_HEADER_PRINT"] = "1"
+    result = subprocess.run([sys.executable, "-c", QUIET_PROBE], capture_output=True, text=True, timeout=300, env=env)
+    assert result.returncode == 0, result.stderr
+    assert "[Taichi] Starting on arch=x64" in result.stderr and "Starting on arch" not in result.stdout
