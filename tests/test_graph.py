@@ -48,7 +48,7 @@ def test_launch_prints_the_outcome_table(recorded_run):
     assert [e["seed"] for e in live] == [SEED + k for k in range(EPISODES)]
     for e in live:
         line = (f"{e['episode']:>7} {e['seed']:>6}  {e['outcome']:<20} {e['outcome_authors']:<20} "
-                f"{e['episode_return']:>8.3f} {e['time_at_end']:>11} {e['how_far']:>8}")
+                f"{e['episode_return']:>8.3f} {e['time_at_end']:>19} {e['how_far']:>8}")
         assert line in out.splitlines(), f"no line {line!r} in:\n{out}"
     rows = {line.split()[0]: line.split()[1:] for line in out.splitlines()
             if line.split() and line.split()[0] in ("hold_the_end", "stop_before", "reach_end_but_drop", "drop_before")}

@@ -13,6 +13,7 @@ second simulator) and tests/test_graph.py (Ctrl-C mid-run)."""
 import json
 import os
 import re
+import shutil
 import signal
 import subprocess
 import sys
@@ -20,6 +21,12 @@ import time
 from pathlib import Path
 
 import pytest
+import yaml
+from std_msgs.msg import String
+
+from dlo_bringup.graph import STOP_LIMIT
+from dlo_bringup.launcher import WATCH_ONE_LINER
+from dlo_common.node_main import TEARDOWN_LIMIT
 
 ROOT = Path(__file__).resolve().parents[1]
 LAUNCH = ROOT / "scripts" / "launch_graph.sh"
@@ -31,8 +38,9 @@ NODES = {"sim_node": "sim", "recorder_node": "recorder", "tactile_node": "tactil
 # refusing to start next to another simulator does, so the launcher starts no other node; any other node: once the
 # others handle signals), "signal" (on SIGINT/SIGTERM, the default) or, for the sim, "episodes" (after writing
 # "episodes" outcome lines, once the whole graph has started); "say" lines to print first; the recorder creates its
-# bag directory with a .mcap and writes metadata.yaml when it closes ("closes": true); "slow_start": true, a node
-# still starting (importing) when the launcher is interrupted: it sets no signal handler for 10 minutes.
+# bag directory with a .mcap and writes metadata.yaml when it closes ("closes": true), and "summary" (JSON) to its
+# summary_file; "stop_delay" s it then takes before it exits (a slow teardown); "slow_start": true, a node still
+# starting (importing) when the launcher is interrupted: it sets no signal handler for 10 minutes.
 FAKE_ROS2 = r'''#!{python}
 import json, os, signal, sys, time
 from pathlib import Path
@@ -49,6 +57,9 @@ def finish(*_):
         print(line, flush=True)
     if bag is not None and plan.get("closes", True):
         (bag / "metadata.yaml").write_text("rosbag2_bagfile_information: {{}}\n")
+    if "summary" in plan:
+        Path(params["summary_file"]).write_text(json.dumps(plan["summary"]) + "\n")
+    time.sleep(plan.get("stop_delay", 0))
     if plan.get("exit") == "SIGKILL":
         os.kill(os.getpid(), signal.SIGKILL)
     os._exit(plan.get("exit", 130 if name == "sim" else 0))
@@ -98,10 +109,14 @@ while True:
 '''
 
 
-def test_the_fake_graph_is_the_launchers_graph():
-    """The stand-ins are every node the launcher starts (`start NAME PACKAGE EXECUTABLE` lines), but the
-    Foxglove bridge, which only --foxglove starts: a node added to the launcher is added here too."""
-    started = re.findall(r"^\s*start (\w+) (\w+) (\w+) --ros-args", LAUNCH.read_text(), flags=re.M)
+def test_the_fake_graph_is_the_launchers_graph(tmp_path):
+    """The stand-ins are every node the launcher starts (the graph's description, dlo_bringup.graph), but the
+    Foxglove bridge, which only --foxglove starts: a node added to the graph is added here too."""
+    from dlo_bringup.graph import graph_nodes
+    from dlo_bringup.options import parse_args, resolve
+
+    options = resolve(parse_args(["--record", str(tmp_path / "bag"), "--foxglove", "--policy", "random"]))
+    started = [(spec.name, spec.package, spec.executable) for spec in graph_nodes(options, tmp_path)]
     assert {exe: name for name, _, exe in started if name != "foxglove"} == NODES
     assert ("foxglove", "dlo_viz", "foxglove_bridge") in started
 
@@ -181,26 +196,50 @@ INTERRUPTS = {  # the launcher gets the signal while the graph runs (unlimited e
 }
 
 
-def start(tmp_path, plan, args, own_groups):
-    """launch_graph.sh with the fake nodes of ``plan``, in its own session; (process, out file, logs, bag)."""
-    bin_dir, logs, bag = tmp_path / "bin", tmp_path / "logs", tmp_path / "bag"
-    bin_dir.mkdir()
-    fake = bin_dir / "ros2"
+def fake_graph_env(tmp_path, plan, args, ros2=True):
+    """The environment in which the launcher's nodes are the stand-ins of ``plan``: on a ROS 2 install (a fake
+    ``ros2`` on PATH: `ros2 run`), or with ``ros2=False`` on the wheels (no ros2: scripts/ros2run finds them in
+    a package prefix of their own)."""
+    fake = tmp_path / "bin" / "ros2"
+    fake.parent.mkdir()
     fake.write_text(FAKE_ROS2.format(python=sys.executable, nodes=NODES))
     fake.chmod(0o755)
-    env = {k: v for k, v in os.environ.items() if k != "DLO_USE_ROS2RUN"}  # a ROS 2 install: `ros2 run`
+    env = {k: v for k, v in os.environ.items() if k != "DLO_USE_ROS2RUN"}
+    if ros2:
+        env["PATH"] = f"{fake.parent}{os.pathsep}{env['PATH']}"
+    else:
+        prefix = tmp_path / "prefix"
+        for exe in [*NODES, "foxglove_bridge"]:
+            package = {"sim_node": "dlo_sim", "recorder_node": "dlo_bag", "tactile_node": "dlo_perception",
+                       "vision_node": "dlo_perception", "policy_node": "dlo_policy", "foxglove_bridge": "dlo_viz"}[exe]
+            index = prefix / "share" / "ament_index" / "resource_index" / "packages" / package
+            index.parent.mkdir(parents=True, exist_ok=True)
+            index.touch()
+            script = prefix / "lib" / package / exe
+            script.parent.mkdir(parents=True, exist_ok=True)
+            script.write_text(f'#!/bin/sh\nexec "{fake}" run {package} {exe} "$@"\n')
+            script.chmod(0o755)
+        assert shutil.which("ros2", path=env["PATH"]) is None
+        env.update(DLO_USE_ROS2RUN="1", AMENT_PREFIX_PATH=str(prefix))
     (tmp_path / "ready").mkdir()
     nodes = [n for n in NODES.values() if n != "recorder" or "--record" in args]  # what the launcher starts
-    env.update(PATH=f"{bin_dir}{os.pathsep}{env['PATH']}", FAKE_GRAPH=json.dumps(plan), FAKE_READY=str(tmp_path / "ready"),
-               FAKE_NODES=json.dumps(nodes))
-    argv = [str(bag) if a == "BAG" else str(a) for a in args]
+    env.update(FAKE_GRAPH=json.dumps(plan), FAKE_READY=str(tmp_path / "ready"), FAKE_NODES=json.dumps(nodes))
+    return env
+
+
+def start(tmp_path, plan, args, own_groups, ros2=True, logs=True, env=None):
+    """launch_graph.sh with the fake nodes of ``plan``, in its own session; (process, out file, logs, bag).
+    ``logs``: with --logs (else the launcher makes a temp dir)."""
+    logs_dir, bag = tmp_path / "logs", tmp_path / "bag"
+    env = {**fake_graph_env(tmp_path, plan, args, ros2), **(env or {})}
+    argv = [str(bag) if a == "BAG" else str(a) for a in args] + (["--logs", str(logs_dir)] if logs else [])
     out = tmp_path / "launch.out"
     with out.open("w") as f:
-        proc = subprocess.Popen(["bash", str(LAUNCH), *argv, "--logs", str(logs), "--status-period", "0"],
+        proc = subprocess.Popen(["bash", str(LAUNCH), *argv, "--status-period", "0"],
                                 stdout=f, stderr=subprocess.STDOUT, env=env, start_new_session=True,
                                 preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     own_groups(proc.pid)
-    return proc, out, logs, bag
+    return proc, out, logs_dir, bag
 
 
 def check(proc, out, logs, bag, rc, lines):
@@ -363,3 +402,198 @@ def test_a_checkpoint_whose_run_cannot_be_read_is_exit_2_in_one_line(config, tmp
                         f"{checkpoint.parent / 'config.yaml'}: not valid YAML (line 2, column 1): "
                         "expected ',' or '}', but got '<stream end>'")
     assert result.stdout == "" and not logs.exists()
+
+
+COMPLETE = {"written": 120, "dropped": 0, "complete": True, "failure": ""}  # the recorder's summary_file
+RECORDER_STOPS = {  # (issue 38 item 9) how the recorder stops once the sim has run its episodes
+    # its closing work and a middleware teardown up to dlo_common.node_main's limit: longer than the launcher
+    # used to wait before its SIGKILL (as long as that limit), which made a complete bag a failed recording
+    "slow_to_stop": ({"stop_delay": TEARDOWN_LIMIT + 1, "summary": COMPLETE}, 0,
+                     ["[launch] bag: BAG (inspect: dlo-bag-info BAG)"]),
+    # the bag closed and complete, then the teardown cut at that limit (exit 1, its stacks in its log)
+    "teardown_cut": ({"stop_delay": TEARDOWN_LIMIT + 1, "exit": 1, "summary": COMPLETE}, 0,
+                     ["[launch] the recorder's middleware teardown was cut short after it had closed the bag (status 1;"
+                      " its stacks: LOGS/recorder.log); the recording is complete: 120 messages written, none dropped",
+                      "[launch] bag: BAG (inspect: dlo-bag-info BAG)"]),
+    # exit 1 with messages dropped, as its summary counts them: a failed recording
+    "dropped_by_its_count": ({"exit": 1, "summary": dict(COMPLETE, dropped=3)}, 4,
+                             ["[launch] recording incomplete: the recorder dropped messages (see LOGS/recorder.log)"]),
+}
+
+
+@pytest.mark.parametrize("case", sorted(RECORDER_STOPS))
+def test_a_recorder_is_given_its_teardown_and_a_cut_one_with_a_complete_bag_is_no_failure(case, tmp_path, own_groups):
+    recorder, rc, lines = RECORDER_STOPS[case]
+    proc, out, logs, bag = start(tmp_path, {"sim": episodes(2), "recorder": recorder}, ("--episodes", 2, "--record",
+                                                                                          "BAG"), own_groups)
+    text = check(proc, out, logs, bag, rc, lines)
+    assert "did not stop within" not in text and STOP_LIMIT > TEARDOWN_LIMIT + 5
+
+
+BYSTANDER = r'''
+import signal, sys, time
+from pathlib import Path
+for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
+    signal.signal(sig, lambda signum, frame: Path(sys.argv[1]).open("a").write(f"{signum}\n"))
+while True:
+    time.sleep(1)
+'''
+# In a PID namespace of its own (so that the pids are the test's alone): the launcher with --episodes 0, SIGINT to
+# it; the sim takes a few seconds to stop; the tactile node stops at once; once the launcher has reaped it, a
+# bystander process is started with the tactile node's pid (ns_last_pid). It must get no signal from the launcher.
+PID_REUSE = r'''
+import json, os, re, signal, subprocess, sys, time
+from pathlib import Path
+
+launch, logs, ready, record, nodes = sys.argv[1:6]
+out = open(Path(logs).parent / "launch.out", "w")
+proc = subprocess.Popen(["bash", launch, "--episodes", "0", "--logs", logs, "--status-period", "0"], stdout=out,
+                        stderr=subprocess.STDOUT)
+deadline = time.monotonic() + 120
+while {p.name for p in Path(ready).iterdir()} != set(json.loads(nodes)):
+    assert proc.poll() is None and time.monotonic() < deadline, "the graph did not start"
+    time.sleep(0.05)
+text = (Path(logs).parent / "launch.out").read_text()
+tactile = int(re.search(r"\[launch\] tactile \(pid (\d+)\)", text).group(1))
+proc.send_signal(signal.SIGINT)
+bystander = None
+while proc.poll() is None and bystander is None and time.monotonic() < deadline:
+    if not os.path.exists(f"/proc/{tactile}"):  # reaped: its pid is free
+        with open("/proc/sys/kernel/ns_last_pid", "w") as f:
+            f.write(str(tactile - 1))
+        candidate = subprocess.Popen([sys.executable, "-c", sys.argv[6], record])
+        if candidate.pid == tactile:
+            bystander = candidate
+        else:  # another process took the pid first: try again
+            candidate.kill()
+            candidate.wait()
+    time.sleep(0.01)
+rc = proc.wait(timeout=300)
+print(json.dumps({"rc": rc, "planted": bystander is not None,
+                  "alive": bystander is not None and bystander.poll() is None}))
+'''
+
+
+def test_a_reused_pid_of_a_node_that_ended_gets_no_signal(tmp_path, own_groups):
+    """Issue 38 item 9: the launcher signalled the pids it stored, also of nodes that had ended: a pid the kernel
+    had given to another process meanwhile got SIGINT, and 10 s later SIGKILL. It signals only its children that
+    still run."""
+    if os.geteuid() != 0 or subprocess.run(["unshare", "--pid", "--fork", "--mount-proc", "true"],
+                                           capture_output=True).returncode != 0:
+        pytest.skip("needs a PID namespace of the test's own (root, unshare) to give a pid to a process of its choice")
+    plan = {"sim": {"stop_delay": 4}}
+    env = fake_graph_env(tmp_path, plan, ())
+    logs = tmp_path / "logs"
+    harness = subprocess.Popen(["unshare", "--pid", "--fork", "--mount-proc", sys.executable, "-c", PID_REUSE,
+                                str(LAUNCH), str(logs), str(tmp_path / "ready"), str(tmp_path / "signals"),
+                                env["FAKE_NODES"], BYSTANDER], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                               text=True, env=env, start_new_session=True)
+    own_groups(harness.pid)
+    result, err = harness.communicate(timeout=600)
+    launch_out = (tmp_path / "launch.out").read_text() if (tmp_path / "launch.out").exists() else ""
+    assert harness.returncode == 0, err + launch_out
+    result = json.loads(result)
+    assert result["rc"] == 130, launch_out
+    assert result["planted"], launch_out  # the tactile node's pid was given to the bystander while the sim stopped
+    signals = (tmp_path / "signals").read_text().split() if (tmp_path / "signals").exists() else []
+    assert result["alive"] and signals == [], (signals, launch_out)
+    assert "did not stop within" not in launch_out
+
+
+def test_the_temp_logs_go_when_the_run_went_well_and_are_named_when_kept(tmp_path, own_groups):
+    """Issue 38 item 8: each launch left a dlo-graph-* folder in the temp directory. Without --logs it goes at the
+    end of a run that went well; a failed run keeps it and says where."""
+    temp = tmp_path / "temp"
+    temp.mkdir()
+    good = tmp_path / "good"
+    good.mkdir()
+    proc, out, logs, bag = start(good, {"sim": episodes(1)}, ("--episodes", 1), own_groups, logs=False,
+                                 env={"TMPDIR": str(temp)})
+    text = check(proc, out, logs, bag, 0, [])
+    assert list(temp.iterdir()) == [] and "logs kept" not in text, text
+    failed = tmp_path / "failed"
+    failed.mkdir()
+    proc, out, logs, bag = start(failed, {"policy": {"when": "start", "exit": 1}}, ("--episodes", 2), own_groups,
+                                 logs=False, env={"TMPDIR": str(temp)})
+    text = check(proc, out, logs, bag, 3, [])
+    (kept,) = temp.iterdir()
+    assert kept.name.startswith("dlo-graph-") and (kept / "policy.log").is_file()
+    assert f"[launch] logs kept (the run failed): {kept}" in text.splitlines(), text
+
+
+@pytest.mark.parametrize("ros2", [True, False], ids=["ros2_on_path", "wheels"])
+def test_the_domain_line_says_how_to_watch_with_what_is_here(ros2, tmp_path, own_groups):
+    """Issue 38 item 7: the launcher suggested `ros2 topic list`, which the wheels do not have: there it suggests a
+    python line (test_the_suggested_python_line_lists_the_domains_topics runs it), on a ROS 2 install
+    `ros2 topic list`. The nodes start with `ros2 run` or scripts/ros2run accordingly."""
+    proc, out, logs, bag = start(tmp_path, {"sim": episodes(1)}, ("--episodes", 1), own_groups, ros2=ros2)
+    text = check(proc, out, logs, bag, 0, [])
+    (line,) = [line for line in text.splitlines() if line.startswith("[launch] ROS_DOMAIN_ID=")]
+    domain = re.match(r"\[launch\] ROS_DOMAIN_ID=(\d+) ", line).group(1)
+    if ros2:
+        assert line.endswith(f"(to watch: ROS_DOMAIN_ID={domain} ros2 topic list)"), line
+    else:
+        assert "ros2" not in line and line.endswith(f"(to watch: ROS_DOMAIN_ID={domain} {WATCH_ONE_LINER}, with "
+                                                    "scripts/env.sh sourced)"), line
+
+
+def test_help_shows_the_lines_as_the_graph_prints_them():
+    """Issue 38 item 8: --help showed an old episode-line format; its examples are what the launcher prints, and
+    the outcome table names the unit of 'time at end' (steps; the complete case's table above shows it)."""
+    from dlo_bag.outcome_table import episode_line, outcome_table, status_line
+
+    result = subprocess.run(["bash", str(LAUNCH), "--help"], capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0 and result.stderr == ""
+    example = {"episode": 0, "seed": 0, "outcome": "hold_the_end", "outcome_authors": "hold_the_end",
+               "episode_return": 4.321, "episode_length": 97, "time_at_end": 90, "how_far": 0}
+    lines = result.stdout.splitlines()
+    assert "[launch] " + episode_line(example, 1, 5) in lines
+    assert "[launch] status: " + status_line(11.8, 0.94, 1, 5, dict.fromkeys(("sim", "tactile", "vision", "policy"),
+                                                                               True), ["policy: no tactile input"]) in lines
+    assert "time at end [steps]" in outcome_table([example]).splitlines()[0]
+
+
+def test_the_launch_file_starts_what_the_launcher_started(tmp_path, own_groups, monkeypatch):
+    """The ROS 2 launch file (launch/graph.launch.py, read with stand-ins for launch and launch_ros) starts, for the
+    same options, the nodes the launcher started here, with the arguments its stand-ins were given."""
+    sys.path.insert(0, str(ROOT / "ros_ws" / "src" / "dlo_bringup" / "test"))
+    from launch_file_stubs import launched_nodes, node_command
+
+    args = ("--episodes", 1, "--seed", 7, "--policy", "random", "--without", "V", "--tactile-noise", "0.1,0.001",
+            "--task-rules", "paper_text", "--single-particle-grip", "--contact-radius", "0.005", "--record", "BAG",
+            "--namespace", "robot1")
+    logs, bag = tmp_path / "logs", tmp_path / "bag"  # (as start() gives them; the bag must not exist yet)
+    nodes, _ = launched_nodes(monkeypatch, {"episodes": "1", "seed": "7", "policy": "random", "without": "V",
+                                            "tactile_noise": "0.1,0.001", "task_rules": "paper_text",
+                                            "single_particle_grip": "true", "contact_radius": "0.005",
+                                            "record": str(bag), "namespace": "robot1", "logs": str(logs)})
+    shutil.rmtree(logs)  # (the launch file made it)
+    proc, out, logs, bag = start(tmp_path, {"sim": episodes(1)}, args, own_groups)
+    check(proc, out, logs, bag, 0, [])
+    for node in nodes:
+        package, executable, parameters, remappings = node_command(node)
+        given = json.loads((tmp_path / f"args_{NODES[executable]}.json").read_text())
+        assert given[0] == "--ros-args"
+        assert [(a.split(":=")[0], yaml.safe_load(a.split(":=")[1])) for f, a in zip(given[1::2], given[2::2])
+                if f == "-p"] == parameters, executable
+        assert [tuple(a.split(":=")) for f, a in zip(given[1::2], given[2::2]) if f == "-r"] == remappings
+    assert sorted(NODES[node_command(node)[1]] for node in nodes) == sorted(NODES.values())
+
+
+def test_the_suggested_python_line_lists_the_domains_topics(own_groups):
+    """What the wheels' launcher suggests for watching its domain (no `ros2 topic list` there) works: run on a
+    domain where a node publishes, it lists that topic."""
+    import rclpy
+
+    context = rclpy.Context()
+    rclpy.init(context=context)
+    try:
+        node = rclpy.create_node("watched", context=context)
+        node.create_publisher(String, "/dlo/watch_me", 1)
+        watch = subprocess.Popen(["bash", "-c", f"ROS_DOMAIN_ID={os.environ['ROS_DOMAIN_ID']} {WATCH_ONE_LINER}"],
+                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+        own_groups(watch.pid)
+        out, err = watch.communicate(timeout=120)
+    finally:
+        rclpy.shutdown(context=context)
+    assert watch.returncode == 0 and "/dlo/watch_me" in out.splitlines(), out + err

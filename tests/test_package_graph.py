@@ -111,8 +111,10 @@ def test_declared_dependencies_form_a_dag():
 
 
 TOOLS = ("dlo_bag", "dlo_viz", "dlo_driver_kit")  # the tool packages, on top of the graph's own packages
-# who may depend on a tool package (any tag): dlo_viz serves bags' schemas, the driver kit's tests analyse a bag
-TOOL_USERS = {"dlo_bag": {"dlo_viz", "dlo_driver_kit"}, "dlo_viz": set(), "dlo_driver_kit": set()}
+# who may depend on a tool package (any tag): dlo_viz serves bags' schemas, the driver kit's tests analyse a bag;
+# dlo_bringup starts the graph, the recorder and the Foxglove bridge with it
+TOOL_USERS = {"dlo_bag": {"dlo_viz", "dlo_driver_kit", "dlo_bringup"}, "dlo_viz": {"dlo_bringup"},
+              "dlo_driver_kit": set()}
 
 
 def test_node_helpers_live_in_the_base_package():
@@ -128,7 +130,8 @@ def test_node_helpers_live_in_the_base_package():
 def test_the_tool_packages_sit_on_top_of_the_graph():
     """The expected DAG: dlo_bag (bag I/O, recorder, playback, analysis) and dlo_driver_kit (driver template
     and checker) need only msgs, common, perception and sim; dlo_viz (live view) needs dlo_bag; no package of
-    the graph itself depends on a tool package, and nothing depends on dlo_viz or dlo_driver_kit."""
+    the graph itself depends on a tool package, and nothing but the launch package dlo_bringup depends on dlo_viz
+    or dlo_driver_kit."""
     pkgs = packages(SRC)
     assert set(TOOLS) <= set(pkgs)
     dlo_deps = {name: {d for d in set().union(*deps.values()) if d in pkgs} for name, (_, deps) in pkgs.items()}
@@ -140,6 +143,15 @@ def test_the_tool_packages_sit_on_top_of_the_graph():
     assert dlo_deps["dlo_driver_kit"] == core | {"dlo_bag"}  # <test_depend> only
     assert "dlo_bag" not in set().union(*(pkgs["dlo_driver_kit"][1][t] for t in RUN_TAGS))
     assert dlo_deps["dlo_viz"] == {"dlo_msgs", "dlo_common", "dlo_bag"}
+
+
+def test_the_launch_package_sits_on_top_of_everything():
+    """dlo_bringup starts the whole graph: it depends on every package whose nodes or functions it uses, and no
+    package depends on it (a launch package is the top of the DAG)."""
+    pkgs = packages(SRC)
+    dlo_deps = {name: {d for d in set().union(*deps.values()) if d in pkgs} for name, (_, deps) in pkgs.items()}
+    assert dlo_deps["dlo_bringup"] == set(pkgs) - {"dlo_bringup", "dlo_driver_kit"}
+    assert not [name for name, deps in dlo_deps.items() if "dlo_bringup" in deps]
 
 
 def test_every_python_package_is_on_the_environment():

@@ -17,8 +17,9 @@ import threading
 import pytest
 import yaml
 
+from dlo_bringup.graph import graph_nodes
+from dlo_bringup.options import UsageError, parse_args, resolve
 from dlo_common.params import ParameterError, check_value
-from dlo_perception import tactile
 from dlo_perception.tactile import NOISE_FORMS, noise_sigma
 from dlo_perception.tactile_node import PARAMETERS
 from dlo_policy.env import check_options
@@ -41,11 +42,17 @@ BAD = ["loud", "custom", "Partial", "", "0.1", "0.1,0.001,0.2", "-0.1,0.001", "0
        "[0.1 0.001]", "a,b"]
 
 
+def launcher_noise(value: str) -> str:
+    """The ``-p tactile_noise:=`` value the launcher gives the tactile node for ``--tactile-noise value``."""
+    tactile_node = next(spec for spec in graph_nodes(resolve(parse_args(["--policy", "random", "--tactile-noise",
+                                                                         value]))) if spec.name == "tactile")
+    return next(arg for arg in tactile_node.ros_args() if arg.startswith("tactile_noise:="))[len("tactile_noise:="):]
+
+
 @pytest.mark.parametrize("given,ros,pair", VALUES, ids=[v[0].strip() or "empty" for v in VALUES])
-def test_the_same_value_is_accepted_in_all_three_places(given, ros, pair, capsys):
-    # the launcher's check (what launch_graph.sh runs first): the -p form it passes on
-    assert tactile.main([f"--check-noise={given}"]) == 0
-    assert capsys.readouterr().out == ros + "\n"
+def test_the_same_value_is_accepted_in_all_three_places(given, ros, pair):
+    # the launcher's check (what launch_graph.sh does first): the -p form it passes on
+    assert launcher_noise(given) == ros
     # the tactile node's parameter, as rcl reads `-p tactile_noise:=<ros>` or a params file (YAML), and as text
     for value in (yaml.safe_load(ros), given):
         assert noise_sigma(check_value(PARAM, value)) == pytest.approx(pair, abs=0)
@@ -56,11 +63,11 @@ def test_the_same_value_is_accepted_in_all_three_places(given, ros, pair, capsys
 
 
 @pytest.mark.parametrize("value", BAD)
-def test_a_bad_value_is_refused_in_one_line_in_all_three_places(value, capsys):
+def test_a_bad_value_is_refused_in_one_line_in_all_three_places(value):
     expected = f"expected {NOISE_FORMS}, got {value!r}"
-    assert tactile.main([f"--check-noise={value}"]) == 2
-    out, err = capsys.readouterr()
-    assert out == "" and err == f"tactile noise: {expected}\n"
+    with pytest.raises(UsageError) as error:
+        launcher_noise(value)
+    assert str(error.value) == f"--tactile-noise: {expected}"
     with pytest.raises(ParameterError) as error:
         check_value(PARAM, value)
     assert str(error.value) == f"parameter 'tactile_noise': {expected}"

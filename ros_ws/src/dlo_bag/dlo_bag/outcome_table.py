@@ -1,9 +1,7 @@
 """Outcomes of a graph run from the sim node's per-episode JSON lines: the final table, the one-line
 episode report the launcher streams while the graph runs, the header naming what produced them,
-and the health notes read from the nodes' logs. Pure text processing (no rclpy).
-
-    python -m dlo_bag.outcome_table OUTCOMES.jsonl [--policy sac --checkpoint PATH --without T ...]
-                                                     [--tactile-noise none|partial|full|0.1,0.001]
+and the health notes read from the nodes' logs. Pure text processing (no rclpy). The launcher
+(dlo_bringup.launcher) prints them; dlo-analyze prints the table for a bag.
 
 Each JSON line is one finished episode as ``sim_node`` writes it (``summary_file``): episode, seed,
 outcome and outcome_authors (dlo_sim.task, both rules), episode_return, episode_length [steps],
@@ -12,10 +10,8 @@ time_at_end [steps], how_far [particles].
 
 from __future__ import annotations
 
-import argparse
 import json
 import re
-import sys
 
 from dlo_perception.tactile import noise_label
 from dlo_sim.task import LEGACY_TASK_RULES, OUTCOME_NAMES, OUTCOME_NONE
@@ -27,7 +23,7 @@ SHIPPED = "the shipped All policy"
 def episode_row(e: dict) -> str:
     """One episode as a fixed-width row of the outcome table."""
     return (f"{e['episode']:>7} {e['seed']:>6}  {e['outcome']:<20} {e.get('outcome_authors', '?'):<20} "
-            f"{e['episode_return']:>8.3f} {e['time_at_end']:>11} {e['how_far']:>8}")
+            f"{e['episode_return']:>8.3f} {e['time_at_end']:>19} {e['how_far']:>8}")
 
 
 def episode_line(e: dict, done: int = 0, total: int = 0) -> str:
@@ -45,7 +41,7 @@ def outcome_table(episodes) -> str:
     """Per-episode lines and the fraction of each outcome under both rules (paper text, authors'
     code: dlo_sim.task), as fixed-width text."""
     lines = [f"{'episode':>7} {'seed':>6}  {'outcome (paper rule)':<20} {'authors rule':<20} {'return':>8} "
-             f"{'time at end':>11} {'from end':>8}"]
+             f"{'time at end [steps]':>19} {'from end':>8}"]
     lines += [episode_row(e) for e in episodes]
     n = len(episodes)
     lines += ["", f"{'outcome':<20} {'paper rule':>16} {'authors rule':>16}"]
@@ -142,47 +138,3 @@ def status_line(steps_per_s, sim_time_factor, done: int, total: int, alive: dict
 def read_episodes(path: str) -> list:
     with open(path) as f:
         return [json.loads(line) for line in f if line.strip()]
-
-
-def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("outcomes", help="JSON-lines file written by sim_node's summary_file parameter")
-    parser.add_argument("--policy", default="", help="the run's policy (sac, tactile_reactive, ...)")
-    parser.add_argument("--checkpoint", default="", help="the policy file (empty: the shipped policy)")
-    parser.add_argument("--without", default="", help="test-time ablation: modalities zeroed for the policy")
-    parser.add_argument("--tactile-noise", default="", help="the run's tactile noise: none, partial, full or "
-                                                            "sigma_theta,sigma_y [rad, m], e.g. 0.1,0.001")
-    parser.add_argument("--noise", default=None, help=argparse.SUPPRESS)  # the old name, until the next release
-    parser.add_argument("--mode", default="", help="the sim's clock mode")
-    parser.add_argument("--train-out", default="", help="online training run directory, if any")
-    parser.add_argument("--policy-line", default="", help="the policy node's description of itself "
-                                                          "(e.g. 'policy sac on T+K+V without T')")
-    args = parser.parse_args(argv)
-    if args.noise is not None:
-        print("outcome_table: --noise is now --tactile-noise (the old name works until the next release)",
-              file=sys.stderr)
-        if args.tactile_noise:
-            parser.error("give --tactile-noise only (--noise is its old name)")
-        args.tactile_noise = args.noise
-    if args.tactile_noise:
-        try:
-            noise_label(args.tactile_noise)
-        except ValueError as error:
-            parser.error(f"--tactile-noise: {error}")
-    try:
-        episodes = read_episodes(args.outcomes)
-    except FileNotFoundError:
-        print(f"no finished episodes ({args.outcomes} does not exist)", file=sys.stderr)
-        return 1
-    except (OSError, ValueError) as error:
-        print(f"outcome_table: cannot read {args.outcomes}: {error}", file=sys.stderr)
-        return 1
-    if args.policy or args.policy_line:
-        print(run_header(episodes, args.policy, args.checkpoint, args.without, args.tactile_noise, args.mode,
-                         args.policy_line, args.train_out))
-    print(outcome_table(episodes))
-    return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

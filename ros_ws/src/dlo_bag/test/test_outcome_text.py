@@ -1,13 +1,9 @@
 """The launcher's texts without a graph (issue 12 item 5): the streamed episode line, the run header,
-health notes read from node logs and the status line (dlo_bag.outcome_table; graph_monitor, which prints
-them while a graph runs: dlo_viz test_graph_monitor.py)."""
+health notes read from node logs and the status line (dlo_bag.outcome_table; the launcher prints them:
+dlo_bringup test_graph_monitor.py and tests/test_launch_graph_exit_codes.py)."""
 
-import json
-
-import pytest
-
-from dlo_bag.outcome_table import (episode_line, episode_row, health_notes, main, outcome_table, run_header,
-                                   seed_ranges, status_line)
+from dlo_bag.outcome_table import (episode_line, episode_row, health_notes, outcome_table, run_header, seed_ranges,
+                                   status_line)
 
 EPISODE = {"episode": 3, "seed": 13, "outcome": "hold_the_end", "outcome_authors": "stop_before",
            "episode_return": 4.25, "episode_length": 97, "time_at_end": 12, "how_far": 1}
@@ -19,6 +15,7 @@ def test_episode_line_names_seed_both_outcomes_return_and_steps():
                     "97 steps, 1 particles from the end")
     assert "4/unlimited done" in episode_line(EPISODE, done=4)
     assert episode_row(EPISODE) in outcome_table([EPISODE]).splitlines()  # the table's row: same function
+    assert outcome_table([EPISODE]).splitlines()[0].endswith(" return time at end [steps] from end")  # its unit
 
 
 def test_run_header_names_policy_checkpoint_ablation_noise_mode_and_seeds():
@@ -41,40 +38,6 @@ def test_run_header_names_policy_checkpoint_ablation_noise_mode_and_seeds():
     assert "; grip finite, single-particle; " in run_header(episodes[:1] + single, "sac")  # a mixed file: both
     assert seed_ranges([]) == "none" and seed_ranges([2, 1, 3, 3]) == "1..3"
 
-
-def test_main_prints_the_header_above_the_unchanged_table(tmp_path, capsys):
-    path = tmp_path / "outcomes.jsonl"
-    path.write_text(json.dumps(EPISODE) + "\n")
-    assert main([str(path)]) == 0
-    plain = capsys.readouterr().out
-    assert main([str(path), "--policy", "random", "--without", "V", "--tactile-noise", "0.1,0.001"]) == 0
-    headed, err = capsys.readouterr()
-    assert headed.splitlines()[0].startswith("run: policy random") and headed.endswith(plain) and err == ""
-    assert "; tactile noise: sigma_theta 0.1 rad, sigma_y 0.001 m; " in headed.splitlines()[0]
-    assert main([str(tmp_path / "missing.jsonl")]) == 1
-    assert "no finished episodes" in capsys.readouterr().err
-
-
-
-def test_the_old_noise_option_works_with_one_notice_and_bad_values_are_usage_errors(tmp_path, capsys):
-    """--noise is the old name of --tactile-noise (until the next release): the same header, one line on
-    stderr naming the new option; both at once, or a value the tactile node would refuse: exit 2."""
-    path = tmp_path / "outcomes.jsonl"
-    path.write_text(json.dumps(EPISODE) + "\n")
-    assert main([str(path), "--policy", "random", "--tactile-noise", "full"]) == 0
-    new = capsys.readouterr().out
-    assert main([str(path), "--policy", "random", "--noise", "full"]) == 0
-    old, err = capsys.readouterr()
-    assert old == new and "tactile noise: full (sigma_theta 0.5 rad, sigma_y 0.002 m)" in new
-    assert err.splitlines() == ["outcome_table: --noise is now --tactile-noise (the old name works until the next "
-                                "release)"]
-    for args in (["--noise", "full", "--tactile-noise", "full"], ["--tactile-noise", "loud"]):
-        with pytest.raises(SystemExit) as exit_:
-            main([str(path), "--policy", "random", *args])
-        assert exit_.value.code == 2, args
-    assert capsys.readouterr().err.splitlines()[-1].endswith(
-        "error: --tactile-noise: expected none, partial, full or a pair [sigma_theta, sigma_y] (rad, m; >= 0) such "
-        "as [0.1,0.001], got 'loud'")
 
 def test_health_notes_name_missing_inputs_waits_and_warnings():
     lines = ["[INFO] [1.0] [policy_node]: policy sac on T+K+V; inputs ['gripper', 'tactile']",

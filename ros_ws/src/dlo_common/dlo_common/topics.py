@@ -2,7 +2,7 @@
 
 Every tool that needs the graph's topic names, types or publishers reads them here instead of keeping
 a list of its own: the nodes (the simulator's publishers, the policy node's inputs), the launcher's
-``--namespace`` remapping (``python -m dlo_common.topics --names``), the interface doc generator
+``--namespace`` remapping (:func:`names`), the interface doc generator
 (tools/gen_interfaces.py: the contract, rates, the driver's part), bag analysis (``dlo_bag.analysis``),
 the driver checker, the Foxglove layout and the message tests. A consumer that needs a subset takes it
 with :func:`select` (by role or publisher) rather than listing names.
@@ -25,7 +25,6 @@ Plain data and the standard library only (no rclpy, no message imports until :fu
 from __future__ import annotations
 
 import importlib
-import sys
 from dataclasses import dataclass
 
 ROLES = {
@@ -155,25 +154,3 @@ def message_class(msgtype: str) -> type:
         return getattr(module, name)
     except AttributeError:
         raise ValueError(f"'{pkg}.{kind}' has no type '{name}'") from None
-
-
-def main(argv=None) -> int:
-    """``python -m dlo_common.topics [--names]``: the registry as a table, or (``--names``) every topic and
-    service name, one a line (what scripts/launch_graph.sh remaps under ``--namespace``)."""
-    import argparse
-
-    parser = argparse.ArgumentParser(prog="python -m dlo_common.topics", description=__doc__.split("\n\n")[0])
-    parser.add_argument("--names", action="store_true", help="print every topic and service name, one a line")
-    args = parser.parse_args(argv)
-    if args.names:
-        print("\n".join(names()))
-        return 0
-    for t in TOPICS:
-        print(f"{t.name:<26} {t.type:<36} {t.publisher:<13} {t.role:<13} {t.rate:<8} {t.description}")
-    for s in SERVICES:
-        print(f"{s.name:<26} {s.type:<36} {s.server:<13} {'service':<13} {'':<8} {s.description}")
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

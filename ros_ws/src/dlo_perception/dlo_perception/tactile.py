@@ -17,14 +17,12 @@ Sensor noise (paper, Tactile sensors): ``angle += (1 - c_G) N(0, sigma_theta)`` 
 
 The noise setting has one name, ``tactile_noise``, and one reading, :func:`noise_setting`, wherever it is
 given: the gym env's option (and dlo-train's ``env_options.tactile_noise``), the tactile node's
-parameter and ``scripts/launch_graph.sh --tactile-noise``, which checks its value first with
-
-    python -m dlo_perception.tactile --check-noise=VALUE   # prints the -p form; one line and exit 2 if bad
+parameter and ``scripts/launch_graph.sh --tactile-noise``, which checks its value first and passes on its
+``-p`` form (:func:`noise_parameter_value`).
 """
 
 from __future__ import annotations
 
-import sys
 from dataclasses import dataclass
 
 import numpy as np
@@ -158,26 +156,3 @@ def tactile_pose(points_xy, held_mask, gripper_xy, closure, sigma=(0.0, 0.0), rn
 def wrap_line_angle(angle):
     """Angle of an undirected line [rad] -> (-pi/2, pi/2]."""
     return np.pi / 2 - np.mod(np.pi / 2 - np.asarray(angle), np.pi)
-
-
-def main(argv=None) -> int:
-    """``python -m dlo_perception.tactile --check-noise=VALUE``: check a tactile noise setting as
-    :func:`noise_setting` reads it; print its ``-p tactile_noise:=`` form and return 0, or print one line
-    on stderr and return 2 (what launch_graph.sh runs before it starts any node)."""
-    import argparse
-
-    parser = argparse.ArgumentParser(prog="python -m dlo_perception.tactile",
-                                     description="Check a tactile noise setting (" + NOISE_FORMS + ").")
-    parser.add_argument("--check-noise", metavar="VALUE", required=True,
-                        help="the setting; write --check-noise=VALUE for a value that starts with '-'")
-    args = parser.parse_args(argv)
-    try:
-        print(noise_parameter_value(args.check_noise))
-    except ValueError as error:
-        print(f"tactile noise: {error}", file=sys.stderr)
-        return 2
-    return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

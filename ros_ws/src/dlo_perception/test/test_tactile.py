@@ -10,7 +10,7 @@ import warnings
 import numpy as np
 import pytest
 
-from dlo_perception.tactile import (NOISE_FORMS, TACTILE_NOISE, Y_LIMIT, main, noise_label, noise_parameter_value,
+from dlo_perception.tactile import (NOISE_FORMS, TACTILE_NOISE, Y_LIMIT, noise_label, noise_parameter_value,
                                     noise_setting, noise_sigma, tactile_pose, wrap_line_angle)
 
 
@@ -203,27 +203,3 @@ def test_noise_labels_and_parameter_values():
     assert noise_parameter_value("0.1,0.001") == "[0.1,0.001]" and noise_parameter_value((0, 1e-5)) == "[0.0,0.00001]"
     with pytest.raises(ValueError):
         noise_label("loud")
-
-
-def test_check_noise_command(capsys):
-    """What launch_graph.sh runs before it starts anything: the -p form, or one line and exit 2."""
-    assert main(["--check-noise=0.1,0.001"]) == 0 and main(["--check-noise", "partial"]) == 0
-    assert capsys.readouterr() == ("[0.1,0.001]\npartial\n", "")
-    assert main(["--check-noise=-0.1,0.001"]) == 2
-    assert capsys.readouterr() == ("", f"tactile noise: expected {NOISE_FORMS}, got '-0.1,0.001'\n")
-
-
-def test_check_noise_is_required_and_its_help_names_the_forms(capsys):
-    """python -m dlo_perception.tactile: --check-noise VALUE is required (a usage error, exit 2, not a check of
-    nothing); --help names the command, every form of a setting and how to write a value that starts with '-'."""
-    with pytest.raises(SystemExit) as exit_info:
-        main([])
-    assert exit_info.value.code == 2
-    assert "the following arguments are required: --check-noise" in capsys.readouterr().err
-    with pytest.raises(SystemExit) as exit_info:
-        main(["--help"])
-    assert exit_info.value.code == 0
-    out = " ".join(capsys.readouterr().out.split())
-    assert out.startswith("usage: python -m dlo_perception.tactile [-h] --check-noise VALUE")
-    assert f"Check a tactile noise setting ({NOISE_FORMS})." in out
-    assert "--check-noise VALUE the setting; write --check-noise=VALUE for a value that starts with '-'" in out

@@ -159,29 +159,3 @@ def without_problem(text: str) -> str | None:
         return None
     return (f"--without must be empty or modalities joined by '+' ({', '.join(names())}), e.g. T or T+V, "
             f"got '{text}'")
-
-
-def main(argv=None) -> int:
-    """``python -m dlo_policy.modalities [--check-without VALUE]``: the registry as a table, or check a
-    launcher ``--without`` value (exit 2 with one line on stderr when bad)."""
-    import argparse
-    import sys
-
-    parser = argparse.ArgumentParser(prog="python -m dlo_policy.modalities", description=__doc__.split("\n\n")[0])
-    parser.add_argument("--check-without", metavar="VALUE", default=None,
-                        help="check a launch_graph.sh --without value; write --check-without=VALUE")
-    args = parser.parse_args(argv)
-    if args.check_without is not None:
-        problem = without_problem(args.check_without)
-        if problem:
-            print(problem, file=sys.stderr)
-            return 2
-        return 0
-    for m in MODALITIES:
-        print(f"{m.name}  {m.title:<10} {m.size}  {', '.join(m.labels):<28} {m.topic} ({m.message_type})"
-              + ("  [in All]" if m.name in ALL else ""))
-    return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

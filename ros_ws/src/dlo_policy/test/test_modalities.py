@@ -135,35 +135,3 @@ def test_a_record_is_checked_when_it_is_made():
     with pytest.raises(KeyError, match="no topic '/dlo/nosuch'"):
         Modality("G", "grip", ("a",), ((0.0, 1.0),), observe=None, columns=None, topic="/dlo/nosuch",
                  from_message=None)
-
-
-def test_the_command_line_checks_a_without_value_and_prints_the_registry(capsys, monkeypatch):
-    """python -m dlo_policy.modalities: --check-without=VALUE exits 0 for a good value, 2 with the one-line reason
-    on stderr for a bad one (what launch_graph.sh runs); without options, one line per modality."""
-    for good in ("T+V", "K", ""):
-        assert modalities.main([f"--check-without={good}"]) == 0
-        assert capsys.readouterr() == ("", "")
-    assert modalities.main(["--check-without=X"]) == 2
-    out, err = capsys.readouterr()
-    assert out == "" and err == without_problem("X") + "\n"
-    monkeypatch.setattr(modalities, "MODALITIES", MODALITIES + (grip_twice(),))
-    assert modalities.main([]) == 0
-    lines = capsys.readouterr().out.splitlines()
-    assert [line.split() for line in lines] == [
-        ["K", "kinematic", "3", "x_G,", "y_G,", "c_G", "/dlo/gripper/state", "(dlo_msgs/msg/GripperState)", "[in", "All]"],
-        ["T", "tactile", "2", "theta_T,", "y_T", "/dlo/tactile/pose", "(dlo_msgs/msg/TactilePose)", "[in", "All]"],
-        ["V", "visual", "4", "v_V,", "q_V,", "theta_V,", "y_V", "/dlo/vision/pose", "(dlo_msgs/msg/VisualPose)", "[in",
-         "All]"],
-        ["G", "grip", "1", "c_G2", "/dlo/gripper/state", "(dlo_msgs/msg/GripperState)"]]
-
-
-def test_help_names_the_module_its_summary_and_the_check_option(capsys):
-    with pytest.raises(SystemExit) as exit_info:
-        modalities.main(["--help"])
-    assert exit_info.value.code == 0
-    out = " ".join(capsys.readouterr().out.split())
-    assert out.startswith("usage: python -m dlo_policy.modalities [-h] [--check-without VALUE]")
-    summary = " ".join(modalities.__doc__.split("\n\n")[0].split())
-    assert summary.startswith("The observation modalities: one record each") and summary in out
-    assert "Everything the code knows" not in out
-    assert "--check-without VALUE check a launch_graph.sh --without value; write --check-without=VALUE" in out

@@ -187,10 +187,9 @@ def test_eval_log_keeps_the_rows_up_to_the_resume_step_and_their_wall_time(tmp_p
     assert rundir.EvalLog(other, 30).wall_time_offset == 0.0 and rundir.read_eval_rows(other) == []
 
 
-def test_sim_settings_are_what_the_policy_file_was_trained_on(tmp_path, capsys):
+def test_sim_settings_are_what_the_policy_file_was_trained_on(tmp_path):
     """scripts/launch_graph.sh --help: with --policy sac the sim runs the task rules and grip of the
-    checkpoint's run (its config.yaml); `python -m dlo_policy.rundir --sim-settings` says which, 'unknown'
-    without a config.yaml, and the shipped policy's for an empty path."""
+    checkpoint's run (its config.yaml); trained_sim_settings says which, None without a config.yaml."""
     from dlo_policy.config import load_config, save_config
 
     runs = {"old": [], "spg": ["env_options.task_rules=authors_code", "env_options.single_particle_grip=true"],
@@ -212,27 +211,19 @@ def test_sim_settings_are_what_the_policy_file_was_trained_on(tmp_path, capsys):
     (tmp_path / "bare").mkdir()
     (tmp_path / "bare" / "policy.pt").write_bytes(b"")
     assert rundir.trained_sim_settings(tmp_path / "bare" / "policy.pt") is None
-    said = {}
-    for name in ("spg", "text", "old", "bare", "levers"):
-        assert rundir.main(["--sim-settings", str(tmp_path / name / "policy.pt")]) == 0
-        said[name] = capsys.readouterr().out
-    assert said == {"spg": "authors_code true paper 0.004 image ours\n", "text": "paper_text false paper 0.004 image ours\n",
-                    "old": "paper_text false paper 0.004 image ours\n", "bare": "unknown\n",
-                    "levers": "authors_code false authors 0.005 particles ours\n"}
-    assert rundir.main(["--sim-settings", ""]) == 0  # the shipped policy: the study's authors_code, one-particle grip
-    assert capsys.readouterr().out == "authors_code true paper 0.004 image ours\n"
+    # the shipped policy: the study's authors_code, one-particle grip
+    assert rundir.trained_sim_settings(rundir.shipped_policy_path()) == {
+        "task_rules": "authors_code", "single_particle_grip": True, **defaults}
 
 
-def test_sim_settings_of_a_missing_file_or_a_bad_config_is_one_line_and_exit_2(tmp_path, capsys):
-    assert rundir.main(["--sim-settings", str(tmp_path / "nothing.pt")]) == 2
-    err = capsys.readouterr().err
-    assert err == f"checkpoint {tmp_path / 'nothing.pt'}: no such file\n"
+def test_sim_settings_of_a_bad_config_is_a_config_error(tmp_path):
+    """(The launcher says it in one line: tests/test_launch_graph_exit_codes.py.)"""
+    from dlo_policy.config import ConfigError
+
     (tmp_path / "policy.pt").write_bytes(b"")
     (tmp_path / rundir.CONFIG_FILE).write_text("env_options: [not, a, mapping\n")
-    assert rundir.main(["--sim-settings", str(tmp_path / "policy.pt")]) == 2
-    out = capsys.readouterr()
-    assert out.out == "" and len(out.err.strip().splitlines()) == 1
-    assert out.err.startswith(f"checkpoint {tmp_path / 'policy.pt'}: its run's config.yaml cannot be read: ")
+    with pytest.raises(ConfigError):
+        rundir.trained_sim_settings(tmp_path / "policy.pt")
 
 
 def test_the_shipped_policy_is_the_installed_one_when_the_package_is_installed(monkeypatch, tmp_path):
@@ -255,18 +246,3 @@ def test_the_shipped_policy_falls_back_to_the_source_tree(monkeypatch, tmp_path,
                         not_installed if share == "not installed" else lambda package: str(tmp_path))
     source_tree = Path(rundir.__file__).resolve().parents[1] / rundir.SHIPPED_POLICY
     assert rundir.shipped_policy_path() == source_tree and source_tree.is_file()
-
-
-def test_sim_settings_help_and_usage_errors(capsys):
-    """`python -m dlo_policy.rundir --help` names the command, its one option and what it prints; without
-    the option it is a usage error (exit 2, one line naming it)."""
-    with pytest.raises(SystemExit) as help_exit:
-        rundir.main(["--help"])
-    out = " ".join(capsys.readouterr().out.split())  # argparse wraps to the terminal's width
-    assert help_exit.value.code == 0
-    assert out.startswith("usage: python -m dlo_policy.rundir [-h] --sim-settings POLICY_FILE"), out
-    assert "the sim settings the policy file was trained" in out and "('' = the shipped policy)" in out, out
-    with pytest.raises(SystemExit) as usage_exit:
-        rundir.main([])
-    assert usage_exit.value.code == 2
-    assert "the following arguments are required: --sim-settings" in capsys.readouterr().err

@@ -1,33 +1,23 @@
-"""What a running graph does, for scripts/launch_graph.sh: one line per finished episode as the sim
-appends it to the outcomes file, and every ``--status-period`` seconds one status line on the graph's
-health (control steps per second counted on ``/clock``, episodes done, node processes alive, missing
-inputs and warnings from the nodes' logs) until all ``--episodes`` are done. Formatting:
-dlo_bag.outcome_table. Stops on SIGINT/SIGTERM after printing the episodes that finished meanwhile.
+"""What a running graph does, read for the launcher's episode and status lines (dlo_bringup.graph_monitor
+prints them): new lines of a growing file (:class:`LogTail`: the outcomes file, the nodes' logs), a node's
+health from its log (:class:`NodeHealth`), and the control steps counted on ``/clock``
+(:class:`ClockCounter`, the only part that needs rclpy, imported when it is built). The notes' texts:
+dlo_bag.outcome_table.
 
 Warnings and missing inputs are events: a status line counts those logged since the previous one. What a
 node waits for (its last "waiting for ..." line, e.g. the sim's "waiting for the recorder ...") is a state:
 it is shown while it holds and dropped once it no longer does, i.e. once that node has logged anything
 after it (it started, finished an episode, ...) or a control step was counted on ``/clock`` after it was
 logged (the graph runs).
-
-    python -m dlo_viz.graph_monitor OUTCOMES.jsonl --logs DIR --node sim=PID --node policy=PID ...
-
-Without rclpy (or with ``--no-ros``) the step rate is shown as unknown.
 """
 
 from __future__ import annotations
 
-import argparse
-import json
-import os
 import re
-import signal
-import sys
 import time
 
-from dlo_bag.outcome_table import _WAITING, episode_line, health_notes, status_line
+from dlo_bag.outcome_table import _WAITING, health_notes
 
-PREFIX = "[launch] "
 # a line a node logged (rclpy's console format: [SEVERITY] [time] [name]: text; the time may be left out)
 _LOG_LINE = re.compile(r"^\[(?:DEBUG|INFO|WARN|WARNING|ERROR|FATAL)\](?: \[(\d+(?:\.\d+)?)\])?")
 
@@ -122,93 +112,3 @@ class ClockCounter:
         self.executor.shutdown()
         self.node.destroy_node()
         self.rclpy.shutdown(context=self.context)
-
-
-def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m dlo_viz.graph_monitor", description=__doc__.splitlines()[0])
-    parser.add_argument("outcomes", help="JSON-lines file the sim appends finished episodes to (summary_file)")
-    parser.add_argument("--logs", default="", help="directory of the nodes' logs (<name>.log)")
-    parser.add_argument("--node", action="append", default=[], metavar="NAME=PID",
-                        help="a node process of the graph to watch (repeatable)")
-    parser.add_argument("--episodes", type=int, default=0, help="episodes of the run (0 = unlimited)")
-    parser.add_argument("--status-period", type=float, default=10.0,
-                        help="seconds between status lines (default 10; 0 = no status lines)")
-    parser.add_argument("--clock-topic", default="/clock", help="the sim's clock topic (steps are counted on it)")
-    parser.add_argument("--no-ros", action="store_true", help="do not join the ROS graph (no step rate)")
-    args = parser.parse_args(argv)
-    nodes = {}
-    for spec in args.node:
-        name, _, pid = spec.partition("=")
-        if not pid.isdigit():
-            parser.error(f"--node expects NAME=PID, got {spec!r}")
-        nodes[name] = int(pid)
-
-    stop = []
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stop.append(True))
-    counter = None
-    if args.status_period > 0 and not args.no_ros:
-        try:
-            counter = ClockCounter(args.clock_topic)
-        except Exception as error:  # noqa: BLE001 (no rclpy here: status lines without the step rate)
-            print(f"{PREFIX}status: no step rate ({type(error).__name__}: {error})", flush=True)
-    outcomes = LogTail(args.outcomes)
-    logs = {name: LogTail(os.path.join(args.logs, f"{name}.log")) for name in nodes} if args.logs else {}
-    health = [NodeHealth(name, tail) for name, tail in logs.items()]
-    for node in health:  # warnings count from the monitor's start on; a wait logged before it holds
-        node.catch_up()
-    done = 0
-    last_status, last_steps = time.monotonic(), 0
-    last_sim_ns = None
-
-    def report_episodes():
-        nonlocal done
-        for line in outcomes.new_lines():
-            if line.strip():
-                done += 1
-                try:
-                    print(PREFIX + episode_line(json.loads(line), done, args.episodes), flush=True)
-                except (ValueError, KeyError) as error:
-                    print(f"{PREFIX}unreadable outcome line ({error}): {line[:80]}", flush=True)
-
-    try:
-        while not stop:
-            if counter is not None:
-                counter.spin(0.2)
-            else:
-                time.sleep(0.2)
-            report_episodes()
-            now = time.monotonic()
-            finished = args.episodes and done >= args.episodes  # the sim exits: nothing more to report
-            if args.status_period > 0 and now - last_status >= args.status_period and not finished:
-                rate = factor = None
-                if counter is not None:
-                    rate = (counter.steps - last_steps) / (now - last_status)
-                    if last_sim_ns is not None and counter.last_ns is not None:
-                        factor = (counter.last_ns - last_sim_ns) / 1e9 / (now - last_status)
-                    last_steps, last_sim_ns = counter.steps, counter.last_ns
-                alive = {}
-                for name, pid in nodes.items():
-                    try:
-                        os.kill(pid, 0)
-                        alive[name] = True
-                    except ProcessLookupError:
-                        alive[name] = False
-                    except PermissionError:
-                        alive[name] = True
-                stepped = counter.last_step_wall if counter is not None else None
-                notes = [note for node in health for note in node.notes(stepped)]
-                print(PREFIX + "status: " + status_line(rate, factor, done, args.episodes, alive, notes), flush=True)
-                last_status = now
-        report_episodes()  # those that finished while the graph stopped
-    finally:
-        if counter is not None:
-            try:
-                counter.close()
-            except Exception:  # noqa: BLE001 (shutting down anyway)
-                pass
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())
