@@ -27,6 +27,9 @@ class TopCamera:
     cx: float = 0.0
     cy: float = 0.0
     position: tuple = (0.0, 0.0, 1.0)  # camera centre in the world frame [m]
+    # rad, the camera turned about its optical axis (world z), counter-clockwise seen from above: an extrinsic error
+    # (dlo_policy.perturbations camera_yaw renders through such a camera); 0 for every camera the graph uses
+    yaw: float = 0.0
 
     @classmethod
     def covering_workspace(cls, resolution: int = 128, camera_height: float = 1.0,
@@ -56,17 +59,24 @@ class TopCamera:
         """World points ``(..., 3)`` [m] -> continuous pixel coordinates ``(..., 2)`` as (u, v)."""
         p = np.asarray(points, dtype=np.float64)
         depth = self.position[2] - p[..., 2]
-        u = self.cx + self.fx * (p[..., 0] - self.position[0]) / depth
-        v = self.cy - self.fy * (p[..., 1] - self.position[1]) / depth
+        dx, dy = p[..., 0] - self.position[0], p[..., 1] - self.position[1]
+        if self.yaw:
+            c, s = np.cos(self.yaw), np.sin(self.yaw)
+            dx, dy = c * dx + s * dy, c * dy - s * dx
+        u = self.cx + self.fx * dx / depth
+        v = self.cy - self.fy * dy / depth
         return np.stack([u, v], axis=-1)
 
     def pixel_to_world(self, uv, plane_z: float) -> np.ndarray:
         """Pixel coordinates ``(..., 2)`` -> world x, y ``(..., 2)`` [m] on the plane z = ``plane_z``."""
         uv = np.asarray(uv, dtype=np.float64)
         depth = self.position[2] - plane_z
-        x = self.position[0] + (uv[..., 0] - self.cx) * depth / self.fx
-        y = self.position[1] - (uv[..., 1] - self.cy) * depth / self.fy
-        return np.stack([x, y], axis=-1)
+        dx = (uv[..., 0] - self.cx) * depth / self.fx
+        dy = -(uv[..., 1] - self.cy) * depth / self.fy
+        if self.yaw:
+            c, s = np.cos(self.yaw), np.sin(self.yaw)
+            dx, dy = c * dx - s * dy, s * dx + c * dy
+        return np.stack([self.position[0] + dx, self.position[1] + dy], axis=-1)
 
     def metres_per_pixel(self, plane_z: float) -> float:
         """Size of one pixel [m] on the plane z = ``plane_z``."""

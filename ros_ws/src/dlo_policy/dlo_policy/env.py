@@ -42,6 +42,12 @@ Options (keywords of both entry points):
     physics_seed=-1       >= 0: every episode gets the stretch, bending and friction drawn from this seed
                           (the authors' one physics draw, docs/FIDELITY.md row 8; particle count and start
                           shape still per episode); -1: drawn per episode (or what a given sim_config says)
+    perturbations=None    robustness perturbations, each off by default (dlo_policy.perturbations: the families, their
+                          units and what each does): {name: magnitude} or text "observation_delay=2,friction=0.6".
+                          Observation and action families go through a Perturber over the observation vector and the
+                          action (the policy node runs the same one), physics families through the SimConfig ranges,
+                          camera families through the camera that renders (the vision assumes the nominal one). Their
+                          noise is drawn per episode from the episode's seed (the same in any batch and in the graph)
 
 Info: every step carries "n_held" and "mean_held_index"; an env whose episode ended in this step
 has "outcome" (name; paper-text rule), "outcome_code", "outcome_authors" (name; the authors'-code
@@ -63,6 +69,7 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from dlo_perception.camera import TopCamera
 from dlo_perception.tactile import noise_sigma
 from dlo_perception.vision import DEFAULT_VISION_SOURCE, check_vision_source
+from dlo_policy import perturbations as perturbation_families
 from dlo_policy.modalities import VISION_PLANE_Z, by_name  # noqa: F401 (VISION_PLANE_Z: its old home)
 from dlo_policy.observation import build_observation, observation_bounds, parse_modalities
 from dlo_sim import task
@@ -74,7 +81,8 @@ def check_options(options) -> None:
     """Raise ValueError with a one-line reason for an unknown option or a bad value (module
     docstring), before any simulator is built: what dlo-train checks its ``env_options`` with."""
     known = ("without", "tactile_noise", "horizon", "end_particles", "camera_resolution", "sim_config", "task_rules",
-             "single_particle_grip", "physics_seed", "vision_source", "carry_law", "contact_radius", "start_pose")
+             "single_particle_grip", "physics_seed", "vision_source", "carry_law", "contact_radius", "start_pose",
+             "perturbations")
     unknown = sorted(set(options) - set(known))
     if unknown:
         raise ValueError(f"unknown option(s) {', '.join(unknown)}; known: {', '.join(known)}")
@@ -85,6 +93,8 @@ def check_options(options) -> None:
             raise ValueError(f"tactile_noise: {error}") from None
     if options.get("without"):
         parse_modalities(options["without"])
+    if "perturbations" in options:
+        perturbation_families.parse(options["perturbations"])
     if "task_rules" in options:
         task.check_task_rules(options["task_rules"])
     if "vision_source" in options:
@@ -115,7 +125,7 @@ class CableFollowingVecEnv(VectorEnv):
                  horizon=task.HORIZON, end_particles=task.END_PARTICLES, camera_resolution=128,
                  sim_config=None, autoreset=True, task_rules=task.DEFAULT_TASK_RULES, single_particle_grip=False,
                  physics_seed=-1, vision_source=DEFAULT_VISION_SOURCE, carry_law=None, contact_radius=None,
-                 start_pose=None):
+                 start_pose=None, perturbations=None):
         check_options({"single_particle_grip": single_particle_grip, "physics_seed": physics_seed,
                        "vision_source": vision_source, **({} if carry_law is None else {"carry_law": carry_law}),
                        **({} if contact_radius is None else {"contact_radius": contact_radius}),
@@ -131,6 +141,10 @@ class CableFollowingVecEnv(VectorEnv):
             sim_config = dataclasses.replace(sim_config or SimConfig(), single_particle_grip=True)
         if physics_seed >= 0:
             sim_config = dataclasses.replace(sim_config or SimConfig(), physics_seed=physics_seed)
+        self.perturbations = perturbation_families.parse(perturbations)  # {family: magnitude}, those that are on
+        sim_config = perturbation_families.sim_config(self.perturbations, sim_config)
+        rendering, self.vision_camera = perturbation_families.cameras(
+            self.perturbations, TopCamera.covering_workspace(int(camera_resolution)))
         self.num_envs = int(num_envs)
         self.modalities = parse_modalities(modalities)
         self.without = parse_modalities(without) if without else ()
@@ -143,7 +157,7 @@ class CableFollowingVecEnv(VectorEnv):
         self.observation_space = gymnasium.vector.utils.batch_space(self.single_observation_space, self.num_envs)
         self.action_space = gymnasium.vector.utils.batch_space(self.single_action_space, self.num_envs)
         self.task = TaskSim(self.num_envs, horizon=horizon, end_particles=end_particles, config=sim_config,
-                            camera=TopCamera.covering_workspace(int(camera_resolution)),
+                            camera=rendering,
                             render=vision_source == "image" and any(by_name(m).renders for m in self._observed()),
                             task_rules=task_rules)
         self.sim, self.tracker = self.task.sim, self.task.tracker
@@ -152,6 +166,8 @@ class CableFollowingVecEnv(VectorEnv):
         self.episode_seed = np.full(self.num_envs, -1, np.int64)
         self.noise_rng = np.random.default_rng(self.default_seed)
         self.last_observation = None
+        # the observation and action families (dlo_policy.perturbations.Perturber), as the policy node runs them
+        self.perturber = perturbation_families.Perturber(self.perturbations, self.modalities, self.without, self.num_envs)
 
     # ------------------------------------------------------------------ gymnasium API
     def reset(self, *, seed=None, options=None):
@@ -163,6 +179,8 @@ class CableFollowingVecEnv(VectorEnv):
             self.noise_rng = np.random.default_rng(base)
         self._start_episodes(np.arange(self.num_envs))
         observation, state = self._observe()
+        if self.perturber.observes:
+            observation = self.perturber.observe(observation)
         self.last_observation = observation
         return observation, {"n_held": state["n_held"], "mean_held_index": state["p_i"],
                              "episode_seed": self.episode_seed.copy()}
@@ -170,8 +188,12 @@ class CableFollowingVecEnv(VectorEnv):
     def step(self, actions):
         """Advance every env by one control step (8 x 0.01 s); finished envs auto-reset in the same step."""
         actions = np.asarray(actions, dtype=np.float32).reshape(self.num_envs, 3)
+        if self.perturber.acts:
+            actions = self.perturber.act(actions)
         reward, terminated, truncated, unstable = self.task.step(actions)
         observation, state = self._observe()
+        if self.perturber.observes:
+            observation = self.perturber.observe(observation)
         done = terminated | truncated
         info = {"n_held": state["n_held"], "mean_held_index": state["p_i"]}
         if done.any():
@@ -182,6 +204,8 @@ class CableFollowingVecEnv(VectorEnv):
                 info["_final_obs"] = done.copy()
                 self._start_episodes(np.flatnonzero(done))
                 fresh, _ = self._observe()
+                if self.perturber.observes:
+                    fresh[done] = self.perturber.observe(fresh[done], np.flatnonzero(done))
                 observation = np.where(done[:, None], fresh, observation)
         self.last_observation = observation
         return observation, reward.astype(np.float64), terminated, truncated, info
@@ -196,6 +220,8 @@ class CableFollowingVecEnv(VectorEnv):
         self.next_seed += len(env_ids)
         self.task.reset(seeds, env_ids)
         self.episode_seed[env_ids] = seeds
+        if self.perturber.active:
+            self.perturber.start(env_ids, seeds)
 
     def _observed(self) -> tuple:
         """The modalities the observation computes (selected and not ablated), in registry order."""

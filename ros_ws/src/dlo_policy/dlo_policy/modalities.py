@@ -87,7 +87,9 @@ def _observe_visual(env):
     if env.vision_source == "particles":
         return visual_pose_particles(state.positions, env.task.held_task, env.sim.num_particles, state.gripper[:, :2])
     plane_z = float(np.float32(env.sim.config.gripper_height))  # VISION_PLANE_Z at the default start pose
-    return visual_pose(state.image, env.sim.camera, state.gripper[:, :2], plane_z)
+    # the camera the vision assumes: the one that rendered, unless a camera perturbation moved that one
+    camera = getattr(env, "vision_camera", None) or env.sim.camera
+    return visual_pose(state.image, camera, state.gripper[:, :2], plane_z)
 
 
 MODALITIES = (

@@ -28,6 +28,7 @@ GRIPPER_START_BEHIND = 0.005  # m, the gripper starts this far behind (-x) the f
 START_POSES = {"ours": (GRIPPER_START_BEHIND, 0.0), "authors": (0.008, 0.00225)}
 WORKSPACE_HALF_WIDTH = 0.3  # m, gripper x and y are clipped to [-0.3, 0.3]
 NOMINAL_INVERSE_MASS = 2.0  # 1/kg, w_nom (particle mass 0.5 kg)
+PARTICLE_MASS = 1.0 / NOMINAL_INVERSE_MASS  # kg, the nominal particle mass
 GRAVITY = 9.8  # m/s^2
 IMAGE_CABLE = 255  # pixel value of cable in the rendered top view
 IMAGE_GRIPPER = 128  # pixel value of the gripper (drawn over the cable)
@@ -54,6 +55,10 @@ class SimConfig:
     bending_range: tuple = (0.8, 2.4)  # randomised bending stiffness (paper)
     friction_range: tuple = (0.04, 0.3)  # randomised Coulomb coefficient (paper)
     num_particles_range: tuple = (30, 60)  # randomised particle count, inclusive (paper)
+    # every particle's mass [kg], drawn per episode (last of its draws: the others do not change); the paper keeps it
+    # fixed. XPBD weighs a mass only against the compliances (the solves see w / k + alpha = (w + k alpha) / k):
+    # m times the nominal mass is the nominal cable with both compliances x m / PARTICLE_MASS (dlo_sim.rope)
+    particle_mass_range: tuple = (PARTICLE_MASS, PARTICLE_MASS)
     stretch_compliance_ref: float = 1.0e-6  # m/N at stretch stiffness 1
     stretch_exponent: float = 4.0  # compliance ~ stiffness^-exponent
     bending_compliance_ref: float = 2.0e-4  # m/N at bending stiffness 1
@@ -105,6 +110,9 @@ class SimConfig:
         lo, hi = self.friction_range
         if not 0 <= lo <= hi:
             raise ValueError(f"friction_range must satisfy 0 <= low <= high, got {(lo, hi)}")
+        lo, hi = self.particle_mass_range
+        if not 0 < lo <= hi:
+            raise ValueError(f"particle_mass_range must satisfy 0 < low <= high kg, got {(lo, hi)}")
         lo, hi = self.num_particles_range
         if not 2 <= lo <= hi <= P_MAX:
             raise ValueError(f"num_particles_range must satisfy 2 <= low <= high <= {P_MAX}, got {(lo, hi)}")

@@ -6,6 +6,8 @@ runs serially (Gauss-Seidel), so an environment's result does not depend on the 
 Per-environment arrays are padded to ``P_MAX`` particles; loops stop at ``n[e]``.
 """
 
+import math
+
 from dlo_common.taichi_runtime import init as init_taichi  # before taichi: no "[Taichi] version" banner (see there)
 import taichi as ti
 
@@ -46,6 +48,9 @@ class RopeKernels:
         self.cam_f = (float(camera.fx), float(camera.fy))
         self.cam_c = (float(camera.cx), float(camera.cy))
         self.cam_pos = tuple(float(p) for p in camera.position)
+        yaw = float(getattr(camera, "yaw", 0.0))  # compile-time: 0 (every camera but a perturbed one) compiles today's
+        self.cam_rotated = yaw != 0.0
+        self.cam_turn = (math.cos(yaw), math.sin(yaw))
         self.cam_size = (int(camera.height), int(camera.width))
 
         shape = (num_envs, P_MAX)
@@ -444,8 +449,14 @@ class RopeKernels:
     def project(self, p):
         """World point [m] -> (u, v) pixel coordinates and metres-to-pixels scale at its depth."""
         depth = self.cam_pos[2] - p.z
-        u = self.cam_c[0] + self.cam_f[0] * (p.x - self.cam_pos[0]) / depth
-        v = self.cam_c[1] - self.cam_f[1] * (p.y - self.cam_pos[1]) / depth
+        dx = p.x - self.cam_pos[0]
+        dy = p.y - self.cam_pos[1]
+        if ti.static(self.cam_rotated):  # the camera turned about its optical axis (TopCamera.yaw)
+            turned_x = self.cam_turn[0] * dx + self.cam_turn[1] * dy
+            dy = self.cam_turn[0] * dy - self.cam_turn[1] * dx
+            dx = turned_x
+        u = self.cam_c[0] + self.cam_f[0] * dx / depth
+        v = self.cam_c[1] - self.cam_f[1] * dy / depth
         return ti.Vector([u, v]), self.cam_f[0] / depth
 
     @ti.func

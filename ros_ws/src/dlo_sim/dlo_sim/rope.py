@@ -21,18 +21,18 @@ import numpy as np
 
 from dlo_perception.camera import TopCamera
 
-from .config import DT, P_MAX, REST_SPACING, SUBSTEPS_PER_ACTION, SimConfig
+from .config import DT, P_MAX, PARTICLE_MASS, REST_SPACING, SUBSTEPS_PER_ACTION, SimConfig
 from .kernels import RopeKernels
 
-PARAM_KEYS = ("stretch", "bending", "friction", "num_particles")
+PARAM_KEYS = ("stretch", "bending", "friction", "num_particles", "particle_mass")
 
 
 def physics_draw(config: SimConfig) -> dict:
     """The stretch, bending and friction every episode gets under ``config.physics_seed`` >= 0 (the authors'
-    one physics draw): uniform in the config's ranges, from the generator of that seed alone."""
+    one physics draw) and the particle mass: uniform in the config's ranges, from the generator of that seed alone."""
     rng = np.random.default_rng(config.physics_seed)
     return {"stretch": rng.uniform(*config.stretch_range), "bending": rng.uniform(*config.bending_range),
-            "friction": rng.uniform(*config.friction_range)}
+            "friction": rng.uniform(*config.friction_range), "particle_mass": rng.uniform(*config.particle_mass_range)}
 
 
 @dataclass
@@ -59,7 +59,7 @@ class RopeSim:
         n = self.num_envs
         self._params = {"stretch": np.zeros(n, np.float32), "bending": np.zeros(n, np.float32),
                         "friction": np.zeros(n, np.float32), "num_particles": np.zeros(n, np.int32),
-                        "seed": np.full(n, -1, np.int64)}
+                        "particle_mass": np.full(n, PARTICLE_MASS, np.float32), "seed": np.full(n, -1, np.int64)}
         self._pick = np.full(n, -1, np.int32)
         self._pick_vel = np.zeros((n, 3), np.float32)
         self._unstable = np.zeros(n, bool)
@@ -72,7 +72,7 @@ class RopeSim:
         """Randomise, lay out (pick-and-drop x4) and settle the given environments (all if None).
 
         ``seeds``: non-negative ints, one per reset environment. ``params`` optionally overrides
-        drawn values per environment (keys "stretch", "bending", "friction", "num_particles"; arrays
+        drawn values per environment (keys "stretch", "bending", "friction", "num_particles", "particle_mass"; arrays
         of len(env_ids)); the random stream is drawn first, so other draws are unchanged.
         Environments not listed keep their state."""
         ids = self._env_ids(env_ids)
@@ -177,7 +177,8 @@ class RopeSim:
 
     @property
     def params(self) -> dict:
-        """Per-env randomised parameters, (N,) arrays: stretch, bending, friction, num_particles, seed."""
+        """Per-env randomised parameters, (N,) arrays: stretch, bending, friction, num_particles, particle_mass [kg],
+        seed."""
         return {key: value.copy() for key, value in self._params.items()}
 
     def unstable(self) -> np.ndarray:
@@ -247,6 +248,8 @@ class RopeSim:
         flat = np.sqrt(1.0 - rise ** 2)
         draw["pick"] = np.minimum(picks, n - 1)
         draw["pick_vel"] = speed[:, None] * np.stack([flat * np.cos(azimuth), flat * np.sin(azimuth), rise], 1)
+        if cfg.physics_seed < 0:  # the last draw: every draw above is as it was without it
+            draw["particle_mass"] = rng.uniform(*cfg.particle_mass_range)
         return draw
 
     def _check_params(self, values: dict) -> None:
@@ -254,6 +257,8 @@ class RopeSim:
             raise ValueError("stretch and bending stiffness must be positive")
         if np.any(~(values["friction"] >= 0)):
             raise ValueError("friction must be >= 0")
+        if np.any(~(values["particle_mass"] > 0)):
+            raise ValueError("particle_mass must be positive")
         n = values["num_particles"]
         if np.any(n < 2) or np.any(n > P_MAX):
             raise ValueError(f"num_particles must be in [2, {P_MAX}], got {n}")
@@ -261,8 +266,11 @@ class RopeSim:
     def _push_params(self) -> None:
         p, cfg, k = self._params, self.config, self._k
         k.n.from_numpy(p["num_particles"])
-        k.alpha_stretch.from_numpy(cfg.stretch_compliance(p["stretch"]).astype(np.float32))
-        k.alpha_bend.from_numpy(cfg.bending_compliance(p["bending"]).astype(np.float32))
+        # particles k times the nominal mass: the same solves with both compliances x k (config.particle_mass_range);
+        # at the nominal mass the factor is exactly 1
+        heavier = (p["particle_mass"] / np.float32(PARTICLE_MASS)).astype(np.float32)
+        k.alpha_stretch.from_numpy((cfg.stretch_compliance(p["stretch"]) * heavier).astype(np.float32))
+        k.alpha_bend.from_numpy((cfg.bending_compliance(p["bending"]) * heavier).astype(np.float32))
         k.mu.from_numpy(p["friction"])
 
     def _env_ids(self, env_ids) -> np.ndarray:
