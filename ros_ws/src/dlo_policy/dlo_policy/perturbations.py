@@ -211,7 +211,7 @@ def text(setting: Mapping) -> str:
     """A setting as :func:`parse` reads it back (``observation_delay=2,friction=0.6``; '' for none)."""
     def number(v):
         return ":".join(number(x) for x in v) if isinstance(v, tuple) else f"{v:g}"
-    return ",".join(f"{name}={number(m)}" for name, m in parse(dict(setting)).items())
+    return ",".join(f"{name}={number(m)}" for name, m in parse(setting).items())
 
 
 def of_side(setting: Mapping, *sides: str) -> dict:
@@ -284,7 +284,7 @@ class Perturber:
         from dlo_perception.vision import SEARCH_HALF_WIDTH
         from dlo_policy.observation import observation_labels, parse_modalities
 
-        self.setting = of_side(parse(dict(setting)), OBSERVATION, ACTION)
+        self.setting = of_side(parse(setting), OBSERVATION, ACTION)
         self.observes = bool(of_side(self.setting, OBSERVATION))
         self.acts = bool(of_side(self.setting, ACTION))
         self.active = self.observes or self.acts

@@ -11,6 +11,12 @@ subscribes to the topic of each observed modality and converts its message with 
 Inputs that a step does not deliver within ``input_timeout`` s are reported as an error naming the
 missing topic; the sim node then republishes the step, so nothing deadlocks.
 
+``perturbations`` (off by default): the observation and action families of ``dlo_policy.perturbations``
+(``observation_delay=1,vision_angle_noise=5,action_delay=1``), applied by the same ``Perturber`` as the gym env's
+option ``perturbations``: over the observation before the policy acts, over its action before the command. Their noise
+comes from the episode's seed, which the node then reads from ``/dlo/task/state``, so the graph's episodes equal the
+env's. Physics and camera families belong to the simulator and are refused here.
+
 At start it publishes what drives the graph once, latched, on ``/dlo/policy/info`` (std_msgs/String, JSON:
 :func:`policy_record`): the policy, its checkpoint file and that file's sha256, the modalities observed and
 ablated, and from the checkpoint's run config the task rules, grip and env_options it was trained under. The
@@ -35,6 +41,7 @@ from dlo_common.topics import message_class, topic
 from dlo_msgs.msg import GripperCommand
 from dlo_perception.cloud import unpack_particles
 from dlo_perception.sync import IncompleteSteps, StampSync, stamp_to_ns
+from dlo_policy import perturbations
 from dlo_policy.modalities import ALL, ALL_NAME, by_name, names
 from dlo_policy.observation import build_observation, observation_size, parse_modalities
 from dlo_policy.rundir import CONFIG_FILE, read_trained_config
@@ -43,6 +50,22 @@ from dlo_sim.command import action_to_command
 from dlo_sim.task import LEGACY_TASK_RULES, dropped
 
 POLICIES = ("sac", "tactile_reactive", "oracle", "random")
+
+
+def node_perturbations(value) -> dict:
+    """The ``perturbations`` parameter (text, dlo_policy.perturbations.parse): the observation and action families
+    the node applies; ValueError in one line for anything else, physics and camera families included."""
+    if not isinstance(value, str):
+        raise ValueError(f"expected {perturbations.FORMS}, got {value!r}")
+    setting = perturbations.parse(value)
+    elsewhere = perturbations.of_side(setting, perturbations.PHYSICS, perturbations.CAMERA)
+    if elsewhere:
+        raise ValueError(f"{', '.join(elsewhere)}: physics and camera perturbations belong to the simulator, not the "
+                         f"policy node (here: {', '.join(perturbations.names(perturbations.OBSERVATION))}, "
+                         f"{', '.join(perturbations.names(perturbations.ACTION))})")
+    return setting
+
+
 PARAMETERS = (
     Param("policy", "sac", f"controller, one of {POLICIES}", choices=POLICIES),
     Param("checkpoint", "", "dlo-train policy.pt / checkpoint.pt (empty = the shipped All policy)"),
@@ -55,6 +78,9 @@ PARAMETERS = (
     Param("train_out", "runs/online", "run directory of online training (config, checkpoint.pt, policy.pt)"),
     Param("checkpoint_every", 1000, "online training: control steps between checkpoints", at_least=1),
     Param("train_config", "", "online training: a dlo-train YAML config (SAC hyperparameters); empty = defaults"),
+    Param("perturbations", "", "observation and action perturbations (dlo_policy.perturbations), e.g. "
+          "'observation_delay=1,action_delay=1'; empty = none", check=node_perturbations, types="string",
+          accepts="name=value pairs of observation and action families joined by ','"),
 )
 
 
@@ -196,10 +222,13 @@ class PolicyNode(Node):
         except (ValueError, OSError) as error:
             raise ParameterError(str(error)) from None
         self.input_timeout = p["input_timeout"]
+        # the observation and action perturbations, as the gym env applies them (off: never called)
+        self.perturber = perturbations.Perturber(p["perturbations"], self.modalities, self.without, 1)
+        self.perturbed_episode = None  # the episode the perturber was last started on
         # the gripper state (episode, step) always, then each observed modality's topic, the task state to learn
         # from, the particles for the oracle: input keys of dlo_common.topics
         inputs = list(dict.fromkeys(["gripper"] + [m.input_key for m in self.observed]))
-        inputs += ["task"] if self.learner else []
+        inputs += ["task"] if self.learner or self.perturber.active else []  # (the episode's seed: its noise)
         inputs += ["particles"] if p["policy"] == "oracle" else []
         self.truth = GroundTruthView()
         self.sync = StampSync(inputs)
@@ -212,6 +241,8 @@ class PolicyNode(Node):
                                     train=p["train"], train_out=p["train_out"], train_config=p["train_config"])
         self.info_publisher = self.create_publisher(String, topic("policy_info").name,
                                                     QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL))
+        if self.perturber.active:
+            self.record["perturbations"] = perturbations.text(self.perturber.setting)
         self.info_publisher.publish(String(data=json.dumps(self.record, sort_keys=True)))
         for key in inputs:
             t = topic(key)
@@ -219,7 +250,9 @@ class PolicyNode(Node):
         self.create_timer(0.25, self.check_missing_inputs)
         self.get_logger().info(f"policy {p['policy']} on {'+'.join(self.modalities)}"
                                + (f" without {'+'.join(self.without)}" if self.without else "")
-                               + f"; inputs {inputs}")
+                               + f"; inputs {inputs}"
+                               + (f"; perturbations {perturbations.text(self.perturber.setting)}"
+                                  if self.perturber.active else ""))
 
     def on_input(self, key, msg):
         stamp = stamp_to_ns(msg.header.stamp)
@@ -234,6 +267,11 @@ class PolicyNode(Node):
         values = dict(zip(self.sync.keys, matched))
         gripper = values["gripper"]
         observation = self.observation(values)
+        if self.perturber.active:
+            if gripper.step == 0 or gripper.episode != self.perturbed_episode:  # a new episode: its seed, its noise
+                self.perturber.start([0], [values["task"].seed])
+                self.perturbed_episode = gripper.episode
+            observation = self.perturber.observe(observation)
         if self.learner is not None:
             task = values["task"]
             terminated = task.done and bool(dropped(task.task_rules or LEGACY_TASK_RULES, task.n_held,
@@ -243,6 +281,8 @@ class PolicyNode(Node):
         else:
             self.truth.cloud, self.truth.gripper = values.get("particles"), gripper
             action = self.act(observation, gripper.step == 0, self.truth)[0]
+        if self.perturber.active:
+            action = self.perturber.act(np.asarray(action, np.float32)[None])[0]
         vx, vy, closure = action_to_command(action)
         command = GripperCommand(vx=vx, vy=vy, closure=closure, episode=gripper.episode, step=gripper.step)
         command.header = gripper.header

@@ -274,3 +274,76 @@ def test_a_modality_that_cannot_read_its_message_stops_the_node_at_start(make_no
         make_node(act=RecordingPolicy())
     node = make_node(act=RecordingPolicy(), without="T")  # the ablated modality is never read
     assert node.sync.keys == ("gripper", "vision")
+
+
+class CountingPolicy(RecordingPolicy):
+    """Records what it sees; its action at the n-th call is [0.1 n, -0.05 n, 0.5 - 0.1 n]."""
+
+    def __call__(self, obs, new_episode, truth):
+        super().__call__(obs, new_episode, truth)
+        n = len(self.seen)
+        return np.array([[0.1 * n, -0.05 * n, 0.5 - 0.1 * n]], np.float32)
+
+
+def feed_moving(node, step, episode=3, seed=70):
+    """One step whose gripper sits 1 mm further along x each step, with the task state carrying the episode's seed."""
+    task = TaskState(episode=episode, step=step, seed=seed, n_held=3)
+    for key, msg in (("tactile", TactilePose(angle=T[0], y=T[1], contact=True, contact_count=4)),
+                     ("vision", VisualPose(visible=V[0], confidence=V[1], angle=V[2], y=V[3])), ("task", task),
+                     ("gripper", GripperState(x=0.001 * step, y=K[1], z=0.1, closure=K[2], episode=episode, step=step))):
+        if key in node.sync.keys:
+            node.on_input(key, stamped(msg, step))
+
+
+def test_perturbations_delay_what_the_policy_sees_and_what_it_commands(make_node):
+    """observation_delay and action_delay in the node: the policy sees the observation of one step before (the
+    episode's first at its start), the command carries its action of one step before; a new episode starts afresh."""
+    from dlo_sim.command import action_to_command
+
+    policy = CountingPolicy()
+    node = make_node(act=policy, perturbations="observation_delay=1,action_delay=1")
+    assert node.sync.keys == ("gripper", "tactile", "vision", "task")  # the task state: the episode's seed
+    for step in range(3):
+        feed_moving(node, step)
+    assert [float(seen[0, 0]) for seen in policy.seen] == pytest.approx([0.0, 0.0, 0.001])
+    commanded = [(c.vx, c.vy, c.closure) for c in node.publisher]
+    expected = [action_to_command(np.float32([0.1 * n, -0.05 * n, 0.5 - 0.1 * n])) for n in (1, 1, 2)]
+    assert commanded == expected
+    feed_moving(node, 0, episode=4, seed=71)  # the next episode: its first observation and action, undelayed
+    assert float(policy.seen[-1][0, 0]) == 0.0
+    assert (node.publisher[-1].vx, node.publisher[-1].episode) == (pytest.approx(action_to_command(
+        np.float32([0.4, -0.2, 0.1]))[0]), 4)
+    assert node.record["perturbations"] == "observation_delay=1,action_delay=1"  # on /dlo/policy/info too
+
+
+def test_perturbation_noise_in_the_node_is_the_env_perturber_of_the_episode_seed(make_node):
+    """The node's noise is dlo_policy.perturbations.Perturber's, started on the seed /dlo/task/state carries (as
+    the gym env starts it on the episode's seed): the same numbers, step by step."""
+    from dlo_policy.perturbations import Perturber
+    from dlo_sim.command import action_to_command
+
+    setting = "gripper_position_noise=2,vision_angle_noise=5,tactile_offset_noise=1,closure_lag=0.1"
+    policy = CountingPolicy()
+    node = make_node(act=policy, perturbations=setting)
+    env_side = Perturber(setting, "All")
+    env_side.start([0], [70])
+    for step in range(4):
+        feed_moving(node, step)
+        clean = np.array([[0.001 * step, K[1], K[2], *T, float(V[0]), *V[1:]]], np.float32)
+        np.testing.assert_array_equal(policy.seen[-1], env_side.observe(clean))
+        action = env_side.act(np.float32([[0.1 * (step + 1), -0.05 * (step + 1), 0.5 - 0.1 * (step + 1)]]))[0]
+        assert (node.publisher[-1].vx, node.publisher[-1].vy, node.publisher[-1].closure) == pytest.approx(
+            action_to_command(action))
+    assert not np.array_equal(policy.seen[-1][0, :2], [0.003, K[1]])  # noise was added
+
+
+@pytest.mark.parametrize("value, message", [
+    ("friction=0.6", "friction: physics and camera perturbations belong to the simulator"),
+    ("camera_yaw=2", "camera_yaw: physics and camera"), ("obs_delay=1", "did you mean 'observation_delay'"),
+    ("action_delay=-1", "action_delay: expected an integer")])
+def test_perturbations_the_node_does_not_own_or_cannot_read_are_one_line(make_node, value, message):
+    from dlo_common.node_util import ParameterError
+
+    with pytest.raises(ParameterError, match="^parameter 'perturbations': .*" + message) as error:
+        make_node(act=RecordingPolicy(), perturbations=value)
+    assert "\n" not in str(error.value)
