@@ -31,6 +31,7 @@ setup(
             "dlo-report = dlo_policy.report:main",
             "dlo-validate-vision = dlo_policy.validate_vision:main",
             "dlo-normalizer-drift = dlo_policy.normalizer_drift:main",
+            "dlo-robustness = dlo_policy.robustness:main",
             "policy_node = dlo_policy.policy_node:main",
         ],
     },
