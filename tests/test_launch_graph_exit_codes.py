@@ -25,7 +25,7 @@ import yaml
 from std_msgs.msg import String
 
 from dlo_bringup.graph import STOP_LIMIT
-from dlo_bringup.launcher import WATCH_ONE_LINER
+from dlo_bringup.launcher import watch_hint
 from dlo_common.node_main import TEARDOWN_LIMIT
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -523,9 +523,9 @@ def test_the_temp_logs_go_when_the_run_went_well_and_are_named_when_kept(tmp_pat
 
 @pytest.mark.parametrize("ros2", [True, False], ids=["ros2_on_path", "wheels"])
 def test_the_domain_line_says_how_to_watch_with_what_is_here(ros2, tmp_path, own_groups):
-    """Issue 38 item 7: the launcher suggested `ros2 topic list`, which the wheels do not have: there it suggests a
-    python line (test_the_suggested_python_line_lists_the_domains_topics runs it), on a ROS 2 install
-    `ros2 topic list`. The nodes start with `ros2 run` or scripts/ros2run accordingly."""
+    """Issue 38 item 7: the launcher suggested `ros2 topic list`, which the wheels do not have: there it suggests
+    dlo_bringup's topic_list through scripts/ros2run (test_the_suggested_topic_list_lists_the_domains_topics runs
+    it), on a ROS 2 install `ros2 topic list`. The nodes start with `ros2 run` or scripts/ros2run accordingly."""
     proc, out, logs, bag = start(tmp_path, {"sim": episodes(1)}, ("--episodes", 1), own_groups, ros2=ros2)
     text = check(proc, out, logs, bag, 0, [])
     (line,) = [line for line in text.splitlines() if line.startswith("[launch] ROS_DOMAIN_ID=")]
@@ -533,8 +533,9 @@ def test_the_domain_line_says_how_to_watch_with_what_is_here(ros2, tmp_path, own
     if ros2:
         assert line.endswith(f"(to watch: ROS_DOMAIN_ID={domain} ros2 topic list)"), line
     else:
-        assert "ros2" not in line and line.endswith(f"(to watch: ROS_DOMAIN_ID={domain} {WATCH_ONE_LINER}, with "
-                                                    "scripts/env.sh sourced)"), line
+        suggested = re.search(rf"\(to watch: ROS_DOMAIN_ID={domain} (\S+) dlo_bringup topic_list\)$", line)
+        assert suggested and (ROOT / suggested.group(1)).resolve() == ROOT / "scripts" / "ros2run", line
+        assert "ros2 topic list" not in line
 
 
 def test_help_shows_the_lines_as_the_graph_prints_them():
@@ -580,9 +581,10 @@ def test_the_launch_file_starts_what_the_launcher_started(tmp_path, own_groups, 
     assert sorted(NODES[node_command(node)[1]] for node in nodes) == sorted(NODES.values())
 
 
-def test_the_suggested_python_line_lists_the_domains_topics(own_groups):
+def test_the_suggested_topic_list_lists_the_domains_topics(own_groups):
     """What the wheels' launcher suggests for watching its domain (no `ros2 topic list` there) works: run on a
-    domain where a node publishes, it lists that topic."""
+    domain where a node publishes, it lists that topic (discovery may take seconds: it waits for the list to
+    settle)."""
     import rclpy
 
     context = rclpy.Context()
@@ -590,8 +592,10 @@ def test_the_suggested_python_line_lists_the_domains_topics(own_groups):
     try:
         node = rclpy.create_node("watched", context=context)
         node.create_publisher(String, "/dlo/watch_me", 1)
-        watch = subprocess.Popen(["bash", "-c", f"ROS_DOMAIN_ID={os.environ['ROS_DOMAIN_ID']} {WATCH_ONE_LINER}"],
-                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+        hint = watch_hint(int(os.environ["ROS_DOMAIN_ID"]))
+        assert shutil.which("ros2") is None and "topic_list" in hint  # (the wheels)
+        watch = subprocess.Popen(["bash", "-c", hint], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                                 start_new_session=True, cwd=ROOT)
         own_groups(watch.pid)
         out, err = watch.communicate(timeout=120)
     finally:

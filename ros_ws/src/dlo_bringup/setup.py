@@ -24,6 +24,7 @@ setup(
     entry_points={
         "console_scripts": [
             "launch_graph = dlo_bringup.launcher:main",
+            "topic_list = dlo_bringup.topic_list:main",
         ],
     },
 )

@@ -36,8 +36,6 @@ EPISODE_EXAMPLE = ("[launch] episode 0 (seed 0; 1/5 done): hold_the_end, authors
                    "97 steps, 0 particles from the end")
 STATUS_EXAMPLE = ("[launch] status: 11.8 steps/s (sim time x0.94), 1/5 episodes done, nodes alive 4/4; policy: no "
                   "tactile input")
-WATCH_ONE_LINER = ("python -c \"import rclpy, time; rclpy.init(); n = rclpy.create_node('watch'); time.sleep(2); "
-                   "print('\\n'.join(sorted(t for t, _ in n.get_topic_names_and_types())))\"")
 
 
 def usage() -> str:
@@ -86,10 +84,13 @@ def describe(status: int) -> str:
 
 
 def watch_hint(domain: int) -> str:
-    """How to look at the graph's topics from another terminal, with what this machine has."""
+    """How to list the graph's topics from another terminal, with what this machine has: ``ros2 topic list`` on
+    a ROS 2 install, dlo_bringup's topic_list on the wheels (no ros2 command there)."""
     if shutil.which("ros2"):
         return f"ROS_DOMAIN_ID={domain} ros2 topic list"
-    return f"ROS_DOMAIN_ID={domain} {WATCH_ONE_LINER}, with scripts/env.sh sourced"
+    root = repository_root()
+    ros2run = "scripts/ros2run" if root is None or Path.cwd() == root.resolve() else f"{root}/scripts/ros2run"
+    return f"ROS_DOMAIN_ID={domain} {ros2run} dlo_bringup topic_list"
 
 
 def repository_root() -> Path | None:
