@@ -70,6 +70,14 @@ def usage() -> str:
     return "\n".join(lines)
 
 
+def say(line: str) -> None:
+    """A line on stdout; once its reader has gone (``| head``), the rest goes nowhere and the run goes on."""
+    try:
+        print(line, flush=True)
+    except BrokenPipeError:
+        sys.stdout = open(os.devnull, "w")
+
+
 def describe(status: int) -> str:
     """An exit status in words: 130 is what a node returns when interrupted, or SIGINT's status."""
     if status == 130:
@@ -152,7 +160,7 @@ class Launcher:
     # ---- output -----------------------------------------------------------------------------------------------
     @staticmethod
     def say(line: str) -> None:
-        print(line, flush=True)
+        say(line)
 
     def warn(self, line: str, problem: bool = True) -> None:
         print(line, file=sys.stderr, flush=True)
@@ -459,7 +467,7 @@ def main(argv=None) -> int:
     try:
         options = parse_args(sys.argv[1:] if argv is None else argv)
         if options.help:
-            print(usage())
+            say(usage())
             return EXIT_OK
         from dlo_bringup.options import resolve
 
