@@ -2,8 +2,8 @@
 batches and single samples, full gripper states as input, the y range, defined values and no invalid
 arithmetic without contact), the noise model both statistically and exactly (one draw for the angle,
 then one for y, scaled by 1 - c_G with c_G clipped to [0, 1]; each sigma on its own; the generator used
-as given and untouched without noise), and the noise settings in every form, their labels and the
-launcher's ``--check-noise``."""
+as given and untouched without noise), and the noise settings in every form, their labels and their ``-p``
+form (what the launcher checks ``--tactile-noise`` with: tests/test_tactile_noise_setting.py)."""
 
 import warnings
 
