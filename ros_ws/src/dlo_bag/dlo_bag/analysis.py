@@ -35,6 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
+from dlo_common.console import console_main
 from dlo_common.topics import select, topic
 from dlo_perception.cloud import unpack_particles
 from dlo_perception.sync import stamp_to_ns
@@ -346,6 +347,7 @@ def analyse(path, plots: Path | None = None, video: dict | None = None, records:
     return summaries
 
 
+@console_main("dlo-analyze")
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description="Recompute outcomes and metrics of a recorded dlo-vitac run "
                                                  "with the shared task module, and plot its episodes.",

@@ -10,9 +10,12 @@ import argparse
 import json
 import sys
 
+from dlo_common.console import console_main
+
 from .bag import EXIT_BAD_BAG, EXIT_USAGE, BagError, NotABagError, bag_info, format_info
 
 
+@console_main("dlo-bag-info")
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="dlo-bag-info",

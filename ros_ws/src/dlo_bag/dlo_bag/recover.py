@@ -27,6 +27,8 @@ import yaml
 from rosbags.rosbag2.metadata import parse_qos
 from rosbags.typesys import Stores, get_types_from_idl, get_types_from_msg, get_typestore
 
+from dlo_common.console import console_main
+
 from .bag import (
     EXIT_BAD_BAG,
     EXIT_OK,
@@ -229,6 +231,7 @@ def recover_bag(path: str | os.PathLike, *, output: str | os.PathLike | None = N
     return reports
 
 
+@console_main("dlo-bag-recover")
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="dlo-bag-recover",

@@ -2,6 +2,9 @@
 object. Exit statuses: test_bag_exit_codes.py."""
 
 import json
+import os
+import subprocess
+import sys
 
 from rclpy.serialization import serialize_message
 
@@ -38,3 +41,18 @@ def test_topics_types_counts_and_duration_plain_verbose_and_as_json(tmp_path, ca
         "/dlo/gripper/state": {"type": "dlo_msgs/msg/GripperState", "count": 4, "type_hash": rihs01},
         "/dlo/rope/particles": {"type": "sensor_msgs/msg/PointCloud2", "count": 0,
                                 "type_hash": info["topics"]["/dlo/rope/particles"]["type_hash"]}}
+
+
+def test_a_reader_that_stops_early_ends_it_quietly(tmp_path):
+    """`dlo-bag-info BAG | head -12`: when the reader goes away the command ends quietly (exit 141, as coreutils'
+    commands do), not with a BrokenPipeError traceback."""
+    bag = tmp_path / "run"
+    write_bag(bag)
+    read, write = os.pipe()
+    os.close(read)  # the reader has gone (head read its lines)
+    try:
+        result = subprocess.run([sys.executable, "-c", "import sys\nfrom dlo_bag.bag_info import main\nsys.exit(main())",
+                                 str(bag), "-v"], stdout=write, stderr=subprocess.PIPE, text=True, timeout=120)
+    finally:
+        os.close(write)
+    assert (result.returncode, result.stderr) == (141, "")

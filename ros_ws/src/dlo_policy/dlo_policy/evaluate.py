@@ -5,7 +5,8 @@ checkpoint (or shipped policy) written by `dlo-train`, runs N episodes with seed
 vector env built from the run's saved config, prints the outcome table and optionally writes JSON.
 `--without X` blanks modality X's observation entries (zeros) before the policy sees them: the
 paper's ablation of an agent trained with all inputs. A progress bar over the episodes goes to stderr
-when it is a terminal (`--progress` forces it, `--quiet` turns it off); stdout carries only the table.
+when it is a terminal (`--progress` also elsewhere, as a plain line every tenth of the episodes; `--quiet`
+turns it off); stdout carries only the table (a reader that stops early, `| head -3`, ends it quietly).
 
 `dlo-evaluate --policy oracle|tactile_reactive|random ...` (instead of `--checkpoint`) runs a scripted
 baseline of `dlo_policy.scripted` through the same protocol on the All-modalities environment
@@ -24,8 +25,8 @@ from typing import Any, Callable, Optional, Sequence
 
 import numpy as np
 import torch
-from tqdm import tqdm
 
+from dlo_common.console import Progress, console_main
 from dlo_sim.task import DEFAULT_TASK_RULES, TASK_RULES
 
 from .cli import OneLineErrorParser
@@ -242,11 +243,13 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--threads", type=int, default=0, help="torch threads (default: all cores)")
     shown = parser.add_mutually_exclusive_group()
     shown.add_argument("--progress", action="store_true",
-                       help="show the progress bar (stderr) even when stderr is not a terminal")
+                       help="show the progress (stderr) even when stderr is not a terminal: a plain line every "
+                            "tenth of the episodes")
     shown.add_argument("--quiet", action="store_true", help="no progress bar")
     return parser
 
 
+@console_main("dlo-evaluate")
 def main(argv: Optional[Sequence[str]] = None) -> int:
     args = build_parser().parse_args(argv)
     if args.episodes < 1 or args.num_envs < 1:
@@ -314,8 +317,7 @@ def _run(agent: Any, vec_env: Any, args: argparse.Namespace, blank: Sequence[int
     """`evaluate_agent` with the progress bar of the command line; the env is closed afterwards."""
     hidden = args.quiet or not (args.progress or sys.stderr.isatty())
     try:
-        with tqdm(total=args.episodes, desc="dlo-evaluate", unit="episode", file=sys.stderr, disable=hidden,
-                  dynamic_ncols=True) as bar:
+        with Progress(args.episodes, "dlo-evaluate", "episode", enabled=not hidden) as bar:
             return evaluate_agent(agent, vec_env, args.seed, args.episodes, blank, progress=bar.update)
     finally:
         vec_env.close()

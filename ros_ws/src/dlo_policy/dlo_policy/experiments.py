@@ -13,7 +13,9 @@ Groups (paper, Results):
 Runs are started seed by seed (all configurations of the first seed, then of the second, ...).
 A run whose directory has done.json is skipped, so re-running the command (or adding `--resume`,
 which says the same) continues an interrupted grid. Stopping the driver (Ctrl-C, SIGTERM, even SIGKILL)
-stops its runs; each keeps its last checkpoint. A run directory is trained by one process at a time: a
+stops its local runs, each at the end of its current episode with a checkpoint there (dlo-train's
+Ctrl-C; the driver waits for them, a second Ctrl-C stops them at once), so the next start resumes
+each where it stopped; it exits 130. A run directory is trained by one process at a time: a
 second grid on the same --out reports those runs as in use instead of writing into them.
 
 Local (default): each run trains in a fresh process into OUT/<label>/seed<k> (see dlo-train),
@@ -71,11 +73,17 @@ from typing import Any, Iterator, Optional, Sequence
 
 from tqdm import tqdm
 
+from dlo_common.console import EXIT_INTERRUPTED, console_main
+
 from . import rundir
+from .cli import check_override_keys
 from .config import ConfigError, RunConfig, check_env_options, make_env
 from .grid import GROUPS, RunSpec, experiment_grid, run_config
 from .rundir import CHECKPOINT_FILE, DONE_FILE, EVAL_FILE, LOG_FILE, run_status
-from .train import Trainer, available_cores, set_threads
+from .train import (Trainer, TrainingInterrupted, available_cores, checkpoint_every_given,
+                    default_checkpoint_every, run_trainer, set_threads)
+
+STOP_WAIT = 300.0  # s an interrupted grid waits for its runs to reach the end of an episode and checkpoint
 
 
 class GridError(Exception):
@@ -105,16 +113,21 @@ def output_to(path: Path) -> Iterator[None]:
         os.close(saved[1])
 
 
-def run_one(config_data: dict[str, Any], run_dir: str) -> dict[str, Any]:
+def run_one(config_data: dict[str, Any], run_dir: str, stop_signals: bool = True) -> dict[str, Any]:
     """Train one run in this process (resuming it if it has a checkpoint), holding the run directory's
-    lock from the first look at it (rundir.lock); output to train.log."""
+    lock from the first look at it (rundir.lock); output to train.log. `stop_signals`: SIGTERM (and SIGINT
+    unless ignored) stops it at the end of an episode with a checkpoint there (train.StopSignals:
+    TrainingInterrupted), as dlo-train; off: the signals keep their handlers (a Ray worker's)."""
     path = Path(run_dir)
     with rundir.lock(path):
         resume = (path / CHECKPOINT_FILE).exists()
         if not resume:
             (path / EVAL_FILE).unlink(missing_ok=True)  # evaluations of a run stopped before its first checkpoint
         with output_to(path / LOG_FILE):
-            return Trainer(RunConfig.from_dict(config_data), path, resume=resume).run()
+            config = RunConfig.from_dict(config_data)
+            if stop_signals:
+                return run_trainer(config, path, resume, make=Trainer)
+            return Trainer(config, path, resume=resume).run()
 
 
 def stamp_done(run_dir: Path, node: str, duration_s: float, attempts: int) -> None:
@@ -196,16 +209,20 @@ def _run_local_task(config_data: dict[str, Any], run_dir: str) -> tuple[str, Opt
         return run_dir, None
     except rundir.RunInUse as error:  # a user's mistake (two grids on one --out): one line, not a traceback
         return run_dir, str(error)
+    except TrainingInterrupted as stopped:  # the driver stopped it: its checkpoint is where the next start resumes
+        return run_dir, f"{stopped} (stopped by the driver; the next start resumes it)"
     except Exception:  # noqa: BLE001 (reported by the parent; the other runs go on)
         return run_dir, traceback.format_exc()
 
 
 def _die_with_the_driver() -> None:
     """Worker initializer: the kernel sends this worker SIGTERM when the driver dies, however it dies
-    (SIGKILL included), so no run goes on training unseen (Linux; elsewhere a no-op)."""
+    (SIGKILL included), so no run goes on training unseen (Linux; elsewhere a no-op). SIGINT is ignored: a
+    Ctrl-C reaches the driver, which stops its runs with SIGTERM (each then checkpoints at the end of its
+    episode; one signal, not Ctrl-C and then the driver's SIGTERM, which would stop it at once)."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     try:
         import ctypes
-        import signal
 
         ctypes.CDLL(None, use_errno=True).prctl(1, int(signal.SIGTERM))  # PR_SET_PDEATHSIG
         if os.getppid() == 1:  # the driver died before prctl took effect
@@ -237,13 +254,49 @@ def run_local(tasks: list[Task], jobs: int, progress: GridProgress) -> None:
             progress.done(task)
     except BaseException:  # Ctrl-C, SIGTERM (main turns it into KeyboardInterrupt): stop the runs too
         workers = list((getattr(pool, "_processes", None) or {}).values())
-        pool.shutdown(wait=False, cancel_futures=True)
-        for worker in workers:
-            worker.terminate()
-        for worker in workers:
-            worker.join(timeout=30)
+        manager = getattr(pool, "_executor_manager_thread", None)
+        with _quiet_thread(manager):
+            pool.shutdown(wait=False, cancel_futures=True)
+            stop_workers(workers)
+            if manager is not None:
+                manager.join(timeout=30)
         raise
     pool.shutdown(wait=True)
+
+
+@contextlib.contextmanager
+def _quiet_thread(thread: Optional[threading.Thread]) -> Iterator[None]:
+    """No traceback from `thread` meanwhile: the pool's manager thread, which (CPython 3.11) fails with a
+    TypeError in _adjust_process_count when a worker of a pool already shut down returns its last task (an
+    interrupted run's result) and exits (max_tasks_per_child), after the grid stopped anyway."""
+    previous = threading.excepthook
+
+    def hook(args: Any) -> None:
+        if thread is None or args.thread is not thread:
+            previous(args)
+
+    threading.excepthook = hook
+    try:
+        yield
+    finally:
+        threading.excepthook = previous
+
+
+def stop_workers(workers: Sequence[Any], wait: float = STOP_WAIT) -> None:
+    """SIGTERM to each worker process: its run stops at the end of its episode with a checkpoint there
+    (train.StopSignals); wait up to `wait` s for them, then kill what is left. A second Ctrl-C (or SIGTERM)
+    meanwhile kills them at once (their last checkpoints stay)."""
+    for worker in workers:
+        worker.terminate()
+    try:
+        deadline = time.monotonic() + wait
+        for worker in workers:
+            worker.join(timeout=max(0.0, deadline - time.monotonic()))
+    finally:
+        for worker in workers:
+            if worker.is_alive():
+                worker.kill()
+                worker.join(timeout=30)
 
 
 def import_ray() -> Any:
@@ -296,7 +349,7 @@ def _ray_task(config_data: dict[str, Any], attempt: int) -> Iterator[dict[str, A
         run_dir = Path(directory)
         error = None
         try:
-            run_one(config_data, str(run_dir))
+            run_one(config_data, str(run_dir), stop_signals=False)
             stamp_done(run_dir, node, time.monotonic() - start, attempt)
         except Exception:  # noqa: BLE001 (sent to the driver; the other runs go on)
             error = traceback.format_exc()
@@ -559,6 +612,7 @@ def _interrupt(signum: int, frame: Any) -> None:
     raise KeyboardInterrupt(f"signal {signum}")
 
 
+@console_main("dlo-experiments")
 def main(argv: Optional[Sequence[str]] = None) -> int:
     args = build_parser().parse_args(argv)
     if threading.current_thread() is threading.main_thread():  # SIGTERM stops the runs like Ctrl-C does
@@ -590,7 +644,11 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         if args.labels:
             wanted = wanted_labels(args.labels, specs, ",".join(groups))
             specs = [s for s in specs if s.label in wanted]
+        check_override_keys(args.overrides)
         configs = [run_config(s, args.config, args.overrides, args.steps, args.threads) for s in specs]
+        if not checkpoint_every_given(args.config, args.overrides):  # a short grid's runs can be resumed too
+            for config in configs:
+                config.train.checkpoint_every = default_checkpoint_every(config.train.total_steps)
         for config in configs:
             check_env_options(config)
     except (ConfigError, ValueError) as error:
@@ -632,8 +690,8 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
             progress.close()
         finished = sum(task.error is None and run_status(task.run_dir) == "done" for task in tasks)
         print(f"dlo-experiments: interrupted; {finished} of {len(tasks)} run(s) finished: run the same command "
-              "again to continue", file=sys.stderr)
-        return 130
+              "again to continue (a stopped run resumes from its checkpoint)", file=sys.stderr)
+        return EXIT_INTERRUPTED
     progress.close()
     lines = report(tasks)
     print("\n".join(lines), flush=True)

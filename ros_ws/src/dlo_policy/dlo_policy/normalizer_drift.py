@@ -22,6 +22,8 @@ from typing import Optional, Sequence
 
 import numpy as np
 
+from dlo_common.console import console_main
+
 from .cli import OneLineErrorParser
 from .rundir import CHECKPOINT_FILE, CONFIG_FILE, EVAL_FILE, read_config, read_eval_rows
 
@@ -73,6 +75,7 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+@console_main("dlo-normalizer-drift")
 def main(argv: Optional[Sequence[str]] = None) -> int:
     args = build_parser().parse_args(argv)
     if args.every < 1:

@@ -75,6 +75,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Optional, Sequence
 
+from dlo_common.console import console_main
+
 from .cli import OneLineErrorParser
 from .report_data import ReportError, load_results_dir
 from .report_plots import compare_figure, planned_figures, save_figure
@@ -154,6 +156,7 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+@console_main("dlo-report")
 def main(argv: Optional[Sequence[str]] = None) -> int:
     parser = build_parser()
     try:

@@ -28,16 +28,28 @@ tested input set of one evaluation sees the same episodes). Each evaluation appe
 
 After the last step, the best evaluation's policy (best_policy.pt: highest hold-the-end
 fraction under the run's own task rules' outcome rule -- `hold_the_end_authors` for `authors_code`,
-`hold_the_end` for `paper_text` -- then reward; best.json names it in "selected_by") is tested once on `train.test_episodes` held-out episodes, seeds
-`train.test_seed + i` (below every evaluation seed: never seen during training or selection):
-test.json (dlo-evaluate's JSON; also test_without_X.json for each of `train.eval_without`).
+`hold_the_end` for `paper_text` -- then reward; best.json names it in "selected_by") is tested once
+on `train.test_episodes` held-out episodes, seeds `train.test_seed + i` (below every evaluation seed:
+never seen during training or selection): test.json (dlo-evaluate's JSON; also test_without_X.json
+for each of `train.eval_without`).
 The paper reports the best evaluation during training; the held-out test is the unbiased number.
 
 The run directory also holds config.yaml (resolved config), checkpoint.pt (everything, replay
-buffer included, every `train.checkpoint_every` steps), policy.pt (actor only, at the end) and
+buffer included, at the first episode end after every `train.checkpoint_every` steps; unless set, a
+tenth of the run's steps, between 100 and 5,000, recorded in config.yaml), policy.pt (actor only, at the end) and
 done.json (completion marker with a summary; "sources": the git commit of every part of the run,
 {"commit", "dirty", "from_step"}, one per start or resume, "source" the first; dlo-experiments skips
 runs that have it).
+
+Ctrl-C (SIGINT) or SIGTERM stops the run at the end of the current episode (at most the env's horizon
+of steps: an evaluation under way finishes first) with a checkpoint there, says `interrupted at step N;
+resume with: dlo-train --out OUT --resume` on stderr and exits 130; the resumed run is the uninterrupted
+one, number for number. A second Ctrl-C stops at once (the last checkpoint stays). `--resume` says
+`resuming from step N` on stderr. stdout carries only the JSON summary at the end (done.json's).
+
+Progress (stderr; `--no-progress` or train.progress=false: none): a bar on a terminal; elsewhere (a log
+file) a line at every tenth of the run and at least every 5 minutes. Both show the last evaluation:
+its reward and hold-the-end fraction under the paper-text rule and under the authors' rule.
 
 TensorBoard (`tensorboard --logdir runs`): tb/ in the run directory holds event files with, against
 env steps: train/episode_return and train/episode_length per training episode; loss/critic,
@@ -49,30 +61,60 @@ nothing in the run (no random draws); a resumed run appends to the same director
 from __future__ import annotations
 
 import argparse
+import importlib
 import json
+import math
 import os
+import shlex
+import signal
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
-from typing import Any, Optional, Sequence
+from typing import TYPE_CHECKING, Any, Optional, Sequence
 
 import numpy as np
-import torch
-from tqdm import tqdm
+import yaml
 
 from dlo_common import taichi_runtime
+from dlo_common.console import EXIT_INTERRUPTED, Progress, console_main
 from dlo_sim.task import DEFAULT_TASK_RULES, LEGACY_TASK_RULES
 
 from . import rundir
-from .config import (ConfigError, RunConfig, check_env_options, load_config, make_env, record_task_rules,
-                     save_config)
-from .evaluate import blanked_columns, evaluate_agent
+from .cli import check_override_keys
+from .config import (ConfigError, RunConfig, TrainConfig, check_env_options, load_config, make_env,
+                     record_task_rules, save_config)
 from .rundir import BEST_POLICY_FILE, CHECKPOINT_FILE, CONFIG_FILE, EVAL_FILE, POLICY_FILE, TB_DIR, EvalLog
-from .sac import SAC, StepResult, resolve_device
+
+if TYPE_CHECKING:
+    from .sac import SAC, StepResult
+
+# torch and the learner are imported when first needed (a wrong key=value is answered before they load);
+# train.SAC, train.torch, ... still name them
+_LAZY = {"torch": ("torch", None), "SAC": (".sac", "SAC"), "StepResult": (".sac", "StepResult"),
+         "resolve_device": (".sac", "resolve_device"), "blanked_columns": (".evaluate", "blanked_columns")}
+
+
+def __getattr__(name: str) -> Any:
+    if name not in _LAZY:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    module, attribute = _LAZY[name]
+    loaded = importlib.import_module(module, __package__)
+    return loaded if attribute is None else getattr(loaded, attribute)
+
+
+def evaluate_agent(*args: Any, **kwargs: Any) -> Any:
+    """dlo_policy.evaluate.evaluate_agent (what the evaluations and the held-out test call, by this name)."""
+    from .evaluate import evaluate_agent as evaluate  # noqa: PLC0415 (torch: only when a run starts)
+
+    return evaluate(*args, **kwargs)
+
 
 EVAL_SEED_STRIDE = 100_000  # eval seeds of run seed s lie in eval_seed + [s, s + 1) * EVAL_SEED_STRIDE
 TB_EVERY = 100  # TensorBoard: losses and speed averaged over this many steps
+CHECKPOINT_EVERY_MAX = TrainConfig.checkpoint_every  # train.checkpoint_every unless set: a tenth of the run,
+CHECKPOINT_EVERY_MIN = 100  # between these two (default_checkpoint_every)
 
 
 def source_commit() -> dict[str, Any]:
@@ -97,6 +139,8 @@ def available_cores() -> int:
 
 def set_threads(num_threads: int) -> int:
     """torch intra-op threads (0: every core this process may use); returns the number set."""
+    import torch  # noqa: PLC0415
+
     threads = num_threads or available_cores()
     torch.set_num_threads(threads)
     return threads
@@ -110,11 +154,86 @@ def eval_seeds(config: RunConfig, evaluation: int) -> int:
     return config.train.eval_seed + EVAL_SEED_STRIDE * config.seed + evaluation * stride
 
 
-class Trainer:
-    """Runs `SAC.learn` with periodic evaluation, CSV logging, checkpoints and a progress bar."""
+def default_checkpoint_every(total_steps: int) -> int:
+    """train.checkpoint_every of a run that does not set it: a tenth of its steps, at least
+    CHECKPOINT_EVERY_MIN, at most CHECKPOINT_EVERY_MAX (5,000, the config default), so that a short run
+    (1,500 steps: every 150) has checkpoints to resume from too."""
+    return min(CHECKPOINT_EVERY_MAX, max(CHECKPOINT_EVERY_MIN, math.ceil(total_steps / 10)))
 
-    def __init__(self, config: RunConfig, out_dir: Path, resume: bool = False):
+
+def checkpoint_every_given(config_file: Optional[Path], overrides: Sequence[str]) -> bool:
+    """Whether train.checkpoint_every is set by a key=value override or the --config file (both already
+    read by load_config: well-formed)."""
+    for override in overrides:
+        key, _, text = override.partition("=")
+        if key.strip() == "train.checkpoint_every":
+            return True
+        if key.strip() == "train":
+            section = yaml.safe_load(text)
+            if isinstance(section, dict) and "checkpoint_every" in section:
+                return True
+    if config_file is not None:
+        data = yaml.safe_load(Path(config_file).read_text())
+        section = data.get("train") if isinstance(data, dict) else None
+        return isinstance(section, dict) and "checkpoint_every" in section
+    return False
+
+
+class TrainingInterrupted(Exception):
+    """The run stopped on SIGINT / SIGTERM; `step`: the step of its checkpoint (None: none was written)."""
+
+    def __init__(self, step: Optional[int]):
+        super().__init__(f"interrupted at step {step}" if step is not None else "interrupted before its first step")
+        self.step = step
+
+
+class StopSignals:
+    """SIGINT (Ctrl-C) and SIGTERM while a run trains: the first one asks it to stop at the end of the current
+    episode, with a checkpoint there (`requested`); a second one, or any while `immediate`, raises
+    KeyboardInterrupt at once (the last checkpoint stays). Installed (a context manager) in the main thread
+    only, and only for a signal that is not ignored: dlo-experiments' local runs ignore SIGINT (their driver
+    stops them with SIGTERM), so do runs started under nohup."""
+
+    SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+    def __init__(self) -> None:
+        self.signum: Optional[int] = None
+        self.immediate = False
+        self._previous: dict[int, Any] = {}
+
+    @property
+    def requested(self) -> bool:
+        return self.signum is not None
+
+    def __enter__(self) -> "StopSignals":
+        if threading.current_thread() is threading.main_thread():
+            for signum in self.SIGNALS:
+                if signal.getsignal(signum) is not signal.SIG_IGN:
+                    self._previous[signum] = signal.signal(signum, self._handle)
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        for signum, handler in self._previous.items():
+            signal.signal(signum, signal.SIG_DFL if handler is None else handler)
+        self._previous.clear()
+
+    def _handle(self, signum: int, frame: Any) -> None:
+        if self.immediate or self.signum is not None:
+            raise KeyboardInterrupt
+        self.signum = signum
+
+
+class Trainer:
+    """Runs `SAC.learn` with periodic evaluation, CSV logging, checkpoints and a progress display.
+    `stop`: the signals that stop it at an episode boundary (StopSignals; default: none installed)."""
+
+    def __init__(self, config: RunConfig, out_dir: Path, resume: bool = False, stop: Optional[StopSignals] = None):
+        from .evaluate import blanked_columns  # noqa: PLC0415 (torch: only when a run starts)
+        from .sac import SAC, resolve_device  # noqa: PLC0415
+
         self.config, self.out_dir = config, out_dir
+        self.stop = stop if stop is not None else StopSignals()
+        self.checkpoint_step: Optional[int] = None  # the step of checkpoint.pt as this run last wrote / read it
         checkpoint = out_dir / CHECKPOINT_FILE
         if resume and not checkpoint.exists():
             raise FileNotFoundError(f"--resume: no {checkpoint} to resume from")
@@ -138,9 +257,13 @@ class Trainer:
         self.best_policy_state: Optional[dict[str, Any]] = None
         if resume:
             self.agent = SAC.load(checkpoint, device=self.device)
+            self.checkpoint_step = self.agent.num_env_steps
+            print(f"dlo-train: resuming from step {self.checkpoint_step} ({checkpoint})", file=sys.stderr)
             extra = SAC.extra_state(checkpoint)
             self.best, self.best_policy_state = extra.get("best"), extra.get("best_policy")
             self.sources = list(extra.get("sources", []))
+            if self.agent.num_env_steps == 0:  # stopped before its first step: the evaluation at step 0 runs again
+                self.best = self.best_policy_state = None
             if self.best is not None:
                 self.write_best()  # rewind: evaluations after the checkpoint are re-run
         else:
@@ -148,7 +271,7 @@ class Trainer:
             self.agent = SAC(self.env.observation_space.shape[0], space.low, space.high, config.sac,
                              seed=config.seed, observation_low=self.env.observation_space.low,
                              observation_high=self.env.observation_space.high, device=self.device)
-        self.log = EvalLog(out_dir, self.agent.num_env_steps if resume else None)
+        self.log = EvalLog(out_dir, self.agent.num_env_steps if resume and self.agent.num_env_steps else None)
         self.tested = [("", [])] + [(m, blanked_columns(config.modalities, [m]))
                                     for m in config.train.eval_without]
         # the code each part of the run ran on (done.json "sources": one entry per start or resume)
@@ -196,28 +319,33 @@ class Trainer:
 
     def write_best(self) -> None:
         """best_policy.pt and best.json from the best evaluation so far."""
+        import torch  # noqa: PLC0415
+
         torch.save(self.best_policy_state, self.out_dir / (BEST_POLICY_FILE + ".tmp"))
         os.replace(self.out_dir / (BEST_POLICY_FILE + ".tmp"), self.out_dir / BEST_POLICY_FILE)
         rundir.write_best(self.out_dir, self.best)
 
     def on_step(self, agent: SAC, result: StepResult) -> bool:
-        self.bar.update(1)
         self.episode_return += result.reward
         self.episode_length += 1
         step = agent.num_env_steps
+        ended = result.terminated or result.truncated
         self.tb.step(step, result.losses)
-        if result.terminated or result.truncated:
+        if ended:
             self.recent_returns = (self.recent_returns + [self.episode_return])[-10:]
             self.tb.episode(step, self.episode_return, self.episode_length)
             self.episode_return, self.episode_length = 0.0, 0
         if step % self.config.train.eval_every == 0:
             self.evaluate()
-            self.bar.set_postfix(train_return=f"{np.mean(self.recent_returns or [np.nan]):.2f}",
-                                 eval_reward=f"{self.last_eval['episode_reward']:.2f}",
-                                 hold_the_end=f"{self.last_eval['hold_the_end']:.0%}", alpha=f"{agent.alpha:.3f}")
+            self.bar.set_status(progress_status(self.last_eval, self.recent_returns, agent.alpha))
+        self.bar.update(1)  # after an evaluation at this step: its line shows it
         self.checkpoint_due |= step % self.config.train.checkpoint_every == 0
-        if self.checkpoint_due and (result.terminated or result.truncated):
+        if self.checkpoint_due and ended:
             self.save_checkpoint()
+        if self.stop.requested and ended:  # SIGINT / SIGTERM: stop here, at an episode boundary, checkpointed
+            if self.checkpoint_step != step:
+                self.save_checkpoint()
+            return False
         return True
 
     def save_checkpoint(self) -> None:
@@ -227,10 +355,13 @@ class Trainer:
         extra = {"best": self.best, "best_policy": self.best_policy_state, "sources": self.sources}
         self.agent.save(self.out_dir / CHECKPOINT_FILE, extra=extra)
         self.checkpoint_due = False
+        self.checkpoint_step = self.agent.num_env_steps
 
     def test_best(self) -> dict[str, Any]:
         """Held-out test of best_policy.pt on train.test_episodes episodes (seeds train.test_seed + i);
         writes test.json (+ test_without_X.json) and returns the all-inputs result (dlo-evaluate JSON)."""
+        from .sac import SAC  # noqa: PLC0415
+
         cfg = self.config.train
         best = SAC.load(self.out_dir / BEST_POLICY_FILE)
         # The evaluation env, reseeded: its simulator's kernels were compiled at the start of the run, so
@@ -238,11 +369,11 @@ class Trainer:
         # compiles a new simulator's kernels from the source files as they are then).
         env = self.eval_env
         results = {}
-        bar = tqdm(total=cfg.test_episodes * len(self.tested), desc=f"{self.config.name} held-out test",
-                   unit="episode", disable=not cfg.progress, dynamic_ncols=True)
+        bar = Progress(cfg.test_episodes * len(self.tested), f"{self.config.name} held-out test", "episode",
+                       enabled=cfg.progress)
         try:
             for without, columns in self.tested:
-                bar.set_postfix_str(f"without {without}" if without else "all inputs")
+                bar.set_status(f"without {without}" if without else "all inputs")
                 result = evaluate_agent(best, env, cfg.test_seed, cfg.test_episodes, columns,
                                         progress=bar.update).to_json()
                 payload = {**result, "checkpoint": BEST_POLICY_FILE, "seed": cfg.test_seed,
@@ -256,13 +387,16 @@ class Trainer:
         return results[""]
 
     def run(self) -> dict[str, Any]:
+        """Train to train.total_steps, test best_policy.pt, write done.json; its summary. TrainingInterrupted
+        when `stop` was requested: checkpoint.pt is then at the step it names (an episode boundary)."""
         total = self.config.train.total_steps
-        if self.agent.num_env_steps == 0:
+        if self.agent.num_env_steps == 0 and not self.stop.requested:
             self.evaluate()
-        self.bar = tqdm(total=total, initial=self.agent.num_env_steps, desc=self.config.name,
-                        unit="step", disable=not self.config.train.progress, dynamic_ncols=True)
+        self.bar = Progress(total, self.config.name, "step", initial=self.agent.num_env_steps,
+                            enabled=self.config.train.progress)
         try:
-            self.agent.learn(self.env, total, callback=self.on_step)
+            if not self.stop.requested:
+                self.agent.learn(self.env, total, callback=self.on_step)
         except BaseException:
             self.eval_env.close()
             raise
@@ -270,8 +404,17 @@ class Trainer:
             self.bar.close()
             self.tb.close()
             self.env.close()
+        if self.stop.requested and self.agent.num_env_steps < total:
+            if self.checkpoint_step != self.agent.num_env_steps:  # asked before the first step: a checkpoint there
+                self.save_checkpoint()
+            self.eval_env.close()
+            raise TrainingInterrupted(self.checkpoint_step)
         self.save_checkpoint()
         self.agent.save_policy(self.out_dir / POLICY_FILE)
+        if self.stop.requested:
+            self.eval_env.close()
+            raise TrainingInterrupted(self.checkpoint_step)
+        self.stop.immediate = True  # the held-out test: nothing more to save, a signal stops it at once
         test = self.test_best()  # closes the evaluation env
         summary = {"env_steps": self.agent.num_env_steps, "updates": self.agent.num_updates,
                    "episodes": self.agent.num_episodes, "wall_time_s": round(self.wall_time(), 2),
@@ -279,6 +422,14 @@ class Trainer:
                    "test": test, "source": self.sources[0], "sources": self.sources}
         rundir.write_done(self.out_dir, summary)
         return summary
+
+
+def progress_status(row: dict[str, Any], recent_returns: Sequence[float], alpha: float) -> str:
+    """What the progress display says of the last evaluation `row`: the mean return of the last training
+    episodes, the evaluation's reward and its hold-the-end fraction under both outcome rules, the temperature."""
+    mean_return = float(np.mean(recent_returns)) if len(recent_returns) else math.nan
+    return (f"train_return {mean_return:.2f}, eval_reward {row['episode_reward']:.2f}, hold_the_end "
+            f"{row['hold_the_end']:.0%} paper rule / {row['hold_the_end_authors']:.0%} authors' rule, alpha {alpha:.3f}")
 
 
 class TensorBoardLog:
@@ -335,6 +486,8 @@ class TensorBoardLog:
 def check_devices(config: RunConfig) -> None:
     """ConfigError (one line) when train.device or train.sim_arch names hardware this machine lacks;
     starts Taichi on the asked backend (it falls back to the CPU silently otherwise)."""
+    from .sac import resolve_device  # noqa: PLC0415
+
     try:
         resolve_device(config.train.device)
         taichi_runtime.init(config.train.sim_arch)
@@ -343,9 +496,32 @@ def check_devices(config: RunConfig) -> None:
 
 
 def train(config: RunConfig, out_dir: str | Path, resume: bool = False) -> dict[str, Any]:
-    """Train (or resume) a run in `out_dir`, holding its lock (rundir.lock); returns the done.json summary."""
+    """Train (or resume) a run in `out_dir`, holding its lock (rundir.lock), stopped by SIGINT / SIGTERM at an
+    episode boundary (TrainingInterrupted; StopSignals); returns the done.json summary."""
     with rundir.lock(Path(out_dir)):
-        return Trainer(config, Path(out_dir), resume).run()
+        return run_trainer(config, Path(out_dir), resume)
+
+
+def run_trainer(config: RunConfig, out_dir: Path, resume: bool, make: Optional[type] = None) -> dict[str, Any]:
+    """`make`(...).run() (default: Trainer) under StopSignals: TrainingInterrupted when a signal stopped it (a
+    second signal too: then at the last checkpoint, or None before the run had one)."""
+    with StopSignals() as stop:
+        trainer = None
+        try:
+            trainer = (make or Trainer)(config, out_dir, resume, stop=stop)
+            return trainer.run()
+        except KeyboardInterrupt:
+            raise TrainingInterrupted(getattr(trainer, "checkpoint_step", None) if trainer is not None else
+                                      _checkpoint_step(out_dir)) from None
+
+
+def _checkpoint_step(out_dir: Path) -> Optional[int]:
+    """The step of out_dir's checkpoint.pt, None without one."""
+    if not (out_dir / CHECKPOINT_FILE).exists():
+        return None
+    from .sac import read_checkpoint  # noqa: PLC0415
+
+    return int(read_checkpoint(out_dir / CHECKPOINT_FILE)["counters"]["env_steps"])
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -363,7 +539,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--resume", action="store_true",
                         help="continue the run in --out from its last checkpoint (its saved config; "
                              "only --steps may change)")
-    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    parser.add_argument("--no-progress", action="store_true",
+                        help="no progress display (a bar on a terminal, else a line every tenth of the run)")
     parser.add_argument("overrides", nargs="*", metavar="key=value", help="config overrides")
     return parser
 
@@ -375,12 +552,26 @@ def resolve_config(args: argparse.Namespace) -> RunConfig:
             raise ConfigError("--resume uses the run's saved config; only --steps may be given")
         source: Optional[Path] = args.out / CONFIG_FILE
     else:
+        check_override_keys(args.overrides)  # a typo answered at once, with the key it likely meant
         source = args.config
     flags = {"modalities": args.modalities, "seed": args.seed, "train.total_steps": args.steps,
              "label": args.label, "train.progress": False if args.no_progress else None}
-    return load_config(source, args.overrides, {k: v for k, v in flags.items() if v is not None})
+    config = load_config(source, args.overrides, {k: v for k, v in flags.items() if v is not None})
+    if not args.resume and not checkpoint_every_given(args.config, args.overrides):
+        config.train.checkpoint_every = default_checkpoint_every(config.train.total_steps)
+    return config
 
 
+def interrupted_line(stopped: TrainingInterrupted, out: Path) -> str:
+    """The one line dlo-train ends with when a signal stopped it."""
+    resume = f"resume with: dlo-train --out {shlex.quote(str(out))} --resume"
+    if stopped.step is not None:
+        return f"dlo-train: interrupted at step {stopped.step}; {resume}"
+    return (f"dlo-train: interrupted before its first checkpoint: nothing to resume; remove {shlex.quote(str(out))} "
+            "to start it again")
+
+
+@console_main("dlo-train")
 def main(argv: Optional[Sequence[str]] = None) -> int:
     args = build_parser().parse_args(argv)
     try:
@@ -396,6 +587,9 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     except (ConfigError, FileExistsError, FileNotFoundError, rundir.RunInUse) as error:
         print(f"dlo-train: error: {error}", file=sys.stderr)
         return 2
+    except TrainingInterrupted as stopped:
+        print(interrupted_line(stopped, args.out), file=sys.stderr)
+        return EXIT_INTERRUPTED
     print(json.dumps(summary))
     return 0
 

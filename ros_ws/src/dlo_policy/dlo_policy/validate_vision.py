@@ -19,6 +19,8 @@ from typing import Optional, Sequence
 
 import numpy as np
 
+from dlo_common.console import console_main
+
 from .cli import OneLineErrorParser
 
 FIELDS = ("visible", "confidence", "angle", "y")
@@ -83,6 +85,7 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+@console_main("dlo-validate-vision")
 def main(argv: Optional[Sequence[str]] = None) -> int:
     args = build_parser().parse_args(argv)
     if min(args.num_envs, args.rounds, args.steps) < 1:

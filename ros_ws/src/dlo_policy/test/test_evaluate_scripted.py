@@ -153,3 +153,13 @@ def test_a_tiny_real_run_of_the_executable(tmp_path):
     assert payload["episodes"] == 2 and payload["stop_before_end"] == 9 and payload["modalities"] == "All"
     for rule in (payload, payload["authors_code"]):
         assert sum(rule[name] for name in evaluate.OUTCOMES) == pytest.approx(1.0)
+
+
+def test_stdout_is_only_the_title_and_the_table(tmp_path):
+    """dlo-evaluate --help: stdout carries only the table (its title first), so that it can be piped: no line
+    of Taichi's ("[Taichi] Starting on arch=x64") before it."""
+    result = executable("--policy", "random", "--episodes", "1", "--num-envs", "1", "--seed", "5", "--threads", "1")
+    assert result.returncode == 0, result.stderr[-3000:]
+    lines = result.stdout.splitlines()
+    assert lines[0] == "scripted random on All, task rules authors_code, seeds 5..5", result.stdout
+    assert lines[1].split() == ["outcome", "paper", "rule", "authors", "rule"] and len(lines) == 12

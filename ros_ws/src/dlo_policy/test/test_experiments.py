@@ -375,3 +375,38 @@ def test_a_partial_local_run_resumes_from_its_checkpoint_and_one_without_starts_
     experiments.run_one(load_config(None, tiny).to_dict(), str(fresh))
     assert [s["from_step"] for s in read_done(fresh)["sources"]] == [0]
     assert steps(fresh) == [0, 100, 200, 300]
+
+
+def test_ctrl_c_stops_the_grid_and_its_run_at_an_episode_end_with_a_checkpoint_the_next_start_resumes(tmp_path):
+    """dlo-experiments --help: Ctrl-C (SIGINT to the terminal's whole process group: the driver and its workers)
+    stops the local runs at the end of their episodes with a checkpoint there (here the only one: checkpoint_every
+    lies beyond the run), exit 130, no traceback (the driver's output nor the run's train.log); the same command
+    again resumes the run from that step."""
+    out = tmp_path / "grid"
+    run = out / "T" / "seed0"
+    env = dict(os.environ, PYTHONPATH=f"{Path(__file__).resolve().parent}{os.pathsep}{os.environ.get('PYTHONPATH', '')}")
+    grid_args = ["--out", str(out), "--groups", "single", "--labels", "T", "--seeds", "1", "--jobs", "1",
+                 "--no-progress", *TINY, "train.checkpoint_every=100000000", "train.test_episodes=4"]
+    grid = subprocess.Popen([sys.executable, "-m", "dlo_policy.experiments", *grid_args, "--steps", "1000000"], env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
+    worker = None
+    try:
+        worker = _worker_pid(run, grid)
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline and len((run / EVAL_FILE).read_text().splitlines()) < 3:  # step 50 evaluated
+            time.sleep(0.1)
+        os.killpg(grid.pid, signal.SIGINT)
+        output = grid.communicate(timeout=300)[0]
+        assert grid.returncode == 130 and "interrupted" in output, output[-3000:]
+        assert "Traceback" not in output and "KeyboardInterrupt" not in output, output[-3000:]
+        assert _gone(worker)
+    finally:
+        if grid.poll() is None:
+            os.killpg(grid.pid, signal.SIGKILL)
+            grid.communicate()
+    from dlo_policy.sac import read_checkpoint
+
+    step = read_checkpoint(run / CHECKPOINT_FILE)["counters"]["env_steps"]
+    assert step >= 50 and "Traceback" not in (run / "train.log").read_text()
+    assert experiments.main([*grid_args, "--steps", str(step + 30)]) == 0
+    assert [s["from_step"] for s in json.loads((run / DONE_FILE).read_text())["sources"]] == [0, step]

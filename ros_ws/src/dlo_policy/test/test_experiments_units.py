@@ -64,7 +64,7 @@ def test_output_to_flushes_python_buffers_on_both_sides_and_closes_what_it_opene
 class StubTrainer:
     made: list = []
 
-    def __init__(self, config, path, resume=False):
+    def __init__(self, config, path, resume=False, stop=None):
         StubTrainer.made.append((config.seed, path, resume, sorted(p.name for p in path.iterdir())))
         self.path = path
 
@@ -237,6 +237,9 @@ class FakeWorker:
     def join(self, timeout=None):
         self.calls.append(("join", timeout))
 
+    def is_alive(self):
+        return False
+
 
 @pytest.fixture
 def pool(monkeypatch):
@@ -272,8 +275,8 @@ def test_run_local_stops_its_workers_when_interrupted(pool):
         experiments.run_local(tasks, 1, experiments.GridProgress(1, enabled=False))
     (made,) = pool.made
     assert made.shutdowns == [{"wait": False, "cancel_futures": True}]
-    for worker in made._processes.values():
-        assert worker.calls == ["terminate", ("join", 30)]
+    for worker in made._processes.values():  # SIGTERM: the run stops at its episode's end, checkpointed
+        assert worker.calls == ["terminate", ("join", pytest.approx(experiments.STOP_WAIT, abs=5))]
 
 
 # ------------------------------------------------------------------ Ray pieces
@@ -307,7 +310,8 @@ def test_a_ray_task_says_where_it_starts_then_sends_back_its_files(tmp_path, mon
     monkeypatch.setitem(sys.modules, "ray", FakeRayModule())
     seen = []
 
-    def run_one(config, run_dir):
+    def run_one(config, run_dir, stop_signals=True):
+        assert stop_signals is False  # a Ray worker's signals keep Ray's handlers
         seen.append(Path(run_dir))
         if config.get("fail"):
             (Path(run_dir) / LOG_FILE).write_text("log")
@@ -754,7 +758,8 @@ def test_main_interrupted_exits_130_counting_the_finished_runs(tmp_path, monkeyp
     assert experiments.main(argv) == 130
     err = capsys.readouterr().err
     assert err.split("\n")[-2] == (  # on a line of its own: the progress bar was closed first
-        "dlo-experiments: interrupted; 2 of 3 run(s) finished: run the same command again to continue")
+        "dlo-experiments: interrupted; 2 of 3 run(s) finished: run the same command again to continue (a stopped "
+        "run resumes from its checkpoint)")
     assert "runs:" in err
 
 

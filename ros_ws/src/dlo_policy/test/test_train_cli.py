@@ -98,7 +98,8 @@ def test_help_shows_the_protocol_the_options_and_the_override_examples(capsys):
                  "--config CONFIG YAML config (default: built-in defaults, see config/sac_default.yaml)",
                  "--label LABEL experiment name used to group seeds in dlo-report",
                  "--resume continue the run in --out from its last checkpoint (its saved config; only --steps "
-                 "may change)", "--no-progress no progress bar", "key=value config overrides"):
+                 "may change)", "--no-progress no progress display (a bar on a terminal, else a line every tenth of the run)",
+                 "key=value config overrides"):
         assert text in flat, text
 
 
@@ -418,7 +419,7 @@ def test_an_interrupted_training_finishes_its_progress_line_and_closes_its_envs(
         env=types.SimpleNamespace(close=lambda: closed.append("env")),
         eval_env=types.SimpleNamespace(close=lambda: closed.append("eval_env")),
         tb=types.SimpleNamespace(close=lambda: closed.append("tb")),
-        save_checkpoint=lambda: closed.append("checkpoint"), on_step=None)
+        save_checkpoint=lambda: closed.append("checkpoint"), on_step=None, stop=train.StopSignals())
     with pytest.raises(KeyboardInterrupt):
         train.Trainer.run(trainer)
     err = capsys.readouterr().err
