@@ -52,6 +52,14 @@ GRAPH = (
 
 SLOW = (  # each about 3 s or more: a training, a long simulation, evaluation or video render
     "tests/test_golden_training.py",
+    "ros_ws/src/dlo_policy/test/test_train.py::test_a_signal_stops_the_run_at_an_episode_end_with_a_checkpoint_there_and_the_resumed_run_is_the_whole_one",
+    "ros_ws/src/dlo_policy/test/test_train.py::test_a_signal_before_the_first_step_leaves_a_checkpoint_at_step_0_and_the_resumed_run_is_the_whole_one",
+    "ros_ws/src/dlo_policy/test/test_experiments.py::test_ctrl_c_stops_the_grid_and_its_run_at_an_episode_end_with_a_checkpoint_the_next_start_resumes",
+    "ros_ws/src/dlo_policy/test/test_evaluate_scripted.py::test_stdout_is_only_the_title_and_the_table",
+    "ros_ws/src/dlo_policy/test/test_train_output.py::test_stdout_is_only_the_json_summary",
+    "ros_ws/src/dlo_policy/test/test_train_output.py::test_off_a_terminal_progress_is_a_plain_line_every_tenth_showing_both_outcome_rules",
+    "ros_ws/src/dlo_policy/test/test_train_output.py::test_a_short_run_that_does_not_set_checkpoint_every_can_be_resumed",
+    "ros_ws/src/dlo_policy/test/test_train_output.py::test_a_checkpoint_interval_that_is_set_is_kept",
     "tests/test_graph_train.py",
     "tests/test_analysis_equals_env.py",
     "tests/test_video.py::test_one_playable_mp4_per_episode",

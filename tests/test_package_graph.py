@@ -129,7 +129,7 @@ def test_node_helpers_live_in_the_base_package():
 
 def test_the_tool_packages_sit_on_top_of_the_graph():
     """The expected DAG: dlo_bag (bag I/O, recorder, playback, analysis) and dlo_driver_kit (driver template
-    and checker) need only msgs, common, perception and sim; dlo_viz (live view) needs dlo_bag; no package of
+    and checker) need only msgs, common, perception and sim to run (their tests: also dlo_policy, dlo_bag); dlo_viz (live view) needs dlo_bag; no package of
     the graph itself depends on a tool package, and nothing but the launch package dlo_bringup depends on dlo_viz
     or dlo_driver_kit."""
     pkgs = packages(SRC)
@@ -139,7 +139,8 @@ def test_the_tool_packages_sit_on_top_of_the_graph():
         users = {name for name, deps in dlo_deps.items() if tool in deps}
         assert users <= TOOL_USERS[tool], f"{sorted(users - TOOL_USERS[tool])} depend on {tool}"
     core = {"dlo_msgs", "dlo_common", "dlo_perception", "dlo_sim"}
-    assert dlo_deps["dlo_bag"] == core
+    assert dlo_deps["dlo_bag"] == core | {"dlo_policy"}  # dlo_policy: <test_depend> only (a bag of a policy's run)
+    assert "dlo_policy" not in set().union(*(pkgs["dlo_bag"][1][t] for t in RUN_TAGS))
     assert dlo_deps["dlo_driver_kit"] == core | {"dlo_bag"}  # <test_depend> only
     assert "dlo_bag" not in set().union(*(pkgs["dlo_driver_kit"][1][t] for t in RUN_TAGS))
     assert dlo_deps["dlo_viz"] == {"dlo_msgs", "dlo_common", "dlo_bag"}

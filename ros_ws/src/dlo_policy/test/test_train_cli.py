@@ -122,20 +122,25 @@ def test_a_directory_holding_part_of_a_run_is_not_trained_into_again(left, tmp_p
     assert sorted(p.name for p in run.iterdir()) == sorted([*left, rundir.LOCK_FILE])
 
 
-def test_keep_if_best_keeps_the_first_of_the_highest_hold_the_end_then_reward():
-    """best_policy.pt / best.json: a later evaluation replaces the best only when it is strictly better
-    (hold-the-end fraction first, then episode reward); a tie keeps the earlier one."""
+@pytest.mark.parametrize("selected_by", ["hold_the_end", "hold_the_end_authors"])
+def test_keep_if_best_keeps_the_first_of_the_highest_hold_the_end_then_reward(selected_by):
+    """best_policy.pt / best.json: a later evaluation replaces the best only when it is strictly better under the
+    run's own outcome rule (`selected_by`: the authors' rule for authors_code runs, the paper rule for paper_text),
+    then by episode reward; a tie keeps the earlier one. The other rule's numbers do not choose."""
     import types
 
     states = iter(range(100))
-    trainer = types.SimpleNamespace(best=None, best_policy_state=None, written=[],
+    trainer = types.SimpleNamespace(best=None, best_policy_state=None, written=[], selected_by=selected_by,
                                     agent=types.SimpleNamespace(policy_state=lambda: next(states)))
     trainer.write_best = lambda: trainer.written.append((trainer.best["step"], trainer.best_policy_state))
+    other = "hold_the_end" if selected_by == "hold_the_end_authors" else "hold_the_end_authors"
     for step, hold, reward in ((0, 0.2, -1.0), (100, 0.2, -1.0), (200, 0.2, -0.5), (300, 0.1, 5.0), (400, 0.3, -9.0),
                                (500, 0.3, -9.0)):
-        train.Trainer.keep_if_best(trainer, {"step": step, "hold_the_end": hold, "episode_reward": reward, "alpha": 1})
+        row = {"step": step, selected_by: hold, other: 1.0 - hold, "episode_reward": reward, "alpha": 1}
+        train.Trainer.keep_if_best(trainer, row)
     assert trainer.written == [(0, 0), (200, 1), (400, 2)]
-    assert trainer.best == {"step": 400, "hold_the_end": 0.3, "episode_reward": -9.0}
+    assert trainer.best == {"step": 400, selected_by: 0.3, other: 0.7, "episode_reward": -9.0,
+                            "selected_by": selected_by}
 
 
 def test_a_trainer_makes_its_run_directory_records_its_config_and_seeds_its_agent(tmp_path, monkeypatch):
