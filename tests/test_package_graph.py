@@ -129,7 +129,8 @@ def test_node_helpers_live_in_the_base_package():
 
 def test_the_tool_packages_sit_on_top_of_the_graph():
     """The expected DAG: dlo_bag (bag I/O, recorder, playback, analysis) and dlo_driver_kit (driver template
-    and checker) need only msgs, common, perception and sim to run (their tests: also dlo_policy, dlo_bag); dlo_viz (live view) needs dlo_bag; no package of
+    and checker) need only msgs, common, perception and sim to run (their tests: also dlo_policy, dlo_bag);
+    dlo_viz (live view) needs dlo_bag; no package of
     the graph itself depends on a tool package, and nothing but the launch package dlo_bringup depends on dlo_viz
     or dlo_driver_kit."""
     pkgs = packages(SRC)

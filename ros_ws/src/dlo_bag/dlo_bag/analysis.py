@@ -39,7 +39,7 @@ from dlo_common.console import console_main
 from dlo_common.topics import select, topic
 from dlo_perception.cloud import unpack_particles
 from dlo_perception.sync import stamp_to_ns
-from dlo_sim.task import LEGACY_TASK_RULES, OUTCOME_NAMES, EpisodeTracker
+from dlo_sim.task import OUTCOME_NAMES, EpisodeTracker, recorded_task_rules
 from dlo_bag.bag import (EXIT_BAD_BAG, EXIT_NO_TASK_STATE, EXIT_USAGE, BagError, NotABagError, bag_info,
                          read_messages)
 from dlo_bag.outcome_table import outcome_table
@@ -140,7 +140,7 @@ def recompute_episode(task_states: dict) -> dict:
         raise ValueError("the episode's first step (0) is missing from the bag")
     final = next((s for s in steps if task_states[s].done), None)
     # An episode ends by a drop or at its horizon: the step the sim marked done is that horizon.
-    rules = getattr(task_states[0], "task_rules", "") or LEGACY_TASK_RULES  # bags from before the field
+    rules = recorded_task_rules(getattr(task_states[0], "task_rules", "")).name  # bags from before the field too
     tracker = EpisodeTracker(1, horizon=final if final else 10**9, task_rules=rules)
 
     def held_inputs(msg):

@@ -14,7 +14,7 @@ import json
 import re
 
 from dlo_perception.tactile import noise_label
-from dlo_sim.task import LEGACY_TASK_RULES, OUTCOME_NAMES, OUTCOME_NONE
+from dlo_sim.task import LEGACY_TASK_RULES, OUTCOME_NAMES, OUTCOME_NONE, recorded_task_rules
 
 OUTCOMES = [name for code, name in sorted(OUTCOME_NAMES.items()) if code != OUTCOME_NONE]
 SHIPPED = "the shipped All policy"
@@ -81,7 +81,7 @@ def run_header(episodes, policy: str = "", checkpoint: str = "", without: str = 
     ablation = f"ablation: without {without} (zeroed)" if without else "ablation: none"
     seeds = seed_ranges(e["seed"] for e in episodes)
     count = f"{len(episodes)} episode{'' if len(episodes) == 1 else 's'}"
-    rules = sorted({e.get("task_rules", LEGACY_TASK_RULES) for e in episodes})  # older outcome files: paper_text
+    rules = sorted({recorded_task_rules(e.get("task_rules")).name for e in episodes})  # older files: the legacy rules
     grips = sorted({"single-particle" if e.get("single_particle_grip") else "finite" for e in episodes})  # older: finite
     noise = noise_label(tactile_noise) if tactile_noise not in ("", None) else "none"
     return (f"run: {described} ({source}); {ablation}; tactile noise: {noise}"

@@ -15,6 +15,11 @@ import os
 import re
 from dataclasses import dataclass, field, replace
 
+from dlo_perception.vision_source import DEFAULT_VISION_SOURCE, VISION_SOURCES
+from dlo_sim.config import START_POSES, SimConfig
+from dlo_sim.grip import CARRY_LAWS
+from dlo_sim.task import DEFAULT_TASK_RULES, TASK_RULES
+
 HELP_HINT = "(options: scripts/launch_graph.sh --help)"
 FOXGLOVE_PORT = 8765  # --foxglove without a port
 # (name, metavar, default, help); default None: not a plain value (see parse_args). LAUNCH: a launch argument too.
@@ -145,10 +150,10 @@ def check(o: GraphOptions) -> None:
         raise UsageError(f"--seed must be a number >= 0, got '{o.seed}'")
     if o.mode not in ("step_locked", "real_time"):
         raise UsageError("--mode must be step_locked or real_time")
-    _one_of("task-rules", o.task_rules, ("paper_text", "authors_code"))
-    _one_of("carry-law", o.carry_law, ("paper", "authors"))
-    _one_of("start-pose", o.start_pose, ("ours", "authors"))
-    _one_of("vision-source", o.vision_source, ("image", "particles"))
+    _one_of("task-rules", o.task_rules, TASK_RULES)
+    _one_of("carry-law", o.carry_law, CARRY_LAWS)
+    _one_of("start-pose", o.start_pose, tuple(START_POSES))
+    _one_of("vision-source", o.vision_source, VISION_SOURCES)
     if o.contact_radius and not (re.fullmatch(r"[0-9]*[.]?[0-9]+", o.contact_radius)
                                  and 0 < float(o.contact_radius) <= CONTACT_RADIUS_MAX):
         raise UsageError(f"--contact-radius must be a number in (0, {CONTACT_RADIUS_MAX}] m, got '{o.contact_radius}'")
@@ -193,12 +198,13 @@ def resolve(o: GraphOptions) -> GraphOptions:
         trained = trained_settings(o.checkpoint)
         if trained is not None:
             _fill_in_from_training(o, trained)
-    o.task_rules = o.task_rules or "authors_code"
-    o.single_particle_grip = o.single_particle_grip or "false"
-    o.carry_law = o.carry_law or "paper"
-    o.contact_radius = o.contact_radius or "0.004"
-    o.vision_source = o.vision_source or "image"
-    o.start_pose = o.start_pose or "ours"
+    # the defaults are the simulator's and the vision node's own (one home each)
+    o.task_rules = o.task_rules or DEFAULT_TASK_RULES
+    o.single_particle_grip = o.single_particle_grip or str(SimConfig.single_particle_grip).lower()
+    o.carry_law = o.carry_law or SimConfig.carry_law
+    o.contact_radius = o.contact_radius or str(SimConfig.contact_radius)
+    o.vision_source = o.vision_source or DEFAULT_VISION_SOURCE
+    o.start_pose = o.start_pose or SimConfig.start_pose
     return o
 
 

@@ -41,6 +41,7 @@ from dlo_common import taichi_runtime  # before taichi: no "[Taichi] version" ba
 import taichi as ti
 
 from dlo_perception.camera import TopCamera
+from dlo_perception.vision_source import DEFAULT_VISION_SOURCE, VISION_SOURCES, check_vision_source  # noqa: F401
 
 IMAGE_CABLE = 255  # pixel value of the cable in the rendered top view
 IMAGE_GRIPPER = 128  # pixel value of the gripper
@@ -51,8 +52,6 @@ CONFIDENCE_LENGTH = 0.024  # m, dx giving q_V = 1
 TRACK_LENGTH = 0.043  # m, at most 10 particle spacings of the strand are followed
 ENTRY_BAND = 0.006  # m, ground truth: first particle beyond x_o lies within this band (> spacing)
 CABLE_RADIUS = 0.008  # m, drawn cable radius: the image strand ends this far past the last centre
-VISION_SOURCES = ("image", "particles")  # vision_source: the top-view image, or the authors' index walk
-DEFAULT_VISION_SOURCE = "image"  # what a camera gives: the default, for the graph and for real robots
 WALK_STEPS = 10  # particles, particles-source: how far each index walk goes (the authors' range(10))
 BACKTRACK = 0.25 * 0.008  # m, particles-source: the walk right stops where x falls back more than this
 
@@ -255,13 +254,6 @@ def line_slope(xs, ys, mask) -> np.ndarray:
     sxx = (dx * dx).sum(axis=1)
     sxy = (dx * dy).sum(axis=1)
     return np.where((count >= 2) & (sxx > 0), sxy / np.where(sxx > 0, sxx, 1.0), 0.0)
-
-
-def check_vision_source(source) -> str:
-    """``source`` if it is one of VISION_SOURCES, else ValueError with a one-line reason."""
-    if source not in VISION_SOURCES:
-        raise ValueError(f"vision_source: expected one of {', '.join(VISION_SOURCES)}, got {source!r}")
-    return source
 
 
 def visual_pose_particles(positions, held, num_particles, gripper_xy) -> VisualPose:

@@ -68,7 +68,7 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 
 from dlo_perception.camera import TopCamera
 from dlo_perception.tactile import noise_sigma
-from dlo_perception.vision import DEFAULT_VISION_SOURCE, check_vision_source
+from dlo_perception.vision_source import DEFAULT_VISION_SOURCE, check_vision_source
 from dlo_policy import perturbations as perturbation_families
 from dlo_policy.modalities import VISION_PLANE_Z, by_name  # noqa: F401 (VISION_PLANE_Z: its old home)
 from dlo_policy.observation import build_observation, observation_bounds, parse_modalities

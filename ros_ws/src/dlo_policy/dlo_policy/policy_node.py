@@ -47,7 +47,7 @@ from dlo_policy.observation import build_observation, observation_size, parse_mo
 from dlo_policy.rundir import CONFIG_FILE, read_trained_config
 from dlo_policy.rundir import SHIPPED_POLICY, shipped_policy_path  # noqa: F401 (SHIPPED_POLICY: re-exported)
 from dlo_sim.command import action_to_command
-from dlo_sim.task import LEGACY_TASK_RULES, dropped
+from dlo_sim.task import recorded_task_rules
 
 POLICIES = ("sac", "tactile_reactive", "oracle", "random")
 
@@ -274,8 +274,8 @@ class PolicyNode(Node):
             observation = self.perturber.observe(observation)
         if self.learner is not None:
             task = values["task"]
-            terminated = task.done and bool(dropped(task.task_rules or LEGACY_TASK_RULES, task.n_held,
-                                                    len(task.held_indices_authors)))
+            terminated = task.done and bool(recorded_task_rules(task.task_rules).dropped(
+                task.n_held, len(task.held_indices_authors)))
             action = self.learner.act(observation[0], task.reward, task.done, terminated,
                                       gripper.episode, gripper.step)
         else:

@@ -27,7 +27,8 @@ from pathlib import Path
 from typing import Any, Optional
 
 from dlo_sim.config import SimConfig
-from dlo_sim.task import LEGACY_TASK_RULES
+from dlo_perception.vision_source import DEFAULT_VISION_SOURCE
+from dlo_sim.task import LEGACY_TASK_RULES, recorded_task_rules
 
 from .config import RunConfig, load_config, record_task_rules
 
@@ -149,13 +150,11 @@ def trained_sim_settings(policy_file: Path) -> Optional[dict[str, Any]]:
     "vision_source", "start_pose"}`` (what the sim and vision nodes must run for the policy to meet the task and the
     observation it was trained on); None when no config.yaml is beside the file.
     ConfigError or OSError when that config.yaml cannot be read."""
-    from dlo_perception.vision import DEFAULT_VISION_SOURCE  # here: taichi only for those who ask
-
     run_dir = Path(policy_file).parent
     if not (run_dir / CONFIG_FILE).exists():
         return None
     options = read_trained_config(run_dir).env_options
-    return {"task_rules": options.get("task_rules", LEGACY_TASK_RULES),
+    return {"task_rules": recorded_task_rules(options.get("task_rules")).name,
             "single_particle_grip": bool(options.get("single_particle_grip", False)),
             "carry_law": options.get("carry_law", SimConfig.carry_law),
             "contact_radius": float(options.get("contact_radius", SimConfig.contact_radius)),

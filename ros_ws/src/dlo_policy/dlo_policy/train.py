@@ -79,7 +79,7 @@ import yaml
 
 from dlo_common import taichi_runtime
 from dlo_common.console import EXIT_INTERRUPTED, Progress, console_main
-from dlo_sim.task import DEFAULT_TASK_RULES, LEGACY_TASK_RULES
+from dlo_sim.task import DEFAULT_TASK_RULES, LEGACY_TASK_RULES, task_rules
 
 from . import rundir
 from .cli import check_override_keys
@@ -244,8 +244,8 @@ class Trainer:
         config = record_task_rules(config, LEGACY_TASK_RULES if resume else DEFAULT_TASK_RULES)
         self.config = config
         # best_policy.pt is chosen by the outcome rule of the run's own task rules (module docstring)
-        self.selected_by = ("hold_the_end_authors" if config.env_options.get("task_rules") == "authors_code"
-                            else "hold_the_end")
+        recorded = config.env_options.get("task_rules")  # recorded for the cable env (other envs: the paper rule)
+        self.selected_by = task_rules(recorded).outcome_key if recorded else "hold_the_end"
         save_config(config, out_dir / CONFIG_FILE)
         self.threads = set_threads(config.train.num_threads)
         self.device = resolve_device(config.train.device)

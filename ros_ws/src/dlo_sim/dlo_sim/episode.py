@@ -9,8 +9,9 @@ from __future__ import annotations
 import numpy as np
 
 from dlo_sim.rope import RopeSim, Snapshot
-from dlo_sim.task import (DEFAULT_TASK_RULES, END_PARTICLES, HORIZON, EpisodeTracker, check_task_rules, held_mask_authors,
+from dlo_sim.task import (DEFAULT_TASK_RULES, END_PARTICLES, HORIZON, EpisodeTracker, held_mask_authors,
                           held_statistics)
+from dlo_sim.task import task_rules as task_rules_record
 
 
 class TaskSim:
@@ -27,7 +28,7 @@ class TaskSim:
 
     def __init__(self, num_envs: int, horizon: int = HORIZON, end_particles: int = END_PARTICLES,
                  render: bool = False, task_rules: str = DEFAULT_TASK_RULES, **sim_options):
-        check_task_rules(task_rules)
+        self.rules = task_rules_record(task_rules)
         self.sim = RopeSim(num_envs, **sim_options)
         self.tracker = EpisodeTracker(self.sim.num_envs, horizon=horizon, end_particles=end_particles,
                                       task_rules=task_rules)
@@ -49,7 +50,7 @@ class TaskSim:
     @property
     def held_task(self) -> np.ndarray:
         """(N, P_MAX) bool: the held set the task rules use (reward, termination, tactile input)."""
-        return self.held_authors if self.task_rules == "authors_code" else self.state.held
+        return self.rules.select(self.state.held, self.held_authors)
 
     def reset(self, seeds, env_ids=None) -> None:
         """Start new episodes from ``seeds`` in ``env_ids`` (all if None)."""

@@ -44,6 +44,9 @@ n_c - 1 - (largest held index reached in the episode), 0 = it held the last part
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+from typing import Callable, Optional
+
 import numpy as np
 
 from dlo_sim.config import FINGER_AXIS_OFFSET
@@ -54,9 +57,6 @@ END_REWARD_WINDOW = 20  # particles
 FALL_PENALTY = -0.5
 END_PARTICLES = 10  # "at the end" = any of the last 10 held (the authors' code used 5)
 HORIZON = 150  # control steps per episode
-TASK_RULES = ("paper_text", "authors_code")  # what reward, termination and the tactile input use
-DEFAULT_TASK_RULES = "authors_code"  # the study's variant: its results come closest to the paper (docs/FIDELITY.md)
-LEGACY_TASK_RULES = "paper_text"  # what runs, bags and outcome files from before the switch existed used
 AUTHORS_DROP_AT = 1  # authors' rules: the episode ends when their held set has at most this many particles
 AUTHORS_HELD_HALF_WIDTH = 0.0075  # m, authors' held set: |y - y_G| below this (the finger axis segment)
 AUTHORS_HELD_DISTANCE = 0.0245  # m, authors' held set: distance to the lower finger's axis in x-z below this
@@ -107,18 +107,64 @@ def step_reward_authors(prev_p_a, p_a, n_h_a, n_c, L_c):
     return np.where(np.asarray(n_h_a) > 0, move + end, FALL_PENALTY)
 
 
+@dataclass(frozen=True)
+class TaskRules:
+    """One variant of the task (module docstring): which held set the episode is computed from, its reward and its
+    end; everything else asks the record instead of comparing names.
+
+    name           how configs, parameters and messages write it ("authors_code")
+    authors_set    True: the authors' narrow held set (``held_mask_authors``); False: the physics' held set
+    drop_at        the episode ends (a drop) when that set holds at most this many particles
+    reward         (previous mean index, mean index, n_held, n_c, L_c) of that set -> the step's reward
+    outcome_key    the evaluation column of the outcome rule that goes with it: what chooses a run's best policy
+    """
+
+    name: str
+    authors_set: bool
+    drop_at: int
+    reward: Callable
+    outcome_key: str
+
+    def select(self, physics, authors):
+        """The value of the held set these rules use, from the pair (physics' set, authors' set)."""
+        return authors if self.authors_set else physics
+
+    def dropped(self, n_h, n_h_authors):
+        """True where these rules end the episode as a drop."""
+        return np.asarray(self.select(n_h, n_h_authors)) <= self.drop_at
+
+
+RULES = {rules.name: rules for rules in (
+    TaskRules("paper_text", authors_set=False, drop_at=0, reward=step_reward, outcome_key="hold_the_end"),
+    TaskRules("authors_code", authors_set=True, drop_at=AUTHORS_DROP_AT, reward=step_reward_authors,
+              outcome_key="hold_the_end_authors"),
+)}
+TASK_RULES = tuple(RULES)  # their names: what reward, termination and the tactile input use
+DEFAULT_TASK_RULES = "authors_code"  # the study's variant: its results come closest to the paper (docs/FIDELITY.md)
+LEGACY_TASK_RULES = "paper_text"  # what runs, bags and outcome files from before the switch existed used
+
+
 def check_task_rules(rules) -> str:
     """``rules`` if it is one of TASK_RULES, else ValueError with a one-line reason."""
-    if rules not in TASK_RULES:
+    if rules not in RULES:
         raise ValueError(f"task_rules: expected one of {', '.join(TASK_RULES)}, got {rules!r}")
     return rules
 
 
+def task_rules(name) -> TaskRules:
+    """The record of ``name`` (ValueError with a one-line reason for an unknown one)."""
+    return RULES[check_task_rules(name)]
+
+
+def recorded_task_rules(name: Optional[str]) -> TaskRules:
+    """The record a run directory, bag or outcome file names; one from before the field existed (None or '')
+    ran under LEGACY_TASK_RULES. The one place old records are mapped."""
+    return task_rules(name or LEGACY_TASK_RULES)
+
+
 def dropped(rules, n_h, n_h_authors):
-    """True where the task rules end the episode as a drop: paper_text n_h = 0, authors_code n_h_a <= 1."""
-    if check_task_rules(rules) == "authors_code":
-        return np.asarray(n_h_authors) <= AUTHORS_DROP_AT
-    return np.asarray(n_h) == 0
+    """True where the task rules (a name) end the episode as a drop: paper_text n_h = 0, authors_code n_h_a <= 1."""
+    return task_rules(rules).dropped(n_h, n_h_authors)
 
 
 def at_end(max_held_index, n_c, end_particles=END_PARTICLES):
@@ -165,6 +211,11 @@ def classify_outcome(dropped, reached_end, at_end_now):
     return np.where(dropped, lost, kept).astype(np.int64)
 
 
+def _rules(rules) -> TaskRules:
+    """A TaskRules record from a record or a name."""
+    return rules if isinstance(rules, TaskRules) else task_rules(rules)
+
+
 class EpisodeTracker:
     """Per-environment running task state for N environments.
 
@@ -177,7 +228,8 @@ class EpisodeTracker:
 
     def __init__(self, num_envs, horizon=HORIZON, end_particles=END_PARTICLES, task_rules=DEFAULT_TASK_RULES):
         self.num_envs, self.horizon, self.end_particles = int(num_envs), int(horizon), int(end_particles)
-        self.task_rules = check_task_rules(task_rules)
+        self.rules = _rules(task_rules)
+        self.task_rules = self.rules.name
         n = self.num_envs
         self.prev_p_i = np.full(n, -1.0)
         self.steps = np.zeros(n, np.int64)
@@ -208,10 +260,9 @@ class EpisodeTracker:
 
     def step(self, p_i, n_h, max_held_index, n_c, L_c, p_i_authors, n_h_authors):
         """Account one control step of all environments; arrays (N,). Returns reward, terminated, truncated."""
-        if self.task_rules == "authors_code":
-            reward = step_reward_authors(self.prev_p_i_authors, p_i_authors, n_h_authors, n_c, L_c)
-        else:
-            reward = step_reward(self.prev_p_i, p_i, n_h, n_c, L_c)
+        rules = self.rules
+        reward = rules.reward(rules.select(self.prev_p_i, self.prev_p_i_authors), rules.select(p_i, p_i_authors),
+                              rules.select(n_h, n_h_authors), n_c, L_c)
         end_now = at_end(max_held_index, n_c, self.end_particles)
         self.steps += 1
         self.episode_return += reward
@@ -220,7 +271,7 @@ class EpisodeTracker:
         self.reached_end |= end_now
         self.num_particles[:] = n_c
         self.prev_p_i = np.asarray(p_i, dtype=np.float64).copy()
-        terminated = dropped(self.task_rules, n_h, n_h_authors)
+        terminated = rules.dropped(n_h, n_h_authors)
         truncated = ~terminated & (self.steps >= self.horizon)
         done = terminated | truncated
         self.outcome = np.where(done, classify_outcome(terminated, self.reached_end, end_now), self.outcome)

@@ -318,3 +318,32 @@ def test_an_authors_code_tracker_rewards_each_step_from_the_previous_one():
     new = EpisodeTracker(2, task_rules="authors_code")
     reward, terminated, _ = new.step([3.0, 3.0], [2, 2], [4, 4], [n_c, n_c], [L_c, L_c], [3.0, 0.0], [2, 2])
     assert reward.tolist() == [0.0, 0.0] and not terminated.any()
+
+
+def test_task_rules_are_records_that_say_their_held_set_end_and_outcome_rule():
+    """dlo_sim.task.RULES: one record per variant; callers ask it (held set, drop, reward, outcome column) instead of
+    comparing names; records of old runs and bags without the field read as the legacy rules, in one place."""
+    from dlo_sim import task as t
+    paper, authors = t.task_rules("paper_text"), t.task_rules("authors_code")
+    assert t.TASK_RULES == ("paper_text", "authors_code") and t.DEFAULT_TASK_RULES in t.RULES
+    assert (paper.select("physics", "authors"), authors.select("physics", "authors")) == ("physics", "authors")
+    assert paper.dropped(np.array([0, 1, 2]), np.array([5, 5, 5])).tolist() == [True, False, False]
+    assert authors.dropped(np.array([0, 0, 0]), np.array([0, 1, 2])).tolist() == [True, True, False]
+    assert (paper.reward, authors.reward) == (t.step_reward, t.step_reward_authors)
+    assert (paper.outcome_key, authors.outcome_key) == ("hold_the_end", "hold_the_end_authors")
+    assert t.recorded_task_rules(None) is t.recorded_task_rules("") is t.task_rules(t.LEGACY_TASK_RULES)
+    assert t.recorded_task_rules("authors_code") is authors
+    with pytest.raises(ValueError, match="task_rules: expected one of paper_text, authors_code, got 'flex'"):
+        t.task_rules("flex")
+
+
+def test_no_module_compares_task_rule_names_outside_the_registry():
+    """Task rules as records: no product module branches on a task-rule name (``== "authors_code"``); they ask the
+    record (dlo_sim.task)."""
+    import pathlib
+    import re
+    src = pathlib.Path(__file__).resolve().parents[2]
+    compare = re.compile(r"""[=!]= *["'](authors_code|paper_text)["']|["'](authors_code|paper_text)["'] *[=!]=""")
+    offenders = [str(path.relative_to(src)) for path in src.glob("*/*/*.py")
+                 if "/test/" not in str(path) and compare.search(path.read_text())]
+    assert offenders == []
