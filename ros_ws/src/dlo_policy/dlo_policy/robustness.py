@@ -175,6 +175,7 @@ def plot(summary: dict, path: Path) -> None:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt  # noqa: PLC0415
+    import matplotlib.ticker  # noqa: PLC0415
 
     names = list(summary["families"])
     columns = 4
@@ -210,6 +211,11 @@ def plot(summary: dict, path: Path) -> None:
                 ax.axvspan(low, high, color="0.88", zorder=0, label="training range")
             else:
                 ax.axvline(low, color="0.7", lw=1.0, zorder=0, label="training value")
+        magnitudes = [p["magnitude"] for p in points] + [low, high]
+        if min(magnitudes) > 0 and max(magnitudes) / min(magnitudes) >= 20:  # a grid of factors: log x, its ticks
+            ax.set_xscale("log")
+            ax.set_xticks([p["magnitude"] for p in points], [f"{p['magnitude']:g}" for p in points])
+            ax.xaxis.set_minor_locator(matplotlib.ticker.NullLocator())
         ax.axhline(summary["threshold"], color="0.3", lw=0.8, ls="--")
         ax.set_ylim(-0.03, 1.03)
         ax.set_title(name, fontsize=9)
