@@ -9,8 +9,12 @@ import json
 import os
 import pathlib
 import subprocess
+import sys
 
 import pytest
+
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))  # --import-mode=importlib: tests/ helpers
+from env_replay import replay_and_compare  # noqa: E402
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 SEED = 7005
@@ -58,13 +62,4 @@ def test_shipped_policy_episodes_in_the_graph_equal_the_in_process_env(graph_epi
     assert {e["single_particle_grip"] for e in episodes} == {grip}  # the sim notes its grip
     for name, default in (("carry_law", "paper"), ("contact_radius", 0.004), ("start_pose", "ours")):  # and the levers
         assert {e[name] for e in episodes} == {levers.get(name, default)}
-    for live in episodes:
-        observation, _ = env.reset(seed=live["seed"])
-        done, info = False, {}
-        while not done:
-            observation, _, terminated, truncated, info = env.step(
-                agent.predict(observation[None], deterministic=True)[0])
-            done = terminated or truncated
-        assert (info["outcome"], info["outcome_authors"]) == (live["outcome"], live["outcome_authors"]), live["seed"]
-        assert info["episode_return"] == live["episode_return"], live["seed"]  # exactly: same code, same numbers
-        assert info["episode_length"] == live["episode_length"]
+    replay_and_compare(env, agent, episodes)

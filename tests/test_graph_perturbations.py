@@ -9,10 +9,14 @@ vision, which take no such parameter yet (the env has them; dlo_policy.perturbat
 
 import json
 import pathlib
+import sys
 
 import pytest
 
 from dlo_common.testing import ROS2RUN, Procs, package_test_env
+
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))  # --import-mode=importlib: tests/ helpers
+from env_replay import replay_and_compare  # noqa: E402
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 SEED, EPISODES = 7005, 4
@@ -57,18 +61,7 @@ def test_perturbed_episodes_in_the_graph_equal_the_in_process_env(graph_episodes
     env = make_env("All", seed=SEED, task_rules=settings["task_rules"],
                    single_particle_grip=settings["single_particle_grip"], perturbations=PERTURBATIONS)
     assert [e["seed"] for e in episodes] == list(range(SEED, SEED + EPISODES))
-    plain_returns = []
-    for live in episodes:
-        observation, _ = env.reset(seed=live["seed"])
-        done, info = False, {}
-        while not done:
-            observation, _, terminated, truncated, info = env.step(
-                agent.predict(observation[None], deterministic=True)[0])
-            done = terminated or truncated
-        assert (info["outcome"], info["outcome_authors"]) == (live["outcome"], live["outcome_authors"]), live["seed"]
-        assert info["episode_return"] == live["episode_return"], live["seed"]  # exactly: same code, same numbers
-        assert info["episode_length"] == live["episode_length"]
-        plain_returns.append(info["episode_return"])
+    plain_returns = [info["episode_return"] for info in replay_and_compare(env, agent, episodes)]
     # the perturbations did act: the unperturbed env gives other episodes
     plain = make_env("All", seed=SEED, task_rules=settings["task_rules"],
                      single_particle_grip=settings["single_particle_grip"])
