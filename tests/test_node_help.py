@@ -161,7 +161,7 @@ def test_banner_does_not_precede_one_line_errors(tmp_path):
     train = subprocess.run(["dlo-train", "--out", str(tmp_path / "run"), "sac.bogus=1"], cwd=tmp_path,
                            capture_output=True, text=True, timeout=300, env=env)
     assert train.returncode == 2 and train.stdout == "", train.stdout
-    assert train.stderr.startswith("dlo-train: error: unknown key(s) sac.bogus")
+    assert train.stderr.startswith("dlo-train: error: unknown key 'sac.bogus'; did you mean"), train.stderr
     evaluate = subprocess.run(["dlo-evaluate", "--checkpoint", str(tmp_path / "missing.pt")], cwd=tmp_path,
                               capture_output=True, text=True, timeout=300, env=env)
     assert evaluate.returncode == 2 and evaluate.stdout == ""
