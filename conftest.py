@@ -35,6 +35,7 @@ GRAPH_FIXTURES = frozenset({
 })
 
 GRAPH = (
+    "tests/test_graph_perturbations.py",
     "tests/test_graph.py::test_sigint_mid_run_leaves_a_complete_readable_bag",
     "tests/test_graph_equals_env.py",
     "tests/test_graph_faults.py",
@@ -51,6 +52,7 @@ GRAPH = (
 )
 
 SLOW = (  # each about 3 s or more: a training, a long simulation, evaluation or video render
+    "ros_ws/src/dlo_policy/test/test_perturbations.py",
     "tests/test_golden_training.py",
     "ros_ws/src/dlo_policy/test/test_train.py::test_a_signal_stops_the_run_at_an_episode_end_with_a_checkpoint_there_and_the_resumed_run_is_the_whole_one",
     "ros_ws/src/dlo_policy/test/test_train.py::test_a_signal_before_the_first_step_leaves_a_checkpoint_at_step_0_and_the_resumed_run_is_the_whole_one",
