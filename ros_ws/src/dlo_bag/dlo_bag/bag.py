@@ -630,6 +630,9 @@ class _Parts:
 
         try:
             for part in self.parts:
+                if not any(part.glob("*.mcap")):  # no data at all: nothing dlo-bag-recover could salvage either
+                    raise NotABagError(f"'{part}' has a {METADATA} but no .mcap data: not an MCAP bag, and "
+                                       "nothing to recover")
                 try:
                     reader = Reader(part)
                     reader.open()

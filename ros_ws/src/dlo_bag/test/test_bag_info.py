@@ -56,3 +56,17 @@ def test_a_reader_that_stops_early_ends_it_quietly(tmp_path):
     finally:
         os.close(write)
     assert (result.returncode, result.stderr) == (141, "")
+
+
+def test_a_folder_with_only_a_junk_metadata_file_is_not_a_bag_and_not_sent_to_recovery(tmp_path, capsys):
+    """A folder holding a metadata.yaml but no .mcap data is not a bag (exit 2, one line); the tools do not tell the
+    user to run dlo-bag-recover, which would only answer that there is nothing to recover."""
+    from dlo_bag import recover
+    junk = tmp_path / "junk"
+    junk.mkdir()
+    (junk / "metadata.yaml").write_text("not: a bag\n")
+    assert bag_info_cli.main([str(junk)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "no .mcap data" in err[0] and "dlo-bag-recover" not in err[0], err
+    assert recover.main([str(junk)]) == 1  # and the recovery tool agrees: nothing it could salvage
+    assert "no .mcap file in it" in capsys.readouterr().out
