@@ -74,6 +74,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from dlo_common.console import console_main
 from dlo_common.topics import SERVICES, message_class, select
 from dlo_common.topics import topic as topic_record
 from dlo_perception.cloud import FIELD_NAMES, FLOAT32, POINT_STEP, unpack_particles
@@ -773,6 +774,7 @@ def start_episode(node, client, request, timeout: float = 5.0) -> str:
     return "started"
 
 
+@console_main("dlo-driver-check")
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(
         prog="dlo-driver-check",
