@@ -388,7 +388,8 @@ def test_ctrl_c_stops_the_grid_and_its_run_at_an_episode_end_with_a_checkpoint_t
     grid_args = ["--out", str(out), "--groups", "single", "--labels", "T", "--seeds", "1", "--jobs", "1",
                  "--no-progress", *TINY, "train.checkpoint_every=100000000", "train.test_episodes=4"]
     grid = subprocess.Popen([sys.executable, "-m", "dlo_policy.experiments", *grid_args, "--steps", "1000000"], env=env,
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))  # as from a terminal
     worker = None
     try:
         worker = _worker_pid(run, grid)

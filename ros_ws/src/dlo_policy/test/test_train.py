@@ -588,7 +588,8 @@ def test_a_signal_stops_the_run_at_an_episode_end_with_a_checkpoint_there_and_th
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(Path(__file__).resolve().parent),
                                                         os.environ.get("PYTHONPATH", "")])}
     process = subprocess.Popen([sys.executable, "-m", "dlo_policy.train", "--out", str(stopped), *args],
-                               env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                               env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                               preexec_fn=default_sigint)  # as from a terminal, also in a background suite
     deadline = time.monotonic() + 120
     while time.monotonic() < deadline and process.poll() is None:
         if (stopped / rundir.EVAL_FILE).exists() and len(read_eval(stopped)) >= 3:  # evaluated at step 100
@@ -624,7 +625,21 @@ def test_a_signal_before_the_first_step_leaves_a_checkpoint_at_step_0_and_the_re
     resumed_equals_whole(stopped, whole)
 
 
+def default_sigint():
+    """preexec_fn: the child starts with SIGINT's default action (a suite run as a background job ignores it)."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def test_the_first_signal_asks_for_a_stop_a_second_one_stops_at_once_and_an_ignored_one_stays_ignored():
+    inherited = signal.getsignal(signal.SIGINT)  # ignored when the suite runs as a background job
+    signal.signal(signal.SIGINT, signal.default_int_handler)  # as in a terminal
+    try:
+        _first_signal_second_signal_ignored_signal()
+    finally:
+        signal.signal(signal.SIGINT, inherited)
+
+
+def _first_signal_second_signal_ignored_signal():
     before = signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)
     with train.StopSignals() as stop:
         assert signal.getsignal(signal.SIGINT) == stop._handle == signal.getsignal(signal.SIGTERM)
