@@ -1,4 +1,51 @@
-"""The ``main()`` body every dlo node shares: ``--help``, init, build, spin, clean shutdown, clear errors."""
+"""The ``main()`` body every dlo node shares: ``--help``, init, build, spin, clean shutdown, clear errors.
+
+What :func:`run_node` promises (each promise has a test in ``test/test_node_main.py`` that names its number):
+
+1. Before anything starts, ``-h``/``--help`` prints the node's parameters and returns 0; a stray argument before
+   ``--ros-args`` and ROS arguments that rcl would refuse are one line on stderr and 2 (:func:`handle_help`).
+2. rclpy's default context is initialised with ``args`` (not ``sys.argv``) and ``make_node()`` builds the node in
+   it. A :class:`ParameterError` is one line and 2, a :class:`NodeStartError` one line and 3 (also one a callback
+   raises later). Any other error is a traceback and 1, also one raised by a callback.
+3. The first SIGINT or SIGTERM requests the stop and raises nothing: the callback running then finishes, with the
+   node and the context still up (what it publishes is published), no other callback starts, and run_node returns
+   ``interrupted_rc`` without a word on stderr. A request that comes while ``make_node()`` runs stops the node
+   before it spins. The spin loop looks at least every ``SPIN_TIMEOUT`` s whether it was asked to stop or the
+   context went down (shut down by someone else: also ``interrupted_rc``), also when nothing wakes it.
+4. Copies of the signal within ``FORCE_AFTER`` s of the first (a terminal's Ctrl-C and a launcher passing it on
+   deliver two together) change nothing.
+5. A SIGINT or SIGTERM ``FORCE_AFTER`` s or more after the first interrupts the node's own code that still runs
+   then: a callback, ``make_node()`` or ``finish()`` that has not returned. :class:`SecondInterrupt` is raised at
+   once where the signal finds code other than rclpy's and run_node's running (the node's own, or a library's it
+   called: a sleep, a wait on a lock, a read); where it finds rclpy's code running, it waits and is raised at the
+   next line of the node's own code that runs after rclpy has returned to it. So never inside rclpy (a
+   KeyboardInterrupt raised in rclpy's ``Task`` constructor left a half-built task whose ``Future.__del__`` printed
+   "Exception ignored ..."), never through a call the node's code made into rclpy that was running then, never in
+   run_node's own steps (making the executor, the teardown). One line on stderr says what was interrupted; an
+   interrupted callback or ``make_node()`` ends with ``interrupted_rc``, an interrupted ``finish()`` (its closing
+   work left undone) with 1.
+6. Once the node stops spinning, its ``finish()`` (when it has one: saving a run, closing files, a last report) runs
+   first, before anything is torn down, with the node and the context still up, for as long as it takes. A
+   ``finish()`` that raises is one line and 1; the node is torn down all the same.
+7. Then :func:`shut_down` destroys the node and shuts rclpy's default context down, the context run_node
+   initialised and built the node in, within ``TEARDOWN_LIMIT`` s: a teardown still running then (Fast DDS's
+   deadlock, in C code that holds the GIL) ends the process with 1 after faulthandler's ``Timeout`` line and every
+   thread's stack. No other context of the process is shut down, neither by a signal (one run_node handles: 9)
+   nor by the teardown. A SIGINT or SIGTERM during the teardown is only noted, however late: the limit ends a
+   teardown that hangs.
+8. When run_node returns, SIGINT and SIGTERM are handled as before it was called (its handlers are put back; rclpy's
+   were not installed for them): a later SIGINT is the caller's again (KeyboardInterrupt by default), a later SIGTERM
+   ends the process (by default) instead of being swallowed by rclpy's handler for a context long shut down.
+9. Where run_node cannot or should not set its handlers, rclpy's own handler takes the signal, as it always did:
+   in a thread other than the main one (only the main thread may set handlers), for a SIGINT ignored at the start
+   (a background job of a shell) and for a signal that already had a handler of the caller's. rclpy's handler shuts
+   every context down; the spin loop then ends, and an rclpy error that a callback gets from the context so shut
+   down is the signal's (``interrupted_rc``), not a bug.
+10. Exit codes, as ``--help`` says them (:data:`EXIT_CODES`): 0 done (also for ``--help``) or stopped by a signal
+    (``interrupted_rc`` when a node gives one: sim_node 130); 1 failed: a traceback, a ``finish()`` that failed or
+    was interrupted, a teardown past its limit; 2 bad parameter; 3 refused to start. A ``SystemExit`` raised by the
+    node's code (sim_node after its last episode) passes through, after ``finish()`` and the teardown.
+"""
 
 from __future__ import annotations
 
@@ -14,6 +61,7 @@ from contextlib import contextmanager
 
 import rclpy
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.signals import SignalHandlerOptions
 from rclpy.utilities import remove_ros_args
 
 from dlo_common.node_util import NodeStartError, ParameterError, UnknownParameterError
@@ -24,12 +72,130 @@ EXIT_BAD_PARAMETER = 2
 EXIT_REFUSED = 3
 EXIT_CODES = "0 done or stopped by a signal, 1 failed (see stderr), 2 bad parameter, 3 refused to start"
 TEARDOWN_LIMIT = 10.0  # s: a middleware teardown (DDS participant destruction) still running this long ends the process
-FORCE_AFTER = 2.0  # s: a SIGINT this long after the first interrupts a callback that is still running
+FORCE_AFTER = 2.0  # s: a SIGINT or SIGTERM this long after the first interrupts the node's code still running
 SPIN_TIMEOUT = 0.1  # s: the longest a node waits for work before it looks whether it was told to stop
 
 
 class SecondInterrupt(KeyboardInterrupt):
-    """A SIGINT ``FORCE_AFTER`` s or more after the first, raised where the node is stuck."""
+    """A SIGINT or SIGTERM ``FORCE_AFTER`` s or more after the first, raised in the node's own code that still runs
+    (promise 5); ``args``: the signal's name and what was running ("build", "spin" or "finish")."""
+
+
+INTERRUPTED = {"build": "the node was not built", "spin": "a callback had not finished"}  # SecondInterrupt.doing
+
+
+def _in_rclpy(frame) -> bool:
+    name = frame.f_globals.get("__name__") or ""
+    return name == "rclpy" or name.startswith("rclpy.")
+
+
+def _in_run_node(frame) -> bool:  # this module's own steps
+    return frame.f_globals.get("__name__") == __name__
+
+
+class _Waiting:
+    """A SecondInterrupt that waits for the node's own code: the signal found rclpy's code running."""
+
+    def __init__(self, interrupt: SecondInterrupt, landing: list, trace) -> None:
+        self.interrupt = interrupt
+        self.landing = landing  # the node's frames that called into rclpy, outermost first
+        self.trace = trace  # the trace function before (a debugger's, coverage's)
+        self.f_traces = [(frame, frame.f_trace) for frame in landing]
+
+    def tracer(self, frame, event, arg):
+        """The trace function while the interrupt waits: raises it at the next line a landing frame runs (only they
+        have this as their ``f_trace``: rclpy returned to one) or at the call of a function that a landing frame
+        called not through rclpy. Python turns tracing off when it raises."""
+        if event == "line":
+            raise self.interrupt
+        if event == "call" and not _in_rclpy(frame) and not _in_run_node(frame):
+            caller = frame.f_back
+            while caller is not None and not _in_rclpy(caller) and not _in_run_node(caller):
+                if any(caller is f for f in self.landing):
+                    raise self.interrupt
+                caller = caller.f_back
+        return None
+
+
+class StopRequests:
+    """SIGINT and SIGTERM while :func:`run_node` runs (promises 3, 4, 5, 7): each is noted; one ``FORCE_AFTER`` s or
+    more after the first raises :class:`SecondInterrupt` in the node's own code while that runs (``doing``).
+
+    Python calls the handler between two bytecodes of the main thread, with the frame that runs then. Raising there
+    could land inside rclpy (a half-built ``Task``): where the frame is rclpy's (or run_node's), the interrupt waits
+    instead, traced (``sys.settrace`` and ``f_trace``), until a frame of the node's own code that called into rclpy
+    runs its next line."""
+
+    def __init__(self) -> None:
+        self.times: list[float] = []  # time.monotonic() of each signal
+        self.doing = ""  # "build", "spin" or "finish" while the node's own code runs; "" while run_node's steps do
+        self._waiting: _Waiting | None = None
+
+    @property
+    def requested(self) -> bool:
+        return bool(self.times)
+
+    def handle(self, signum: int, frame) -> None:
+        self.times.append(time.monotonic())
+        if not self.doing or self.times[-1] - self.times[0] < FORCE_AFTER:
+            return
+        interrupt = SecondInterrupt(signal.Signals(signum).name, self.doing)
+        if frame is not None and not _in_rclpy(frame) and not _in_run_node(frame):
+            self.stop_waiting()  # (one that waits for a landing frame would be raised again in its finally blocks)
+            raise interrupt
+        if self._waiting is None:
+            self._wait_for_node_code(frame, interrupt)
+
+    def _wait_for_node_code(self, frame, interrupt: SecondInterrupt) -> None:
+        chain = []  # the frames from the one run_node called (the executor, make_node, finish) to the running one
+        while frame is not None and not _in_run_node(frame):
+            chain.append(frame)
+            frame = frame.f_back
+        chain.reverse()
+        first = next((i for i, f in enumerate(chain) if not _in_rclpy(f)), len(chain))  # past the executor's frames
+        last = next((i for i in range(first, len(chain)) if _in_rclpy(chain[i])), len(chain))
+        self._waiting = _Waiting(interrupt, chain[first:last], sys.gettrace())
+        for f in self._waiting.landing:
+            f.f_trace = self._waiting.tracer
+        sys.settrace(self._waiting.tracer)
+
+    def stop_waiting(self) -> None:
+        """Forget an interrupt still waiting and put tracing back as it was (main thread)."""
+        waiting, self._waiting = self._waiting, None
+        if waiting is not None:
+            for frame, f_trace in waiting.f_traces:
+                frame.f_trace = f_trace
+            sys.settrace(waiting.trace)
+
+    @contextmanager
+    def interruptible(self, doing: str) -> Iterator[None]:
+        """While the block runs the node's own code (``doing``), a late signal interrupts it (promise 5)."""
+        self.doing = doing
+        try:
+            yield
+        finally:
+            self.doing = ""
+            self.stop_waiting()
+
+
+def _take_signals(handler) -> dict:
+    """Set ``handler`` for the signals run_node handles itself (promise 9: in the main thread, SIGINT at Python's
+    default, SIGTERM at the system's); {signal: the handler it replaced}."""
+    if threading.current_thread() is not threading.main_thread():
+        return {}
+    taken = {}
+    if signal.getsignal(signal.SIGINT) is signal.default_int_handler:
+        taken[signal.SIGINT] = signal.signal(signal.SIGINT, handler)
+    if signal.getsignal(signal.SIGTERM) == signal.SIG_DFL:
+        taken[signal.SIGTERM] = signal.signal(signal.SIGTERM, handler)
+    return taken
+
+
+def _rclpy_handlers(taken: dict) -> SignalHandlerOptions:
+    """rclpy's own handlers for the signals run_node did not take (promise 9)."""
+    if signal.SIGINT in taken:
+        return SignalHandlerOptions.NO if signal.SIGTERM in taken else SignalHandlerOptions.SIGTERM
+    return SignalHandlerOptions.SIGINT if signal.SIGTERM in taken else SignalHandlerOptions.ALL
 
 
 def executable_name() -> str:
@@ -189,7 +355,8 @@ def handle_help(package: str, parameters: Sequence[Param | tuple], summary: str 
 
 def run_node(make_node: Callable[[], "rclpy.node.Node"], args=None, *, interrupted_rc: int = 0,
              parameters: Sequence[Param | tuple] | None = None, summary: str = "") -> int:
-    """Spin the node ``make_node()`` builds until SIGINT/SIGTERM (exit code ``interrupted_rc``).
+    """Spin the node ``make_node()`` builds until SIGINT/SIGTERM (exit code ``interrupted_rc``); the module's
+    docstring lists what it promises.
 
     With ``parameters`` (the node module's ``PARAMETERS``), ``-h``/``--help`` first prints them
     and returns 0 before anything starts (:func:`handle_help`; ``summary``: the module docstring).
@@ -210,37 +377,26 @@ def run_node(make_node: Callable[[], "rclpy.node.Node"], args=None, *, interrupt
         answered = handle_help(package, parameters, summary, args, exit_codes)
         if answered is not None:
             return answered
-    # rclpy's own handler (set by rclpy.init) shuts the context down on SIGINT, but wakes a waiting executor first:
-    # one that looks in between waits again, for good when no message comes (an idle node hung so). So the spin
-    # loop below waits at most SPIN_TIMEOUT and stops once the context is down or a SIGINT was noted. This handler,
-    # set before rclpy's (which calls it afterwards), only notes the signal: raising KeyboardInterrupt would land
-    # wherever Python runs, also inside rclpy (a half-built executor Task whose __del__ complains, a message being
-    # converted, which rclpy turns into a RuntimeError) and halfway through a callback. So a callback running when
-    # the signal comes finishes, then the node stops, also when the signal came before rclpy's handler was there;
-    # an error once the context is shut down is the signal's, not a bug. A callback that never finishes (a driver
-    # waiting on hardware) is interrupted by a SIGINT sent again later (FORCE_AFTER); the copies that a terminal's
-    # Ctrl-C and a launcher passing it on deliver together do not.
-    interrupts: list[float] = []
-
-    def note_interrupt(signum, frame):
-        interrupts.append(time.monotonic())
-        if interrupts[-1] - interrupts[0] >= FORCE_AFTER:
-            raise SecondInterrupt
-
-    main_thread = threading.current_thread() is threading.main_thread()  # (only it may set handlers)
-    previous = signal.getsignal(signal.SIGINT) if main_thread else None
-    if previous is signal.default_int_handler:  # (an ignored SIGINT, as in a background job, stays ignored)
-        signal.signal(signal.SIGINT, note_interrupt)
-    rclpy.init(args=args)
+    # rclpy's own handlers (rclpy.init sets them) shut every context down on SIGINT/SIGTERM, under a running callback
+    # (whose next rclpy call fails) and before finish(). run_node's own handlers only note the request (promise 3),
+    # set before rclpy.init, so that a signal while it initialises is noted too; rclpy's take the signals run_node
+    # does not (promise 9). rclpy's handler also wakes a waiting executor before it shuts the context down, and one
+    # that looked in between waited again, for good when no message came (an idle node hung so): the spin loop waits
+    # at most SPIN_TIMEOUT, and so notices a request (which wakes nothing) as well.
+    stop = StopRequests()
+    taken = _take_signals(stop.handle)
+    rclpy.init(args=args, signal_handler_options=_rclpy_handlers(taken))
     node = None
     name = executable_name()  # the executable, until the node has its name
     try:
-        node = make_node()
+        with stop.interruptible("build"):
+            node = make_node()
         name = node.get_name()
         executor = SingleThreadedExecutor()
         executor.add_node(node)
-        while rclpy.ok() and not interrupts:  # (also a signal noted before rclpy's handler was there: no spin)
-            executor.spin_once(timeout_sec=SPIN_TIMEOUT)
+        with stop.interruptible("spin"):
+            while rclpy.ok() and not stop.requested:  # (a request during make_node: no spin)
+                executor.spin_once(timeout_sec=SPIN_TIMEOUT)
         rc = interrupted_rc
     except ParameterError as error:
         what = "" if isinstance(error, UnknownParameterError) else "bad parameter: "
@@ -249,8 +405,9 @@ def run_node(make_node: Callable[[], "rclpy.node.Node"], args=None, *, interrupt
     except NodeStartError as error:
         print(f"[{name}] {error}", file=sys.stderr)
         rc = EXIT_REFUSED
-    except SecondInterrupt:
-        print(f"[{name}] stopped by a second SIGINT: a callback had not finished {FORCE_AFTER:g} s after the first",
+    except SecondInterrupt as interrupt:
+        signame, doing = interrupt.args
+        print(f"[{name}] stopped by a second {signame}: {INTERRUPTED[doing]} {FORCE_AFTER:g} s after the first",
               file=sys.stderr)
         rc = interrupted_rc
     except (KeyboardInterrupt, ExternalShutdownException):
@@ -258,17 +415,22 @@ def run_node(make_node: Callable[[], "rclpy.node.Node"], args=None, *, interrupt
     except Exception:
         if rclpy.ok():
             raise
-        rc = interrupted_rc  # a signal shut the context down under a callback or the node's making (RCLError)
+        rc = interrupted_rc  # rclpy's handler shut the context down under a callback or the node's making (RCLError)
     finally:
         if node is not None and hasattr(node, "finish"):
             try:
-                node.finish()  # the node's own closing work (save, close, report): not bounded
+                with stop.interruptible("finish"):
+                    node.finish()  # the node's own closing work (save, close, report): not bounded
+            except SecondInterrupt as interrupt:
+                print(f"[{name}] could not finish: stopped by a second {interrupt.args[0]} {FORCE_AFTER:g} s after "
+                      "the first", file=sys.stderr)
+                rc = EXIT_FAILED
             except Exception as error:  # noqa: BLE001 - one line, not a traceback over the exit code
                 print(f"[{name}] could not finish: {type(error).__name__}: {error}", file=sys.stderr)
                 rc = EXIT_FAILED
-        shut_down(node)
-        if previous is signal.default_int_handler:
-            signal.signal(signal.SIGINT, previous)
+        shut_down(node)  # (a signal now is only noted: stop.doing is "")
+        for signum, handler in taken.items():
+            signal.signal(signum, handler)
     return rc
 
 
