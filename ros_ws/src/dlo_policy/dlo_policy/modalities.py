@@ -111,7 +111,7 @@ MODALITIES = (
     Modality(
         "V", "visual", ("v_V", "q_V", "theta_V", "y_V"),
         ((0.0, 1.0), (0.0, 1.0), _symmetric(HALF_PI), _symmetric(SEARCH_HALF_WIDTH)),
-        observe=lambda env: _observe_visual(env),
+        observe=_observe_visual,
         columns=lambda visual: np.stack([np.asarray(visual.visible, dtype=np.float32), np.asarray(visual.confidence),
                                          np.asarray(visual.angle), np.asarray(visual.y)], axis=-1).reshape(-1, 4),
         topic="/dlo/vision/pose",
