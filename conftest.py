@@ -24,15 +24,17 @@ from __future__ import annotations
 
 import pytest
 
-GRAPH_FIXTURES = frozenset({
-    "launches",              # tests/test_graph_isolation.py: launch_graph.sh in its own session
-    "launch_in_own_group",   # tests/conftest.py: launch_graph.sh, whole process group stopped
-    "own_groups",            # tests/conftest.py: node processes started by the test
-    "procs",                 # ros_ws/src/dlo_{bag,viz,driver_kit}/test/conftest.py: node processes on a test domain
-    "launcher",              # ros_ws/src/dlo_viz/test/test_foxglove_bridge.py: launch_graph.sh
-    "probe",                 # tests/test_graph_faults.py: an in-process node next to node processes
-    "broken_checks",         # ros_ws/src/dlo_driver_kit/test/test_driver_check.py: broken drivers and checkers
-})
+GRAPH_FIXTURES = frozenset(
+    {
+        "launches",  # tests/test_graph_isolation.py: launch_graph.sh in its own session
+        "launch_in_own_group",  # tests/conftest.py: launch_graph.sh, whole process group stopped
+        "own_groups",  # tests/conftest.py: node processes started by the test
+        "procs",  # ros_ws/src/dlo_{bag,viz,driver_kit}/test/conftest.py: node processes on a test domain
+        "launcher",  # ros_ws/src/dlo_viz/test/test_foxglove_bridge.py: launch_graph.sh
+        "probe",  # tests/test_graph_faults.py: an in-process node next to node processes
+        "broken_checks",  # ros_ws/src/dlo_driver_kit/test/test_driver_check.py: broken drivers and checkers
+    }
+)
 
 GRAPH = (
     "tests/test_graph_perturbations.py",

@@ -22,7 +22,6 @@ import os
 import time
 
 import numpy as np
-
 from dlo_policy.env import make_vec_env
 
 ACTION = "0.1,0,0.6"  # slide right at 0.25 mm per 0.01 s, closure 0.8: no episode ends in 63 steps
@@ -76,13 +75,29 @@ def main():
         full[n], bare[n] = n * args.steps / full_s, n * args.steps / bare_s
         overhead[n] = full_s / bare_s - 1.0
         resets[n] = int(np.sum(dones))
-        print(f"N={n:3d}: full {full[n]:8.0f} env-steps/s, bare sim {bare[n]:8.0f} env-steps/s, "
-              f"overhead {100 * overhead[n]:.1f}% on top, {resets[n]} resets in each arm", flush=True)
-    print(json.dumps({"env_steps_per_s": full, "bare_steps_per_s": bare, "obs_pipeline_overhead": overhead,
-                      "obs_pipeline_overhead_max": max(overhead.values()), "resets": resets,
-                      "overhead_definition": "t_full / t_bare - 1, same resets in both arms",
-                      "action": action, "steps": args.steps, "repeats": args.repeats, "cpus": os.cpu_count(),
-                      "load_average": os.getloadavg(), "note": "shared machine: timings are noisy"}))
+        print(
+            f"N={n:3d}: full {full[n]:8.0f} env-steps/s, bare sim {bare[n]:8.0f} env-steps/s, "
+            f"overhead {100 * overhead[n]:.1f}% on top, {resets[n]} resets in each arm",
+            flush=True,
+        )
+    print(
+        json.dumps(
+            {
+                "env_steps_per_s": full,
+                "bare_steps_per_s": bare,
+                "obs_pipeline_overhead": overhead,
+                "obs_pipeline_overhead_max": max(overhead.values()),
+                "resets": resets,
+                "overhead_definition": "t_full / t_bare - 1, same resets in both arms",
+                "action": action,
+                "steps": args.steps,
+                "repeats": args.repeats,
+                "cpus": os.cpu_count(),
+                "load_average": os.getloadavg(),
+                "note": "shared machine: timings are noisy",
+            }
+        )
+    )
 
 
 if __name__ == "__main__":

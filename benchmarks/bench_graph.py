@@ -33,14 +33,30 @@ def main() -> int:
     parser.add_argument("--policy", default="tactile_reactive", choices=("sac", "tactile_reactive", "random"))
     args = parser.parse_args()
 
-    from dlo_perception.sync import stamp_to_ns
     from dlo_bag.bag import read_messages
+    from dlo_perception.sync import stamp_to_ns
 
     work = Path(tempfile.mkdtemp(prefix="bench_graph_"))
     bag, logs = work / "bag", work / "logs"
-    launch = subprocess.run(["bash", str(ROOT / "scripts" / "launch_graph.sh"), "--episodes", str(args.episodes),
-                             "--seed", str(args.seed), "--policy", args.policy, "--record", str(bag), "--logs", str(logs)],
-                            capture_output=True, text=True, env={**os.environ, "DLO_USE_ROS2RUN": "1"})
+    launch = subprocess.run(
+        [
+            "bash",
+            str(ROOT / "scripts" / "launch_graph.sh"),
+            "--episodes",
+            str(args.episodes),
+            "--seed",
+            str(args.seed),
+            "--policy",
+            args.policy,
+            "--record",
+            str(bag),
+            "--logs",
+            str(logs),
+        ],
+        capture_output=True,
+        text=True,
+        env={**os.environ, "DLO_USE_ROS2RUN": "1"},
+    )
     if launch.returncode != 0:
         print(launch.stdout + launch.stderr, file=sys.stderr)
         return 1
@@ -76,8 +92,13 @@ def main() -> int:
         "closed_loop_steps_per_s_mean": round(1e9 * len(loop_periods) / float(np.sum(loop_periods)), 1),
         "hop_latency_p50_ms": round(float(np.percentile(all_hops, 50)), 3),
         "hop_latency_p99_ms": round(float(np.percentile(all_hops, 99)), 3),
-        "hops_ms": {k: {"p50": round(float(np.percentile(np.asarray(v) / 1e6, 50)), 3),
-                        "p99": round(float(np.percentile(np.asarray(v) / 1e6, 99)), 3)} for k, v in hops.items()},
+        "hops_ms": {
+            k: {
+                "p50": round(float(np.percentile(np.asarray(v) / 1e6, 50)), 3),
+                "p99": round(float(np.percentile(np.asarray(v) / 1e6, 99)), 3),
+            }
+            for k, v in hops.items()
+        },
         "recorder_dropped": recorder.get("dropped"),
         "recorded_messages": dict(counts),
         "control_steps": len(loop_periods),

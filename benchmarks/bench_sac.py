@@ -17,20 +17,19 @@ numbers are noisy, the per-round values are printed too.
 policy and buffer sampling; the roofline's torch.mm), with a CUDA synchronise before each clock
 read; "auto" is cuda when torch sees one. --device cuda without a CUDA device: exit 2, one line.
 """
+
 from __future__ import annotations
 
 import argparse
 import json
 import statistics
+import sys
 import time
 from typing import Callable
-
-import sys
 
 import gymnasium as gym
 import numpy as np
 import torch
-
 from dlo_policy.config import SACConfig
 from dlo_policy.sac import SAC, resolve_device
 
@@ -48,19 +47,32 @@ def flops_per_update(config: SACConfig) -> float:
     critic = list(zip((OBS_DIM + ACT_DIM, *h), (*h, 1)))
     f_actor, f_q = gemm_flops(actor, b), gemm_flops(critic, b)
     first_actor, first_q = gemm_flops(actor[:1], b), gemm_flops(critic[:1], b)
-    critic_step = (f_actor + 2 * f_q  # target: actor on s', two target critics
-                   + 2 * f_q  # online critics
-                   + 2 * (f_q + f_q - first_q))  # backward: weight grads + input grads (not for the input layer)
-    actor_step = (f_actor + 2 * f_q  # actor on s, critics on (s, a~)
-                  + 2 * f_q  # critics backward to the action only (weights frozen)
-                  + f_actor + f_actor - first_actor)  # actor backward
+    critic_step = (
+        f_actor
+        + 2 * f_q  # target: actor on s', two target critics
+        + 2 * f_q  # online critics
+        + 2 * (f_q + f_q - first_q)
+    )  # backward: weight grads + input grads (not for the input layer)
+    actor_step = (
+        f_actor
+        + 2 * f_q  # actor on s, critics on (s, a~)
+        + 2 * f_q  # critics backward to the action only (weights frozen)
+        + f_actor
+        + f_actor
+        - first_actor
+    )  # actor backward
     return critic_step + actor_step / config.policy_update_every
 
 
 def fill(add, rng: np.random.Generator, n: int) -> None:
     for _ in range(n):
-        add(rng.normal(size=OBS_DIM).astype(np.float32), rng.uniform(-1, 1, ACT_DIM).astype(np.float32),
-            float(rng.normal()), rng.normal(size=OBS_DIM).astype(np.float32), bool(rng.random() < 0.05))
+        add(
+            rng.normal(size=OBS_DIM).astype(np.float32),
+            rng.uniform(-1, 1, ACT_DIM).astype(np.float32),
+            float(rng.normal()),
+            rng.normal(size=OBS_DIM).astype(np.float32),
+            bool(rng.random() < 0.05),
+        )
 
 
 def synchronize(device: torch.device) -> None:
@@ -82,6 +94,7 @@ def ours(device: torch.device) -> tuple[Callable[[int], float], SACConfig]:
             agent.update()
         synchronize(device)
         return n / (time.perf_counter() - start)
+
     return run, config
 
 
@@ -101,13 +114,30 @@ def sb3(device: torch.device) -> Callable[[int], float]:
     from stable_baselines3 import SAC as SB3SAC
     from stable_baselines3.common.logger import configure
 
-    model = SB3SAC("MlpPolicy", BoxEnv(), learning_rate=1e-3, buffer_size=100_000, learning_starts=LEARNING_STARTS,
-                   batch_size=BATCH, tau=0.01, gamma=0.99, train_freq=1, gradient_steps=1, ent_coef="auto_0.1",
-                   target_update_interval=2, policy_kwargs=dict(net_arch=[HIDDEN, HIDDEN]), device=device, seed=0)
+    model = SB3SAC(
+        "MlpPolicy",
+        BoxEnv(),
+        learning_rate=1e-3,
+        buffer_size=100_000,
+        learning_starts=LEARNING_STARTS,
+        batch_size=BATCH,
+        tau=0.01,
+        gamma=0.99,
+        train_freq=1,
+        gradient_steps=1,
+        ent_coef="auto_0.1",
+        target_update_interval=2,
+        policy_kwargs=dict(net_arch=[HIDDEN, HIDDEN]),
+        device=device,
+        seed=0,
+    )
     model.set_logger(configure(None, []))
     rng = np.random.default_rng(0)
-    fill(lambda o, a, r, o2, d: model.replay_buffer.add(o[None], o2[None], a[None], np.array([r]), np.array([d]),
-                                                        [{}]), rng, LEARNING_STARTS)
+    fill(
+        lambda o, a, r, o2, d: model.replay_buffer.add(o[None], o2[None], a[None], np.array([r]), np.array([d]), [{}]),
+        rng,
+        LEARNING_STARTS,
+    )
 
     def run(n: int) -> float:
         synchronize(device)
@@ -115,6 +145,7 @@ def sb3(device: torch.device) -> Callable[[int], float]:
         model.train(gradient_steps=n, batch_size=BATCH)
         synchronize(device)
         return n / (time.perf_counter() - start)
+
     return run
 
 
@@ -160,21 +191,34 @@ def main() -> int:
             rates["sb3"].append(run_sb3(args.updates))
         rates["gflops"].append(matmul_gflops(device))
         sb3_text = f", SB3 {rates['sb3'][-1]:.1f} updates/s" if run_sb3 is not None else ""
-        print(f"round {round_index}: ours {rates['ours'][-1]:.1f} updates/s{sb3_text}, "
-              f"torch.mm {rates['gflops'][-1]:.0f} GFLOP/s", flush=True)
+        print(
+            f"round {round_index}: ours {rates['ours'][-1]:.1f} updates/s{sb3_text}, torch.mm {rates['gflops'][-1]:.0f} GFLOP/s",
+            flush=True,
+        )
     ours_rate, gflops = (statistics.median(rates[k]) for k in ("ours", "gflops"))
     sb3_rate = statistics.median(rates["sb3"]) if rates["sb3"] else None
     roofline = gflops * 1e9 / flops
-    print(json.dumps({
-        "updates_per_s": round(ours_rate, 2), "sb3_updates_per_s": sb3_rate and round(sb3_rate, 2),
-        "ratio_vs_sb3": sb3_rate and round(ours_rate / sb3_rate, 3), "roofline_updates_per_s": round(roofline, 2),
-        "roofline_fraction": round(ours_rate / roofline, 3), "matmul_gflops": round(gflops, 1),
-        "gflop_per_update": round(flops / 1e9, 3), "device": str(device),
-        "device_name": torch.cuda.get_device_name(device) if device.type == "cuda" else "cpu",
-        "threads": args.threads, "rounds": args.rounds,
-        "updates_per_round": args.updates, "hidden": [HIDDEN, HIDDEN], "batch": BATCH,
-        "per_round": {k: [round(v, 2) for v in vals] for k, vals in rates.items()},
-    }))
+    print(
+        json.dumps(
+            {
+                "updates_per_s": round(ours_rate, 2),
+                "sb3_updates_per_s": sb3_rate and round(sb3_rate, 2),
+                "ratio_vs_sb3": sb3_rate and round(ours_rate / sb3_rate, 3),
+                "roofline_updates_per_s": round(roofline, 2),
+                "roofline_fraction": round(ours_rate / roofline, 3),
+                "matmul_gflops": round(gflops, 1),
+                "gflop_per_update": round(flops / 1e9, 3),
+                "device": str(device),
+                "device_name": torch.cuda.get_device_name(device) if device.type == "cuda" else "cpu",
+                "threads": args.threads,
+                "rounds": args.rounds,
+                "updates_per_round": args.updates,
+                "hidden": [HIDDEN, HIDDEN],
+                "batch": BATCH,
+                "per_round": {k: [round(v, 2) for v in vals] for k, vals in rates.items()},
+            }
+        )
+    )
     return 0
 
 

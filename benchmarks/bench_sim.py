@@ -106,11 +106,18 @@ def main() -> None:
         sim = RopeSim(n)
         off = max(time_ours(sim, args.seconds, render=False) for _ in range(args.repeats))
         on = max(time_ours(sim, args.seconds, render=True) for _ in range(args.repeats))
-        per_batch[n] = {"render_off": round(off[0]), "render_on": round(on[0]),
-                        "render_overhead": round(off[0] / on[0] - 1.0, 3),
-                        "per_cpu_second_render_off": round(off[1]), "cpu_utilisation": round(off[0] / off[1], 2)}
-        print(f"batch {n:4d}: {off[0]:10.0f} env-steps/s render off, {on[0]:10.0f} render on; "
-              f"{off[1]:10.0f} per CPU-second, CPU utilisation {off[0] / off[1]:.2f}", flush=True)
+        per_batch[n] = {
+            "render_off": round(off[0]),
+            "render_on": round(on[0]),
+            "render_overhead": round(off[0] / on[0] - 1.0, 3),
+            "per_cpu_second_render_off": round(off[1]),
+            "cpu_utilisation": round(off[0] / off[1], 2),
+        }
+        print(
+            f"batch {n:4d}: {off[0]:10.0f} env-steps/s render off, {on[0]:10.0f} render on; "
+            f"{off[1]:10.0f} per CPU-second, CPU utilisation {off[0] / off[1]:.2f}",
+            flush=True,
+        )
     mujoco_rate = max(time_mujoco(args.seconds) for _ in range(args.repeats))
     print(f"mujoco cable (50 segments, dense/CG, 8 x 1.25 ms per env-step): {mujoco_rate:.0f} env-steps/s", flush=True)
 

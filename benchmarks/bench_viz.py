@@ -72,11 +72,10 @@ class Watcher:
 
     def __init__(self, domain: int) -> None:
         import rclpy
+        from dlo_msgs.msg import GripperState
         from rclpy.executors import SingleThreadedExecutor
         from rclpy.qos import QoSProfile
         from std_msgs.msg import Header
-
-        from dlo_msgs.msg import GripperState
 
         self.rclpy = rclpy
         self.context = rclpy.Context()
@@ -125,12 +124,16 @@ def window_rate(states, t0: int, t1: int) -> dict:
     first: dict[tuple[int, int], int] = {}
     for episode, step, _stamp, t in states:
         first.setdefault((episode, step), t)
-    periods = [first[(e, s + 1)] - t for (e, s), t in first.items()
-               if (e, s + 1) in first and t0 <= t and first[(e, s + 1)] <= t1]
+    periods = [
+        first[(e, s + 1)] - t for (e, s), t in first.items() if (e, s + 1) in first and t0 <= t and first[(e, s + 1)] <= t1
+    ]
     if not periods:
         return {"steps_per_s": None, "steps_per_s_median": None, "periods": 0}
-    return {"steps_per_s": len(periods) / (sum(periods) / 1e9),  # mean rate: stalls count
-            "steps_per_s_median": 1e9 / float(np.median(periods)), "periods": len(periods)}
+    return {
+        "steps_per_s": len(periods) / (sum(periods) / 1e9),  # mean rate: stalls count
+        "steps_per_s_median": 1e9 / float(np.median(periods)),
+        "periods": len(periods),
+    }
 
 
 def pct(values, q) -> float | None:
@@ -138,10 +141,15 @@ def pct(values, q) -> float | None:
 
 
 def launch(args, *extra: str) -> subprocess.Popen:
-    cmd = ["bash", str(ROOT / "scripts" / "launch_graph.sh"), "--seed", str(args.seed), "--policy", args.policy,
-           *extra]
-    return subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-                            env={**os.environ, "DLO_USE_ROS2RUN": "1"}, start_new_session=True)
+    cmd = ["bash", str(ROOT / "scripts" / "launch_graph.sh"), "--seed", str(args.seed), "--policy", args.policy, *extra]
+    return subprocess.Popen(
+        cmd,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        env={**os.environ, "DLO_USE_ROS2RUN": "1"},
+        start_new_session=True,
+    )
 
 
 def video_benchmark(args, work: Path) -> dict:
@@ -160,14 +168,15 @@ def video_benchmark(args, work: Path) -> dict:
             continue
         summary = {"episode": episode, **recompute_episode(streams["task"])}
         cpu0 = time.process_time()
-        item = render_episode_video(episode, streams, summary, work / f"video/episode_{episode:04d}.mp4",
-                                    policy=args.policy)
+        item = render_episode_video(episode, streams, summary, work / f"video/episode_{episode:04d}.mp4", policy=args.policy)
         item["render_cpu_s"] = round(time.process_time() - cpu0, 3)
         videos.append({k: item[k] for k in ("frames", "render_s", "render_fps", "render_cpu_s", "bytes")})
     frames = sum(v["frames"] for v in videos)
-    return {"episodes": videos,
-            "frames_per_s": round(frames / max(1e-9, sum(v["render_s"] for v in videos)), 2),
-            "frames_per_cpu_s": round(frames / max(1e-9, sum(v["render_cpu_s"] for v in videos)), 2)}
+    return {
+        "episodes": videos,
+        "frames_per_s": round(frames / max(1e-9, sum(v["render_s"] for v in videos)), 2),
+        "frames_per_cpu_s": round(frames / max(1e-9, sum(v["render_cpu_s"] for v in videos)), 2),
+    }
 
 
 class Bridge:
@@ -176,10 +185,24 @@ class Bridge:
     def __init__(self, domain: int, work: Path, index: int, params: list[str]) -> None:
         env = {**os.environ, "ROS_DOMAIN_ID": str(domain)}
         extra = [x for param in params for x in ("-p", param)]
-        self.proc = subprocess.Popen([str(ROOT / "scripts" / "ros2run"), "dlo_viz", "foxglove_bridge", "--ros-args",
-                                      "-p", "port:=0", "-p", "stats_period:=0", *extra],
-                                     stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env,
-                                     start_new_session=True)
+        self.proc = subprocess.Popen(
+            [
+                str(ROOT / "scripts" / "ros2run"),
+                "dlo_viz",
+                "foxglove_bridge",
+                "--ros-args",
+                "-p",
+                "port:=0",
+                "-p",
+                "stats_period:=0",
+                *extra,
+            ],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            text=True,
+            env=env,
+            start_new_session=True,
+        )
         self.lines: list[str] = []
         url = None
         for line in self.proc.stdout:
@@ -262,9 +285,11 @@ def live_benchmark(args, work: Path) -> dict:
                 window["added_ns"] = [recv - direct[s] for s, recv in seen_states.items() if s in direct]
                 window["client_counts"] = data["counts"]
             windows.append(window)
-            print(f"[bench_viz] window {i} {mode}: {window['steps_per_s'] or 0:.1f} steps/s "
-                  f"({window['periods']} periods)" + (f", bridge {window.get('bridge_cpu_percent', 0):.1f}% CPU"
-                                                      if bridge else ""), file=sys.stderr)
+            print(
+                f"[bench_viz] window {i} {mode}: {window['steps_per_s'] or 0:.1f} steps/s "
+                f"({window['periods']} periods)" + (f", bridge {window.get('bridge_cpu_percent', 0):.1f}% CPU" if bridge else ""),
+                file=sys.stderr,
+            )
     finally:
         if proc.poll() is None:
             proc.send_signal(signal.SIGINT)  # the launcher stops every node it started
@@ -288,18 +313,34 @@ def live_benchmark(args, work: Path) -> dict:
         "steps_per_s_without_bridge": round(a, 2) if a else None,
         "steps_per_s_with_bridge_and_client": round(b, 2) if b else None,
         "rate_ratio": round(b / a, 3) if a and b else None,
-        "rate_ratio_median_periods": (round(rate("B", "steps_per_s_median") / rate("A", "steps_per_s_median"), 3)
-                                      if rate("A", "steps_per_s_median") and rate("B", "steps_per_s_median") else None),
-        "windows": [{k: (round(v, 2) if isinstance(v, float) else v) for k, v in w.items()
-                     if k not in ("probe_ns", "added_ns", "client_counts")} for w in windows],
-        "bridge_latency_ms": {"p50": pct(probe, 50), "p99": pct(probe, 99), "n": len(probe),
-                              "what": "probe publish -> protocol client receive"},
-        "bridge_added_latency_ms": {"p50": pct(added, 50), "p99": pct(added, 99), "n": len(added),
-                                    "what": "client receive - this node's direct ROS receive, same gripper state"},
+        "rate_ratio_median_periods": (
+            round(rate("B", "steps_per_s_median") / rate("A", "steps_per_s_median"), 3)
+            if rate("A", "steps_per_s_median") and rate("B", "steps_per_s_median")
+            else None
+        ),
+        "windows": [
+            {
+                k: (round(v, 2) if isinstance(v, float) else v)
+                for k, v in w.items()
+                if k not in ("probe_ns", "added_ns", "client_counts")
+            }
+            for w in windows
+        ],
+        "bridge_latency_ms": {
+            "p50": pct(probe, 50),
+            "p99": pct(probe, 99),
+            "n": len(probe),
+            "what": "probe publish -> protocol client receive",
+        },
+        "bridge_added_latency_ms": {
+            "p50": pct(added, 50),
+            "p99": pct(added, 99),
+            "n": len(added),
+            "what": "client receive - this node's direct ROS receive, same gripper state",
+        },
         "bridge_cpu_percent_of_one_core": round(float(np.mean(cpu)), 1) if cpu else None,
         "client_cpu_percent_of_one_core": round(float(np.mean(client_cpu)), 1) if client_cpu else None,
-        "client_messages_last_window": next((w["client_counts"] for w in reversed(windows) if "client_counts" in w),
-                                            None),
+        "client_messages_last_window": next((w["client_counts"] for w in reversed(windows) if "client_counts" in w), None),
     }
 
 
@@ -312,8 +353,13 @@ def main() -> int:
     parser.add_argument("--pairs", type=int, default=2, help="repetitions of the A B B A pattern")
     parser.add_argument("--warmup", type=float, default=4.0, help="seconds between starting the bridge and a B window")
     parser.add_argument("--keep", type=Path, default=None, help="keep bags, logs and videos in this directory")
-    parser.add_argument("--bridge-param", action="append", default=[], metavar="NAME:=VALUE",
-                        help="a parameter of the bridge in the B windows, e.g. nice:=0 (repeatable)")
+    parser.add_argument(
+        "--bridge-param",
+        action="append",
+        default=[],
+        metavar="NAME:=VALUE",
+        help="a parameter of the bridge in the B windows, e.g. nice:=0 (repeatable)",
+    )
     parser.add_argument("--no-video", action="store_true", help="skip the recorded run and the video part")
     args = parser.parse_args()
     if "DLO_ROOT" not in os.environ:
@@ -326,9 +372,17 @@ def main() -> int:
         video = video_benchmark(args, work)
         print(f"[bench_viz] video: {video['frames_per_s']} frames/s", file=sys.stderr)
     live = live_benchmark(args, work)
-    result = {**live, "video": video, "bridge_params": args.bridge_param, "episodes": args.episodes,
-              "window_s": args.window, "pairs": args.pairs,
-              "policy": args.policy, "cpus": os.cpu_count(), "load_average_1min": round(os.getloadavg()[0], 2)}
+    result = {
+        **live,
+        "video": video,
+        "bridge_params": args.bridge_param,
+        "episodes": args.episodes,
+        "window_s": args.window,
+        "pairs": args.pairs,
+        "policy": args.policy,
+        "cpus": os.cpu_count(),
+        "load_average_1min": round(os.getloadavg()[0], 2),
+    }
     print(json.dumps(result))
     return 0
 

@@ -17,6 +17,7 @@ Run it after `source scripts/env.sh`, on a machine as idle as you can get (the f
 times). Exit: 0 every benchmark gave its JSON, 1 one did not, 2 usage error, 130 interrupted.
 Figures and their targets: docs/RESULTS.md#speed; what each compares: docs/ARCHITECTURE.md#benchmarks.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -41,20 +42,36 @@ class Benchmark:
 
 
 BENCHMARKS = {  # in the order "all" runs them: cheapest first
-    "env": Benchmark("bench_env.py", "env-steps/s of the full observation pipeline (N = 1, 10, 64)",
-                     "the bare simulator with the same actions and resets", ("--steps", "5", "--repeats", "1",
-                                                                             "--sizes", "1")),
-    "sim": Benchmark("bench_sim.py", "Taichi rope env-steps/s, batched and single, rendering off and on",
-                     "MuJoCo's 50-segment cable (dense Jacobian, CG)", ("--seconds", "0.2", "--repeats", "1",
-                                                                       "--batches", "1")),
-    "sac": Benchmark("bench_sac.py", "SAC gradient updates/s (2 x 1024 MLPs, batch 128)",
-                     "Stable-Baselines3 SAC, same network, batch and threads; the matmul roofline",
-                     ("--updates", "5", "--rounds", "1")),
-    "graph": Benchmark("bench_graph.py", "the step-locked ROS 2 graph: closed-loop steps/s, hop latency, "
-                       "recorder drops", "each hop of one control step (state, poses, command)", ("--episodes", "1")),
-    "viz": Benchmark("bench_viz.py", "live view: Foxglove bridge latency and CPU; video frames/s",
-                     "the same graph without the bridge (A B B A windows)",
-                     ("--episodes", "1", "--window", "3", "--pairs", "1", "--warmup", "2", "--no-video")),
+    "env": Benchmark(
+        "bench_env.py",
+        "env-steps/s of the full observation pipeline (N = 1, 10, 64)",
+        "the bare simulator with the same actions and resets",
+        ("--steps", "5", "--repeats", "1", "--sizes", "1"),
+    ),
+    "sim": Benchmark(
+        "bench_sim.py",
+        "Taichi rope env-steps/s, batched and single, rendering off and on",
+        "MuJoCo's 50-segment cable (dense Jacobian, CG)",
+        ("--seconds", "0.2", "--repeats", "1", "--batches", "1"),
+    ),
+    "sac": Benchmark(
+        "bench_sac.py",
+        "SAC gradient updates/s (2 x 1024 MLPs, batch 128)",
+        "Stable-Baselines3 SAC, same network, batch and threads; the matmul roofline",
+        ("--updates", "5", "--rounds", "1"),
+    ),
+    "graph": Benchmark(
+        "bench_graph.py",
+        "the step-locked ROS 2 graph: closed-loop steps/s, hop latency, recorder drops",
+        "each hop of one control step (state, poses, command)",
+        ("--episodes", "1"),
+    ),
+    "viz": Benchmark(
+        "bench_viz.py",
+        "live view: Foxglove bridge latency and CPU; video frames/s",
+        "the same graph without the bridge (A B B A windows)",
+        ("--episodes", "1", "--window", "3", "--pairs", "1", "--warmup", "2", "--no-video"),
+    ),
 }
 
 
@@ -92,11 +109,15 @@ def last_json(lines: list[str]) -> dict | None:
 
 def run_benchmark(name: str, script: Path, args: list[str], log=sys.stderr) -> dict:
     """Run one benchmark script; its progress goes to `log` as it comes; -> the record the runner prints."""
-    record = {"benchmark": name, "script": str(script.relative_to(HERE.parent)) if script.is_relative_to(HERE.parent)
-              else str(script), "args": args}
+    record = {
+        "benchmark": name,
+        "script": str(script.relative_to(HERE.parent)) if script.is_relative_to(HERE.parent) else str(script),
+        "args": args,
+    }
     start = time.monotonic()
-    proc = subprocess.Popen([sys.executable, "-u", str(script), *args], stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True, bufsize=1)
+    proc = subprocess.Popen(
+        [sys.executable, "-u", str(script), *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, bufsize=1
+    )
     errors: list[str] = []
 
     def forward_stderr() -> None:
@@ -121,17 +142,20 @@ def run_benchmark(name: str, script: Path, args: list[str], log=sys.stderr) -> d
     if lines:
         print(f"[{name}] {lines[-1]}", file=log, flush=True)
     last = next((line for line in reversed(lines + errors) if line.strip()), "")  # stderr first
-    record["error"] = (f"exit {returncode}" if returncode else "no JSON line last") + (f": {last.strip()}" if last
-                                                                                       else "")
+    record["error"] = (f"exit {returncode}" if returncode else "no JSON line last") + (f": {last.strip()}" if last else "")
     return record
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="benchmarks/run.py", description=__doc__.split("\n\n")[0],
-                                     epilog=__doc__.split("\n\n", 1)[1],
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("names", nargs="*", metavar="NAME", help=f"benchmarks to run: {', '.join(BENCHMARKS)} "
-                                                                  "(default: all, in that order)")
+    parser = argparse.ArgumentParser(
+        prog="benchmarks/run.py",
+        description=__doc__.split("\n\n")[0],
+        epilog=__doc__.split("\n\n", 1)[1],
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument(
+        "names", nargs="*", metavar="NAME", help=f"benchmarks to run: {', '.join(BENCHMARKS)} (default: all, in that order)"
+    )
     parser.add_argument("--list", action="store_true", help="list the benchmarks and run nothing")
     parser.add_argument("--quick", action="store_true", help="each benchmark with its quickest settings (a smoke run)")
     return parser
@@ -142,7 +166,7 @@ def main(argv: list[str] | None = None) -> int:
     extra: list[str] = []
     if "--" in argv:
         cut = argv.index("--")
-        argv, extra = argv[:cut], argv[cut + 1:]
+        argv, extra = argv[:cut], argv[cut + 1 :]
     args = build_parser().parse_args(argv)
     try:
         names = [resolve(name) for name in args.names] or list(BENCHMARKS)

@@ -50,8 +50,7 @@ def run_in_own_group(cmd, *, timeout: float, **popen) -> subprocess.CompletedPro
     runs in its own process group; on timeout the whole group is stopped (SIGINT, then SIGKILL), not
     just the script, and the timeout is raised; after it returns, no process of the group is left."""
     popen.setdefault("preexec_fn", lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))  # SIGINT trappable
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True,
-                            **popen)
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True, **popen)
     try:
         out, err = proc.communicate(timeout=timeout)
     except subprocess.TimeoutExpired:

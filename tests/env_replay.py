@@ -9,8 +9,7 @@ def replay_and_compare(env, agent, episodes) -> list:
         observation, _ = env.reset(seed=live["seed"])
         done, info = False, {}
         while not done:
-            observation, _, terminated, truncated, info = env.step(
-                agent.predict(observation[None], deterministic=True)[0])
+            observation, _, terminated, truncated, info = env.step(agent.predict(observation[None], deterministic=True)[0])
             done = terminated or truncated
         assert (info["outcome"], info["outcome_authors"]) == (live["outcome"], live["outcome_authors"]), live["seed"]
         assert info["episode_return"] == live["episode_return"], live["seed"]  # exactly: same code, same numbers

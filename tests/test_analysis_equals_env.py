@@ -7,13 +7,13 @@ node would publish for them; dlo-analyze's ``recompute_episode`` must give the e
 both rules, return and length exactly, and a TaskState without ``task_rules`` (bags recorded before
 the field) reads as paper_text.
 """
+
 from types import SimpleNamespace
 
 import numpy as np
 import pytest
-
-from dlo_sim.task import OUTCOME_CODES
 from dlo_bag.analysis import recompute_episode
+from dlo_sim.task import OUTCOME_CODES
 
 SEEDS = (7001, 7005, 7006, 7007)
 LET_GO = np.array([0.0, 1.0, -1.0], dtype=np.float32)  # sideways, grip fully open (closure 0): it loses the cable
@@ -28,11 +28,18 @@ def task_states(env, act, seed, rules_field):
         n_c = int(task.sim.num_particles[0])
         held = np.flatnonzero(task.state.held[0, :n_c]).astype(np.int32)
         authors = np.flatnonzero(task.held_authors[0, :n_c]).astype(np.int32)
-        fields = dict(step=step, seed=seed, held_indices=held, held_indices_authors=authors, num_particles=n_c,
-                      cable_length=float(task.sim.cable_length[0]), done=done,
-                      outcome=OUTCOME_CODES[info["outcome"]] if done else 0,
-                      outcome_authors=OUTCOME_CODES[info["outcome_authors"]] if done else 0,
-                      episode_return=float(task.tracker.episode_return[0]))
+        fields = dict(
+            step=step,
+            seed=seed,
+            held_indices=held,
+            held_indices_authors=authors,
+            num_particles=n_c,
+            cable_length=float(task.sim.cable_length[0]),
+            done=done,
+            outcome=OUTCOME_CODES[info["outcome"]] if done else 0,
+            outcome_authors=OUTCOME_CODES[info["outcome_authors"]] if done else 0,
+            episode_return=float(task.tracker.episode_return[0]),
+        )
         if rules_field is not None:
             fields["task_rules"] = rules_field
         return SimpleNamespace(**fields)
@@ -52,9 +59,8 @@ def episodes():
     one a gripper letting go."""
     from dlo_policy.env import make_env
     from dlo_policy.policy_node import shipped_policy_path
-    from dlo_policy.sac import SAC
-
     from dlo_policy.rundir import trained_sim_settings
+    from dlo_policy.sac import SAC
 
     agent = SAC.load(shipped_policy_path())
     grip = trained_sim_settings(shipped_policy_path())["single_particle_grip"]  # the grip it was trained with
@@ -76,8 +82,9 @@ def test_recomputed_episodes_equal_the_env_under_both_task_rules(episodes, rules
         assert summary["episode_return"] == info["episode_return"], seed
         assert summary["episode_length"] == info["episode_length"], seed
     _, _, let_go = episodes[rules][-1]  # the rule's early end (a drop) is among the episodes compared
-    assert let_go["episode_length"] < 150 and let_go["outcome" if rules == "paper_text" else "outcome_authors"] \
-        == "drop_before", let_go
+    assert (
+        let_go["episode_length"] < 150 and let_go["outcome" if rules == "paper_text" else "outcome_authors"] == "drop_before"
+    ), let_go
 
 
 def test_a_task_state_without_task_rules_reads_as_paper_text(episodes):

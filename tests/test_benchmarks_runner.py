@@ -20,8 +20,9 @@ _spec.loader.exec_module(runner)
 
 
 def run(*args, env=None, timeout=60):
-    return subprocess.run([sys.executable, str(RUN), *args], capture_output=True, text=True, timeout=timeout,
-                          env=env or os.environ.copy(), cwd=ROOT)
+    return subprocess.run(
+        [sys.executable, str(RUN), *args], capture_output=True, text=True, timeout=timeout, env=env or os.environ.copy(), cwd=ROOT
+    )
 
 
 def test_help_and_list_name_every_benchmark_and_its_script():
@@ -37,10 +38,13 @@ def test_help_and_list_name_every_benchmark_and_its_script():
     assert "MuJoCo" in runner.BENCHMARKS["sim"].against and "Stable-Baselines3" in runner.BENCHMARKS["sac"].against
 
 
-@pytest.mark.parametrize("args, message", [
-    (["nosuch"], "no benchmark 'nosuch'"),
-    (["sim", "env", "--", "--seconds", "1"], "options after -- go to one benchmark"),
-])
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["nosuch"], "no benchmark 'nosuch'"),
+        (["sim", "env", "--", "--seconds", "1"], "options after -- go to one benchmark"),
+    ],
+)
 def test_usage_errors_are_one_line_and_exit_2(args, message):
     result = run(*args)
     assert result.returncode == 2 and result.stdout == "", result.stdout

@@ -5,7 +5,6 @@ counted rejection log."""
 import math
 
 import pytest
-
 from dlo_sim.command import MAX_SPEED, CommandError, RejectionLog, command_mismatch, command_to_action
 
 
@@ -23,9 +22,16 @@ def test_just_above_the_speed_limit_is_rejected_on_each_axis(vx, vy):
     assert info.value.cause == "speed"
 
 
-@pytest.mark.parametrize("values,cause", [((math.nan, 0.0, 0.5), "non-finite"), ((0.0, math.inf, 0.5), "non-finite"),
-                                          ((0.0, 0.0, math.nan), "non-finite"), ((0.0, 0.0, -0.001), "closure"),
-                                          ((0.0, 0.0, 1.001), "closure")])
+@pytest.mark.parametrize(
+    "values,cause",
+    [
+        ((math.nan, 0.0, 0.5), "non-finite"),
+        ((0.0, math.inf, 0.5), "non-finite"),
+        ((0.0, 0.0, math.nan), "non-finite"),
+        ((0.0, 0.0, -0.001), "closure"),
+        ((0.0, 0.0, 1.001), "closure"),
+    ],
+)
 def test_invalid_commands_name_their_cause(values, cause):
     with pytest.raises(CommandError) as info:
         command_to_action(*values)
@@ -69,8 +75,9 @@ def test_rejections_are_logged_once_a_second_per_cause_with_a_count():
     for cause, times in per_cause.items():
         assert 5 <= len(times) <= 7, (cause, len(times))
         assert all(b - a >= 1.0 - 1e-9 for a, b in zip(times, times[1:]))
-    counted = sum(int(line.split("(")[-1].split()[0]) if "such commands" in line else 1
-                  for _, _, line in lines if "episode" in line)
+    counted = sum(
+        int(line.split("(")[-1].split()[0]) if "such commands" in line else 1 for _, _, line in lines if "episode" in line
+    )
     assert counted == 4080  # every rejection is counted in some line
     assert lines[0][2] == "rejected command: episode #0"
     assert log.total == {"episode": 4080, "speed": 4080}

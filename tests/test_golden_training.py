@@ -14,6 +14,7 @@ the commit message, with the study runs it invalidates:
     dlo-train --modalities All --seed 7 --steps 600 --out /tmp/golden --no-progress $(cat $G/ARGS)
     cp /tmp/golden/eval.csv /tmp/golden/config.yaml $G/
 """
+
 import csv
 import os
 import pathlib
@@ -58,22 +59,41 @@ def test_both_task_rules_have_a_golden_run():
 def test_the_golden_training_run_is_reproduced_bit_for_bit(name, tmp_path):
     golden_dir = ROOT / "tests" / "golden" / name
     out = tmp_path / "run"
-    result = subprocess.run([sys.executable, "-m", "dlo_policy.train", "--modalities", "All", "--seed", "7",
-                             "--steps", "600", "--out", str(out), "--no-progress",
-                             *(golden_dir / "ARGS").read_text().split()],
-                            capture_output=True, text=True, timeout=900, env=os.environ.copy())
+    result = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "dlo_policy.train",
+            "--modalities",
+            "All",
+            "--seed",
+            "7",
+            "--steps",
+            "600",
+            "--out",
+            str(out),
+            "--no-progress",
+            *(golden_dir / "ARGS").read_text().split(),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=900,
+        env=os.environ.copy(),
+    )
     assert result.returncode == 0, result.stderr[-3000:]
     config, golden = (yaml.safe_load((d / "config.yaml").read_text()) for d in (out, golden_dir))
     for section, values in golden.items():  # every setting of the golden run is unchanged (new ones may be added)
-        assert config[section] == values if not isinstance(values, dict) else \
-            {k: config[section].get(k) for k in values} == values, section
+        assert (
+            config[section] == values if not isinstance(values, dict) else {k: config[section].get(k) for k in values} == values
+        ), section
     expected, got = rows(golden_dir / "eval.csv"), rows(out / "eval.csv")
     assert len(got) == len(expected) == 8
     for want, have in zip(expected, got):
         assert have.keys() == want.keys()
         differ = [k for k in want if not same(k, want[k], have[k])]
         assert not differ, f"step {want['step']} without '{want['tested_without']}': " + ", ".join(
-            f"{k} {want[k]} -> {have[k]}" for k in differ)
+            f"{k} {want[k]} -> {have[k]}" for k in differ
+        )
 
 
 def test_only_the_learner_health_columns_have_a_tolerance():

@@ -15,7 +15,6 @@ import time
 
 import numpy as np
 import pytest
-
 from dlo_bag.analysis import read_run
 from dlo_common.testing import stop_or_explain
 
@@ -31,9 +30,23 @@ def recorded_run(tmp_path_factory, launch_in_own_group):
     bag, logs = base / "bag", base / "logs"
     # its own process group: on a timeout every node is stopped with the launcher (none outlives the test)
     result = launch_in_own_group(
-        ["bash", str(ROOT / "scripts" / "launch_graph.sh"), "--policy", "tactile_reactive", "--episodes",
-         str(EPISODES), "--seed", str(SEED), "--record", str(bag), "--logs", str(logs)],
-        timeout=600, env={**os.environ, "DLO_USE_ROS2RUN": "1"})
+        [
+            "bash",
+            str(ROOT / "scripts" / "launch_graph.sh"),
+            "--policy",
+            "tactile_reactive",
+            "--episodes",
+            str(EPISODES),
+            "--seed",
+            str(SEED),
+            "--record",
+            str(bag),
+            "--logs",
+            str(logs),
+        ],
+        timeout=600,
+        env={**os.environ, "DLO_USE_ROS2RUN": "1"},
+    )
     assert result.returncode == 0, result.stdout + result.stderr
     live = [json.loads(line) for line in (logs / "outcomes.jsonl").read_text().splitlines()]
     return {"bag": bag, "logs": logs, "stdout": result.stdout, "live": live, "run": read_run(bag)}
@@ -47,11 +60,16 @@ def test_launch_prints_the_outcome_table(recorded_run):
     assert [e["episode"] for e in live] == list(range(EPISODES))
     assert [e["seed"] for e in live] == [SEED + k for k in range(EPISODES)]
     for e in live:
-        line = (f"{e['episode']:>7} {e['seed']:>6}  {e['outcome']:<20} {e['outcome_authors']:<20} "
-                f"{e['episode_return']:>8.3f} {e['time_at_end']:>19} {e['how_far']:>8}")
+        line = (
+            f"{e['episode']:>7} {e['seed']:>6}  {e['outcome']:<20} {e['outcome_authors']:<20} "
+            f"{e['episode_return']:>8.3f} {e['time_at_end']:>19} {e['how_far']:>8}"
+        )
         assert line in out.splitlines(), f"no line {line!r} in:\n{out}"
-    rows = {line.split()[0]: line.split()[1:] for line in out.splitlines()
-            if line.split() and line.split()[0] in ("hold_the_end", "stop_before", "reach_end_but_drop", "drop_before")}
+    rows = {
+        line.split()[0]: line.split()[1:]
+        for line in out.splitlines()
+        if line.split() and line.split()[0] in ("hold_the_end", "stop_before", "reach_end_but_drop", "drop_before")
+    }
     assert len(rows) == 4, out
     for name, cells in rows.items():
         paper = sum(e["outcome"] == name for e in live)
@@ -87,8 +105,7 @@ def test_graph_equals_in_process_env(recorded_run):
         controller.reset()
         for step in sorted(streams["task"]):
             g, t, v = streams["gripper"][step], streams["tactile"][step], streams["vision"][step]
-            graph_obs = np.array([g.x, g.y, g.closure, t.angle, t.y, float(v.visible), v.confidence, v.angle, v.y],
-                                 np.float32)
+            graph_obs = np.array([g.x, g.y, g.closure, t.angle, t.y, float(v.visible), v.confidence, v.angle, v.y], np.float32)
             np.testing.assert_allclose(observation, graph_obs, atol=1e-6, err_msg=f"episode {episode} step {step}")
             if streams["task"][step].done:
                 break
@@ -105,8 +122,21 @@ def test_graph_equals_in_process_env(recorded_run):
 
 def test_bag_analysis_equals_live_outcomes(recorded_run, tmp_path):
     out = tmp_path / "analysis.json"
-    result = subprocess.run([sys.executable, "-m", "dlo_bag.analysis", str(recorded_run["bag"]), "--json", str(out),
-                             "--plots", str(tmp_path / "plots")], capture_output=True, text=True, timeout=300)
+    result = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "dlo_bag.analysis",
+            str(recorded_run["bag"]),
+            "--json",
+            str(out),
+            "--plots",
+            str(tmp_path / "plots"),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert result.returncode == 0, result.stderr
     analysed = json.loads(out.read_text())
     for mine, live in zip(analysed, recorded_run["live"], strict=True):
@@ -120,7 +150,6 @@ def test_playback_reruns_perception_on_recorded_images(recorded_run, own_groups,
     """Replay the recorded images and gripper states into a fresh vision node: same visual poses, every frame,
     also when the node is starved of CPU for a while (here stopped for PAUSE s once it has sent its first pose)."""
     import rclpy
-
     from dlo_msgs.msg import VisualPose
     from dlo_perception.sync import stamp_to_ns
 
@@ -131,25 +160,58 @@ def test_playback_reruns_perception_on_recorded_images(recorded_run, own_groups,
     # then (rehearsals 10 and 63, 2026-12-03 and -04).
     # PYTHONFAULTHANDLER: should it not stop, its Python stacks (stop_or_explain; once, rehearsal 33, 2026-12-04)
     vision_log, playback_log = tmp_path / "vision.log", tmp_path / "playback.log"
-    vision = subprocess.Popen([ros2run, "dlo_perception", "vision_node", "--ros-args", "-r", "/dlo/vision/pose:=/replay/vision",
-                               "-p", "queue_depth:=1000"], env=dict(os.environ, PYTHONFAULTHANDLER="1"),
-                              stdout=vision_log.open("w"), stderr=subprocess.STDOUT, start_new_session=True)
+    vision = subprocess.Popen(
+        [
+            ros2run,
+            "dlo_perception",
+            "vision_node",
+            "--ros-args",
+            "-r",
+            "/dlo/vision/pose:=/replay/vision",
+            "-p",
+            "queue_depth:=1000",
+        ],
+        env=dict(os.environ, PYTHONFAULTHANDLER="1"),
+        stdout=vision_log.open("w"),
+        stderr=subprocess.STDOUT,
+        start_new_session=True,
+    )
     own_groups(vision.pid)
     rclpy.init()
     stopped_at, resumed = None, False  # the vision node's pause
     try:
         node = rclpy.create_node("replay_probe")
         replayed = {}
-        probe = node.create_subscription(VisualPose, "/replay/vision",
-                                         lambda m: replayed.setdefault(stamp_to_ns(m.header.stamp), m), 1000)
+        probe = node.create_subscription(
+            VisualPose, "/replay/vision", lambda m: replayed.setdefault(stamp_to_ns(m.header.stamp), m), 1000
+        )
         deadline = time.monotonic() + 120
         while probe.get_publisher_count() == 0 and time.monotonic() < deadline:  # the vision node is up and matched
             rclpy.spin_once(node, timeout_sec=0.1)
         topics = "['/dlo/camera/image', '/dlo/camera/camera_info', '/dlo/gripper/state']"
-        playback = subprocess.Popen([ros2run, "dlo_bag", "playback_node", "--ros-args", "-p", f"bag:={recorded_run['bag']}",
-                                     "-p", "rate:=2.0", "-p", f"topics:={topics}", "-p", "wait_for_subscribers:=1",
-                                     "-p", "wait_timeout:=60.0", "-p", "linger:=60.0"],
-                                    stdout=playback_log.open("w"), stderr=subprocess.STDOUT, start_new_session=True)
+        playback = subprocess.Popen(
+            [
+                ros2run,
+                "dlo_bag",
+                "playback_node",
+                "--ros-args",
+                "-p",
+                f"bag:={recorded_run['bag']}",
+                "-p",
+                "rate:=2.0",
+                "-p",
+                f"topics:={topics}",
+                "-p",
+                "wait_for_subscribers:=1",
+                "-p",
+                "wait_timeout:=60.0",
+                "-p",
+                "linger:=60.0",
+            ],
+            stdout=playback_log.open("w"),
+            stderr=subprocess.STDOUT,
+            start_new_session=True,
+        )
         own_groups(playback.pid)
 
         def complete():  # every frame from the first processed one on (those before the camera_info cannot be)
@@ -181,7 +243,11 @@ def test_playback_reruns_perception_on_recorded_images(recorded_run, own_groups,
     for stamp, pose in replayed.items():
         original = recorded[stamp]
         assert (pose.visible, pose.confidence, pose.angle, pose.y) == (
-            original.visible, original.confidence, original.angle, original.y)
+            original.visible,
+            original.confidence,
+            original.angle,
+            original.y,
+        )
 
 
 def test_sigint_mid_run_leaves_a_complete_readable_bag(tmp_path):
@@ -189,21 +255,35 @@ def test_sigint_mid_run_leaves_a_complete_readable_bag(tmp_path):
     interrupts at step 10 of the second episode): exit 130, a readable bag with the finished
     episodes and the interrupted one, which analysis reports as unfinished."""
     import rclpy
-
-    from rclpy.executors import SingleThreadedExecutor
-
     from dlo_msgs.msg import TaskState
+    from rclpy.executors import SingleThreadedExecutor
 
     bag = tmp_path / "bag"
     domain = os.environ["ROS_DOMAIN_ID"]  # this session's own domain, so that the probe below sees the graph
     # SIGINT default in the child even when this test runs in a background job (where it is ignored
     # and a shell could not trap it): what a user's Ctrl-C does in a terminal.
-    launch = subprocess.Popen(["bash", str(ROOT / "scripts" / "launch_graph.sh"), "--policy", "tactile_reactive",
-                               "--episodes", "0", "--domain-id", domain, "--record", str(bag),
-                               "--logs", str(tmp_path / "logs")],
-                              stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True,
-                              preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
-                              env={**os.environ, "DLO_USE_ROS2RUN": "1"})
+    launch = subprocess.Popen(
+        [
+            "bash",
+            str(ROOT / "scripts" / "launch_graph.sh"),
+            "--policy",
+            "tactile_reactive",
+            "--episodes",
+            "0",
+            "--domain-id",
+            domain,
+            "--record",
+            str(bag),
+            "--logs",
+            str(tmp_path / "logs"),
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        start_new_session=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+        env={**os.environ, "DLO_USE_ROS2RUN": "1"},
+    )
     seen = []
     context = rclpy.Context()
     rclpy.init(context=context)
@@ -228,6 +308,5 @@ def test_sigint_mid_run_leaves_a_complete_readable_bag(tmp_path):
     run = read_run(bag)
     finished = [e for e, streams in run.items() if any(m.done for m in streams["task"].values())]
     assert finished and len(run) == len(finished) + 1  # the interrupted episode is in the bag too
-    result = subprocess.run([sys.executable, "-m", "dlo_bag.analysis", str(bag)], capture_output=True, text=True,
-                            timeout=300)
+    result = subprocess.run([sys.executable, "-m", "dlo_bag.analysis", str(bag)], capture_output=True, text=True, timeout=300)
     assert result.returncode == 0 and "unfinished in the bag" in result.stdout, result.stdout + result.stderr

@@ -19,12 +19,21 @@ from env_replay import replay_and_compare  # noqa: E402
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 SEED = 7005
 # (task rules, the grip): the shipped policy's own settings under both task rules, and the other grip
-CASES = {"paper_text": ("paper_text", None, 6), "authors_code": ("authors_code", None, 4),  # seeds 7005 .. 7010 / 7008
-         "authors_code_other_grip": ("authors_code", "other", 4),
-         "authors_code_fidelity_levers": ("authors_code", None, 3)}
+CASES = {
+    "paper_text": ("paper_text", None, 6),
+    "authors_code": ("authors_code", None, 4),  # seeds 7005 .. 7010 / 7008
+    "authors_code_other_grip": ("authors_code", "other", 4),
+    "authors_code_fidelity_levers": ("authors_code", None, 3),
+}
 # the fidelity levers (docs/FIDELITY.md), each a parameter of the sim or the vision node: all at once
-LEVERS = {"authors_code_fidelity_levers": {"carry_law": "authors", "contact_radius": 0.005, "vision_source": "particles",
-                                           "start_pose": "authors"}}
+LEVERS = {
+    "authors_code_fidelity_levers": {
+        "carry_law": "authors",
+        "contact_radius": 0.005,
+        "vision_source": "particles",
+        "start_pose": "authors",
+    }
+}
 
 
 def shipped_grip() -> bool:
@@ -41,10 +50,27 @@ def graph_episodes(request, tmp_path_factory):
     levers = LEVERS.get(request.param, {})
     logs = tmp_path_factory.mktemp(f"graph_sac_{request.param}") / "logs"
     lever_args = [arg for name, value in levers.items() for arg in ("--" + name.replace("_", "-"), str(value))]
-    result = subprocess.run(["bash", str(ROOT / "scripts" / "launch_graph.sh"), "--episodes", str(episodes),
-                             "--seed", str(SEED), "--logs", str(logs), "--task-rules", rules,
-                             "--single-particle-grip", str(grip).lower(), *lever_args],
-                            capture_output=True, text=True, timeout=900, env={**os.environ, "DLO_USE_ROS2RUN": "1"})
+    result = subprocess.run(
+        [
+            "bash",
+            str(ROOT / "scripts" / "launch_graph.sh"),
+            "--episodes",
+            str(episodes),
+            "--seed",
+            str(SEED),
+            "--logs",
+            str(logs),
+            "--task-rules",
+            rules,
+            "--single-particle-grip",
+            str(grip).lower(),
+            *lever_args,
+        ],
+        capture_output=True,
+        text=True,
+        timeout=900,
+        env={**os.environ, "DLO_USE_ROS2RUN": "1"},
+    )
     assert result.returncode == 0, result.stdout[-2000:] + result.stderr[-2000:]
     return rules, grip, levers, episodes, [json.loads(line) for line in (logs / "outcomes.jsonl").read_text().splitlines()]
 

@@ -11,10 +11,9 @@ import time
 
 import pytest
 import rclpy
-from rosgraph_msgs.msg import Clock
-
 from dlo_common.testing import stop_all_or_explain
 from dlo_msgs.msg import GripperCommand, GripperState, TactilePose, TaskState, VisualPose
+from rosgraph_msgs.msg import Clock
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 ROS2RUN = str(ROOT / "scripts" / "ros2run")
@@ -23,8 +22,9 @@ ROS2RUN = str(ROOT / "scripts" / "ros2run")
 def start(pkg, exe, *params, log=None):
     """A node of the graph (PYTHONFAULTHANDLER: its Python stacks, should it hang at stop), output to ``log``."""
     args = [ROS2RUN, pkg, exe, "--ros-args"] + [a for p in params for a in ("-p", p)]
-    proc = subprocess.Popen(args, stdout=log or subprocess.DEVNULL, stderr=subprocess.STDOUT,
-                            env={**os.environ, "PYTHONFAULTHANDLER": "1"})
+    proc = subprocess.Popen(
+        args, stdout=log or subprocess.DEVNULL, stderr=subprocess.STDOUT, env={**os.environ, "PYTHONFAULTHANDLER": "1"}
+    )
     proc.log = pathlib.Path(log.name) if log is not None else None
     return proc
 
@@ -35,8 +35,13 @@ def log_text(path):
 
 def stop(*procs, timeout=30):
     """SIGINT the nodes; one that does not stop within ``timeout`` s fails the test with its stacks."""
-    stop_all_or_explain([(proc, proc.args[2], lambda proc=proc: log_text(proc.log) if proc.log is not None
-                          else "(started without a log)") for proc in procs], timeout)
+    stop_all_or_explain(
+        [
+            (proc, proc.args[2], lambda proc=proc: log_text(proc.log) if proc.log is not None else "(started without a log)")
+            for proc in procs
+        ],
+        timeout,
+    )
 
 
 class Probe:
@@ -65,8 +70,13 @@ class Probe:
         self.spin_until(lambda: False, seconds)
 
     def send(self, state, vx, vy, closure, episode=None, step=None):
-        msg = GripperCommand(vx=vx, vy=vy, closure=closure, episode=state.episode if episode is None else episode,
-                             step=state.step if step is None else step)
+        msg = GripperCommand(
+            vx=vx,
+            vy=vy,
+            closure=closure,
+            episode=state.episode if episode is None else episode,
+            step=state.step if step is None else step,
+        )
         msg.header = state.header
         self.cmd.publish(msg)
 
@@ -95,8 +105,12 @@ def test_bad_commands_are_rejected_and_the_gripper_holds(probe, tmp_path):
             assert (after.x, after.y, after.closure) == pytest.approx((state.x, state.y, state.closure), abs=1e-6)
         # step-locked: a command for an old step, a future step or another episode does not advance the sim
         state = probe.states[-1]
-        for episode, step in ((state.episode, state.step - 1), (state.episode, state.step + 1), (999, 99999),
-                              (state.episode + 1, state.step)):
+        for episode, step in (
+            (state.episode, state.step - 1),
+            (state.episode, state.step + 1),
+            (999, 99999),
+            (state.episode + 1, state.step),
+        ):
             probe.send(state, 0.25, 0.0, 0.6, episode=episode, step=step)
         probe.spin_for(1.5)  # (a republished state keeps its step)
         assert probe.states[-1].step == state.step and probe.states[-1].episode == state.episode
@@ -109,14 +123,28 @@ def test_bad_commands_are_rejected_and_the_gripper_holds(probe, tmp_path):
         stop(sim)
     text = (tmp_path / "sim.log").read_text()
     assert text.count("rejected command") == 7 and "Traceback" not in text, text
-    for cause in ("non-finite", "speed out of range", "closure out of range", "not the current step",
-                  "ahead of the current step", "for episode 999", f"for episode {state.episode + 1}"):
+    for cause in (
+        "non-finite",
+        "speed out of range",
+        "closure out of range",
+        "not the current step",
+        "ahead of the current step",
+        "for episode 999",
+        f"for episode {state.episode + 1}",
+    ):
         assert cause in text, cause
 
 
 def test_real_time_mode_holds_its_rate_and_stops_on_stale_commands(probe, tmp_path):
-    sim = start("dlo_sim", "sim_node", "mode:=real_time", "command_timeout:=0.3", "publish_markers:=false",
-                "horizon:=1000", log=open(tmp_path / "sim.log", "w"))  # one episode for the whole test
+    sim = start(
+        "dlo_sim",
+        "sim_node",
+        "mode:=real_time",
+        "command_timeout:=0.3",
+        "publish_markers:=false",
+        "horizon:=1000",
+        log=open(tmp_path / "sim.log", "w"),
+    )  # one episode for the whole test
     try:
         assert probe.spin_until(lambda: len(probe.clock) > 5, 120)
         probe.clock.clear()
@@ -133,8 +161,9 @@ def test_real_time_mode_holds_its_rate_and_stops_on_stale_commands(probe, tmp_pa
             answered += 1
             assert probe.spin_until(lambda state=state: probe.states[-1].step > state.step, 10)
         # commands stop: after the timeout (0.3 s) the gripper stands still, in the same episode (6 states alike)
-        assert probe.spin_until(lambda state=state: probe.states[-6].step > state.step
-                                and len({s.x for s in probe.states[-6:]}) == 1, 10)
+        assert probe.spin_until(
+            lambda state=state: probe.states[-6].step > state.step and len({s.x for s in probe.states[-6:]}) == 1, 10
+        )
         x_after_timeout, closure = probe.states[-1].x, probe.states[-1].closure
         assert x_after_timeout > start_x + 0.02  # it did follow the live commands
         probe.spin_for(1.0)
@@ -164,13 +193,15 @@ def test_real_time_mode_holds_its_rate_and_stops_on_stale_commands(probe, tmp_pa
 
 
 def test_policy_restart_mid_episode_resumes_the_graph(probe, tmp_path):
-    sim = start("dlo_sim", "sim_node", "episodes:=1", "horizon:=40", "min_subscribers:=4", "seed:=3",
-                log=open(tmp_path / "sim.log", "w"))
+    sim = start(
+        "dlo_sim", "sim_node", "episodes:=1", "horizon:=40", "min_subscribers:=4", "seed:=3", log=open(tmp_path / "sim.log", "w")
+    )
     perception = [start("dlo_perception", "tactile_node"), start("dlo_perception", "vision_node")]
     policy = start("dlo_policy", "policy_node", "policy:=tactile_reactive")
     try:
         assert probe.spin_until(lambda: probe.tasks and probe.tasks[-1].step >= 10, 180), [
-            (t.step, t.done) for t in probe.tasks[-3:]]
+            (t.step, t.done) for t in probe.tasks[-3:]
+        ]
         policy.kill()
         policy.wait()
         probe.spin_for(1.0)
@@ -189,8 +220,9 @@ def test_missing_perception_is_reported_without_deadlock(probe, tmp_path):
     policy_log = tmp_path / "policy.log"
     sim = start("dlo_sim", "sim_node", "episodes:=1", "horizon:=15", "min_subscribers:=3", "publish_markers:=false")
     vision = start("dlo_perception", "vision_node")
-    policy = start("dlo_policy", "policy_node", "policy:=random", "modalities:=All", "input_timeout:=0.5",
-                   log=open(policy_log, "w"))
+    policy = start(
+        "dlo_policy", "policy_node", "policy:=random", "modalities:=All", "input_timeout:=0.5", log=open(policy_log, "w")
+    )
     tactile = None
     try:
         assert probe.spin_until(lambda: "no tactile input" in policy_log.read_text(), 180), policy_log.read_text()
@@ -201,13 +233,16 @@ def test_missing_perception_is_reported_without_deadlock(probe, tmp_path):
         stop(*(p for p in (policy, vision, tactile, sim) if p is not None))
 
 
-@pytest.mark.parametrize("pkg,exe,param,expected", [
-    ("dlo_sim", "sim_node", "mode:=warp_speed", "parameter 'mode'"),
-    ("dlo_sim", "sim_node", "horizon:=-3", "parameter 'horizon'"),
-    ("dlo_perception", "tactile_node", "tactile_noise:=loud", "parameter 'tactile_noise'"),
-    ("dlo_policy", "policy_node", "checkpoint:=/nonexistent/policy.pt", "does not exist"),
-    ("dlo_policy", "policy_node", "policy:=magic", "parameter 'policy'"),
-])
+@pytest.mark.parametrize(
+    "pkg,exe,param,expected",
+    [
+        ("dlo_sim", "sim_node", "mode:=warp_speed", "parameter 'mode'"),
+        ("dlo_sim", "sim_node", "horizon:=-3", "parameter 'horizon'"),
+        ("dlo_perception", "tactile_node", "tactile_noise:=loud", "parameter 'tactile_noise'"),
+        ("dlo_policy", "policy_node", "checkpoint:=/nonexistent/policy.pt", "does not exist"),
+        ("dlo_policy", "policy_node", "policy:=magic", "parameter 'policy'"),
+    ],
+)
 def test_malformed_parameters_give_a_clear_message(pkg, exe, param, expected):
     result = subprocess.run([ROS2RUN, pkg, exe, "--ros-args", "-p", param], capture_output=True, text=True, timeout=120)
     output = result.stdout + result.stderr
@@ -216,15 +251,19 @@ def test_malformed_parameters_give_a_clear_message(pkg, exe, param, expected):
 
 
 def test_a_second_simulator_started_by_hand_refuses_in_one_line(probe, tmp_path):
-    first = start("dlo_sim", "sim_node", "min_subscribers:=99", "publish_markers:=false",
-                  log=open(tmp_path / "first.log", "w"))  # waits for subscribers forever: it only sits there
+    first = start(
+        "dlo_sim", "sim_node", "min_subscribers:=99", "publish_markers:=false", log=open(tmp_path / "first.log", "w")
+    )  # waits for subscribers forever: it only sits there
     second = None
     try:
         assert probe.spin_until(lambda: "alone on ROS_DOMAIN_ID" in (tmp_path / "first.log").read_text(), 120)
-        second = subprocess.run([ROS2RUN, "dlo_sim", "sim_node", "--ros-args", "-p", "publish_markers:=false"],
-                                capture_output=True, text=True, timeout=180)
-        lines = [line for line in (second.stdout + second.stderr).splitlines()
-                 if "another" in line and "ROS_DOMAIN_ID" in line]
+        second = subprocess.run(
+            [ROS2RUN, "dlo_sim", "sim_node", "--ros-args", "-p", "publish_markers:=false"],
+            capture_output=True,
+            text=True,
+            timeout=180,
+        )
+        lines = [line for line in (second.stdout + second.stderr).splitlines() if "another" in line and "ROS_DOMAIN_ID" in line]
         assert second.returncode == 3 and len(lines) == 1, second.stdout + second.stderr
         assert "Traceback" not in second.stdout + second.stderr
         assert first.poll() is None  # the first one goes on
@@ -239,9 +278,13 @@ def test_the_sim_names_the_topics_a_recorder_lacks(probe, tmp_path):
     recorder = start("dlo_bag", "recorder_node", f"output:={tmp_path / 'bag'}", "namespace:=/dlo/camera")
     sim = start("dlo_sim", "sim_node", "wait_for_recorder:=recorder", "publish_markers:=false", log=open(sim_log, "w"))
     try:
+
         def waiting_lines():  # once the sim sees the recorder node (before that it lists every topic: "no node")
-            return [line for line in sim_log.read_text().splitlines()
-                    if "waiting for the recorder 'recorder' to subscribe to" in line and "no node 'recorder'" not in line]
+            return [
+                line
+                for line in sim_log.read_text().splitlines()
+                if "waiting for the recorder 'recorder' to subscribe to" in line and "no node 'recorder'" not in line
+            ]
 
         def settled():  # the recorder's own subscription discovered too: a line without the topic it records
             lines = waiting_lines()

@@ -13,11 +13,10 @@ import sys
 import time
 
 import pytest
-
-from dlo_common.params import as_params
 from dlo_bag.analysis import read_run
 from dlo_bag.bag import bag_info, read_messages
 from dlo_bag.recorder_node import PARAMETERS as RECORDER_PARAMETERS
+from dlo_common.params import as_params
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 LAUNCH = ROOT / "scripts" / "launch_graph.sh"
@@ -34,11 +33,16 @@ class Launch:
         self.logs = tmp / f"{name}_logs"
         self.out_path = tmp / f"{name}.out"
         self.out_file = open(self.out_path, "w")
-        self.p = subprocess.Popen(["bash", str(LAUNCH), *map(str, args), "--logs", str(self.logs)],
-                                  stdout=self.out_file, stderr=subprocess.STDOUT, env=ENV, start_new_session=True,
-                                  # bash cannot trap a signal ignored at its start: a test run started as a
-                                  # background job (SIGINT ignored) must not make Ctrl-C a no-op here
-                                  preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+        self.p = subprocess.Popen(
+            ["bash", str(LAUNCH), *map(str, args), "--logs", str(self.logs)],
+            stdout=self.out_file,
+            stderr=subprocess.STDOUT,
+            env=ENV,
+            start_new_session=True,
+            # bash cannot trap a signal ignored at its start: a test run started as a
+            # background job (SIGINT ignored) must not make Ctrl-C a no-op here
+            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+        )
 
     @property
     def out(self):
@@ -113,8 +117,10 @@ def one_step_each(bag, seed):
     """Every step of the bag's episode 0 recorded, all of it from one simulator (seed). A step recorded more
     than once is the simulator republishing a state nobody has answered yet (at start-up every 0.25 s until
     the policy's first command arrives, later after step_timeout): byte for byte the same message."""
-    read = {topic: (list(read_messages(bag, [topic])), list(read_messages(bag, [topic], raw=True)))
-            for topic in ("/dlo/task/state", "/dlo/gripper/state")}
+    read = {
+        topic: (list(read_messages(bag, [topic])), list(read_messages(bag, [topic], raw=True)))
+        for topic in ("/dlo/task/state", "/dlo/gripper/state")
+    }
     tasks = [m.msg for m in read["/dlo/task/state"][0]]
     assert {t.seed for t in tasks} == {seed}
     steps = [t.step for t in tasks if t.episode == 0]
@@ -146,16 +152,26 @@ def test_two_graphs_at_once_never_see_each_other(tmp_path, launches):
 
 
 def test_a_second_simulator_on_a_shared_domain_refuses_to_start(tmp_path, launches):
-    a = launches(tmp_path, "a", "--policy", "tactile_reactive", "--episodes", 0, "--seed", 11,
-                 "--domain-id", os.environ["ROS_DOMAIN_ID"])
+    a = launches(
+        tmp_path, "a", "--policy", "tactile_reactive", "--episodes", 0, "--seed", 11, "--domain-id", os.environ["ROS_DOMAIN_ID"]
+    )
     a.wait_episodes(1)
-    b = launches(tmp_path, "b", "--policy", "tactile_reactive", "--episodes", 1, "--seed", 12,  # a long episode
-                 "--domain-id", os.environ["ROS_DOMAIN_ID"])
+    b = launches(
+        tmp_path,
+        "b",
+        "--policy",
+        "tactile_reactive",
+        "--episodes",
+        1,
+        "--seed",
+        12,  # a long episode
+        "--domain-id",
+        os.environ["ROS_DOMAIN_ID"],
+    )
     assert b.wait() == EXIT_NODE_FAILED, b.out
     assert "sim exited early (status 3, 0 of 1 episodes done)" in b.out
     # one line, at start-up or as soon as discovery shows the running simulator (the later one leaves)
-    assert re.search(r"another (simulator already runs|node already publishes \S+ \(/sim_node\)) on ROS_DOMAIN_ID",
-                     b.out), b.out
+    assert re.search(r"another (simulator already runs|node already publishes \S+ \(/sim_node\)) on ROS_DOMAIN_ID", b.out), b.out
     assert a.p.poll() is None, a.out  # the running graph goes on
     done = len(a.episodes_done())
     a.wait_episodes(done + 1)
@@ -165,10 +181,36 @@ def test_a_second_simulator_on_a_shared_domain_refuses_to_start(tmp_path, launch
 
 def test_namespaces_share_a_domain_deliberately(tmp_path, launches):
     domain = os.environ["ROS_DOMAIN_ID"]
-    a = launches(tmp_path, "a", "--policy", "tactile_reactive", "--episodes", 1, "--seed", 11,
-                 "--domain-id", domain, "--namespace", "robot1", "--record", tmp_path / "bag")
-    b = launches(tmp_path, "b", "--policy", "tactile_reactive", "--episodes", 1, "--seed", 11,
-                 "--domain-id", domain, "--namespace", "robot2")
+    a = launches(
+        tmp_path,
+        "a",
+        "--policy",
+        "tactile_reactive",
+        "--episodes",
+        1,
+        "--seed",
+        11,
+        "--domain-id",
+        domain,
+        "--namespace",
+        "robot1",
+        "--record",
+        tmp_path / "bag",
+    )
+    b = launches(
+        tmp_path,
+        "b",
+        "--policy",
+        "tactile_reactive",
+        "--episodes",
+        1,
+        "--seed",
+        11,
+        "--domain-id",
+        domain,
+        "--namespace",
+        "robot2",
+    )
     assert a.wait() == 0, a.out
     assert b.wait() == 0, b.out
     outcome, _ = reference_outcome(11)
@@ -176,8 +218,12 @@ def test_namespaces_share_a_domain_deliberately(tmp_path, launches):
     topics = set(bag_info(tmp_path / "bag").topics)
     assert "/robot1/dlo/task/state" in topics and "/robot1/clock" in topics
     assert not any(t.startswith("/robot2") or t.startswith("/dlo") for t in topics)
-    result = subprocess.run([sys.executable, "-m", "dlo_bag.analysis", str(tmp_path / "bag"),
-                             "--json", str(tmp_path / "a.json")], capture_output=True, text=True, timeout=300)
+    result = subprocess.run(
+        [sys.executable, "-m", "dlo_bag.analysis", str(tmp_path / "bag"), "--json", str(tmp_path / "a.json")],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert result.returncode == 0, result.stdout + result.stderr
     assert [s["outcome"] for s in json.loads((tmp_path / "a.json").read_text())] == [outcome]
 
@@ -201,17 +247,23 @@ def test_recorder_killed_mid_run_fails_the_launch_and_the_bag_is_recovered(tmp_p
     assert "recorder exited early (status 137: killed by SIGKILL)" in run.out
     assert f"dlo-bag-recover {bag}" in run.out
     live = run.episodes_done()  # every episode the sim finished, also after the kill
-    fixed = subprocess.run([str(ROOT / "scripts" / "ros2run"), "dlo_bag", "dlo-bag-recover", str(bag)],
-                           capture_output=True, text=True, timeout=120)
+    fixed = subprocess.run(
+        [str(ROOT / "scripts" / "ros2run"), "dlo_bag", "dlo-bag-recover", str(bag)], capture_output=True, text=True, timeout=120
+    )
     assert fixed.returncode == 0 and "recovered" in fixed.stdout, fixed.stdout + fixed.stderr
     episodes = read_run(bag)
     finished = [e for e, streams in episodes.items() if any(m.done for m in streams["task"].values())]
     assert finished == list(range(len(finished)))
     assert len(finished) >= len(safe), (
         f"the recovered bag has {len(finished)} finished episodes; {len(safe)} had finished "
-        f"{3 * FLUSH_PERIOD} s before the kill ({len(at_kill)} at the kill, {len(live)} in all)")
-    result = subprocess.run([sys.executable, "-m", "dlo_bag.analysis", str(bag), "--json", str(tmp_path / "a.json")],
-                            capture_output=True, text=True, timeout=300)
+        f"{3 * FLUSH_PERIOD} s before the kill ({len(at_kill)} at the kill, {len(live)} in all)"
+    )
+    result = subprocess.run(
+        [sys.executable, "-m", "dlo_bag.analysis", str(bag), "--json", str(tmp_path / "a.json")],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert result.returncode == 0, result.stdout + result.stderr
     analysed = [s for s in json.loads((tmp_path / "a.json").read_text()) if s["complete"]]
     assert len(analysed) >= len(safe)
@@ -273,8 +325,11 @@ def test_a_killed_launcher_leaves_no_node_running_and_a_closed_bag(tmp_path, lau
     run.p.wait()
 
     def running():  # a zombie has exited; a pid taken by a new process is not the node
-        return [node for node, pid in nodes.items()
-                if (state := process_start(pid)) is not None and state[0] != "Z" and state[1] == started[node]]
+        return [
+            node
+            for node, pid in nodes.items()
+            if (state := process_start(pid)) is not None and state[0] != "Z" and state[1] == started[node]
+        ]
 
     deadline = time.monotonic() + 60
     alive = running()
@@ -282,7 +337,8 @@ def test_a_killed_launcher_leaves_no_node_running_and_a_closed_bag(tmp_path, lau
         time.sleep(0.5)
         alive = running()
     assert not alive, f"still running 60 s after the launcher's SIGKILL: {alive}\n" + "\n".join(
-        f"--- {node}.log:\n" + (run.logs / f"{node}.log").read_text()[-1500:] for node in alive)
+        f"--- {node}.log:\n" + (run.logs / f"{node}.log").read_text()[-1500:] for node in alive
+    )
     assert (bag / "metadata.yaml").is_file(), (run.logs / "recorder.log").read_text()[-3000:]  # stopped, not killed
     assert read_run(bag)
 

@@ -12,7 +12,6 @@ import pathlib
 import sys
 
 import pytest
-
 from dlo_common.testing import ROS2RUN, Procs, package_test_env
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))  # --import-mode=importlib: tests/ helpers
@@ -21,8 +20,10 @@ from env_replay import replay_and_compare  # noqa: E402
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 SEED, EPISODES = 7005, 4
 # both delays, noise on every modality, a false detection, the actuator: every observation and action family kind
-PERTURBATIONS = ("observation_delay=1,tactile_angle_noise=5,vision_offset_noise=2,vision_false_visible=0.05,"
-                 "gripper_position_noise=1,gripper_position_bias=2,action_delay=1,velocity_gain=0.9,closure_lag=0.08")
+PERTURBATIONS = (
+    "observation_delay=1,tactile_angle_noise=5,vision_offset_noise=2,vision_false_visible=0.05,"
+    "gripper_position_noise=1,gripper_position_bias=2,action_delay=1,velocity_gain=0.9,closure_lag=0.08"
+)
 
 
 def node(package, executable, *parameters):
@@ -38,10 +39,20 @@ def graph_episodes(tmp_path_factory):
     outcomes = tmp_path_factory.mktemp("graph_perturbed") / "outcomes.jsonl"
     env = package_test_env("dlo_policy", "policy_node")
     with Procs(env) as procs:
-        sim = procs("sim", node("dlo_sim", "sim_node", "mode:=step_locked", f"seed:={SEED}", f"episodes:={EPISODES}",
-                                "min_subscribers:=3", f"summary_file:={outcomes}",
-                                f"task_rules:={settings['task_rules']}",
-                                f"single_particle_grip:={str(settings['single_particle_grip']).lower()}"))
+        sim = procs(
+            "sim",
+            node(
+                "dlo_sim",
+                "sim_node",
+                "mode:=step_locked",
+                f"seed:={SEED}",
+                f"episodes:={EPISODES}",
+                "min_subscribers:=3",
+                f"summary_file:={outcomes}",
+                f"task_rules:={settings['task_rules']}",
+                f"single_particle_grip:={str(settings['single_particle_grip']).lower()}",
+            ),
+        )
         sim.wait_line("alone on ROS_DOMAIN_ID", timeout=120)  # it looks for another simulator first (as the launcher)
         procs("tactile", node("dlo_perception", "tactile_node", f"seed:={SEED}"))
         procs("vision", node("dlo_perception", "vision_node"))
@@ -58,13 +69,17 @@ def test_perturbed_episodes_in_the_graph_equal_the_in_process_env(graph_episodes
 
     settings, episodes = graph_episodes
     agent = SAC.load(shipped_policy_path())
-    env = make_env("All", seed=SEED, task_rules=settings["task_rules"],
-                   single_particle_grip=settings["single_particle_grip"], perturbations=PERTURBATIONS)
+    env = make_env(
+        "All",
+        seed=SEED,
+        task_rules=settings["task_rules"],
+        single_particle_grip=settings["single_particle_grip"],
+        perturbations=PERTURBATIONS,
+    )
     assert [e["seed"] for e in episodes] == list(range(SEED, SEED + EPISODES))
     plain_returns = [info["episode_return"] for info in replay_and_compare(env, agent, episodes)]
     # the perturbations did act: the unperturbed env gives other episodes
-    plain = make_env("All", seed=SEED, task_rules=settings["task_rules"],
-                     single_particle_grip=settings["single_particle_grip"])
+    plain = make_env("All", seed=SEED, task_rules=settings["task_rules"], single_particle_grip=settings["single_particle_grip"])
     observation, _ = plain.reset(seed=SEED)
     done, info = False, {}
     while not done:

@@ -26,8 +26,19 @@ STEP = 80_000_000  # ns per control step
 
 
 def endpoint(kind, node, topic, type_, depth=10, durability="volatile", **extra):
-    return {"kind": kind, "node": node, "exe": node, "pid": 1, "topic": topic, "type": type_, "history": "keep_last",
-            "depth": depth, "reliability": "reliable", "durability": durability, **extra}
+    return {
+        "kind": kind,
+        "node": node,
+        "exe": node,
+        "pid": 1,
+        "topic": topic,
+        "type": type_,
+        "history": "keep_last",
+        "depth": depth,
+        "reliability": "reliable",
+        "durability": durability,
+        **extra,
+    }
 
 
 def synthetic_snapshot(states=20):
@@ -36,18 +47,43 @@ def synthetic_snapshot(states=20):
     records = [
         {"kind": "node", "node": "sim_node", "exe": "sim_node", "pid": 1},
         endpoint("publisher", "sim_node", "/dlo/gripper/state", "dlo_msgs/msg/GripperState"),
-        endpoint("publisher", "sim_node", "/dlo/camera/camera_info", "sensor_msgs/msg/CameraInfo", depth=1,
-                 durability="transient_local"),
+        endpoint(
+            "publisher",
+            "sim_node",
+            "/dlo/camera/camera_info",
+            "sensor_msgs/msg/CameraInfo",
+            depth=1,
+            durability="transient_local",
+        ),
         endpoint("subscription", "sim_node", "/dlo/gripper/cmd", "dlo_msgs/msg/GripperCommand"),
         endpoint("publisher", "sim_node", "/parameter_events", "rcl_interfaces/msg/ParameterEvent", depth=1000),
-        {"kind": "service", "node": "sim_node", "exe": "sim_node", "pid": 1, "name": "/dlo/sim/reset",
-         "type": "dlo_msgs/srv/ResetEpisode"},
-        {"kind": "service", "node": "sim_node", "exe": "sim_node", "pid": 1, "name": "/sim_node/get_parameters",
-         "type": "rcl_interfaces/srv/GetParameters"},
-        {"kind": "timer", "node": "sim_node", "exe": "sim_node", "pid": 1, "period_s": 0.08,
-         "callback": "on_real_time_tick"},
-        {"kind": "parameter", "node": "sim_node", "exe": "sim_node", "pid": 1, "name": "use_sim_time",
-         "default": False, "value": False, "description": ""},
+        {
+            "kind": "service",
+            "node": "sim_node",
+            "exe": "sim_node",
+            "pid": 1,
+            "name": "/dlo/sim/reset",
+            "type": "dlo_msgs/srv/ResetEpisode",
+        },
+        {
+            "kind": "service",
+            "node": "sim_node",
+            "exe": "sim_node",
+            "pid": 1,
+            "name": "/sim_node/get_parameters",
+            "type": "rcl_interfaces/srv/GetParameters",
+        },
+        {"kind": "timer", "node": "sim_node", "exe": "sim_node", "pid": 1, "period_s": 0.08, "callback": "on_real_time_tick"},
+        {
+            "kind": "parameter",
+            "node": "sim_node",
+            "exe": "sim_node",
+            "pid": 1,
+            "name": "use_sim_time",
+            "default": False,
+            "value": False,
+            "description": "",
+        },
         endpoint("subscription", "tactile_node", "/dlo/gripper/state", "dlo_msgs/msg/GripperState"),
         endpoint("publisher", "tactile_node", "/dlo/tactile/pose", "dlo_msgs/msg/TactilePose"),
         endpoint("subscription", "policy_node", "/dlo/tactile/pose", "dlo_msgs/msg/TactilePose"),
@@ -58,9 +94,12 @@ def synthetic_snapshot(states=20):
             records.append({"kind": "publish", "pid": 1, "seq": len(records), "topic": topic})
     samples = {
         "/dlo/gripper/state": {"count": states, "stamps": stamps, "frame_id": "world"},
-        "/dlo/camera/camera_info": {"count": 1, "stamps": [0], "frame_id": "top_camera_optical",
-                                    "camera_info": {"width": 128, "height": 128, "k": [1.0] * 9,
-                                                    "distortion_model": "plumb_bob"}},
+        "/dlo/camera/camera_info": {
+            "count": 1,
+            "stamps": [0],
+            "frame_id": "top_camera_optical",
+            "camera_info": {"width": 128, "height": 128, "k": [1.0] * 9, "distortion_model": "plumb_bob"},
+        },
         "/dlo/tactile/pose": {"count": states, "stamps": stamps, "frame_id": "gripper"},
         "/dlo/gripper/cmd": {"count": states, "stamps": stamps, "frame_id": "world"},
     }
@@ -77,12 +116,16 @@ def test_committed_doc_is_current_with_the_live_graph():
     result = run_gen("--check", timeout=900)
     assert result.returncode == 0, (
         "docs/INTERFACES.md is stale or could not be regenerated; run: python tools/gen_interfaces.py\n"
-        + result.stdout + result.stderr[-6000:])
+        + result.stdout
+        + result.stderr[-6000:]
+    )
     text = (ROOT / "docs" / "INTERFACES.md").read_text()
-    for needle in ("`/dlo/gripper/state` | `dlo_msgs/msg/GripperState` | `sim_node`",
-                   "`/dlo/gripper/cmd` | `dlo_msgs/msg/GripperCommand` | `policy_node`",
-                   "`/dlo/sim/reset` | `dlo_msgs/srv/ResetEpisode` | `sim_node`",
-                   "| `/dlo/camera/camera_info` | `sensor_msgs/msg/CameraInfo` | `sim_node` |"):
+    for needle in (
+        "`/dlo/gripper/state` | `dlo_msgs/msg/GripperState` | `sim_node`",
+        "`/dlo/gripper/cmd` | `dlo_msgs/msg/GripperCommand` | `policy_node`",
+        "`/dlo/sim/reset` | `dlo_msgs/srv/ResetEpisode` | `sim_node`",
+        "| `/dlo/camera/camera_info` | `sensor_msgs/msg/CameraInfo` | `sim_node` |",
+    ):
         assert needle in text
     assert "| `rate_factor` | double |" in text  # a parameter table row (dlo_common.params.markdown_table)
     assert "  sim_node --> t" in text and "--> policy_node" in text  # the Mermaid data flow
@@ -94,10 +137,14 @@ def test_check_passes_on_the_same_snapshot_and_fails_with_a_diff_when_the_graph_
     doc = tmp_path / "INTERFACES.md"
     assert run_gen("--snapshot", str(snapshot), "--output", str(doc)).returncode == 0
     text = doc.read_text()
-    assert "| `/dlo/gripper/state` | `dlo_msgs/msg/GripperState` | `sim_node` | `tactile_node` | step | " \
-           "reliable, volatile, keep last 10 | `world` |" in text
-    assert "| `/dlo/camera/camera_info` | `sensor_msgs/msg/CameraInfo` | `sim_node` | — | latched | " \
-           "reliable, transient local, keep last 1 | `top_camera_optical` |" in text
+    assert (
+        "| `/dlo/gripper/state` | `dlo_msgs/msg/GripperState` | `sim_node` | `tactile_node` | step | "
+        "reliable, volatile, keep last 10 | `world` |" in text
+    )
+    assert (
+        "| `/dlo/camera/camera_info` | `sensor_msgs/msg/CameraInfo` | `sim_node` | — | latched | "
+        "reliable, transient local, keep last 1 | `top_camera_optical` |" in text
+    )
     assert "/parameter_events" not in text and "/sim_node/get_parameters" not in text  # infrastructure left out
     assert "| `/dlo/sim/reset` | `dlo_msgs/srv/ResetEpisode` | `sim_node` |" in text
     assert "| `sim_node` | 0.08 | `on_real_time_tick` |" in text
@@ -148,7 +195,8 @@ def test_rates_are_checked_against_the_declared_class_not_written():
     assert any(p.startswith("/dlo/camera/camera_info: declared 'latched'") for p in problems)
     # the doc does not change with the measured counts
     assert gen_interfaces.generate(snap, log=lambda line: None) == gen_interfaces.generate(
-        synthetic_snapshot(), log=lambda line: None)
+        synthetic_snapshot(), log=lambda line: None
+    )
 
 
 def test_hook_records_what_a_node_declares(tmp_path):
@@ -165,9 +213,13 @@ def test_hook_records_what_a_node_declares(tmp_path):
         "p = n.create_publisher(String, 'said', 1)\n"
         "p.publish(String(data='a')); p.publish(String(data='b'))\n"
         "n.declare_parameter('speed', 0.5)\n"
-        "n.destroy_node(); rclpy.shutdown()\n")
-    env = dict(os.environ, PYTHONPATH=f"{gen_interfaces.HOOK_DIR}{os.pathsep}{os.environ.get('PYTHONPATH', '')}",
-               DLO_INTERFACES_DUMP=str(tmp_path))
+        "n.destroy_node(); rclpy.shutdown()\n"
+    )
+    env = dict(
+        os.environ,
+        PYTHONPATH=f"{gen_interfaces.HOOK_DIR}{os.pathsep}{os.environ.get('PYTHONPATH', '')}",
+        DLO_INTERFACES_DUMP=str(tmp_path),
+    )
     result = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120)
     assert result.returncode == 0, result.stderr
     records = [json.loads(line) for f in tmp_path.glob("*.jsonl") for line in f.read_text().splitlines()]
@@ -176,14 +228,23 @@ def test_hook_records_what_a_node_declares(tmp_path):
         assert r.get("node", "hooked") == "hooked"
         by_kind.setdefault(r["kind"], []).append(r)
     pub = [r for r in by_kind["publisher"] if r["topic"] == "/chatter"]
-    assert pub == [{**pub[0], "type": "std_msgs/msg/String", "history": "keep_last", "depth": 7,
-                    "durability": "transient_local", "reliability": "reliable"}]
+    assert pub == [
+        {
+            **pub[0],
+            "type": "std_msgs/msg/String",
+            "history": "keep_last",
+            "depth": 7,
+            "durability": "transient_local",
+            "reliability": "reliable",
+        }
+    ]
     assert [(r["topic"], r["depth"]) for r in by_kind["subscription"]] == [("/heard", 3)]
     assert [r["period_s"] for r in by_kind["timer"]] == [0.125]
     said = [r["seq"] for r in by_kind["publish"] if r["topic"] == "/said"]
     assert len(said) == 2 and said[0] < said[1]  # in order (the declared parameter's event came first)
-    assert {"name": "speed", "default": 0.5, "value": 0.5} .items() <= [
-        r for r in by_kind["parameter"] if r["name"] == "speed"][0].items()
+    assert {"name": "speed", "default": 0.5, "value": 0.5}.items() <= [r for r in by_kind["parameter"] if r["name"] == "speed"][
+        0
+    ].items()
 
 
 def test_help_and_bad_options():
@@ -195,9 +256,19 @@ def test_help_and_bad_options():
     assert missing.returncode == 2 and "cannot read snapshot" in missing.stderr
 
 
-@pytest.mark.parametrize("topic", ["/dlo/gripper/state", "/dlo/gripper/cmd", "/dlo/camera/image",
-                                   "/dlo/camera/camera_info", "/dlo/rope/particles", "/dlo/tactile/pose",
-                                   "/dlo/vision/pose", "/dlo/task/state"])
+@pytest.mark.parametrize(
+    "topic",
+    [
+        "/dlo/gripper/state",
+        "/dlo/gripper/cmd",
+        "/dlo/camera/image",
+        "/dlo/camera/camera_info",
+        "/dlo/rope/particles",
+        "/dlo/tactile/pose",
+        "/dlo/vision/pose",
+        "/dlo/task/state",
+    ],
+)
 def test_every_contract_topic_has_units_and_a_driver_rule(topic):
     entry = gen_interfaces.semantics()[topic]
     assert entry["rate"] in ("step", "latched") and entry["units"] and entry["driver"]

@@ -17,7 +17,6 @@ import threading
 import time
 
 import pytest
-
 from dlo_common.testing import stop_or_explain
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
@@ -32,11 +31,33 @@ def streamed_run(tmp_path_factory):
     outcomes.jsonl when the line was read and whether the launcher was still running."""
     logs = tmp_path_factory.mktemp("feedback") / "logs"
     launch = subprocess.Popen(
-        ["bash", str(ROOT / "scripts" / "launch_graph.sh"), "--policy", "tactile_reactive", "--episodes",
-         str(EPISODES), "--seed", str(SEED), "--without", "V", "--tactile-noise", NOISE, "--status-period", "0.5",
-         "--logs", str(logs), "--record", str(logs.parent / "bag")],
-        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True,
-        env={**os.environ, "DLO_USE_ROS2RUN": "1"}, preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+        [
+            "bash",
+            str(ROOT / "scripts" / "launch_graph.sh"),
+            "--policy",
+            "tactile_reactive",
+            "--episodes",
+            str(EPISODES),
+            "--seed",
+            str(SEED),
+            "--without",
+            "V",
+            "--tactile-noise",
+            NOISE,
+            "--status-period",
+            "0.5",
+            "--logs",
+            str(logs),
+            "--record",
+            str(logs.parent / "bag"),
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        start_new_session=True,
+        env={**os.environ, "DLO_USE_ROS2RUN": "1"},
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    )
     lines = queue.Queue()
     reader = threading.Thread(target=lambda: [lines.put(line) for line in launch.stdout], daemon=True)
     reader.start()
@@ -59,9 +80,13 @@ def streamed_run(tmp_path_factory):
         except ProcessLookupError:
             pass
         launch.wait()
-    return {"rc": rc, "seen": seen, "out": "\n".join(s[0] for s in seen),
-            "live": [json.loads(line) for line in outcomes.read_text().splitlines()],
-            "tactile_log": (logs / "tactile.log").read_text()}
+    return {
+        "rc": rc,
+        "seen": seen,
+        "out": "\n".join(s[0] for s in seen),
+        "live": [json.loads(line) for line in outcomes.read_text().splitlines()],
+        "tactile_log": (logs / "tactile.log").read_text(),
+    }
 
 
 def test_the_launch_succeeds(streamed_run):
@@ -74,8 +99,10 @@ def test_episode_lines_stream_while_the_graph_runs(streamed_run):
     before the sim wrote its last episode, i.e. while the graph still ran, not at the end."""
     seen, live = streamed_run["seen"], streamed_run["live"]
     for k, e in enumerate(live):
-        expected = (f"[launch] episode {k} (seed {SEED + k}; {k + 1}/{EPISODES} done): {e['outcome']}, authors' rule "
-                    f"{e['outcome_authors']}; return {e['episode_return']:.3f}, {e['episode_length']} steps")
+        expected = (
+            f"[launch] episode {k} (seed {SEED + k}; {k + 1}/{EPISODES} done): {e['outcome']}, authors' rule "
+            f"{e['outcome_authors']}; return {e['episode_return']:.3f}, {e['episode_length']} steps"
+        )
         matches = [s for s in seen if s[0].startswith(expected)]
         assert len(matches) == 1, (expected, streamed_run["out"])
     first = next(s for s in seen if s[0].startswith("[launch] episode 0 "))
@@ -98,8 +125,7 @@ def test_status_lines_drop_the_wait_once_the_graph_runs(streamed_run):
     """Issue 20: with --record the sim first waits for the recorder ("sim: waiting for the recorder ..." on the
     status line while it does); once steps are counted or an episode has finished, no status line says so."""
     status = [s[0] for s in streamed_run["seen"] if s[0].startswith("[launch] status: ")]
-    running = [line for line in status
-               if re.search(r"[1-9]\d*\.\d steps/s|status: .*[1-9]/3 episodes done", line)]
+    running = [line for line in status if re.search(r"[1-9]\d*\.\d steps/s|status: .*[1-9]/3 episodes done", line)]
     assert running, status
     assert not [line for line in running if "waiting for" in line], status
 
@@ -107,11 +133,16 @@ def test_status_lines_drop_the_wait_once_the_graph_runs(streamed_run):
 def test_the_outcome_table_is_headed_by_what_produced_it(streamed_run):
     out = streamed_run["out"]
     header = next(line for line in out.splitlines() if line.startswith("run: "))
-    for part in ("policy tactile_reactive observing K+T+V", "no checkpoint", "ablation: without V",
-                 f"tactile noise: {NOISE_SAID}", "mode step_locked", f"seeds {SEED}..{SEED + EPISODES - 1} (3 episodes)"):
+    for part in (
+        "policy tactile_reactive observing K+T+V",
+        "no checkpoint",
+        "ablation: without V",
+        f"tactile noise: {NOISE_SAID}",
+        "mode step_locked",
+        f"seeds {SEED}..{SEED + EPISODES - 1} (3 episodes)",
+    ):
         assert part in header, (part, header)
     assert out.splitlines()[out.splitlines().index(header) + 1].split()[:2] == ["episode", "seed"]
-
 
 
 def test_the_custom_noise_pair_reaches_the_tactile_node(streamed_run):
@@ -121,16 +152,29 @@ def test_the_custom_noise_pair_reaches_the_tactile_node(streamed_run):
     assert f"[tactile_node]: tactile noise: {NOISE_SAID}; seed {SEED}" in log, log
     assert "now 'tactile_noise'" not in log
 
+
 def test_real_time_sim_waits_for_a_command_publisher_then_warns_without_commands(tmp_path):
     import rclpy
-
     from dlo_msgs.msg import GripperCommand, TaskState
 
     log = tmp_path / "sim.log"
-    sim = subprocess.Popen([ROS2RUN, "dlo_sim", "sim_node", "--ros-args", "-p", "mode:=real_time",
-                            "-p", "publish_markers:=false", "-p", "camera_resolution:=32"],
-                           stdout=open(log, "w"), stderr=subprocess.STDOUT,
-                           env=dict(os.environ, PYTHONFAULTHANDLER="1"))  # (its Python stacks, should it hang)
+    sim = subprocess.Popen(
+        [
+            ROS2RUN,
+            "dlo_sim",
+            "sim_node",
+            "--ros-args",
+            "-p",
+            "mode:=real_time",
+            "-p",
+            "publish_markers:=false",
+            "-p",
+            "camera_resolution:=32",
+        ],
+        stdout=open(log, "w"),
+        stderr=subprocess.STDOUT,
+        env=dict(os.environ, PYTHONFAULTHANDLER="1"),
+    )  # (its Python stacks, should it hang)
     context = rclpy.Context()
     rclpy.init(context=context)
     node = rclpy.create_node("feedback_probe", context=context)
@@ -147,6 +191,7 @@ def test_real_time_sim_waits_for_a_command_publisher_then_warns_without_commands
 
     def count(text):
         return log.read_text().count(text)
+
     try:
         waiting = "no publisher of /dlo/gripper/cmd for"
         assert spin_until(lambda: count(waiting) >= 3, 240), log.read_text()  # once a second, repeatedly
@@ -166,18 +211,27 @@ def test_real_time_sim_waits_for_a_command_publisher_then_warns_without_commands
     assert "Traceback" not in log.read_text()
 
 
-@pytest.mark.parametrize("args, message", [
-    (["--policy", "nosuch"], "launch_graph: --policy must be one of sac, tactile_reactive, oracle, random, got 'nosuch'"),
-    (["--without", "X"], "launch_graph: --without must be empty or modalities joined by '+' (K, T, V), e.g. T or T+V, "
-                         "got 'X'"),
-    (["--checkpoint", "/nonexistent/policy.pt"], "launch_graph: --checkpoint /nonexistent/policy.pt: no such file"),
-    (["--task-rules", "authors"], "launch_graph: --task-rules must be paper_text or authors_code, got 'authors'"),
-])
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["--policy", "nosuch"], "launch_graph: --policy must be one of sac, tactile_reactive, oracle, random, got 'nosuch'"),
+        (
+            ["--without", "X"],
+            "launch_graph: --without must be empty or modalities joined by '+' (K, T, V), e.g. T or T+V, got 'X'",
+        ),
+        (["--checkpoint", "/nonexistent/policy.pt"], "launch_graph: --checkpoint /nonexistent/policy.pt: no such file"),
+        (["--task-rules", "authors"], "launch_graph: --task-rules must be paper_text or authors_code, got 'authors'"),
+    ],
+)
 def test_the_launcher_refuses_its_own_bad_choices_before_any_node_starts(args, message, tmp_path):
     logs = tmp_path / "logs"
-    result = subprocess.run(["bash", str(ROOT / "scripts" / "launch_graph.sh"), *args, "--logs", str(logs),
-                             "--episodes", "1"], capture_output=True, text=True, timeout=120,
-                            env={**os.environ, "DLO_USE_ROS2RUN": "1"})
+    result = subprocess.run(
+        ["bash", str(ROOT / "scripts" / "launch_graph.sh"), *args, "--logs", str(logs), "--episodes", "1"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        env={**os.environ, "DLO_USE_ROS2RUN": "1"},
+    )
     assert result.returncode == 2, result.stdout + result.stderr
     assert result.stderr.splitlines() == [message]
     assert result.stdout == "" and not logs.exists()  # no domain chosen, no node started

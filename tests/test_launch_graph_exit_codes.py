@@ -22,16 +22,20 @@ from pathlib import Path
 
 import pytest
 import yaml
-from std_msgs.msg import String
-
 from dlo_bringup.graph import STOP_LIMIT
 from dlo_bringup.launcher import watch_hint
 from dlo_common.node_main import TEARDOWN_LIMIT
+from std_msgs.msg import String
 
 ROOT = Path(__file__).resolve().parents[1]
 LAUNCH = ROOT / "scripts" / "launch_graph.sh"
-NODES = {"sim_node": "sim", "recorder_node": "recorder", "tactile_node": "tactile", "vision_node": "vision",
-         "policy_node": "policy"}  # what the launcher starts without --foxglove (the bridge is not faked here)
+NODES = {
+    "sim_node": "sim",
+    "recorder_node": "recorder",
+    "tactile_node": "tactile",
+    "vision_node": "vision",
+    "policy_node": "policy",
+}  # what the launcher starts without --foxglove (the bridge is not faked here)
 
 # What a node does, from FAKE_GRAPH (JSON, by launcher name): "exit" its status (default 0; "SIGKILL": killed),
 # "when" "start" (the sim: at once, before it says it is alone on the domain, as a sim rejecting its parameters or
@@ -132,67 +136,132 @@ def episodes(n, status=0):
 FAILED = "recording failed: no space left on device (write to run_0.mcap: [Errno 28] No space left on device)"
 CASES = {
     # every episode ran
-    "complete": (ran({"sim": episodes(2)}, "--episodes", 2, "--record", "BAG"), 0,
-                 ["[launch] bag: BAG (inspect: dlo-bag-info BAG)"]),
+    "complete": (
+        ran({"sim": episodes(2)}, "--episodes", 2, "--record", "BAG"),
+        0,
+        ["[launch] bag: BAG (inspect: dlo-bag-info BAG)"],
+    ),
     "complete_without_a_bag": (ran({"sim": episodes(2)}, "--episodes", 2), 0, []),
-    "recorder_dropped_messages": (ran({"sim": episodes(2), "recorder": {"exit": 1}}, "--episodes", 2, "--record", "BAG"), 4,
-                                  ["[launch] recording incomplete: the recorder dropped messages (see LOGS/recorder.log)"]),
-    "recording_failed_at_the_end": (ran({"sim": episodes(2), "recorder": {"exit": 3, "say": [FAILED]}},
-                                        "--episodes", 2, "--record", "BAG"), 4,
-                                    ["[launch] recording failed: no space left on device (see LOGS/recorder.log)"]),
-    "bag_left_unclosed": (ran({"sim": episodes(2), "recorder": {"closes": False}}, "--episodes", 2, "--record", "BAG"), 4,
-                          ["[launch] the bag BAG is incomplete: recover it with: dlo-bag-recover BAG"]),
-    "recorder_ended_oddly": (ran({"sim": episodes(2), "recorder": {"exit": 5}}, "--episodes", 2, "--record", "BAG"), 4,
-                             ["[launch] the recorder ended with status 5; the end of its log:"]),
+    "recorder_dropped_messages": (
+        ran({"sim": episodes(2), "recorder": {"exit": 1}}, "--episodes", 2, "--record", "BAG"),
+        4,
+        ["[launch] recording incomplete: the recorder dropped messages (see LOGS/recorder.log)"],
+    ),
+    "recording_failed_at_the_end": (
+        ran({"sim": episodes(2), "recorder": {"exit": 3, "say": [FAILED]}}, "--episodes", 2, "--record", "BAG"),
+        4,
+        ["[launch] recording failed: no space left on device (see LOGS/recorder.log)"],
+    ),
+    "bag_left_unclosed": (
+        ran({"sim": episodes(2), "recorder": {"closes": False}}, "--episodes", 2, "--record", "BAG"),
+        4,
+        ["[launch] the bag BAG is incomplete: recover it with: dlo-bag-recover BAG"],
+    ),
+    "recorder_ended_oddly": (
+        ran({"sim": episodes(2), "recorder": {"exit": 5}}, "--episodes", 2, "--record", "BAG"),
+        4,
+        ["[launch] the recorder ended with status 5; the end of its log:"],
+    ),
     # a node of the graph fails while it runs
-    "recorder_died": (ran({"recorder": {"when": "start", "exit": 1, "closes": False}}, "--episodes", 2, "--record", "BAG"),
-                      4, ["[launch] recorder exited early (status 1); the end of its log:",
-                          "[launch] the bag BAG is incomplete: recover it with: dlo-bag-recover BAG"]),
-    "recorder_killed": (ran({"recorder": {"when": "start", "exit": "SIGKILL", "closes": False}}, "--episodes", 2,
-                            "--record", "BAG"), 4,
-                        ["[launch] recorder exited early (status 137: killed by SIGKILL); the end of its log:"]),
-    "recorder_stopped_early": (ran({"recorder": {"when": "start"}}, "--episodes", 2, "--record", "BAG"), 4,
-                               ["[launch] recorder exited early (status 0); the end of its log:",
-                                "[launch] bag: BAG (inspect: dlo-bag-info BAG)"]),  # closed, but not every episode
-    "recording_failed_mid_run": (ran({"recorder": {"when": "start", "exit": 3, "say": [FAILED]}}, "--episodes", 2,
-                                     "--record", "BAG"), 4,
-                                 ["[launch] recording failed: no space left on device: the recorder stopped "
-                                  "(status 3); graph stopped", "[launch] bag: BAG (inspect: dlo-bag-info BAG)"]),
-    "policy_died": (ran({"policy": {"when": "start", "exit": 1}}, "--episodes", 2), 3,
-                    ["[launch] policy exited early (status 1); the end of its log:"]),
-    "vision_killed": (ran({"vision": {"when": "start", "exit": "SIGKILL"}}, "--episodes", 2), 3,
-                      ["[launch] vision exited early (status 137: killed by SIGKILL); the end of its log:"]),
-    "tactile_rejected_its_parameters": (ran({"tactile": {"when": "start", "exit": 2}}, "--episodes", 2), 2,
-                                        ["[launch] tactile exited early (status 2); the end of its log:"]),
-    "policy_died_and_recorder_dropped": (ran({"policy": {"when": "start", "exit": 1}, "recorder": {"exit": 1}},
-                                             "--episodes", 2, "--record", "BAG"), 4,
-                                         ["[launch] policy exited early (status 1); the end of its log:",
-                                          "[launch] recording incomplete: the recorder dropped messages (see "
-                                          "LOGS/recorder.log)"]),
+    "recorder_died": (
+        ran({"recorder": {"when": "start", "exit": 1, "closes": False}}, "--episodes", 2, "--record", "BAG"),
+        4,
+        [
+            "[launch] recorder exited early (status 1); the end of its log:",
+            "[launch] the bag BAG is incomplete: recover it with: dlo-bag-recover BAG",
+        ],
+    ),
+    "recorder_killed": (
+        ran({"recorder": {"when": "start", "exit": "SIGKILL", "closes": False}}, "--episodes", 2, "--record", "BAG"),
+        4,
+        ["[launch] recorder exited early (status 137: killed by SIGKILL); the end of its log:"],
+    ),
+    "recorder_stopped_early": (
+        ran({"recorder": {"when": "start"}}, "--episodes", 2, "--record", "BAG"),
+        4,
+        ["[launch] recorder exited early (status 0); the end of its log:", "[launch] bag: BAG (inspect: dlo-bag-info BAG)"],
+    ),  # closed, but not every episode
+    "recording_failed_mid_run": (
+        ran({"recorder": {"when": "start", "exit": 3, "say": [FAILED]}}, "--episodes", 2, "--record", "BAG"),
+        4,
+        [
+            "[launch] recording failed: no space left on device: the recorder stopped (status 3); graph stopped",
+            "[launch] bag: BAG (inspect: dlo-bag-info BAG)",
+        ],
+    ),
+    "policy_died": (
+        ran({"policy": {"when": "start", "exit": 1}}, "--episodes", 2),
+        3,
+        ["[launch] policy exited early (status 1); the end of its log:"],
+    ),
+    "vision_killed": (
+        ran({"vision": {"when": "start", "exit": "SIGKILL"}}, "--episodes", 2),
+        3,
+        ["[launch] vision exited early (status 137: killed by SIGKILL); the end of its log:"],
+    ),
+    "tactile_rejected_its_parameters": (
+        ran({"tactile": {"when": "start", "exit": 2}}, "--episodes", 2),
+        2,
+        ["[launch] tactile exited early (status 2); the end of its log:"],
+    ),
+    "policy_died_and_recorder_dropped": (
+        ran({"policy": {"when": "start", "exit": 1}, "recorder": {"exit": 1}}, "--episodes", 2, "--record", "BAG"),
+        4,
+        [
+            "[launch] policy exited early (status 1); the end of its log:",
+            "[launch] recording incomplete: the recorder dropped messages (see LOGS/recorder.log)",
+        ],
+    ),
     # the sim ends early
-    "sim_ended_short": (ran({"sim": episodes(1)}, "--episodes", 2), 3,
-                        ["[launch] sim exited early (status 0, 1 of 2 episodes done); the end of its log:"]),
-    "sim_interrupted_alone": (ran({"sim": episodes(1, 130)}, "--episodes", 3), 3,
-                              ["[launch] sim exited early (status 130: interrupted by SIGINT, 1 of 3 episodes done); "
-                               "the end of its log:"]),
-    "unlimited_sim_ended": (ran({"sim": episodes(1)}, "--episodes", 0), 3,
-                            ["[launch] sim exited early (status 0, 1 of unlimited episodes done); the end of its log:"]),
-    "sim_rejected_its_parameters": (ran({"sim": {"when": "start", "exit": 2}}, "--episodes", 2), 2,
-                                    ["[launch] sim exited early (status 2, 0 of 2 episodes done); the end of its log:"]),
-    "sim_refused_to_start": (ran({"sim": {"when": "start", "exit": 3}}, "--episodes", 2, "--record", "BAG"), 3,
-                             ["[launch] sim exited early (status 3, 0 of 2 episodes done); the end of its log:"]),
+    "sim_ended_short": (
+        ran({"sim": episodes(1)}, "--episodes", 2),
+        3,
+        ["[launch] sim exited early (status 0, 1 of 2 episodes done); the end of its log:"],
+    ),
+    "sim_interrupted_alone": (
+        ran({"sim": episodes(1, 130)}, "--episodes", 3),
+        3,
+        ["[launch] sim exited early (status 130: interrupted by SIGINT, 1 of 3 episodes done); the end of its log:"],
+    ),
+    "unlimited_sim_ended": (
+        ran({"sim": episodes(1)}, "--episodes", 0),
+        3,
+        ["[launch] sim exited early (status 0, 1 of unlimited episodes done); the end of its log:"],
+    ),
+    "sim_rejected_its_parameters": (
+        ran({"sim": {"when": "start", "exit": 2}}, "--episodes", 2),
+        2,
+        ["[launch] sim exited early (status 2, 0 of 2 episodes done); the end of its log:"],
+    ),
+    "sim_refused_to_start": (
+        ran({"sim": {"when": "start", "exit": 3}}, "--episodes", 2, "--record", "BAG"),
+        3,
+        ["[launch] sim exited early (status 3, 0 of 2 episodes done); the end of its log:"],
+    ),
 }
 INTERRUPTS = {  # the launcher gets the signal while the graph runs (unlimited episodes)
-    "interrupted": (signal.SIGINT, {}, 130, ["[launch] interrupted: stopping the graph",
-                                             "[launch] bag: BAG (inspect: dlo-bag-info BAG)"]),
+    "interrupted": (
+        signal.SIGINT,
+        {},
+        130,
+        ["[launch] interrupted: stopping the graph", "[launch] bag: BAG (inspect: dlo-bag-info BAG)"],
+    ),
     "terminated": (signal.SIGTERM, {}, 130, ["[launch] interrupted: stopping the graph"]),
     "interrupted_and_the_recording_failed": (
-        signal.SIGINT, {"recorder": {"exit": 3, "say": [FAILED]}}, 130,
-        ["[launch] interrupted: stopping the graph",
-         "[launch] recording failed: no space left on device (see LOGS/recorder.log)"]),
+        signal.SIGINT,
+        {"recorder": {"exit": 3, "say": [FAILED]}},
+        130,
+        [
+            "[launch] interrupted: stopping the graph",
+            "[launch] recording failed: no space left on device (see LOGS/recorder.log)",
+        ],
+    ),
     "interrupted_and_the_recorder_dropped": (
-        signal.SIGINT, {"recorder": {"exit": 1}}, 130,
-        ["[launch] recording incomplete: the recorder dropped messages (see LOGS/recorder.log)"]),
+        signal.SIGINT,
+        {"recorder": {"exit": 1}},
+        130,
+        ["[launch] recording incomplete: the recorder dropped messages (see LOGS/recorder.log)"],
+    ),
 }
 
 
@@ -210,8 +279,14 @@ def fake_graph_env(tmp_path, plan, args, ros2=True):
     else:
         prefix = tmp_path / "prefix"
         for exe in [*NODES, "foxglove_bridge"]:
-            package = {"sim_node": "dlo_sim", "recorder_node": "dlo_bag", "tactile_node": "dlo_perception",
-                       "vision_node": "dlo_perception", "policy_node": "dlo_policy", "foxglove_bridge": "dlo_viz"}[exe]
+            package = {
+                "sim_node": "dlo_sim",
+                "recorder_node": "dlo_bag",
+                "tactile_node": "dlo_perception",
+                "vision_node": "dlo_perception",
+                "policy_node": "dlo_policy",
+                "foxglove_bridge": "dlo_viz",
+            }[exe]
             index = prefix / "share" / "ament_index" / "resource_index" / "packages" / package
             index.parent.mkdir(parents=True, exist_ok=True)
             index.touch()
@@ -235,9 +310,14 @@ def start(tmp_path, plan, args, own_groups, ros2=True, logs=True, env=None):
     argv = [str(bag) if a == "BAG" else str(a) for a in args] + (["--logs", str(logs_dir)] if logs else [])
     out = tmp_path / "launch.out"
     with out.open("w") as f:
-        proc = subprocess.Popen(["bash", str(LAUNCH), *argv, "--status-period", "0"],
-                                stdout=f, stderr=subprocess.STDOUT, env=env, start_new_session=True,
-                                preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+        proc = subprocess.Popen(
+            ["bash", str(LAUNCH), *argv, "--status-period", "0"],
+            stdout=f,
+            stderr=subprocess.STDOUT,
+            env=env,
+            start_new_session=True,
+            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+        )
     own_groups(proc.pid)
     return proc, out, logs_dir, bag
 
@@ -302,22 +382,26 @@ BAD_OPTIONS = {
     "episodes": (["--episodes", "-1"], "launch_graph: --episodes must be a number >= 0, got '-1'"),
     "seed": (["--seed", "x"], "launch_graph: --seed must be a number >= 0, got 'x'"),
     "mode": (["--mode", "fast"], "launch_graph: --mode must be step_locked or real_time"),
-    "status_period": (["--status-period", "soon"],
-                      "launch_graph: --status-period must be a number of seconds >= 0, got 'soon'"),
+    "status_period": (["--status-period", "soon"], "launch_graph: --status-period must be a number of seconds >= 0, got 'soon'"),
     "domain_id": (["--domain-id", "300"], "launch_graph: --domain-id must be a number in 0..232, got '300'"),
-    "namespace": (["--namespace", "9lives"], "launch_graph: --namespace must be a ROS name like 'robot1' or "
-                                             "'lab/robot1', got '9lives'"),
+    "namespace": (
+        ["--namespace", "9lives"],
+        "launch_graph: --namespace must be a ROS name like 'robot1' or 'lab/robot1', got '9lives'",
+    ),
     "foxglove_port": (["--foxglove", "70000"], "launch_graph: --foxglove PORT must be in 0..65535, got '70000'"),
     "record_exists": (["--record", "EXISTING"], "launch_graph: --record EXISTING already exists; choose a new directory"),
     "unknown": (["--bogus"], "launch_graph: unknown option '--bogus' (options: scripts/launch_graph.sh --help)"),
     "no_value": (["--seed"], "launch_graph: --seed needs a value (options: scripts/launch_graph.sh --help)"),
     "carry_law": (["--carry-law", "flex"], "launch_graph: --carry-law must be paper or authors, got 'flex'"),
-    "vision_source": (["--vision-source", "camera"],
-                      "launch_graph: --vision-source must be image or particles, got 'camera'"),
-    "contact_radius": (["--contact-radius", "0.007"],
-                       "launch_graph: --contact-radius must be a number in (0, 0.006] m, got '0.007'"),
-    "contact_radius_text": (["--contact-radius", "5e-3"],
-                            "launch_graph: --contact-radius must be a number in (0, 0.006] m, got '5e-3'"),
+    "vision_source": (["--vision-source", "camera"], "launch_graph: --vision-source must be image or particles, got 'camera'"),
+    "contact_radius": (
+        ["--contact-radius", "0.007"],
+        "launch_graph: --contact-radius must be a number in (0, 0.006] m, got '0.007'",
+    ),
+    "contact_radius_text": (
+        ["--contact-radius", "5e-3"],
+        "launch_graph: --contact-radius must be a number in (0, 0.006] m, got '5e-3'",
+    ),
 }
 
 
@@ -331,30 +415,40 @@ def test_a_bad_option_is_exit_2_in_one_line_before_anything_starts(case, tmp_pat
     existing.mkdir()
     args = [str(existing) if a == "EXISTING" else a for a in args]
     logs = tmp_path / "logs"
-    result = subprocess.run(["bash", str(LAUNCH), "--logs", str(logs), *args], capture_output=True, text=True,
-                            timeout=120)
+    result = subprocess.run(["bash", str(LAUNCH), "--logs", str(logs), *args], capture_output=True, text=True, timeout=120)
     assert result.returncode == 2, result.stdout + result.stderr
     assert result.stderr.splitlines() == [message.replace("EXISTING", str(existing))], result.stderr  # no usage dump
     assert result.stdout == "" and not logs.exists()  # no domain chosen, no node started
 
 
-NOTE = ("[launch] note: the policy was trained with task_rules={}, single_particle_grip={}; this graph runs "
-        "task_rules={}, single_particle_grip={} (as asked)")
+NOTE = (
+    "[launch] note: the policy was trained with task_rules={}, single_particle_grip={}; this graph runs "
+    "task_rules={}, single_particle_grip={} (as asked)"
+)
 SIM_SETTINGS = {  # launcher options (OURS: a copy of the shipped policy's run as if trained with our finite grip)
     # -> the sim's task_rules and single_particle_grip, and the note on settings that differ from the training
     "shipped": ([], "authors_code", "true", None),
-    "shipped_asked_for_our_grip": (["--single-particle-grip", "false"], "authors_code", "false",
-                                   NOTE.format("authors_code", "true", "authors_code", "false")),
+    "shipped_asked_for_our_grip": (
+        ["--single-particle-grip", "false"],
+        "authors_code",
+        "false",
+        NOTE.format("authors_code", "true", "authors_code", "false"),
+    ),
     "trained_with_our_grip": (["--checkpoint", "OURS"], "authors_code", "false", None),
-    "trained_with_our_grip_asked_for_the_authors_grip": (["--checkpoint", "OURS", "--single-particle-grip"],
-                                                         "authors_code", "true",
-                                                         NOTE.format("authors_code", "false", "authors_code", "true")),
-    "trained_with_it_asked_otherwise": (["--checkpoint", "OURS", "--single-particle-grip", "true", "--task-rules",
-                                         "paper_text"], "paper_text", "true",
-                                        NOTE.format("authors_code", "false", "paper_text", "true")),
+    "trained_with_our_grip_asked_for_the_authors_grip": (
+        ["--checkpoint", "OURS", "--single-particle-grip"],
+        "authors_code",
+        "true",
+        NOTE.format("authors_code", "false", "authors_code", "true"),
+    ),
+    "trained_with_it_asked_otherwise": (
+        ["--checkpoint", "OURS", "--single-particle-grip", "true", "--task-rules", "paper_text"],
+        "paper_text",
+        "true",
+        NOTE.format("authors_code", "false", "paper_text", "true"),
+    ),
     "scripted_policy": (["--policy", "tactile_reactive"], "authors_code", "false", None),
-    "scripted_policy_asked": (["--policy", "tactile_reactive", "--single-particle-grip", "true"], "authors_code",
-                              "true", None),
+    "scripted_policy_asked": (["--policy", "tactile_reactive", "--single-particle-grip", "true"], "authors_code", "true", None),
     "learning_online": (["--train-out", "OUT"], "authors_code", "false", None),  # from scratch: no trained task
 }
 
@@ -392,15 +486,19 @@ def test_a_checkpoint_whose_run_cannot_be_read_is_exit_2_in_one_line(config, tmp
     if config == "missing_file":
         checkpoint.unlink()
     logs = tmp_path / "logs"
-    result = subprocess.run(["bash", str(LAUNCH), "--logs", str(logs), "--checkpoint", str(checkpoint)],
-                            capture_output=True, text=True, timeout=300)
+    result = subprocess.run(
+        ["bash", str(LAUNCH), "--logs", str(logs), "--checkpoint", str(checkpoint)], capture_output=True, text=True, timeout=300
+    )
     assert result.returncode == 2, result.stdout + result.stderr
     lines = result.stderr.splitlines()
     assert len(lines) == 1 and "Traceback" not in result.stderr, result.stderr
-    assert lines[0] == (f"launch_graph: --checkpoint {checkpoint}: no such file" if config == "missing_file" else
-                        f"launch_graph: --checkpoint: checkpoint {checkpoint}: its run's config.yaml cannot be read: "
-                        f"{checkpoint.parent / 'config.yaml'}: not valid YAML (line 2, column 1): "
-                        "expected ',' or '}', but got '<stream end>'")
+    assert lines[0] == (
+        f"launch_graph: --checkpoint {checkpoint}: no such file"
+        if config == "missing_file"
+        else f"launch_graph: --checkpoint: checkpoint {checkpoint}: its run's config.yaml cannot be read: "
+        f"{checkpoint.parent / 'config.yaml'}: not valid YAML (line 2, column 1): "
+        "expected ',' or '}', but got '<stream end>'"
+    )
     assert result.stdout == "" and not logs.exists()
 
 
@@ -408,40 +506,52 @@ COMPLETE = {"written": 120, "dropped": 0, "complete": True, "failure": ""}  # th
 RECORDER_STOPS = {  # (issue 38 item 9) how the recorder stops once the sim has run its episodes
     # its closing work and a middleware teardown up to dlo_common.node_main's limit: longer than the launcher
     # used to wait before its SIGKILL (as long as that limit), which made a complete bag a failed recording
-    "slow_to_stop": ({"stop_delay": TEARDOWN_LIMIT + 1, "summary": COMPLETE}, 0,
-                     ["[launch] bag: BAG (inspect: dlo-bag-info BAG)"]),
+    "slow_to_stop": (
+        {"stop_delay": TEARDOWN_LIMIT + 1, "summary": COMPLETE},
+        0,
+        ["[launch] bag: BAG (inspect: dlo-bag-info BAG)"],
+    ),
     # the bag closed and complete, then the teardown cut at that limit (exit 1, its stacks in its log)
-    "teardown_cut": ({"stop_delay": TEARDOWN_LIMIT + 1, "exit": 1, "summary": COMPLETE}, 0,
-                     ["[launch] the recorder's middleware teardown was cut short after it had closed the bag (status 1;"
-                      " its stacks: LOGS/recorder.log); the recording is complete: 120 messages written, none dropped",
-                      "[launch] bag: BAG (inspect: dlo-bag-info BAG)"]),
+    "teardown_cut": (
+        {"stop_delay": TEARDOWN_LIMIT + 1, "exit": 1, "summary": COMPLETE},
+        0,
+        [
+            "[launch] the recorder's middleware teardown was cut short after it had closed the bag (status 1;"
+            " its stacks: LOGS/recorder.log); the recording is complete: 120 messages written, none dropped",
+            "[launch] bag: BAG (inspect: dlo-bag-info BAG)",
+        ],
+    ),
     # exit 1 with messages dropped, as its summary counts them: a failed recording
-    "dropped_by_its_count": ({"exit": 1, "summary": dict(COMPLETE, dropped=3)}, 4,
-                             ["[launch] recording incomplete: the recorder dropped messages (see LOGS/recorder.log)"]),
+    "dropped_by_its_count": (
+        {"exit": 1, "summary": dict(COMPLETE, dropped=3)},
+        4,
+        ["[launch] recording incomplete: the recorder dropped messages (see LOGS/recorder.log)"],
+    ),
 }
 
 
 @pytest.mark.parametrize("case", sorted(RECORDER_STOPS))
 def test_a_recorder_is_given_its_teardown_and_a_cut_one_with_a_complete_bag_is_no_failure(case, tmp_path, own_groups):
     recorder, rc, lines = RECORDER_STOPS[case]
-    proc, out, logs, bag = start(tmp_path, {"sim": episodes(2), "recorder": recorder}, ("--episodes", 2, "--record",
-                                                                                          "BAG"), own_groups)
+    proc, out, logs, bag = start(
+        tmp_path, {"sim": episodes(2), "recorder": recorder}, ("--episodes", 2, "--record", "BAG"), own_groups
+    )
     text = check(proc, out, logs, bag, rc, lines)
     assert "did not stop within" not in text and STOP_LIMIT > TEARDOWN_LIMIT + 5
 
 
-BYSTANDER = r'''
+BYSTANDER = r"""
 import signal, sys, time
 from pathlib import Path
 for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
     signal.signal(sig, lambda signum, frame: Path(sys.argv[1]).open("a").write(f"{signum}\n"))
 while True:
     time.sleep(1)
-'''
+"""
 # In a PID namespace of its own (so that the pids are the test's alone): the launcher with --episodes 0, SIGINT to
 # it; the sim takes a few seconds to stop; the tactile node stops at once; once the launcher has reaped it, a
 # bystander process is started with the tactile node's pid (ns_last_pid). It must get no signal from the launcher.
-PID_REUSE = r'''
+PID_REUSE = r"""
 import json, os, re, signal, subprocess, sys, time
 from pathlib import Path
 
@@ -471,23 +581,43 @@ while proc.poll() is None and bystander is None and time.monotonic() < deadline:
 rc = proc.wait(timeout=300)
 print(json.dumps({"rc": rc, "planted": bystander is not None,
                   "alive": bystander is not None and bystander.poll() is None}))
-'''
+"""
 
 
 def test_a_reused_pid_of_a_node_that_ended_gets_no_signal(tmp_path, own_groups):
     """Issue 38 item 9: the launcher signalled the pids it stored, also of nodes that had ended: a pid the kernel
     had given to another process meanwhile got SIGINT, and 10 s later SIGKILL. It signals only its children that
     still run."""
-    if os.geteuid() != 0 or subprocess.run(["unshare", "--pid", "--fork", "--mount-proc", "true"],
-                                           capture_output=True).returncode != 0:
+    if (
+        os.geteuid() != 0
+        or subprocess.run(["unshare", "--pid", "--fork", "--mount-proc", "true"], capture_output=True).returncode != 0
+    ):
         pytest.skip("needs a PID namespace of the test's own (root, unshare) to give a pid to a process of its choice")
     plan = {"sim": {"stop_delay": 4}}
     env = fake_graph_env(tmp_path, plan, ())
     logs = tmp_path / "logs"
-    harness = subprocess.Popen(["unshare", "--pid", "--fork", "--mount-proc", sys.executable, "-c", PID_REUSE,
-                                str(LAUNCH), str(logs), str(tmp_path / "ready"), str(tmp_path / "signals"),
-                                env["FAKE_NODES"], BYSTANDER], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                               text=True, env=env, start_new_session=True)
+    harness = subprocess.Popen(
+        [
+            "unshare",
+            "--pid",
+            "--fork",
+            "--mount-proc",
+            sys.executable,
+            "-c",
+            PID_REUSE,
+            str(LAUNCH),
+            str(logs),
+            str(tmp_path / "ready"),
+            str(tmp_path / "signals"),
+            env["FAKE_NODES"],
+            BYSTANDER,
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=env,
+        start_new_session=True,
+    )
     own_groups(harness.pid)
     result, err = harness.communicate(timeout=600)
     launch_out = (tmp_path / "launch.out").read_text() if (tmp_path / "launch.out").exists() else ""
@@ -507,14 +637,14 @@ def test_the_temp_logs_go_when_the_run_went_well_and_are_named_when_kept(tmp_pat
     temp.mkdir()
     good = tmp_path / "good"
     good.mkdir()
-    proc, out, logs, bag = start(good, {"sim": episodes(1)}, ("--episodes", 1), own_groups, logs=False,
-                                 env={"TMPDIR": str(temp)})
+    proc, out, logs, bag = start(good, {"sim": episodes(1)}, ("--episodes", 1), own_groups, logs=False, env={"TMPDIR": str(temp)})
     text = check(proc, out, logs, bag, 0, [])
     assert list(temp.iterdir()) == [] and "logs kept" not in text, text
     failed = tmp_path / "failed"
     failed.mkdir()
-    proc, out, logs, bag = start(failed, {"policy": {"when": "start", "exit": 1}}, ("--episodes", 2), own_groups,
-                                 logs=False, env={"TMPDIR": str(temp)})
+    proc, out, logs, bag = start(
+        failed, {"policy": {"when": "start", "exit": 1}}, ("--episodes", 2), own_groups, logs=False, env={"TMPDIR": str(temp)}
+    )
     text = check(proc, out, logs, bag, 3, [])
     (kept,) = temp.iterdir()
     assert kept.name.startswith("dlo-graph-") and (kept / "policy.log").is_file()
@@ -545,12 +675,23 @@ def test_help_shows_the_lines_as_the_graph_prints_them():
 
     result = subprocess.run(["bash", str(LAUNCH), "--help"], capture_output=True, text=True, timeout=120)
     assert result.returncode == 0 and result.stderr == ""
-    example = {"episode": 0, "seed": 0, "outcome": "hold_the_end", "outcome_authors": "hold_the_end",
-               "episode_return": 4.321, "episode_length": 97, "time_at_end": 90, "how_far": 0}
+    example = {
+        "episode": 0,
+        "seed": 0,
+        "outcome": "hold_the_end",
+        "outcome_authors": "hold_the_end",
+        "episode_return": 4.321,
+        "episode_length": 97,
+        "time_at_end": 90,
+        "how_far": 0,
+    }
     lines = result.stdout.splitlines()
     assert "[launch] " + episode_line(example, 1, 5) in lines
-    assert "[launch] status: " + status_line(11.8, 0.94, 1, 5, dict.fromkeys(("sim", "tactile", "vision", "policy"),
-                                                                               True), ["policy: no tactile input"]) in lines
+    assert (
+        "[launch] status: "
+        + status_line(11.8, 0.94, 1, 5, dict.fromkeys(("sim", "tactile", "vision", "policy"), True), ["policy: no tactile input"])
+        in lines
+    )
     assert "time at end [steps]" in outcome_table([example]).splitlines()[0]
 
 
@@ -560,14 +701,44 @@ def test_the_launch_file_starts_what_the_launcher_started(tmp_path, own_groups, 
     sys.path.insert(0, str(ROOT / "ros_ws" / "src" / "dlo_bringup" / "test"))
     from launch_file_stubs import launched_nodes, node_command
 
-    args = ("--episodes", 1, "--seed", 7, "--policy", "random", "--without", "V", "--tactile-noise", "0.1,0.001",
-            "--task-rules", "paper_text", "--single-particle-grip", "--contact-radius", "0.005", "--record", "BAG",
-            "--namespace", "robot1")
+    args = (
+        "--episodes",
+        1,
+        "--seed",
+        7,
+        "--policy",
+        "random",
+        "--without",
+        "V",
+        "--tactile-noise",
+        "0.1,0.001",
+        "--task-rules",
+        "paper_text",
+        "--single-particle-grip",
+        "--contact-radius",
+        "0.005",
+        "--record",
+        "BAG",
+        "--namespace",
+        "robot1",
+    )
     logs, bag = tmp_path / "logs", tmp_path / "bag"  # (as start() gives them; the bag must not exist yet)
-    nodes, _ = launched_nodes(monkeypatch, {"episodes": "1", "seed": "7", "policy": "random", "without": "V",
-                                            "tactile_noise": "0.1,0.001", "task_rules": "paper_text",
-                                            "single_particle_grip": "true", "contact_radius": "0.005",
-                                            "record": str(bag), "namespace": "robot1", "logs": str(logs)})
+    nodes, _ = launched_nodes(
+        monkeypatch,
+        {
+            "episodes": "1",
+            "seed": "7",
+            "policy": "random",
+            "without": "V",
+            "tactile_noise": "0.1,0.001",
+            "task_rules": "paper_text",
+            "single_particle_grip": "true",
+            "contact_radius": "0.005",
+            "record": str(bag),
+            "namespace": "robot1",
+            "logs": str(logs),
+        },
+    )
     shutil.rmtree(logs)  # (the launch file made it)
     proc, out, logs, bag = start(tmp_path, {"sim": episodes(1)}, args, own_groups)
     check(proc, out, logs, bag, 0, [])
@@ -575,8 +746,9 @@ def test_the_launch_file_starts_what_the_launcher_started(tmp_path, own_groups, 
         package, executable, parameters, remappings = node_command(node)
         given = json.loads((tmp_path / f"args_{NODES[executable]}.json").read_text())
         assert given[0] == "--ros-args"
-        assert [(a.split(":=")[0], yaml.safe_load(a.split(":=")[1])) for f, a in zip(given[1::2], given[2::2])
-                if f == "-p"] == parameters, executable
+        assert [
+            (a.split(":=")[0], yaml.safe_load(a.split(":=")[1])) for f, a in zip(given[1::2], given[2::2]) if f == "-p"
+        ] == parameters, executable
         assert [tuple(a.split(":=")) for f, a in zip(given[1::2], given[2::2]) if f == "-r"] == remappings
     assert sorted(NODES[node_command(node)[1]] for node in nodes) == sorted(NODES.values())
 
@@ -594,8 +766,9 @@ def test_the_suggested_topic_list_lists_the_domains_topics(own_groups):
         node.create_publisher(String, "/dlo/watch_me", 1)
         hint = watch_hint(int(os.environ["ROS_DOMAIN_ID"]))
         assert shutil.which("ros2") is None and "topic_list" in hint  # (the wheels)
-        watch = subprocess.Popen(["bash", "-c", hint], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                                 start_new_session=True, cwd=ROOT)
+        watch = subprocess.Popen(
+            ["bash", "-c", hint], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True, cwd=ROOT
+        )
         own_groups(watch.pid)
         out, err = watch.communicate(timeout=120)
     finally:

@@ -5,7 +5,6 @@ import re
 import subprocess
 
 import numpy as np
-
 from dlo_driver_kit.mock_driver_node import FINGER_REACH, mock_cable
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
@@ -14,14 +13,28 @@ ROS2RUN = str(ROOT / "scripts" / "ros2run")
 
 def test_perception_and_policy_follow_a_mock_robot_cable(own_groups):
     quiet = dict(stdout=subprocess.DEVNULL, stderr=subprocess.STDOUT, start_new_session=True)
-    nodes = [subprocess.Popen([ROS2RUN, "dlo_perception", "tactile_node"], **quiet),
-             subprocess.Popen([ROS2RUN, "dlo_perception", "vision_node"], **quiet),
-             subprocess.Popen([ROS2RUN, "dlo_policy", "policy_node", "--ros-args", "-p", "policy:=tactile_reactive"], **quiet)]
+    nodes = [
+        subprocess.Popen([ROS2RUN, "dlo_perception", "tactile_node"], **quiet),
+        subprocess.Popen([ROS2RUN, "dlo_perception", "vision_node"], **quiet),
+        subprocess.Popen([ROS2RUN, "dlo_policy", "policy_node", "--ros-args", "-p", "policy:=tactile_reactive"], **quiet),
+    ]
     for node in nodes:
         own_groups(node.pid)  # stopped at teardown (SIGINT, then SIGKILL), even if this test fails
-    driver = subprocess.run([ROS2RUN, "dlo_driver_kit", "mock_driver_node", "--ros-args", "-p", "steps:=40",
-                             "-p", "mode:=step_locked"],  # one answered state = one step: 40 steps of the policy
-                            capture_output=True, text=True, timeout=300)
+    driver = subprocess.run(
+        [
+            ROS2RUN,
+            "dlo_driver_kit",
+            "mock_driver_node",
+            "--ros-args",
+            "-p",
+            "steps:=40",
+            "-p",
+            "mode:=step_locked",
+        ],  # one answered state = one step: 40 steps of the policy
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert driver.returncode == 0, driver.stdout + driver.stderr
     x, y = map(float, re.search(r"done at x = (\S+) m, y = (\S+) m", driver.stdout + driver.stderr).groups())
     cable = mock_cable(0.2, 0.02)

@@ -9,12 +9,10 @@ import numpy as np
 import pytest
 
 rclpy = pytest.importorskip("rclpy")
-from rclpy.serialization import deserialize_message, serialize_message  # noqa: E402
-
+from dlo_common.topics import TOPICS  # noqa: E402
 from dlo_msgs.msg import GripperCommand, GripperState, TactilePose, TaskState, VisualPose  # noqa: E402
 from dlo_msgs.srv import ResetEpisode  # noqa: E402
-
-from dlo_common.topics import TOPICS  # noqa: E402
+from rclpy.serialization import deserialize_message, serialize_message  # noqa: E402
 
 
 def sample_messages():
@@ -25,11 +23,23 @@ def sample_messages():
     command = GripperCommand(vx=0.25, vy=-0.1, closure=0.95, episode=3, step=42)
     tactile = TactilePose(angle=0.3, y=-0.004, contact=True, contact_count=5)
     visual = VisualPose(visible=True, confidence=0.75, angle=-0.2, y=0.006)
-    task = TaskState(episode=3, seed=2**40 + 7, step=42, held_indices=[10, 11, 12], n_held=3,
-                     mean_held_index=11.0, num_particles=47, cable_length=0.1978, reward=0.0431,
-                     episode_return=1.5, done=True, outcome=TaskState.OUTCOME_HOLD_THE_END,
-                     held_indices_authors=[11], mean_held_index_authors=11.0,
-                     outcome_authors=TaskState.OUTCOME_STOP_BEFORE)
+    task = TaskState(
+        episode=3,
+        seed=2**40 + 7,
+        step=42,
+        held_indices=[10, 11, 12],
+        n_held=3,
+        mean_held_index=11.0,
+        num_particles=47,
+        cable_length=0.1978,
+        reward=0.0431,
+        episode_return=1.5,
+        done=True,
+        outcome=TaskState.OUTCOME_HOLD_THE_END,
+        held_indices_authors=[11],
+        mean_held_index_authors=11.0,
+        outcome_authors=TaskState.OUTCOME_STOP_BEFORE,
+    )
     return [state, command, tactile, visual, task]
 
 
@@ -54,8 +64,14 @@ def test_every_topic_and_service_type_of_the_registry_is_built():
 
 
 def fields_equal(a, b):
-    return all(np.all(np.asarray(getattr(a, f)) == np.asarray(getattr(b, f)))
-               for f in a.get_fields_and_field_types() if f != "header") and a.header == b.header
+    return (
+        all(
+            np.all(np.asarray(getattr(a, f)) == np.asarray(getattr(b, f)))
+            for f in a.get_fields_and_field_types()
+            if f != "header"
+        )
+        and a.header == b.header
+    )
 
 
 @pytest.mark.parametrize("msg", sample_messages(), ids=lambda m: type(m).__name__)
@@ -71,13 +87,19 @@ def test_message_round_trips_through_cdr(msg):
 
 
 def test_outcome_constants_match_the_task_contract():
-    assert [TaskState.OUTCOME_NONE, TaskState.OUTCOME_HOLD_THE_END, TaskState.OUTCOME_STOP_BEFORE,
-            TaskState.OUTCOME_REACH_END_BUT_DROP, TaskState.OUTCOME_DROP_BEFORE] == [0, 1, 2, 3, 4]
+    assert [
+        TaskState.OUTCOME_NONE,
+        TaskState.OUTCOME_HOLD_THE_END,
+        TaskState.OUTCOME_STOP_BEFORE,
+        TaskState.OUTCOME_REACH_END_BUT_DROP,
+        TaskState.OUTCOME_DROP_BEFORE,
+    ] == [0, 1, 2, 3, 4]
 
 
 def test_every_message_has_a_header_and_documented_fields():
-    from ament_index_python.packages import get_package_share_directory
     import pathlib
+
+    from ament_index_python.packages import get_package_share_directory
 
     share = pathlib.Path(get_package_share_directory("dlo_msgs"))
     msg_files = sorted((share / "msg").glob("*.msg"))
@@ -97,20 +119,24 @@ def test_reset_service_contract():
     """/dlo/sim/reset (dlo_msgs/srv/ResetEpisode): a signed seed (< 0 = the node's own sequence), and
     the new episode's counter and seed in the answer; documented, and both halves survive CDR. (The
     sim node's answers: ros_ws/src/dlo_sim/test/test_sim_node_commands.py.)"""
-    from ament_index_python.packages import get_package_share_directory
     import pathlib
+
+    from ament_index_python.packages import get_package_share_directory
 
     assert ResetEpisode.Request.get_fields_and_field_types() == {"seed": "int64"}
     assert ResetEpisode.Response.get_fields_and_field_types() == {
-        "success": "boolean", "message": "string", "episode": "uint32", "seed": "uint64"}
+        "success": "boolean",
+        "message": "string",
+        "episode": "uint32",
+        "seed": "uint64",
+    }
     assert ResetEpisode.Request().seed == 0
     for value in (-1, 2**40 + 7):  # "use your own sequence" and a seed beyond 32 bits both fit
         request = deserialize_message(serialize_message(ResetEpisode.Request(seed=value)), ResetEpisode.Request)
         assert request.seed == value
     response = ResetEpisode.Response(success=True, message="episode 4 started with seed 12", episode=4, seed=2**40 + 7)
     back = deserialize_message(serialize_message(response), ResetEpisode.Response)
-    assert (back.success, back.message, back.episode, back.seed) == (True, "episode 4 started with seed 12", 4,
-                                                                     2**40 + 7)
+    assert (back.success, back.message, back.episode, back.seed) == (True, "episode 4 started with seed 12", 4, 2**40 + 7)
     text = (pathlib.Path(get_package_share_directory("dlo_msgs")) / "srv" / "ResetEpisode.srv").read_text()
     request_text, response_text = text.split("---")
     assert "seed < 0" in request_text and "int64 seed" in request_text
@@ -144,8 +170,7 @@ def test_every_message_type_crosses_processes(tmp_path):
         expected = {type(m).__name__: m for m in sample_messages()}
         received = {}
         for name, msg in expected.items():
-            node.create_subscription(type(msg), "/dlo/test/" + name,
-                                     lambda m, name=name: received.setdefault(name, m), 10)
+            node.create_subscription(type(msg), "/dlo/test/" + name, lambda m, name=name: received.setdefault(name, m), 10)
         deadline = time.time() + 45
         while len(received) < len(expected) and time.time() < deadline and publisher.poll() is None:
             rclpy.spin_once(node, timeout_sec=0.1)

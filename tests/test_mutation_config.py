@@ -2,6 +2,7 @@
 exist (a test id names a test function of that file), every hand-made bug's text occurs exactly once
 in its module's file, and every equivalent mutant names a listed module. A refactor that moves code
 fails here, not hours into a mutation run."""
+
 from __future__ import annotations
 
 import ast
@@ -20,8 +21,9 @@ def test_every_module_file_and_listed_test_exists():
             path, _, function = test.partition("::")
             assert (ROOT / path).is_file(), f"{module['name']}: {path}"
             if function:
-                names = {node.name for node in ast.walk(ast.parse((ROOT / path).read_text()))
-                         if isinstance(node, ast.FunctionDef)}
+                names = {
+                    node.name for node in ast.walk(ast.parse((ROOT / path).read_text())) if isinstance(node, ast.FunctionDef)
+                }
                 assert function.split("[")[0] in names, f"{module['name']}: {test}"
 
 

@@ -20,7 +20,6 @@ import subprocess
 
 import pytest
 import yaml
-
 from dlo_common.params import as_params, check_value
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
@@ -33,8 +32,9 @@ LAYOUT = "expected '/**:' (or the node's name), then '  ros__parameters:', then 
 
 
 def run(package: str, executable: str, *ros_args: str, cwd: pathlib.Path) -> subprocess.CompletedProcess:
-    return subprocess.run([ROS2RUN, package, executable, "--ros-args", *ros_args], cwd=cwd, capture_output=True,
-                          text=True, timeout=300)
+    return subprocess.run(
+        [ROS2RUN, package, executable, "--ros-args", *ros_args], cwd=cwd, capture_output=True, text=True, timeout=300
+    )
 
 
 def one_line(result: subprocess.CompletedProcess) -> str:
@@ -59,23 +59,46 @@ def test_a_missing_params_file_is_one_line_for_every_node(package, executable, m
     assert list(tmp_path.iterdir()) == []  # nothing started, nothing written
 
 
-@pytest.mark.parametrize("text,problem", [
-    ("/**:\n  ros__parameters:\n    horizon: [1,\n",
-     "YAML syntax error at line 4: expected the node content, but found '<stream end>'"),
-    ("/**:\n  ros__parameters:\n\thorizon: 3\n",
-     "YAML syntax error at line 3: found character '\\t' that cannot start any token"),
-    ("horizon: 3\n", f"wrong layout at line 1 (a value outside 'ros__parameters:'); {LAYOUT}"),
-    ("sim_node:\n  horizon: 3\n", f"wrong layout at line 2 (a value outside 'ros__parameters:'); {LAYOUT}"),
-    ("ros__parameters:\n  horizon: 3\n",
-     f"wrong layout at line 1 ('ros__parameters:' without a node name above it); {LAYOUT}"),
-    ("- horizon: 3\n", f"wrong layout (the file holds a list); {LAYOUT}"),
-    ("horizon = 3\n", f"wrong layout (the file holds a single value); {LAYOUT}"),
-    ("/**:\n  ros__parameters:\n", "wrong layout ('/**: ros__parameters:' holds no parameters: add '    NAME: VALUE' "
-                                   "under it or leave the section out)"),
-    ("/**:\n  ros__parameters:\n    horizon: [1, \"a\"]\n",
-     "rcl cannot read it at line 3: Sequence should be of same type. Value type 'string' do not belong"),
-], ids=["unclosed-list", "tab", "no-section", "no-ros__parameters", "no-node-name", "a-list", "plain-text",
-        "empty-section", "mixed-list"])
+@pytest.mark.parametrize(
+    "text,problem",
+    [
+        (
+            "/**:\n  ros__parameters:\n    horizon: [1,\n",
+            "YAML syntax error at line 4: expected the node content, but found '<stream end>'",
+        ),
+        (
+            "/**:\n  ros__parameters:\n\thorizon: 3\n",
+            "YAML syntax error at line 3: found character '\\t' that cannot start any token",
+        ),
+        ("horizon: 3\n", f"wrong layout at line 1 (a value outside 'ros__parameters:'); {LAYOUT}"),
+        ("sim_node:\n  horizon: 3\n", f"wrong layout at line 2 (a value outside 'ros__parameters:'); {LAYOUT}"),
+        (
+            "ros__parameters:\n  horizon: 3\n",
+            f"wrong layout at line 1 ('ros__parameters:' without a node name above it); {LAYOUT}",
+        ),
+        ("- horizon: 3\n", f"wrong layout (the file holds a list); {LAYOUT}"),
+        ("horizon = 3\n", f"wrong layout (the file holds a single value); {LAYOUT}"),
+        (
+            "/**:\n  ros__parameters:\n",
+            "wrong layout ('/**: ros__parameters:' holds no parameters: add '    NAME: VALUE' under it or leave the section out)",
+        ),
+        (
+            '/**:\n  ros__parameters:\n    horizon: [1, "a"]\n',
+            "rcl cannot read it at line 3: Sequence should be of same type. Value type 'string' do not belong",
+        ),
+    ],
+    ids=[
+        "unclosed-list",
+        "tab",
+        "no-section",
+        "no-ros__parameters",
+        "no-node-name",
+        "a-list",
+        "plain-text",
+        "empty-section",
+        "mixed-list",
+    ],
+)
 def test_a_malformed_params_file_names_the_file_and_the_problem(text, problem, tmp_path):
     params = tmp_path / "sim.yaml"
     params.write_text(text)
@@ -84,16 +107,26 @@ def test_a_malformed_params_file_names_the_file_and_the_problem(text, problem, t
 
 
 def test_a_directory_as_params_file(tmp_path):
-    assert one_line(run("dlo_sim", "sim_node", "--params-file", str(tmp_path), cwd=tmp_path)) == \
-        f"sim_node: params file {tmp_path}: is a directory"
+    assert (
+        one_line(run("dlo_sim", "sim_node", "--params-file", str(tmp_path), cwd=tmp_path))
+        == f"sim_node: params file {tmp_path}: is a directory"
+    )
 
 
-@pytest.mark.parametrize("ros_args,line", [
-    (["-p", "horizon"], "sim_node: cannot read '-p horizon': expected -p NAME:=VALUE (VALUE in YAML, e.g. 3, 0.5, "
-                        "true, text, [1.0,2.0])"),
-    (["--bogus"], "sim_node: unknown ROS argument --bogus after --ros-args (there: -p NAME:=VALUE, "
-                  "--params-file FILE, -r FROM:=TO, --log-level LEVEL)"),
-])
+@pytest.mark.parametrize(
+    "ros_args,line",
+    [
+        (
+            ["-p", "horizon"],
+            "sim_node: cannot read '-p horizon': expected -p NAME:=VALUE (VALUE in YAML, e.g. 3, 0.5, true, text, [1.0,2.0])",
+        ),
+        (
+            ["--bogus"],
+            "sim_node: unknown ROS argument --bogus after --ros-args (there: -p NAME:=VALUE, "
+            "--params-file FILE, -r FROM:=TO, --log-level LEVEL)",
+        ),
+    ],
+)
 def test_malformed_ros_arguments_are_one_line(ros_args, line, tmp_path):
     assert one_line(run("dlo_sim", "sim_node", *ros_args, cwd=tmp_path)) == line
 
@@ -103,36 +136,64 @@ def test_a_misspelt_parameter_names_the_closest_one_for_every_node(package, exec
     name = first_param(module).name
     result = run(package, executable, "-p", f"{name[:-1]}:=1", cwd=tmp_path)
     message = f"unknown parameter '{name[:-1]}'; did you mean '{name}'?"
-    assert one_line(result) in (f"[{executable}] {message}",  # run_node: the node was not built, so no node name
-                                f"{executable}: error: {message}")  # recorder_node, playback_node: their own main()
+    assert one_line(result) in (
+        f"[{executable}] {message}",  # run_node: the node was not built, so no node name
+        f"{executable}: error: {message}",
+    )  # recorder_node, playback_node: their own main()
 
 
 def test_an_unknown_name_in_a_params_file_and_a_far_one_on_the_command_line(tmp_path):
     params = tmp_path / "sim.yaml"
     params.write_text(gen.config_path("dlo_sim", "sim_node").read_text().replace("horizon: 150", "horizn: 150"))
-    assert one_line(run("dlo_sim", "sim_node", "--params-file", str(params), cwd=tmp_path)) == \
-        "[sim_node] unknown parameter 'horizn'; did you mean 'horizon'?"
-    assert one_line(run("dlo_perception", "tactile_node", "-p", "nosuch:=1", cwd=tmp_path)) == \
-        "[tactile_node] unknown parameter 'nosuch'; did you mean 'tactile_noise'?"  # never an old name
+    assert (
+        one_line(run("dlo_sim", "sim_node", "--params-file", str(params), cwd=tmp_path))
+        == "[sim_node] unknown parameter 'horizn'; did you mean 'horizon'?"
+    )
+    assert (
+        one_line(run("dlo_perception", "tactile_node", "-p", "nosuch:=1", cwd=tmp_path))
+        == "[tactile_node] unknown parameter 'nosuch'; did you mean 'tactile_noise'?"
+    )  # never an old name
 
 
-@pytest.mark.parametrize("package,executable,setting,line", [
-    ("dlo_perception", "vision_node", "camera_position:=[0.0,1.0]",
-     "[vision_node] bad parameter: parameter 'camera_position': expected 3 numbers, e.g. "
-     "-p camera_position:=[0.0,0.0,1.0], got [0.0, 1.0] (double_array)"),
-    ("dlo_perception", "vision_node", "camera_position:=up",
-     "[vision_node] bad parameter: parameter 'camera_position': expected 3 numbers, e.g. "
-     "-p camera_position:=[0.0,0.0,1.0], got 'up' (string)"),
-    ("dlo_sim", "sim_node", "horizon:=[150]",
-     "[sim_node] bad parameter: parameter 'horizon': expected an integer, e.g. -p horizon:=150, got [150] "
-     "(integer_array)"),
-    ("dlo_sim", "sim_node", "publish_markers:=1",
-     "[sim_node] bad parameter: parameter 'publish_markers': expected a bool (true/false), e.g. "
-     "-p publish_markers:=true, got 1 (integer)"),
-    ("dlo_viz", "foxglove_bridge", "topics:=[1,2]",
-     "[foxglove_bridge] bad parameter: parameter 'topics': expected a list of strings, e.g. -p topics:=/dlo,/clock, "
-     "got [1, 2] (integer_array)"),
-])
+@pytest.mark.parametrize(
+    "package,executable,setting,line",
+    [
+        (
+            "dlo_perception",
+            "vision_node",
+            "camera_position:=[0.0,1.0]",
+            "[vision_node] bad parameter: parameter 'camera_position': expected 3 numbers, e.g. "
+            "-p camera_position:=[0.0,0.0,1.0], got [0.0, 1.0] (double_array)",
+        ),
+        (
+            "dlo_perception",
+            "vision_node",
+            "camera_position:=up",
+            "[vision_node] bad parameter: parameter 'camera_position': expected 3 numbers, e.g. "
+            "-p camera_position:=[0.0,0.0,1.0], got 'up' (string)",
+        ),
+        (
+            "dlo_sim",
+            "sim_node",
+            "horizon:=[150]",
+            "[sim_node] bad parameter: parameter 'horizon': expected an integer, e.g. -p horizon:=150, got [150] (integer_array)",
+        ),
+        (
+            "dlo_sim",
+            "sim_node",
+            "publish_markers:=1",
+            "[sim_node] bad parameter: parameter 'publish_markers': expected a bool (true/false), e.g. "
+            "-p publish_markers:=true, got 1 (integer)",
+        ),
+        (
+            "dlo_viz",
+            "foxglove_bridge",
+            "topics:=[1,2]",
+            "[foxglove_bridge] bad parameter: parameter 'topics': expected a list of strings, e.g. -p topics:=/dlo,/clock, "
+            "got [1, 2] (integer_array)",
+        ),
+    ],
+)
 def test_a_wrong_type_or_shape_gives_an_example_of_that_parameter(package, executable, setting, line, tmp_path):
     assert one_line(run(package, executable, "-p", setting, cwd=tmp_path)) == line
     name, value = line.split(", e.g. -p ")[1].split(", got ")[0].split(":=", 1)  # the example fits:
@@ -145,27 +206,29 @@ def test_camera_position_takes_three_numbers_in_each_ros_form():
     """[0.0,0.0,1.0] (double array), [0,0,1] (integer array), '0,0,1' (string) and a string array all
     give the same three numbers; a name the node lacks, given to the constructor, is refused too."""
     import rclpy
-    from rclpy.parameter import Parameter
-
     from dlo_common.node_util import UnknownParameterError, declare_parameters
     from dlo_perception.vision_node import PARAMETERS
+    from rclpy.parameter import Parameter
 
     context = rclpy.Context()
     rclpy.init(context=context, domain_id=231)
     try:
         for value in ([0.5, 0.0, 2.0], [1, 0, 2], "0.5, 0, 2", ["0.5", "0", "2"]):
-            node = rclpy.create_node("camera_probe", context=context,
-                                     parameter_overrides=[Parameter("camera_position", value=value)])
+            node = rclpy.create_node(
+                "camera_probe", context=context, parameter_overrides=[Parameter("camera_position", value=value)]
+            )
             try:
                 got = declare_parameters(node, PARAMETERS)["camera_position"]
                 assert got == [float(v) for v in (value.split(",") if isinstance(value, str) else value)], value
             finally:
                 node.destroy_node()
-        node = rclpy.create_node("camera_probe", context=context,
-                                 parameter_overrides=[Parameter("camera_positon", value=[0.0, 0.0, 1.0])])
+        node = rclpy.create_node(
+            "camera_probe", context=context, parameter_overrides=[Parameter("camera_positon", value=[0.0, 0.0, 1.0])]
+        )
         try:
-            with pytest.raises(UnknownParameterError, match="^unknown parameter 'camera_positon'; did you mean "
-                                                            "'camera_position'\\?$"):
+            with pytest.raises(
+                UnknownParameterError, match="^unknown parameter 'camera_positon'; did you mean 'camera_position'\\?$"
+            ):
                 declare_parameters(node, PARAMETERS)
         finally:
             node.destroy_node()
@@ -177,8 +240,9 @@ def test_a_bad_without_names_the_parameter_and_its_values(tmp_path):
     """policy_node's test-time ablation: the message is about 'without', not about 'modalities'."""
     assert one_line(run("dlo_policy", "policy_node", "-p", "without:=X", cwd=tmp_path)) == (
         "[policy_node] bad parameter: parameter 'without': expected '' (none) or the modalities to zero: K, T, V "
-        "or several joined by '+', e.g. T or T+V, got 'X'")
+        "or several joined by '+', e.g. T or T+V, got 'X'"
+    )
     modalities = run("dlo_policy", "policy_node", "-p", "policy:=random", "-p", "modalities:=X+K", cwd=tmp_path)
     assert one_line(modalities) == (
-        "[policy_node] bad parameter: parameter 'modalities': expected All or a '+'-joined subset of K, T, V, "
-        "e.g. V+K, got 'X+K'")
+        "[policy_node] bad parameter: parameter 'modalities': expected All or a '+'-joined subset of K, T, V, e.g. V+K, got 'X+K'"
+    )

@@ -7,14 +7,13 @@ from __future__ import annotations
 import importlib
 import importlib.util
 import os
-import re
 import pathlib
+import re
 import subprocess
 import sys
 import time
 
 import pytest
-
 from dlo_common.params import Param, as_params, check_value, help_requested, markdown_table, params_yaml, renamed_names
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
@@ -23,8 +22,16 @@ _spec = importlib.util.spec_from_file_location("gen_node_configs", ROOT / "tools
 gen = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(gen)
 NODES = gen.node_executables()
-EXPECTED = {"sim_node", "tactile_node", "vision_node", "policy_node", "recorder_node", "playback_node",
-            "mock_driver_node", "foxglove_bridge"}
+EXPECTED = {
+    "sim_node",
+    "tactile_node",
+    "vision_node",
+    "policy_node",
+    "recorder_node",
+    "playback_node",
+    "mock_driver_node",
+    "foxglove_bridge",
+}
 
 
 def test_every_node_executable_is_found():
@@ -35,8 +42,9 @@ def test_every_node_executable_is_found():
 def test_committed_params_file_equals_the_declarations(package, executable, module):
     path = gen.config_path(package, executable)
     assert path.exists(), f"{path} missing: run python tools/gen_node_configs.py"
-    assert path.read_text() == gen.render(package, executable, module), \
+    assert path.read_text() == gen.render(package, executable, module), (
         f"{path} differs from {module}.PARAMETERS: run python tools/gen_node_configs.py"
+    )
     installed = ROOT / "ros_ws" / "install" / package / "share" / package / "config" / f"{executable}.yaml"
     assert installed.read_text() == path.read_text(), f"{installed} is stale: run scripts/setup.sh"
 
@@ -55,8 +63,7 @@ def test_gen_check_reports_a_drifted_file(tmp_path, monkeypatch, capsys):
 @pytest.mark.parametrize("flag", ["--help", "-h"])
 @pytest.mark.parametrize("package,executable,module", NODES, ids=[exe for _, exe, _ in NODES])
 def test_help_lists_every_parameter_and_starts_nothing(package, executable, module, flag, tmp_path):
-    result = subprocess.run([ROS2RUN, package, executable, flag], cwd=tmp_path, capture_output=True, text=True,
-                            timeout=120)
+    result = subprocess.run([ROS2RUN, package, executable, flag], cwd=tmp_path, capture_output=True, text=True, timeout=120)
     assert result.returncode == 0, result.stderr
     out = result.stdout
     assert out.startswith(f"usage: ros2run {package} {executable} [--ros-args"), out[:200]
@@ -78,12 +85,11 @@ def test_help_lists_every_parameter_and_starts_nothing(package, executable, modu
 
 
 def test_a_stray_argument_is_a_one_line_error(tmp_path):
-    result = subprocess.run([ROS2RUN, "dlo_sim", "sim_node", "bogus"], cwd=tmp_path, capture_output=True,
-                            text=True, timeout=120)
+    result = subprocess.run([ROS2RUN, "dlo_sim", "sim_node", "bogus"], cwd=tmp_path, capture_output=True, text=True, timeout=120)
     assert result.returncode == 2
     assert result.stderr.strip().splitlines() == [
-        "sim_node: unexpected argument 'bogus' (parameters go after --ros-args: -p NAME:=VALUE; "
-        "see 'sim_node --help')"]
+        "sim_node: unexpected argument 'bogus' (parameters go after --ros-args: -p NAME:=VALUE; see 'sim_node --help')"
+    ]
     assert "[Taichi]" not in result.stdout and list(tmp_path.iterdir()) == []
 
 
@@ -91,8 +97,13 @@ def test_a_bad_value_in_a_params_file_is_a_one_line_error(tmp_path):
     """The shipped file, with one value out of its range: the node reads the file and refuses."""
     params = tmp_path / "sim.yaml"
     params.write_text(gen.config_path("dlo_sim", "sim_node").read_text().replace("horizon: 150", "horizon: 0"))
-    result = subprocess.run([ROS2RUN, "dlo_sim", "sim_node", "--ros-args", "--params-file", str(params)],
-                            cwd=tmp_path, capture_output=True, text=True, timeout=120)
+    result = subprocess.run(
+        [ROS2RUN, "dlo_sim", "sim_node", "--ros-args", "--params-file", str(params)],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert result.returncode == 2, result.stdout + result.stderr
     assert "[sim_node] bad parameter: parameter 'horizon': must be >= 1, got 0" in result.stderr
     assert "Traceback" not in result.stderr and "[Taichi]" not in result.stdout
@@ -107,11 +118,15 @@ def test_params_file_values_take_effect(tmp_path, own_groups):
     params = tmp_path / "tactile.yaml"
     text = gen.config_path("dlo_perception", "tactile_node").read_text()
     assert 'tactile_noise: "none"' in text and "seed: 0" in text
-    params.write_text(text.replace('tactile_noise: "none"', "tactile_noise: [0.1, 0.001]")
-                      .replace("seed: 0", "seed: 7"))
-    node = subprocess.Popen([ROS2RUN, "dlo_perception", "tactile_node", "--ros-args", "--params-file", str(params)],
-                            cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-                            start_new_session=True)
+    params.write_text(text.replace('tactile_noise: "none"', "tactile_noise: [0.1, 0.001]").replace("seed: 0", "seed: 7"))
+    node = subprocess.Popen(
+        [ROS2RUN, "dlo_perception", "tactile_node", "--ros-args", "--params-file", str(params)],
+        cwd=tmp_path,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        start_new_session=True,
+    )
     own_groups(node.pid)
     rclpy.init()
     try:
@@ -137,9 +152,13 @@ def test_param_ranges_and_rendering():
     mode = Param("mode", "a", "clock mode", choices=("a", "b"))
     topics = ("topics", [], "topics to play")
     assert check_value(port, 0) == 0 and check_value(rate, 2) == 2.0 and check_value(mode, "b") == "b"
-    for param, value, message in [(port, 70000, "must be in 0..65535, got 70000"), (rate, 0.0, "must be > 0"),
-                                  (mode, "c", "expected one of ('a', 'b'), got 'c'"),
-                                  (port, "x", "expected an integer"), (rate, float("nan"), "must be a number")]:
+    for param, value, message in [
+        (port, 70000, "must be in 0..65535, got 70000"),
+        (rate, 0.0, "must be > 0"),
+        (mode, "c", "expected one of ('a', 'b'), got 'c'"),
+        (port, "x", "expected an integer"),
+        (rate, float("nan"), "must be a number"),
+    ]:
         with pytest.raises(ValueError, match=re.escape(f"parameter '{param.name}': {message}")):
             check_value(param, value)
     yaml = params_yaml([port, rate, mode, topics])
@@ -158,14 +177,27 @@ def test_param_ranges_and_rendering():
 def test_banner_does_not_precede_one_line_errors(tmp_path):
     """dlo-train / dlo-evaluate import Taichi before they check their arguments: no banner first."""
     env = {**os.environ, "PATH": f"{ROOT / 'ros_ws' / 'install' / 'dlo_policy' / 'lib' / 'dlo_policy'}:{os.environ['PATH']}"}
-    train = subprocess.run(["dlo-train", "--out", str(tmp_path / "run"), "sac.bogus=1"], cwd=tmp_path,
-                           capture_output=True, text=True, timeout=300, env=env)
+    train = subprocess.run(
+        ["dlo-train", "--out", str(tmp_path / "run"), "sac.bogus=1"],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=300,
+        env=env,
+    )
     assert train.returncode == 2 and train.stdout == "", train.stdout
     assert train.stderr.startswith("dlo-train: error: unknown key 'sac.bogus'; did you mean"), train.stderr
-    evaluate = subprocess.run(["dlo-evaluate", "--checkpoint", str(tmp_path / "missing.pt")], cwd=tmp_path,
-                              capture_output=True, text=True, timeout=300, env=env)
+    evaluate = subprocess.run(
+        ["dlo-evaluate", "--checkpoint", str(tmp_path / "missing.pt")],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=300,
+        env=env,
+    )
     assert evaluate.returncode == 2 and evaluate.stdout == ""
     assert evaluate.stderr.strip().splitlines() == [f"dlo-evaluate: error: checkpoint {tmp_path / 'missing.pt'} not found"]
-    banner = subprocess.run([sys.executable, "-c", "import dlo_sim.kernels, dlo_perception.vision"],
-                            capture_output=True, text=True, timeout=300)
+    banner = subprocess.run(
+        [sys.executable, "-c", "import dlo_sim.kernels, dlo_perception.vision"], capture_output=True, text=True, timeout=300
+    )
     assert banner.returncode == 0 and "[Taichi]" not in banner.stdout + banner.stderr

@@ -68,8 +68,9 @@ def undeclared_imports(src: pathlib.Path) -> list[str]:
                     problems.append(f"{name}/{rel}: imports {imported}, which is no package of {src}")
                 elif imported not in allowed:
                     tag = "<test_depend> or <exec_depend>" if rel.parts[0] == "test" else "<exec_depend>"
-                    problems.append(f"{name}/{rel}: imports {imported}, not declared in {name}/package.xml "
-                                    f"(add {tag}{imported}</...>)")
+                    problems.append(
+                        f"{name}/{rel}: imports {imported}, not declared in {name}/package.xml (add {tag}{imported}</...>)"
+                    )
     return problems
 
 
@@ -85,7 +86,7 @@ def dependency_cycle(src: pathlib.Path) -> list[str]:
         path.append(node)
         for nxt in graph[node]:
             if state.get(nxt) == 1:
-                return path[path.index(nxt):] + [nxt]
+                return path[path.index(nxt) :] + [nxt]
             if nxt not in state:
                 cycle = visit(nxt)
                 if cycle:
@@ -113,8 +114,7 @@ def test_declared_dependencies_form_a_dag():
 TOOLS = ("dlo_bag", "dlo_viz", "dlo_driver_kit")  # the tool packages, on top of the graph's own packages
 # who may depend on a tool package (any tag): dlo_viz serves bags' schemas, the driver kit's tests analyse a bag;
 # dlo_bringup starts the graph, the recorder and the Foxglove bridge with it
-TOOL_USERS = {"dlo_bag": {"dlo_viz", "dlo_driver_kit", "dlo_bringup"}, "dlo_viz": {"dlo_bringup"},
-              "dlo_driver_kit": set()}
+TOOL_USERS = {"dlo_bag": {"dlo_viz", "dlo_driver_kit", "dlo_bringup"}, "dlo_viz": {"dlo_bringup"}, "dlo_driver_kit": set()}
 
 
 def test_node_helpers_live_in_the_base_package():
@@ -163,15 +163,16 @@ def test_every_python_package_is_on_the_environment():
         loops = re.findall(r"for _p in ([\w ]+); do", env)
         assert loops and all(name in loop.split() for loop in loops), f"{name} missing in a loop of env.sh.in"
         if (directory / "setup.py").exists():
-            assert f"$_dlo_root/ros_ws/src/{name}:" in env or f"$_dlo_root/ros_ws/src/{name}\"" in env, name
+            assert f"$_dlo_root/ros_ws/src/{name}:" in env or f'$_dlo_root/ros_ws/src/{name}"' in env, name
 
 
 def _package(src: pathlib.Path, name: str, depends: list[str], module_source: str = "") -> None:
     directory = src / name
     (directory / name).mkdir(parents=True)
     deps = "".join(f"  <exec_depend>{d}</exec_depend>\n" for d in depends)
-    (directory / "package.xml").write_text(f'<?xml version="1.0"?>\n<package format="3">\n  <name>{name}</name>\n'
-                                           f'{deps}</package>\n')
+    (directory / "package.xml").write_text(
+        f'<?xml version="1.0"?>\n<package format="3">\n  <name>{name}</name>\n{deps}</package>\n'
+    )
     (directory / name / "__init__.py").write_text(module_source)
 
 
@@ -183,15 +184,17 @@ def test_checker_finds_an_undeclared_import_and_a_cycle(tmp_path):
     _package(src, "dlo_sim", ["dlo_common"], "def main():\n    from dlo_common.node_main import run_node\n")
     _package(src, "dlo_bag", ["dlo_common"], "from dlo_sim.task import OUTCOME_NAMES\n")
     assert undeclared_imports(src) == [
-        "dlo_bag/dlo_bag/__init__.py: imports dlo_sim, not declared in dlo_bag/package.xml "
-        "(add <exec_depend>dlo_sim</...>)"]
+        "dlo_bag/dlo_bag/__init__.py: imports dlo_sim, not declared in dlo_bag/package.xml (add <exec_depend>dlo_sim</...>)"
+    ]
     assert dependency_cycle(src) == []
 
-    (src / "dlo_bag" / "package.xml").write_text((src / "dlo_bag" / "package.xml").read_text().replace(
-        "</package>", "  <exec_depend>dlo_sim</exec_depend>\n</package>"))
+    (src / "dlo_bag" / "package.xml").write_text(
+        (src / "dlo_bag" / "package.xml").read_text().replace("</package>", "  <exec_depend>dlo_sim</exec_depend>\n</package>")
+    )
     assert undeclared_imports(src) == []
-    (src / "dlo_sim" / "package.xml").write_text((src / "dlo_sim" / "package.xml").read_text().replace(
-        "</package>", "  <exec_depend>dlo_bag</exec_depend>\n</package>"))
+    (src / "dlo_sim" / "package.xml").write_text(
+        (src / "dlo_sim" / "package.xml").read_text().replace("</package>", "  <exec_depend>dlo_bag</exec_depend>\n</package>")
+    )
     assert dependency_cycle(src) in (["dlo_sim", "dlo_bag", "dlo_sim"], ["dlo_bag", "dlo_sim", "dlo_bag"])
 
 
@@ -203,7 +206,9 @@ def test_checker_on_a_copy_of_the_tree_with_an_undeclared_import(tmp_path):
         (src / name / "package.xml").write_text((SRC / name / "package.xml").read_text())
     module = src / "dlo_perception" / "dlo_perception" / "tactile_node.py"
     module.parent.mkdir()
-    module.write_text((SRC / "dlo_perception" / "dlo_perception" / "tactile_node.py").read_text()
-                      + "\n\ndef _late():\n    from dlo_bag.bag import read_messages  # noqa\n")
+    module.write_text(
+        (SRC / "dlo_perception" / "dlo_perception" / "tactile_node.py").read_text()
+        + "\n\ndef _late():\n    from dlo_bag.bag import read_messages  # noqa\n"
+    )
     problems = undeclared_imports(src)
     assert len(problems) == 1 and "imports dlo_bag, not declared in dlo_perception/package.xml" in problems[0]

@@ -26,7 +26,7 @@ def table(text: str, first_cell: str) -> dict[str, list[str]]:
     lines = text.splitlines()
     start = next(i for i, line in enumerate(lines) if line.startswith(f"| {first_cell}"))
     rows = {}
-    for line in lines[start + 2:]:
+    for line in lines[start + 2 :]:
         if not line.startswith("|"):
             break
         cells = [c.strip() for c in line.strip().strip("|").split(" | ")]
@@ -49,8 +49,9 @@ def test_the_record_has_finished_runs_and_only_their_small_files():
     for run in runs:
         names = {p.name for p in run.iterdir()}
         assert RECORD_FILES <= names and "test.json" in names, run
-        assert all(n in RECORD_FILES or re.fullmatch(r"test(_without_[KTV])?\.json|training_configs_seed\d+\.json", n)
-                   for n in names), (run, names)
+        assert all(
+            n in RECORD_FILES or re.fullmatch(r"test(_without_[KTV])?\.json|training_configs_seed\d+\.json", n) for n in names
+        ), (run, names)
     assert not [p for p in RESULTS.rglob("*") if p.suffix in (".pt", ".mcap", ".db3")]
 
 
@@ -94,8 +95,12 @@ def test_each_study_trained_on_its_documented_task_rules_and_length():
     our grip); every finished run of a study has the study's length."""
     from dlo_policy.rundir import read_trained_config
 
-    studies = (("study", "authors_code", True, 50_000), ("study_15k", "authors_code", True, 15_000),
-               ("study_authors_code", "authors_code", False, 15_000), ("study_paper_text", "paper_text", False, 15_000))
+    studies = (
+        ("study", "authors_code", True, 50_000),
+        ("study_15k", "authors_code", True, 15_000),
+        ("study_authors_code", "authors_code", False, 15_000),
+        ("study_paper_text", "paper_text", False, 15_000),
+    )
     for study, rules, one_particle, steps in studies:
         runs = sorted((RESULTS / study).glob("*/seed*"))
         assert runs, study
@@ -118,15 +123,16 @@ def test_the_shipped_policys_numbers_are_its_record_on_seeds_7000_to_7099():
     (launch_graph.sh --episodes 100 --seed 7000, task rules authors_code), are the committed record's;
     README.md's example run (seeds 7000-7002) prints the record's first three episodes."""
     rows = table(SHIPPED_README.read_text(), "tested (seeds 7000-7099)")
-    records = {"All, in-process": ("in_process_7000.json", []),
-               "without T (`--without T`), in-process": ("in_process_7000_noT.json", ["T"]),
-               "without V (`--without V`), in-process": ("in_process_7000_noV.json", ["V"])}
+    records = {
+        "All, in-process": ("in_process_7000.json", []),
+        "without T (`--without T`), in-process": ("in_process_7000_noT.json", ["T"]),
+        "without V (`--without V`), in-process": ("in_process_7000_noV.json", ["V"]),
+    }
     for label, (name, without) in records.items():
         record = json.loads((RESULTS / "shipped" / name).read_text())
         assert (record["seed"], record["episodes"], record["without"]) == (7000, 100, without), name
         for outcome, cell in zip(OUTCOMES, rows[label]):
-            assert percent_pair(cell) == pytest.approx((record[outcome], record["authors_code"][outcome])), \
-                (label, outcome)
+            assert percent_pair(cell) == pytest.approx((record[outcome], record["authors_code"][outcome])), (label, outcome)
     graph = [json.loads(line) for line in (RESULTS / "shipped" / "graph_seeds7000-7099.jsonl").read_text().splitlines()]
     assert [e["seed"] for e in graph] == list(range(7000, 7100)) and [e["episode"] for e in graph] == list(range(100))
     assert {e["task_rules"] for e in graph} == {"authors_code"}
@@ -135,9 +141,11 @@ def test_the_shipped_policys_numbers_are_its_record_on_seeds_7000_to_7099():
         assert percent_pair(cell) == pytest.approx((paper[outcome], authors[outcome])), outcome
     readme = (ROOT / "README.md").read_text()
     for e in graph[:3]:
-        line = (f"[launch] episode {e['episode']} (seed {e['seed']}; {e['episode'] + 1}/3 done): {e['outcome']}, "
-                f"authors' rule {e['outcome_authors']}; return {e['episode_return']:.3f}, {e['episode_length']} steps, "
-                f"{e['how_far']} particles from the end")
+        line = (
+            f"[launch] episode {e['episode']} (seed {e['seed']}; {e['episode'] + 1}/3 done): {e['outcome']}, "
+            f"authors' rule {e['outcome_authors']}; return {e['episode_return']:.3f}, {e['episode_length']} steps, "
+            f"{e['how_far']} particles from the end"
+        )
         assert line in readme, line
 
 
@@ -145,11 +153,14 @@ def test_the_previous_policys_graph_run_is_its_record():
     """docs/RESULTS.md (Shipped policy): through the graph, seeds 7000-7099, 96% / 90% Hold the end,
     outcomes in results/baselines/shipped_policy_graph_seeds7000-7099.jsonl (the policy shipped until
     2026-12-02, policies/all/README.md)."""
-    graph = [json.loads(line) for line in
-             (RESULTS / "baselines" / "shipped_policy_graph_seeds7000-7099.jsonl").read_text().splitlines()]
+    graph = [
+        json.loads(line)
+        for line in (RESULTS / "baselines" / "shipped_policy_graph_seeds7000-7099.jsonl").read_text().splitlines()
+    ]
     assert [e["seed"] for e in graph] == list(range(7000, 7100))
-    assert (fractions(graph, "outcome")["hold_the_end"], fractions(graph, "outcome_authors")["hold_the_end"]) == \
-        pytest.approx((0.96, 0.90))
+    assert (fractions(graph, "outcome")["hold_the_end"], fractions(graph, "outcome_authors")["hold_the_end"]) == pytest.approx(
+        (0.96, 0.90)
+    )
     assert "scored 96% / 90% on the same seeds" in (ROOT / "docs" / "RESULTS.md").read_text()
 
 
@@ -165,8 +176,9 @@ def test_the_shipped_policys_graph_run_is_its_record():
     assert {e["single_particle_grip"] for e in graph} == {trained_sim_settings(shipped_policy_path())["single_particle_grip"]}
     paper, authors = fractions(graph, "outcome"), fractions(graph, "outcome_authors")
     for outcome in OUTCOMES:
-        assert (paper[outcome], authors[outcome]) == pytest.approx(
-            (in_process[outcome], in_process["authors_code"][outcome])), outcome
+        assert (paper[outcome], authors[outcome]) == pytest.approx((in_process[outcome], in_process["authors_code"][outcome])), (
+            outcome
+        )
     same = f"the same {round(100 * paper['hold_the_end'])}% / {round(100 * authors['hold_the_end'])}%"
     assert same in (ROOT / "docs" / "RESULTS.md").read_text(), same
 
@@ -177,12 +189,15 @@ def test_the_policy_shipped_until_2026_12_03_is_its_record():
     folder = RESULTS / "baselines" / "shipped_until_2026-12-03"
     graph = [json.loads(line) for line in (folder / "graph_seeds7000-7099.jsonl").read_text().splitlines()]
     assert [e["seed"] for e in graph] == list(range(7000, 7100))
-    assert (fractions(graph, "outcome")["hold_the_end"], fractions(graph, "outcome_authors")["hold_the_end"]) == \
-        pytest.approx((0.95, 0.92))
+    assert (fractions(graph, "outcome")["hold_the_end"], fractions(graph, "outcome_authors")["hold_the_end"]) == pytest.approx(
+        (0.95, 0.92)
+    )
     in_process = json.loads((folder / "in_process_7000.json").read_text())
     assert (in_process["hold_the_end"], in_process["authors_code"]["hold_the_end"]) == pytest.approx((0.95, 0.92))
-    assert "scored 95% / 92% on the\nsame seeds (`results/baselines/shipped_until_2026-12-03/`)" in \
-        (ROOT / "docs" / "RESULTS.md").read_text()
+    assert (
+        "scored 95% / 92% on the\nsame seeds (`results/baselines/shipped_until_2026-12-03/`)"
+        in (ROOT / "docs" / "RESULTS.md").read_text()
+    )
 
 
 def test_the_scripted_baselines_are_their_record_on_seeds_0_to_199():
@@ -194,14 +209,19 @@ def test_the_scripted_baselines_are_their_record_on_seeds_0_to_199():
     policies = record["policies"]
     assert all(p["episodes"] == 200 for p in policies.values())
     results_rows = table((ROOT / "docs" / "RESULTS.md").read_text(), "policy | hold the end | stop before")
-    names = {"random": "random", "oracle (ground truth, stops 2 particles before the end)": "oracle",
-             "oracle stopping at particle n_c - 10": "oracle-stop-at-10",
-             "tactile-reactive (She et al. style)": "tactile"}
+    names = {
+        "random": "random",
+        "oracle (ground truth, stops 2 particles before the end)": "oracle",
+        "oracle stopping at particle n_c - 10": "oracle-stop-at-10",
+        "tactile-reactive (She et al. style)": "tactile",
+    }
     assert set(results_rows) == set(names)
     for label, key in names.items():
         for outcome, cell in zip(OUTCOMES, results_rows[label]):
-            assert percent_pair(cell) == pytest.approx(
-                (policies[key][outcome], policies[key]["authors_code"][outcome])), (label, outcome)
+            assert percent_pair(cell) == pytest.approx((policies[key][outcome], policies[key]["authors_code"][outcome])), (
+                label,
+                outcome,
+            )
     readme_rows = table((ROOT / "ros_ws" / "src" / "dlo_policy" / "README.md").read_text(), "policy | hold the end")
     for label, key in (("random", "random"), ("oracle", "oracle"), ("tactile-reactive", "tactile")):
         cells = readme_rows[label]

@@ -9,8 +9,7 @@ SETUP = ROOT / "scripts" / "setup.sh"
 
 
 def run_setup(**env):
-    return subprocess.run(["bash", str(SETUP)], capture_output=True, text=True,
-                          env={**os.environ, **env}, timeout=1800)
+    return subprocess.run(["bash", str(SETUP)], capture_output=True, text=True, env={**os.environ, **env}, timeout=1800)
 
 
 def snapshot(path):
@@ -49,13 +48,22 @@ def test_wrong_python_version_is_a_clear_error(tmp_path):
 
 
 def test_env_sh_works_from_any_directory(tmp_path):
-    script = (f"source {ROOT / 'scripts' / 'env.sh'} && dlo-bag-info --help >/dev/null && dlo-analyze --help >/dev/null"
-              " && ros2run --list >/dev/null && python -c 'import rclpy, dlo_msgs.msg, taichi, torch; print(\"ok\")'")
-    result = subprocess.run(["bash", "-c", script], cwd=tmp_path, capture_output=True, text=True,
-                            env={k: v for k, v in os.environ.items()
-                                 if k not in ("PYTHONPATH", "LD_LIBRARY_PATH", "AMENT_PREFIX_PATH",
-                                              "_ROS_WHEELS_BOOTSTRAP_COMPLETE", "VIRTUAL_ENV")},
-                            timeout=300)
+    script = (
+        f"source {ROOT / 'scripts' / 'env.sh'} && dlo-bag-info --help >/dev/null && dlo-analyze --help >/dev/null"
+        " && ros2run --list >/dev/null && python -c 'import rclpy, dlo_msgs.msg, taichi, torch; print(\"ok\")'"
+    )
+    result = subprocess.run(
+        ["bash", "-c", script],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        env={
+            k: v
+            for k, v in os.environ.items()
+            if k not in ("PYTHONPATH", "LD_LIBRARY_PATH", "AMENT_PREFIX_PATH", "_ROS_WHEELS_BOOTSTRAP_COMPLETE", "VIRTUAL_ENV")
+        },
+        timeout=300,
+    )
     assert result.returncode == 0, result.stderr
     assert result.stdout.strip().endswith("ok")
 
@@ -68,8 +76,9 @@ def prerequisites_only(tmp_path, headers=True, tools=()):
     bin_dir = tmp_path / "bin"
     bin_dir.mkdir(parents=True)
     fake = bin_dir / "python3.11"
-    fake.write_text('#!/bin/sh\ncase "$2" in *version_info*) echo 3.11 ;; *Python.h*) exit %d ;; esac\nexit 0\n'
-                    % (0 if headers else 1))
+    fake.write_text(
+        '#!/bin/sh\ncase "$2" in *version_info*) echo 3.11 ;; *Python.h*) exit %d ;; esac\nexit 0\n' % (0 if headers else 1)
+    )
     fake.chmod(0o755)
     for tool in ("dirname", *tools):
         (bin_dir / tool).symlink_to(shutil.which(tool))
@@ -79,16 +88,23 @@ def prerequisites_only(tmp_path, headers=True, tools=()):
 def test_missing_headers_or_compiler_is_a_clear_error(tmp_path):
     """README (The two commands): set-up stops with a one-line reason and a fix when Python 3.11's headers
     or a C/C++ compiler are missing (before it creates or installs anything)."""
-    result = subprocess.run(["/bin/bash", str(SETUP)], capture_output=True, text=True, timeout=120,
-                            env=prerequisites_only(tmp_path / "a", headers=False))
+    result = subprocess.run(
+        ["/bin/bash", str(SETUP)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        env=prerequisites_only(tmp_path / "a", headers=False),
+    )
     assert result.returncode == 1 and result.stdout == ""
     assert result.stderr.splitlines() == [
         "[setup] ERROR: Python 3.11 development headers (Python.h) are missing; building dlo_msgs needs them",
-        "[setup] fix: install python3.11-dev"]
+        "[setup] fix: install python3.11-dev",
+    ]
     for present, missing in (((), "cc"), (("cc",), "c++"), (("cc", "c++"), "make")):
         env = prerequisites_only(tmp_path / missing, tools=present)
         result = subprocess.run(["/bin/bash", str(SETUP)], capture_output=True, text=True, timeout=120, env=env)
         assert result.returncode == 1 and result.stderr.splitlines() == [
             f"[setup] ERROR: no '{missing}' on PATH; building the dlo_msgs interfaces needs a C/C++ toolchain",
-            "[setup] fix: install one, e.g. 'apt install build-essential'"], result.stderr
+            "[setup] fix: install one, e.g. 'apt install build-essential'",
+        ], result.stderr
         assert not (tmp_path / missing / "venv").exists()

@@ -16,7 +16,6 @@ import threading
 
 import pytest
 import yaml
-
 from dlo_bringup.graph import graph_nodes
 from dlo_bringup.options import UsageError, parse_args, resolve
 from dlo_common.params import ParameterError, check_value
@@ -38,15 +37,30 @@ VALUES = [
     (" 0.3 , 0 ", "[0.3,0.0]", (0.3, 0.0)),
     ("1e-5,2", "[0.00001,2.0]", (1e-5, 2.0)),
 ]
-BAD = ["loud", "custom", "Partial", "", "0.1", "0.1,0.001,0.2", "-0.1,0.001", "0.1,-1", "nan,0.001", "0,inf",
-       "[0.1 0.001]", "a,b"]
+BAD = [
+    "loud",
+    "custom",
+    "Partial",
+    "",
+    "0.1",
+    "0.1,0.001,0.2",
+    "-0.1,0.001",
+    "0.1,-1",
+    "nan,0.001",
+    "0,inf",
+    "[0.1 0.001]",
+    "a,b",
+]
 
 
 def launcher_noise(value: str) -> str:
     """The ``-p tactile_noise:=`` value the launcher gives the tactile node for ``--tactile-noise value``."""
-    tactile_node = next(spec for spec in graph_nodes(resolve(parse_args(["--policy", "random", "--tactile-noise",
-                                                                         value]))) if spec.name == "tactile")
-    return next(arg for arg in tactile_node.ros_args() if arg.startswith("tactile_noise:="))[len("tactile_noise:="):]
+    tactile_node = next(
+        spec
+        for spec in graph_nodes(resolve(parse_args(["--policy", "random", "--tactile-noise", value])))
+        if spec.name == "tactile"
+    )
+    return next(arg for arg in tactile_node.ros_args() if arg.startswith("tactile_noise:="))[len("tactile_noise:=") :]
 
 
 @pytest.mark.parametrize("given,ros,pair", VALUES, ids=[v[0].strip() or "empty" for v in VALUES])
@@ -79,10 +93,14 @@ def test_a_bad_value_is_refused_in_one_line_in_all_three_places(value):
 @pytest.mark.parametrize("value", ["loud", "-0.1,0.001", "0.1", "custom"])
 def test_the_launcher_refuses_a_bad_value_before_anything_starts(value, tmp_path):
     logs = tmp_path / "logs"
-    launch = subprocess.Popen(["bash", str(ROOT / "scripts" / "launch_graph.sh"), "--tactile-noise", value,
-                               "--logs", str(logs), "--episodes", "1"],
-                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True,
-                              env={**os.environ, "DLO_USE_ROS2RUN": "1"})
+    launch = subprocess.Popen(
+        ["bash", str(ROOT / "scripts" / "launch_graph.sh"), "--tactile-noise", value, "--logs", str(logs), "--episodes", "1"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
+        env={**os.environ, "DLO_USE_ROS2RUN": "1"},
+    )
     try:
         out, err = launch.communicate(timeout=120)
     finally:
@@ -100,8 +118,13 @@ def start_tactile_node(own_groups, *settings: str) -> tuple[int, list[str]]:
     """Run tactile_node with ``-p`` settings until it has said what noise it uses (or exited); its exit
     status (-SIGINT when it was stopped here) and output lines."""
     args = [arg for setting in settings for arg in ("-p", setting)]
-    node = subprocess.Popen([ROS2RUN, "dlo_perception", "tactile_node", "--ros-args", *args],
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
+    node = subprocess.Popen(
+        [ROS2RUN, "dlo_perception", "tactile_node", "--ros-args", *args],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        start_new_session=True,
+    )
     own_groups(node.pid)
     watchdog = threading.Timer(120, lambda: os.killpg(node.pid, signal.SIGKILL))
     watchdog.start()
@@ -119,18 +142,21 @@ def start_tactile_node(own_groups, *settings: str) -> tuple[int, list[str]]:
 
 
 ONE = "parameter 'noise' is now 'tactile_noise' (the old name works until the next release)"
-ALL = ("parameters 'noise', 'sigma_theta', 'sigma_y' are now 'tactile_noise' (the old names work until the next "
-       "release)")
+ALL = "parameters 'noise', 'sigma_theta', 'sigma_y' are now 'tactile_noise' (the old names work until the next release)"
 
 
-@pytest.mark.parametrize("settings,noise,notice", [
-    (["tactile_noise:=[0.1,0.001]"], "sigma_theta 0.1 rad, sigma_y 0.001 m", None),
-    (["tactile_noise:=0.1,0.001"], "sigma_theta 0.1 rad, sigma_y 0.001 m", None),
-    (["tactile_noise:=partial"], "partial (sigma_theta 0.25 rad, sigma_y 0.001 m)", None),
-    (["noise:=full"], "full (sigma_theta 0.5 rad, sigma_y 0.002 m)", ONE),
-    (["noise:=custom", "sigma_theta:=0.1", "sigma_y:=0.001"], "sigma_theta 0.1 rad, sigma_y 0.001 m", ALL),
-    (["noise:=custom"], "sigma_theta 0.0 rad, sigma_y 0.0 m", ONE),  # custom without sigmas: no noise, as before
-], ids=["pair", "pair-as-text", "preset", "old-noise", "old-custom-pair", "old-custom-alone"])
+@pytest.mark.parametrize(
+    "settings,noise,notice",
+    [
+        (["tactile_noise:=[0.1,0.001]"], "sigma_theta 0.1 rad, sigma_y 0.001 m", None),
+        (["tactile_noise:=0.1,0.001"], "sigma_theta 0.1 rad, sigma_y 0.001 m", None),
+        (["tactile_noise:=partial"], "partial (sigma_theta 0.25 rad, sigma_y 0.001 m)", None),
+        (["noise:=full"], "full (sigma_theta 0.5 rad, sigma_y 0.002 m)", ONE),
+        (["noise:=custom", "sigma_theta:=0.1", "sigma_y:=0.001"], "sigma_theta 0.1 rad, sigma_y 0.001 m", ALL),
+        (["noise:=custom"], "sigma_theta 0.0 rad, sigma_y 0.0 m", ONE),  # custom without sigmas: no noise, as before
+    ],
+    ids=["pair", "pair-as-text", "preset", "old-noise", "old-custom-pair", "old-custom-alone"],
+)
 def test_the_node_says_its_noise_and_old_names_give_one_notice(settings, noise, notice, own_groups):
     rc, lines = start_tactile_node(own_groups, *settings)
     assert rc in (0, -signal.SIGINT), lines
@@ -139,11 +165,14 @@ def test_the_node_says_its_noise_and_old_names_give_one_notice(settings, noise, 
     assert [w.split("[tactile_node]: ", 1)[1] for w in warnings] == ([notice] if notice else []), lines
 
 
-@pytest.mark.parametrize("setting,line", [
-    ("tactile_noise:=loud", f"parameter 'tactile_noise': expected {NOISE_FORMS}, got 'loud'"),
-    ("tactile_noise:=[-0.1,0.001]", f"parameter 'tactile_noise': expected {NOISE_FORMS}, got [-0.1, 0.001]"),
-    ("tactile_noise:=custom", f"parameter 'tactile_noise': expected {NOISE_FORMS}, got 'custom'"),
-])
+@pytest.mark.parametrize(
+    "setting,line",
+    [
+        ("tactile_noise:=loud", f"parameter 'tactile_noise': expected {NOISE_FORMS}, got 'loud'"),
+        ("tactile_noise:=[-0.1,0.001]", f"parameter 'tactile_noise': expected {NOISE_FORMS}, got [-0.1, 0.001]"),
+        ("tactile_noise:=custom", f"parameter 'tactile_noise': expected {NOISE_FORMS}, got 'custom'"),
+    ],
+)
 def test_the_node_refuses_a_bad_value_in_one_line(setting, line, own_groups):
     rc, lines = start_tactile_node(own_groups, setting)
     assert rc == 2 and lines == [f"[tactile_node] bad parameter: {line}"], lines
@@ -152,5 +181,6 @@ def test_the_node_refuses_a_bad_value_in_one_line(setting, line, own_groups):
 def test_an_old_name_next_to_the_new_one_is_refused(own_groups):
     rc, lines = start_tactile_node(own_groups, "tactile_noise:=full", "sigma_y:=0.001")
     assert rc == 2, lines
-    assert lines[-1] == ("[tactile_node] bad parameter: parameter 'sigma_y' is the old name of 'tactile_noise': "
-                         "set only 'tactile_noise'"), lines
+    assert lines[-1] == (
+        "[tactile_node] bad parameter: parameter 'sigma_y' is the old name of 'tactile_noise': set only 'tactile_noise'"
+    ), lines

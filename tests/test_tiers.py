@@ -6,17 +6,16 @@ stopped by SIGTERM tears its fixtures down (no process a test started outlives i
 from __future__ import annotations
 
 import ast
-import os
-import signal
-import time
 import configparser
 import importlib.util
+import os
 import pathlib
+import signal
 import subprocess
 import sys
+import time
 
 import pytest
-
 from dlo_common.testing import exited
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
@@ -68,24 +67,50 @@ def test_listed_matches_files_tests_and_parametrizations():
 def test_markers_are_put_on_tests_when_only_ros_ws_is_collected():
     """By fixture (``procs``) and by the list; the unit tests of the same file stay unmarked."""
     module = "ros_ws/src/dlo_bag/test/test_playback.py"
-    collected = subprocess.run([sys.executable, "-m", "pytest", "--collect-only", "-q", "-m", "graph", module],
-                               cwd=ROOT, capture_output=True, text=True, timeout=300)
+    collected = subprocess.run(
+        [sys.executable, "-m", "pytest", "--collect-only", "-q", "-m", "graph", module],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert collected.returncode == 0, collected.stdout + collected.stderr
     graph = {line.split("::")[1].split("[")[0] for line in collected.stdout.splitlines() if "::" in line}
-    with_procs = {node.name for node in ast.walk(ast.parse((ROOT / module).read_text()))
-                  if isinstance(node, ast.FunctionDef) and node.name.startswith("test_")
-                  and "procs" in [a.arg for a in node.args.args]}
-    assert "test_playback_republishes_the_same_messages" in with_procs and "test_pacer_keeps_relative_timing" not in (
-        with_procs)
+    with_procs = {
+        node.name
+        for node in ast.walk(ast.parse((ROOT / module).read_text()))
+        if isinstance(node, ast.FunctionDef) and node.name.startswith("test_") and "procs" in [a.arg for a in node.args.args]
+    }
+    assert "test_playback_republishes_the_same_messages" in with_procs and "test_pacer_keeps_relative_timing" not in (with_procs)
     assert graph == with_procs, collected.stdout
 
 
 def inner_pytest(tmp_path, workers, **env_vars) -> subprocess.Popen:
     """pytest on ``tmp_path/test_inner.py`` with the root conftest (its SIGTERM handling), ``env_vars`` set."""
     env = dict(os.environ, **env_vars, PYTHONPATH=f"{ROOT}{os.pathsep}{os.environ.get('PYTHONPATH', '')}")
-    return subprocess.Popen([sys.executable, "-m", "pytest", "-q", "-p", "conftest", "-p", "no:cacheprovider",
-                             "--rootdir", str(tmp_path), "-c", os.devnull, *workers, str(tmp_path / "test_inner.py")],
-                            cwd=tmp_path, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    return subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "pytest",
+            "-q",
+            "-p",
+            "conftest",
+            "-p",
+            "no:cacheprovider",
+            "--rootdir",
+            str(tmp_path),
+            "-c",
+            os.devnull,
+            *workers,
+            str(tmp_path / "test_inner.py"),
+        ],
+        cwd=tmp_path,
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
 
 
 def wait_for_file(path, run: subprocess.Popen):
@@ -111,7 +136,8 @@ def test_sigterm_to_pytest_runs_fixture_teardown_so_no_child_outlives_it(workers
         "    p.terminate()\n"
         "    p.wait()\n\n"
         "def test_waits(child):\n"
-        "    time.sleep(600)\n")
+        "    time.sleep(600)\n"
+    )
     pid_file = tmp_path / "child.pid"
     pytest_run = inner_pytest(tmp_path, workers, CHILD_PID=str(pid_file))
     try:
@@ -136,7 +162,8 @@ def test_a_second_sigterm_stops_an_xdist_pytest_whose_worker_ignores_the_first(t
         "def test_ignores_sigterm():\n"
         "    signal.signal(signal.SIGTERM, signal.SIG_IGN)\n"
         "    pathlib.Path(os.environ['READY']).write_text('')\n"
-        "    time.sleep(600)\n")
+        "    time.sleep(600)\n"
+    )
     pytest_run = inner_pytest(tmp_path, ["-n", "1"], READY=str(ready))
     try:
         wait_for_file(ready, pytest_run)
@@ -170,7 +197,8 @@ def test_fixtures_are_torn_down_before_the_shared_memory_clean_up_of_the_session
         "    yield\n"
         "    note('teardown')\n\n"
         "def test_interrupted(resource):\n"
-        "    raise KeyboardInterrupt  # as the SIGINT execnet sends an xdist worker, or Ctrl-C\n")
+        "    raise KeyboardInterrupt  # as the SIGINT execnet sends an xdist worker, or Ctrl-C\n"
+    )
     run = inner_pytest(tmp_path, workers, ORDER_LOG=str(log))
     try:
         out = run.communicate(timeout=300)[0]

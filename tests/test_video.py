@@ -31,17 +31,22 @@ N_C = 40
 def synthetic_bag(tmp_path_factory):
     if "DLO_ROOT" not in os.environ:
         pytest.skip("source scripts/env.sh first")
+    from dlo_bag.bag import BagWriter, make_typestore
     from dlo_perception.cloud import pack_particles
     from dlo_sim.task import EpisodeTracker
-    from dlo_bag.bag import BagWriter, make_typestore
 
     ts = make_typestore()
     T = ts.types
     path = tmp_path_factory.mktemp("video") / "bag"
-    topics = {"/dlo/task/state": "dlo_msgs/msg/TaskState", "/dlo/gripper/state": "dlo_msgs/msg/GripperState",
-              "/dlo/gripper/cmd": "dlo_msgs/msg/GripperCommand", "/dlo/tactile/pose": "dlo_msgs/msg/TactilePose",
-              "/dlo/vision/pose": "dlo_msgs/msg/VisualPose", "/dlo/rope/particles": "sensor_msgs/msg/PointCloud2",
-              "/dlo/camera/image": "sensor_msgs/msg/Image"}
+    topics = {
+        "/dlo/task/state": "dlo_msgs/msg/TaskState",
+        "/dlo/gripper/state": "dlo_msgs/msg/GripperState",
+        "/dlo/gripper/cmd": "dlo_msgs/msg/GripperCommand",
+        "/dlo/tactile/pose": "dlo_msgs/msg/TactilePose",
+        "/dlo/vision/pose": "dlo_msgs/msg/VisualPose",
+        "/dlo/rope/particles": "sensor_msgs/msg/PointCloud2",
+        "/dlo/camera/image": "sensor_msgs/msg/Image",
+    }
     t = 1_000_000_000
     with BagWriter(path, ts, fsync=False) as writer:
         for topic, msgtype in topics.items():
@@ -67,42 +72,87 @@ def synthetic_bag(tmp_path_factory):
                     tracker.reset([0], np.array([p_i]), np.array([largest]), np.array([N_C]), np.array([p_i]))
                     reward, done = 0.0, False
                 else:
-                    r, term, trunc = tracker.step(np.array([p_i]), np.array([n_h]), np.array([largest]),
-                                                  np.array([N_C]), np.array([0.4]), np.array([p_i]),
-                                                  np.array([n_h]))
+                    r, term, trunc = tracker.step(
+                        np.array([p_i]),
+                        np.array([n_h]),
+                        np.array([largest]),
+                        np.array([N_C]),
+                        np.array([0.4]),
+                        np.array([p_i]),
+                        np.array([n_h]),
+                    )
                     reward, done = float(r[0]), bool(term[0] or trunc[0])
                 x = -0.25 + 0.01 * index
                 positions = np.stack([-0.25 + 0.01 * np.arange(N_C), np.zeros(N_C), np.full(N_C, 0.1)], axis=1)
                 flags = np.isin(np.arange(N_C), held)
-                put("/dlo/rope/particles", T["sensor_msgs/msg/PointCloud2"](
-                    header=header, height=1, width=N_C,
-                    fields=[T["sensor_msgs/msg/PointField"](name=n, offset=4 * k, datatype=7, count=1)
-                            for k, n in enumerate(("x", "y", "z", "held"))],
-                    is_bigendian=False, point_step=16, row_step=16 * N_C,
-                    data=np.frombuffer(pack_particles(positions, flags), np.uint8), is_dense=True))
+                put(
+                    "/dlo/rope/particles",
+                    T["sensor_msgs/msg/PointCloud2"](
+                        header=header,
+                        height=1,
+                        width=N_C,
+                        fields=[
+                            T["sensor_msgs/msg/PointField"](name=n, offset=4 * k, datatype=7, count=1)
+                            for k, n in enumerate(("x", "y", "z", "held"))
+                        ],
+                        is_bigendian=False,
+                        point_step=16,
+                        row_step=16 * N_C,
+                        data=np.frombuffer(pack_particles(positions, flags), np.uint8),
+                        is_dense=True,
+                    ),
+                )
                 image = np.zeros((32, 32), np.uint8)
                 image[16, :] = 255
                 image[14:19, int(np.clip(16 + 100 * x, 0, 31))] = 128
-                put("/dlo/camera/image", T["sensor_msgs/msg/Image"](header=header, height=32, width=32,
-                                                                    encoding="mono8", is_bigendian=0, step=32,
-                                                                    data=image.ravel()))
-                put("/dlo/task/state", T["dlo_msgs/msg/TaskState"](
-                    header=header, episode=episode, seed=500 + episode, step=step, held_indices=held, n_held=n_h,
-                    mean_held_index=p_i, num_particles=N_C, cable_length=0.4, reward=reward,
-                    episode_return=float(tracker.episode_return[0]), done=done,
-                    outcome=int(tracker.outcome[0]) if done else 0, held_indices_authors=held,
-                    mean_held_index_authors=p_i, outcome_authors=int(tracker.outcome_authors[0]) if done else 0,
-                    task_rules="paper_text"))
-                put("/dlo/tactile/pose", T["dlo_msgs/msg/TactilePose"](header=header, angle=0.01 * step, y=0.001,
-                                                                       contact=True, contact_count=3))
-                put("/dlo/vision/pose", T["dlo_msgs/msg/VisualPose"](header=header, visible=True, confidence=0.5,
-                                                                     angle=-0.01 * step, y=0.002))
-                put("/dlo/gripper/state", T["dlo_msgs/msg/GripperState"](header=header, x=x, y=0.0, z=0.1,
-                                                                         closure=0.8, episode=episode, step=step))
+                put(
+                    "/dlo/camera/image",
+                    T["sensor_msgs/msg/Image"](
+                        header=header, height=32, width=32, encoding="mono8", is_bigendian=0, step=32, data=image.ravel()
+                    ),
+                )
+                put(
+                    "/dlo/task/state",
+                    T["dlo_msgs/msg/TaskState"](
+                        header=header,
+                        episode=episode,
+                        seed=500 + episode,
+                        step=step,
+                        held_indices=held,
+                        n_held=n_h,
+                        mean_held_index=p_i,
+                        num_particles=N_C,
+                        cable_length=0.4,
+                        reward=reward,
+                        episode_return=float(tracker.episode_return[0]),
+                        done=done,
+                        outcome=int(tracker.outcome[0]) if done else 0,
+                        held_indices_authors=held,
+                        mean_held_index_authors=p_i,
+                        outcome_authors=int(tracker.outcome_authors[0]) if done else 0,
+                        task_rules="paper_text",
+                    ),
+                )
+                put(
+                    "/dlo/tactile/pose",
+                    T["dlo_msgs/msg/TactilePose"](header=header, angle=0.01 * step, y=0.001, contact=True, contact_count=3),
+                )
+                put(
+                    "/dlo/vision/pose",
+                    T["dlo_msgs/msg/VisualPose"](header=header, visible=True, confidence=0.5, angle=-0.01 * step, y=0.002),
+                )
+                put(
+                    "/dlo/gripper/state",
+                    T["dlo_msgs/msg/GripperState"](header=header, x=x, y=0.0, z=0.1, closure=0.8, episode=episode, step=step),
+                )
                 if not done:
                     moving = index < target
-                    put("/dlo/gripper/cmd", T["dlo_msgs/msg/GripperCommand"](
-                        header=header, vx=0.25 if moving else 0.0, vy=0.0, closure=0.8, episode=episode, step=step))
+                    put(
+                        "/dlo/gripper/cmd",
+                        T["dlo_msgs/msg/GripperCommand"](
+                            header=header, vx=0.25 if moving else 0.0, vy=0.0, closure=0.8, episode=episode, step=step
+                        ),
+                    )
     return path
 
 
@@ -118,8 +168,19 @@ def test_one_playable_mp4_per_episode(synthetic_bag, tmp_path, capsys):
     from dlo_bag.analysis import main
 
     out = tmp_path / "videos"
-    rc = main([str(synthetic_bag), "--video", str(out), "--policy", "scripted test", "--json",
-               str(tmp_path / "e.json"), "--plots", str(tmp_path / "plots")])
+    rc = main(
+        [
+            str(synthetic_bag),
+            "--video",
+            str(out),
+            "--policy",
+            "scripted test",
+            "--json",
+            str(tmp_path / "e.json"),
+            "--plots",
+            str(tmp_path / "plots"),
+        ]
+    )
     assert rc == 0, capsys.readouterr()
     assert sorted(p.name for p in out.iterdir()) == ["episode_0000.mp4", "episode_0001.mp4"]
     for episode, steps in enumerate(STEPS):
@@ -139,8 +200,11 @@ def test_one_playable_mp4_per_episode(synthetic_bag, tmp_path, capsys):
     progress = [line for line in err_text.splitlines() if line.startswith("dlo-analyze: ")]
     assert progress[0] == f"dlo-analyze: rendering 2 videos ({sum(STEPS) + 2} frames) into {out}"
     for k, steps in enumerate(STEPS):
-        assert re.fullmatch(rf"dlo-analyze: video {k + 1}/2: {re.escape(str(out))}/episode_000{k}\.mp4 "
-                            rf"\(episode {k}, {steps + 1} frames in \d+\.\d s\)", progress[k + 1]), progress
+        assert re.fullmatch(
+            rf"dlo-analyze: video {k + 1}/2: {re.escape(str(out))}/episode_000{k}\.mp4 "
+            rf"\(episode {k}, {steps + 1} frames in \d+\.\d s\)",
+            progress[k + 1],
+        ), progress
     assert len(progress) == 3 and "dlo-analyze: video" not in out_text
     assert out_text.splitlines()[0].startswith("episode   seed")
 
@@ -168,17 +232,14 @@ def test_video_progress_on_a_terminal_is_a_bar_and_the_lines(synthetic_bag, tmp_
 
 
 def test_gif_and_speed(synthetic_bag, tmp_path):
+    from dlo_bag.analysis import main
     from PIL import Image
 
-    from dlo_bag.analysis import main
-
-    assert main([str(synthetic_bag), "--video", str(tmp_path / "gif"), "--video-format", "gif",
-                 "--video-width", "320"]) == 0
+    assert main([str(synthetic_bag), "--video", str(tmp_path / "gif"), "--video-format", "gif", "--video-width", "320"]) == 0
     with Image.open(tmp_path / "gif" / "episode_0001.gif") as gif:
         assert gif.n_frames == STEPS[1] + 1 and gif.size == (320, 240)
         assert gif.info["duration"] == 80 and gif.info.get("loop") == 0
-    assert main([str(synthetic_bag), "--video", str(tmp_path / "fast"), "--video-speed", "2",
-                 "--video-width", "320"]) == 0
+    assert main([str(synthetic_bag), "--video", str(tmp_path / "fast"), "--video-speed", "2", "--video-width", "320"]) == 0
     meta, count = frames_of(tmp_path / "fast" / "episode_0000.mp4")
     assert abs(meta["fps"] - 25.0) < 1e-6 and count == STEPS[0] + 1
 
@@ -230,8 +291,7 @@ def text_overlaps(fig) -> list:
     fig.draw(renderer)  # the layout engine places everything on a draw
     suptitle = [t for t in fig.findobj(Text) if t.get_text() and t is getattr(fig, "_suptitle", None)]
     titles = [("suptitle", t.get_window_extent(renderer)) for t in suptitle]
-    titles += [(f"axes {i} title", ax.title.get_window_extent(renderer))
-               for i, ax in enumerate(fig.axes) if ax.title.get_text()]
+    titles += [(f"axes {i} title", ax.title.get_window_extent(renderer)) for i, ax in enumerate(fig.axes) if ax.title.get_text()]
     axis_boxes, legends = [], []
     for i, ax in enumerate(fig.axes):
         for name, axis in (("x", ax.xaxis), ("y", ax.yaxis)):
@@ -242,10 +302,10 @@ def text_overlaps(fig) -> list:
             legends.append((i, f"axes {i} legend", ax.get_legend().get_window_extent(renderer)))
     found = []
     for k, (name, box) in enumerate(titles):
-        others = [(n, b) for n, b in titles[k + 1:]] + [(n, b) for _, n, b in axis_boxes + legends]
+        others = [(n, b) for n, b in titles[k + 1 :]] + [(n, b) for _, n, b in axis_boxes + legends]
         found += [(name, n) for n, b in others if box.overlaps(b)]
     for k, (i, name, box) in enumerate(legends):
-        found += [(name, n) for j, n, b in legends[k + 1:] + axis_boxes if j != i and box.overlaps(b)]
+        found += [(name, n) for j, n, b in legends[k + 1 :] + axis_boxes if j != i and box.overlaps(b)]
     return found
 
 
@@ -261,5 +321,7 @@ def test_the_episode_plot_has_no_overlapping_texts(synthetic_bag):
         fig = episode_figure(episode, run[episode], summary)
         assert text_overlaps(fig) == [], episode
         assert [ax.get_title() for ax in fig.axes[:2]] == [
-            "top view (world frame)", "signals over the episode (dotted: first step at the end, green = paper "
-            "rule, purple = authors' rule; grey: gripper still)"]
+            "top view (world frame)",
+            "signals over the episode (dotted: first step at the end, green = paper "
+            "rule, purple = authors' rule; grey: gripper still)",
+        ]

@@ -50,8 +50,15 @@ EXIT_STALE, EXIT_ERROR = 1, 2
 # internal ones and the run's provenance (no data of a step); the live graph is compared with it.
 CONTRACT_TOPICS = tuple(t.name for t in select(exclude=("internal", "provenance")))
 INFRASTRUCTURE_TOPICS = ("/parameter_events", "/rosout")
-PARAMETER_SERVICES = ("describe_parameters", "get_parameters", "get_parameter_types", "list_parameters",
-                      "set_parameters", "set_parameters_atomically", "get_type_description")
+PARAMETER_SERVICES = (
+    "describe_parameters",
+    "get_parameters",
+    "get_parameter_types",
+    "list_parameters",
+    "set_parameters",
+    "set_parameters_atomically",
+    "get_type_description",
+)
 
 
 def semantics() -> dict:
@@ -66,8 +73,7 @@ def semantics() -> dict:
     from dlo_perception.camera import TopCamera
     from dlo_perception.tactile import Y_LIMIT
     from dlo_sim.command import MAX_SPEED
-    from dlo_sim.config import FIXED_END, GRIPPER_HEIGHT, IMAGE_BACKGROUND, IMAGE_CABLE, IMAGE_GRIPPER, \
-        WORKSPACE_HALF_WIDTH
+    from dlo_sim.config import FIXED_END, GRIPPER_HEIGHT, IMAGE_BACKGROUND, IMAGE_CABLE, IMAGE_GRIPPER, WORKSPACE_HALF_WIDTH
     from dlo_sim.task import END_PARTICLES, HORIZON
 
     w = WORKSPACE_HALF_WIDTH
@@ -75,63 +81,79 @@ def semantics() -> dict:
     prose = {
         "/clock": dict(
             units="simulation time of the state just published (0.08 s per control step)",
-            driver="not needed: no node runs with use_sim_time; a driver stamps with its own clock"),
+            driver="not needed: no node runs with use_sim_time; a driver stamps with its own clock",
+        ),
         "/dlo/gripper/state": dict(
             units=f"x, y [m] in the workspace [{-w}, {w}]; z [m] gripper height (sim: {GRIPPER_HEIGHT}, constant; "
-                  "vision_node converts pixels to metres at this height); closure c_G [-] in [0, 1]; "
-                  f"episode (0-based); step 0..{HORIZON} within the episode",
+            "vision_node converts pixels to metres at this height); closure c_G [-] in [0, 1]; "
+            f"episode (0-based); step 0..{HORIZON} within the episode",
             driver="**must publish**, once per control step, after the step's image (perception and policy react "
-                   "to the state); `step` +1 per control step (per executed command in step_locked, per tick in "
-                   "real_time), `episode` +1 per reset"),
+            "to the state); `step` +1 per control step (per executed command in step_locked, per tick in "
+            "real_time), `episode` +1 per reset",
+        ),
         "/dlo/gripper/cmd": dict(
             units=f"vx, vy [m/s] with |vx|, |vy| <= {MAX_SPEED:g} (= {MAX_SPEED * 0.01:g} m per 0.01 s); closure "
-                  "[-] in [0, 1]; episode, step = those of the state it answers; header = that state's header",
+            "[-] in [0, 1]; episode, step = those of the state it answers; header = that state's header",
             driver="**must obey**: apply it from the next control step on until the next command; reject (warn, "
-                   "hold) non-finite or out-of-range values and commands for another episode or a stale step; stop "
-                   "and hold the closure when the last command is older than command_timeout"),
+            "hold) non-finite or out-of-range values and commands for another episode or a stale step; stop "
+            "and hold the closure when the last command is older than command_timeout",
+        ),
         "/dlo/camera/image": dict(
             units=f"mono8 segmentation, {cam.width} x {cam.height} px: {IMAGE_CABLE} cable, {IMAGE_GRIPPER} gripper, "
-                  f"{IMAGE_BACKGROUND} background; top view (column u ~ world +x, row v ~ world -y)",
+            f"{IMAGE_BACKGROUND} background; top view (column u ~ world +x, row v ~ world -y)",
             driver="**must publish** (a segmented top-camera frame with the state's stamp), or publish "
-                   "/dlo/vision/pose itself and not run vision_node"),
+            "/dlo/vision/pose itself and not run vision_node",
+        ),
         "/dlo/camera/camera_info": dict(
             units=f"K [px] of the top camera; sim: {cam.width} x {cam.height}, fx = fy = {cam.fx:g}, "
-                  f"cx = cy = {cam.cx:g}, camera at {cam.position} m looking down -z (the position is vision_node's "
-                  "camera_position parameter, CameraInfo has no pose)",
-            driver="**must publish**, transient-local (latched), frame_id = the image's"),
+            f"cx = cy = {cam.cx:g}, camera at {cam.position} m looking down -z (the position is vision_node's "
+            "camera_position parameter, CameraInfo has no pose)",
+            driver="**must publish**, transient-local (latched), frame_id = the image's",
+        ),
         "/dlo/rope/particles": dict(
             units=f"points in index order (0 = fixed end at {FIXED_END} m): x, y, z [m] world; held 1.0 = between "
-                  "the fingers, else 0.0",
+            "the fingers, else 0.0",
             driver="ground truth in the sim; a driver may publish the tactile sensor's contact points here "
-                   "(held = 1 for points in contact) for tactile_node, or publish /dlo/tactile/pose itself"),
+            "(held = 1 for points in contact) for tactile_node, or publish /dlo/tactile/pose itself",
+        ),
         "/dlo/tactile/pose": dict(
             units=f"angle theta_T [rad] in (-pi/2, pi/2]; y y_T [m], |y_T| <= {Y_LIMIT}; contact (>= 2 points "
-                  "between the fingers; false: angle = y = 0); contact_count",
-            driver="from tactile_node (particles), or from a tactile sensor driver directly (same stamp as the state)"),
+            "between the fingers; false: angle = y = 0); contact_count",
+            driver="from tactile_node (particles), or from a tactile sensor driver directly (same stamp as the state)",
+        ),
         "/dlo/vision/pose": dict(
             units="visible v_V; confidence q_V in [0, 1]; angle theta_V [rad]; y y_V [m] (0 when not visible)",
-            driver="from vision_node (image + camera_info + state)"),
+            driver="from vision_node (image + camera_info + state)",
+        ),
         "/dlo/task/state": dict(
             units=f"episode, seed, step; held particle indices, n_h, p_i (mean held index, -1 = none); n_c, L_c [m]; "
-                  f"reward and return; done and outcome (paper rule: any of the last {END_PARTICLES} held) and the "
-                  "authors' rule's held set, mean index and outcome",
+            f"reward and return; done and outcome (paper rule: any of the last {END_PARTICLES} held) and the "
+            "authors' rule's held set, mean index and outcome",
             driver="simulation only (needs the cable's ground truth): a driver publishes none; the policy needs it "
-                   "only for online training (train:=true); dlo-analyze of a driver bag has no outcomes"),
+            "only for online training (train:=true); dlo-analyze of a driver bag has no outcomes",
+        ),
         "/dlo/markers": dict(
             units="cable line strip (width 0.008 m) and the two finger cylinders, world frame",
-            driver="optional (visualisation only)"),
+            driver="optional (visualisation only)",
+        ),
         "/dlo/sim/instance": dict(
             units="JSON {host, pid, started_ns}: the simulator on this domain",
-            driver="simulator-internal (two simulators on one domain: the later one leaves)"),
+            driver="simulator-internal (two simulators on one domain: the later one leaves)",
+        ),
         "/dlo/policy/info": dict(
             units="JSON {policy, checkpoint, sha256, shipped, modalities, without, task_rules, single_particle_grip, "
-                  "env_options, ...}: the policy node's policy and what it was trained under, published once",
-            driver="nothing (the policy node publishes it; the recorder keeps it in the bag for dlo-analyze)"),
+            "env_options, ...}: the policy node's policy and what it was trained under, published once",
+            driver="nothing (the policy node publishes it; the recorder keeps it in the bag for dlo-analyze)",
+        ),
     }
     entries = {}
     for t in select():
-        entry = {"rate": t.rate, "units": t.description, **({"role": t.driver} if t.driver else {}),
-                 **({"sim_only": True} if t.sim_only else {})}
+        entry = {
+            "rate": t.rate,
+            "units": t.description,
+            **({"role": t.driver} if t.driver else {}),
+            **({"sim_only": True} if t.sim_only else {}),
+        }
         entries[t.name] = {**entry, **prose.get(t.name, {})}
     return entries
 
@@ -189,12 +211,22 @@ def capture(domain: int, window: float, timeout: float, workdir: Path, log=print
     env["DLO_INTERFACES_DUMP"] = str(dump)
     env["ROS_DOMAIN_ID"] = str(domain)
     env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-    cmd = [str(ROOT / "scripts" / "launch_graph.sh"), "--episodes", "1", "--mode", "real_time",
-           "--domain-id", str(domain), "--logs", str(workdir / "logs"), "--record", str(workdir / "bag")]
+    cmd = [
+        str(ROOT / "scripts" / "launch_graph.sh"),
+        "--episodes",
+        "1",
+        "--mode",
+        "real_time",
+        "--domain-id",
+        str(domain),
+        "--logs",
+        str(workdir / "logs"),
+        "--record",
+        str(workdir / "bag"),
+    ]
     import rclpy
-    from rclpy.signals import SignalHandlerOptions
-
     from dlo_common.node_main import shut_down
+    from rclpy.signals import SignalHandlerOptions
 
     os.environ["ROS_DOMAIN_ID"] = str(domain)
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
@@ -204,12 +236,19 @@ def capture(domain: int, window: float, timeout: float, workdir: Path, log=print
         time.sleep(1.5)  # discovery: another graph on this domain would mix into the doc
         others = sorted({n for n in node.get_node_names() if n != PROBE_NODE})
         if others:
-            raise CaptureError(f"ROS_DOMAIN_ID={domain} already has nodes ({', '.join(others)}): stop them or "
-                               "give another --domain-id")
+            raise CaptureError(
+                f"ROS_DOMAIN_ID={domain} already has nodes ({', '.join(others)}): stop them or give another --domain-id"
+            )
         log(f"[gen_interfaces] starting the graph on ROS_DOMAIN_ID={domain}: {' '.join(cmd[1:])}")
         with open(workdir / "launch.log", "w") as out:
-            proc = subprocess.Popen(cmd, env=env, stdout=out, stderr=subprocess.STDOUT, start_new_session=True,
-                                    preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+            proc = subprocess.Popen(
+                cmd,
+                env=env,
+                stdout=out,
+                stderr=subprocess.STDOUT,
+                start_new_session=True,
+                preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+            )
         try:
             samples, wire = observe(node, proc, window, timeout)
         finally:
@@ -220,17 +259,15 @@ def capture(domain: int, window: float, timeout: float, workdir: Path, log=print
     for path in sorted(dump.glob("*.jsonl")):
         records += [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
     if not records:
-        raise CaptureError("the hook recorded nothing: were the nodes started with tools/gen_interfaces_hook "
-                           "on PYTHONPATH?")
+        raise CaptureError("the hook recorded nothing: were the nodes started with tools/gen_interfaces_hook on PYTHONPATH?")
     return {"records": records, "samples": samples, "wire": wire}
 
 
 def observe(node, proc: subprocess.Popen, window: float, timeout: float) -> tuple[dict, dict]:
     """Subscribe to every /dlo topic and /clock once the policy answers; count and inspect messages."""
     import rclpy
-    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
-
     from dlo_bag.playback import import_message_class
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
     deadline = time.monotonic() + timeout
     while not (node.count_publishers("/dlo/gripper/cmd") and node.count_publishers("/dlo/gripper/state")):
@@ -264,11 +301,15 @@ def observe(node, proc: subprocess.Popen, window: float, timeout: float) -> tupl
             continue
         infos = node.get_publishers_info_by_topic(topic)
         latched = any(i.qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL for i in infos)
-        qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE,
-                         durability=DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE)
+        qos = QoSProfile(
+            depth=100,
+            reliability=ReliabilityPolicy.RELIABLE,
+            durability=DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE,
+        )
         samples[topic] = {"count": 0, "first": None, "stamps": []}
-        subscriptions.append(node.create_subscription(
-            import_message_class(types[0]), topic, lambda m, t=topic: on_message(t, m), qos))
+        subscriptions.append(
+            node.create_subscription(import_message_class(types[0]), topic, lambda m, t=topic: on_message(t, m), qos)
+        )
     started = None
     while True:
         rclpy.spin_once(node, timeout_sec=0.1)
@@ -284,8 +325,8 @@ def observe(node, proc: subprocess.Popen, window: float, timeout: float) -> tupl
     for topic in samples:
         wire[topic] = {
             "publishers": [endpoint_info(i) for i in node.get_publishers_info_by_topic(topic)],
-            "subscribers": [endpoint_info(i) for i in node.get_subscriptions_info_by_topic(topic)
-                            if i.node_name != PROBE_NODE]}
+            "subscribers": [endpoint_info(i) for i in node.get_subscriptions_info_by_topic(topic) if i.node_name != PROBE_NODE],
+        }
     observed = time.monotonic() - started if started is not None else 0.0
     summary = {topic: summarise(topic, entry) for topic, entry in samples.items()}
     for entry in summary.values():
@@ -294,8 +335,12 @@ def observe(node, proc: subprocess.Popen, window: float, timeout: float) -> tupl
 
 
 def endpoint_info(info) -> dict:
-    return {"node": info.node_name, "type": info.topic_type, "reliability": info.qos_profile.reliability.name.lower(),
-            "durability": info.qos_profile.durability.name.lower()}
+    return {
+        "node": info.node_name,
+        "type": info.topic_type,
+        "reliability": info.qos_profile.reliability.name.lower(),
+        "durability": info.qos_profile.durability.name.lower(),
+    }
 
 
 def stamp_of(msg):
@@ -325,24 +370,30 @@ def summarise(topic: str, entry: dict) -> dict:
     if hasattr(msg, "encoding"):
         out["image"] = {"encoding": msg.encoding, "width": msg.width, "height": msg.height, "step": msg.step}
     if hasattr(msg, "k") and hasattr(msg, "distortion_model"):
-        out["camera_info"] = {"width": msg.width, "height": msg.height, "k": [float(v) for v in msg.k],
-                              "distortion_model": msg.distortion_model}
+        out["camera_info"] = {
+            "width": msg.width,
+            "height": msg.height,
+            "k": [float(v) for v in msg.k],
+            "distortion_model": msg.distortion_model,
+        }
     return out
 
 
 def marker_type(code: int) -> str:
     from visualization_msgs.msg import Marker
 
-    names = {getattr(Marker, n): n for n in dir(Marker) if n.isupper() and isinstance(getattr(Marker, n), int)
-             and n not in ("ADD", "MODIFY", "DELETE", "DELETEALL")}
+    names = {
+        getattr(Marker, n): n
+        for n in dir(Marker)
+        if n.isupper() and isinstance(getattr(Marker, n), int) and n not in ("ADD", "MODIFY", "DELETE", "DELETEALL")
+    }
     return names.get(code, str(code))
 
 
 def point_type(code: int) -> str:
     from sensor_msgs.msg import PointField
 
-    names = {getattr(PointField, n): n for n in ("INT8", "UINT8", "INT16", "UINT16", "INT32", "UINT32", "FLOAT32",
-                                                  "FLOAT64")}
+    names = {getattr(PointField, n): n for n in ("INT8", "UINT8", "INT16", "UINT16", "INT32", "UINT32", "FLOAT32", "FLOAT64")}
     return names.get(code, str(code))
 
 
@@ -364,28 +415,48 @@ def build_model(snapshot: dict) -> dict:
         if endpoint not in t[key]:
             t[key].append(endpoint)
     for topic, wire in snapshot.get("wire", {}).items():  # endpoints the hook could not see (non-Python nodes)
-        t = topics.setdefault(topic, {"type": wire["publishers"][0]["type"] if wire["publishers"] else "?",
-                                      "publishers": [], "subscribers": []})
+        t = topics.setdefault(
+            topic, {"type": wire["publishers"][0]["type"] if wire["publishers"] else "?", "publishers": [], "subscribers": []}
+        )
         for key in ("publishers", "subscribers"):
             known = {e["node"] for e in t[key]}
             for e in wire[key]:
                 if e["node"] not in known and e["node"] != PROBE_NODE:
-                    t[key].append({"node": e["node"], "history": "unknown", "depth": "?",
-                                   "reliability": e["reliability"], "durability": e["durability"]})
+                    t[key].append(
+                        {
+                            "node": e["node"],
+                            "history": "unknown",
+                            "depth": "?",
+                            "reliability": e["reliability"],
+                            "durability": e["durability"],
+                        }
+                    )
     for t in topics.values():
         t["publishers"].sort(key=lambda e: e["node"])
         t["subscribers"].sort(key=lambda e: e["node"])
-    services = sorted({(r["name"], r["type"], r["node"]) for r in records if r["kind"] == "service"
-                       and r["name"].rsplit("/", 1)[-1] not in PARAMETER_SERVICES})
-    clients = sorted({(r["name"], r["type"], r["node"]) for r in records if r["kind"] == "client"
-                      and r["name"].rsplit("/", 1)[-1] not in PARAMETER_SERVICES})
+    services = sorted(
+        {
+            (r["name"], r["type"], r["node"])
+            for r in records
+            if r["kind"] == "service" and r["name"].rsplit("/", 1)[-1] not in PARAMETER_SERVICES
+        }
+    )
+    clients = sorted(
+        {
+            (r["name"], r["type"], r["node"])
+            for r in records
+            if r["kind"] == "client" and r["name"].rsplit("/", 1)[-1] not in PARAMETER_SERVICES
+        }
+    )
     timers = sorted({(r["node"], round(r["period_s"], 6), r["callback"]) for r in records if r["kind"] == "timer"})
     use_sim_time = {r["node"]: r["value"] for r in records if r["kind"] == "parameter" and r["name"] == "use_sim_time"}
     sim_pids = {r["pid"] for r in records if r["kind"] == "node" and r["node"] == "sim_node"}
-    sequence = [r["topic"] for r in sorted((r for r in records if r["kind"] == "publish" and r["pid"] in sim_pids),
-                                           key=lambda r: r["seq"])]
+    sequence = [
+        r["topic"]
+        for r in sorted((r for r in records if r["kind"] == "publish" and r["pid"] in sim_pids), key=lambda r: r["seq"])
+    ]
     clocks = [i for i, topic in enumerate(sequence) if topic == "/clock"]
-    step_order = sequence[clocks[1]:clocks[2]] if len(clocks) >= 3 else []
+    step_order = sequence[clocks[1] : clocks[2]] if len(clocks) >= 3 else []
     samples = snapshot.get("samples", {})
     state_stamps = samples.get("/dlo/gripper/state", {}).get("stamps", [])
     step_ns = None
@@ -399,9 +470,16 @@ def build_model(snapshot: dict) -> dict:
             if key in s:
                 t[key] = s[key]
         t["stamp"] = stamp_rule(topic, s.get("stamps", []), state_stamps)
-    return {"nodes": nodes, "topics": topics, "services": services, "clients": clients, "timers": timers,
-            "step_order": step_order,
-            "use_sim_time": use_sim_time, "step_ns": step_ns}
+    return {
+        "nodes": nodes,
+        "topics": topics,
+        "services": services,
+        "clients": clients,
+        "timers": timers,
+        "step_order": step_order,
+        "use_sim_time": use_sim_time,
+        "step_ns": step_ns,
+    }
 
 
 def stamp_rule(topic: str, stamps: list, state_stamps: list) -> str:
@@ -443,9 +521,11 @@ def rate_classes(snapshot: dict) -> dict:
 def check_rates(snapshot: dict, declared: dict) -> list[str]:
     """Lines naming each topic whose measured rate class differs from the declared one."""
     measured = rate_classes(snapshot)
-    return [f"{topic}: declared '{declared[topic]['rate']}', measured '{cls}'"
-            for topic, cls in sorted(measured.items())
-            if topic in declared and cls not in (declared[topic]["rate"], "unmeasured")]
+    return [
+        f"{topic}: declared '{declared[topic]['rate']}', measured '{cls}'"
+        for topic, cls in sorted(measured.items())
+        if topic in declared and cls not in (declared[topic]["rate"], "unmeasured")
+    ]
 
 
 # ----------------------------------------------------------------------------------- static parts
@@ -478,8 +558,13 @@ def parameter_tables() -> list[tuple[str, str, str]]:
     tables = []
     for package, exe, module_name in node_executables():
         params = getattr(importlib.import_module(module_name), "PARAMETERS", None)
-        tables.append((package, exe, markdown_table(params) if params is not None
-                       else "(no module-level PARAMETERS: see the node's source)"))
+        tables.append(
+            (
+                package,
+                exe,
+                markdown_table(params) if params is not None else "(no module-level PARAMETERS: see the node's source)",
+            )
+        )
     return tables
 
 
@@ -501,31 +586,48 @@ def render(model: dict, sem: dict, params: list, definitions: list) -> str:
     out = []
     add = out.append
     add("# Interfaces of the dlo-vitac graph\n")
-    add("<!-- Generated by tools/gen_interfaces.py from a live graph and the code: do not edit by hand. "
-        "Regenerate: python tools/gen_interfaces.py; check: python tools/gen_interfaces.py --check -->\n")
-    add("The reference a robotics user writes a driver from. Everything below except the units/ranges column "
+    add(
+        "<!-- Generated by tools/gen_interfaces.py from a live graph and the code: do not edit by hand. "
+        "Regenerate: python tools/gen_interfaces.py; check: python tools/gen_interfaces.py --check -->\n"
+    )
+    add(
+        "The reference a robotics user writes a driver from. Everything below except the units/ranges column "
         "and the prose is generated from the code or observed on a running graph (`scripts/launch_graph.sh "
         "--mode real_time --record`, the shipped SAC policy), so it cannot drift: "
         "`tests/test_interfaces_doc.py` regenerates it and fails when it is stale. How to write a driver: "
         "[WRITE_YOUR_DRIVER.md](WRITE_YOUR_DRIVER.md); whether yours fits, rule by rule: `dlo-driver-check`. "
         "The topic contract: [ARCHITECTURE.md#topics](ARCHITECTURE.md#topics); "
-        "the library API: [LIBRARY_API.md](LIBRARY_API.md).\n")
-    add("Conventions: SI units, REP-103 (right-handed, z up). Every topic is under `/dlo` (plus `/clock`); "
+        "the library API: [LIBRARY_API.md](LIBRARY_API.md).\n"
+    )
+    add(
+        "Conventions: SI units, REP-103 (right-handed, z up). Every topic is under `/dlo` (plus `/clock`); "
         "`launch_graph.sh --namespace NS` prefixes them all with `/NS`. Every message's `header.frame_id` "
         "names the frame of its values; its `header.stamp` is the simulation (or driver) time of the control "
-        "step it belongs to, so nodes match one step's messages exactly by stamp.\n")
+        "step it belongs to, so nodes match one step's messages exactly by stamp.\n"
+    )
 
     add("## Contents\n")
-    for title in ("A driver's interface", "Topics", "Topic details: units, ranges, QoS of every endpoint", "Services", "Frames",
-                  "Timing", "What the simulator publishes that a robot cannot", "Message definitions",
-                  "Node parameters", "Known deviations from the topic contract"):
+    for title in (
+        "A driver's interface",
+        "Topics",
+        "Topic details: units, ranges, QoS of every endpoint",
+        "Services",
+        "Frames",
+        "Timing",
+        "What the simulator publishes that a robot cannot",
+        "Message definitions",
+        "Node parameters",
+        "Known deviations from the topic contract",
+    ):
         add(f"- [{title}](#{anchor(title)})")
     add("")
 
     add("## A driver's interface\n")
-    add("What a real robot driver that replaces `sim_node` publishes and subscribes, with the QoS the graph uses "
+    add(
+        "What a real robot driver that replaces `sim_node` publishes and subscribes, with the QoS the graph uses "
         "on that topic (a driver should offer the same: reliable and volatile match every subscriber here; "
-        "camera_info must be transient-local so a late vision node gets it). Details and units below.\n")
+        "camera_info must be transient-local so a late vision node gets it). Details and units below.\n"
+    )
     add("| topic | the driver | type | rate | QoS | frame_id |")
     add("|---|---|---|---|---|---|")
     for topic in order:
@@ -537,15 +639,19 @@ def render(model: dict, sem: dict, params: list, definitions: list) -> str:
             qos = "; ".join(sorted({qos_text(e) for e in mine})) or "—"
             add(f"| `{topic}` | {role} | `{t['type']}` | {sem[topic]['rate']} | {qos} | {frame_text(t)} |")
     add("")
-    add("Service (optional): `/dlo/sim/reset` (`dlo_msgs/srv/ResetEpisode`) to start an episode on request. "
+    add(
+        "Service (optional): `/dlo/sim/reset` (`dlo_msgs/srv/ResetEpisode`) to start an episode on request. "
         "Step-by-step guide and a template: [WRITE_YOUR_DRIVER.md](WRITE_YOUR_DRIVER.md); conformance: "
-        "`dlo-driver-check`.\n")
+        "`dlo-driver-check`.\n"
+    )
 
     add("## Topics\n")
-    add(f"Rates: **step** = one message per control step: {rate:g} Hz (one step = {period:g} s of simulation) "
+    add(
+        f"Rates: **step** = one message per control step: {rate:g} Hz (one step = {period:g} s of simulation) "
         "times `rate_factor` in real_time; in step_locked as fast as the graph answers. **latched** = published "
         "once, transient-local (late joiners get it). QoS is the publisher's (history depth as the code "
-        "requests it); subscribers' QoS are in the details.\n")
+        "requests it); subscribers' QoS are in the details.\n"
+    )
     add("| topic | type | publisher | subscribers | rate | QoS | frame_id |")
     add("|---|---|---|---|---|---|---|")
     for topic in order:
@@ -560,12 +666,15 @@ def render(model: dict, sem: dict, params: list, definitions: list) -> str:
     add("```mermaid")
     add(mermaid_graph(topics, order))
     add("```\n")
-    add("Nodes (executable → node name): " + ", ".join(
-        f"`{exe}` → `{name}`" for name, exe in sorted(model["nodes"].items())) + ". `recorder` runs only with "
+    add(
+        "Nodes (executable → node name): "
+        + ", ".join(f"`{exe}` → `{name}`" for name, exe in sorted(model["nodes"].items()))
+        + ". `recorder` runs only with "
         "`--record`; the Foxglove bridge (`--foxglove`) subscribes to a topic only while a client watches it and "
         "is not shown. `policy_node` subscribes to what its policy needs: with `policy:=oracle` also "
         "`/dlo/rope/particles`, with `train:=true` also `/dlo/task/state`; without T or V in its modalities "
-        "(or `without:=`) not to that pose.\n")
+        "(or `without:=`) not to that pose.\n"
+    )
 
     add("## Topic details: units, ranges, QoS of every endpoint\n")
     for topic in order:
@@ -577,15 +686,19 @@ def render(model: dict, sem: dict, params: list, definitions: list) -> str:
         add(f"- **frame_id**: {frame_text(t)}; **stamp**: {t['stamp']}.")
         if "fields" in t:
             fields = ", ".join(f"`{n}` {typ} @{off}" for n, typ, off in t["fields"])
-            add(f"- **Layout**: fields {fields}; point_step {t['point_step']}, "
-                f"{'big' if t['is_bigendian'] else 'little'} endian; one point per particle.")
+            add(
+                f"- **Layout**: fields {fields}; point_step {t['point_step']}, "
+                f"{'big' if t['is_bigendian'] else 'little'} endian; one point per particle."
+            )
         if "image" in t:
             i = t["image"]
             add(f"- **Layout**: encoding `{i['encoding']}`, {i['width']} x {i['height']} px, step {i['step']} bytes.")
         if "camera_info" in t:
             c = t["camera_info"]
-            add(f"- **Layout**: {c['width']} x {c['height']} px, distortion_model `{c['distortion_model'] or '(empty)'}`"
-                f", K = {[round(v, 6) for v in c['k']]}.")
+            add(
+                f"- **Layout**: {c['width']} x {c['height']} px, distortion_model `{c['distortion_model'] or '(empty)'}`"
+                f", K = {[round(v, 6) for v in c['k']]}."
+            )
         if "markers" in t:
             add(f"- **Markers**: {', '.join(t['markers'])}.")
         if s.get("driver"):
@@ -602,10 +715,12 @@ def render(model: dict, sem: dict, params: list, definitions: list) -> str:
         clients = ", ".join(f"`{c[2]}`" for c in model["clients"] if c[0] == name) or "none (call it yourself)"
         add(f"| `{name}` | `{typ}` | `{node}` | {clients} |")
     add("")
-    add("`/dlo/sim/reset` starts a new episode at once (`seed < 0`: the node's own sequence `seed + episode`); "
+    add(
+        "`/dlo/sim/reset` starts a new episode at once (`seed < 0`: the node's own sequence `seed + episode`); "
         "the response names the new episode counter and seed. A driver may offer the same service (e.g. to "
         "move the robot home). Every node also serves the standard ROS 2 parameter services "
-        "(`/<node>/get_parameters`, `/<node>/set_parameters`, ...).\n")
+        "(`/<node>/get_parameters`, `/<node>/set_parameters`, ...).\n"
+    )
 
     cam = TopCamera.covering_workspace()
     w = WORKSPACE_HALF_WIDTH
@@ -616,23 +731,31 @@ def render(model: dict, sem: dict, params: list, definitions: list) -> str:
     add("|---|---|---|---|")
     users = {}
     for topic, t in topics.items():
-        for f in (t.get("frame_id") if isinstance(t.get("frame_id"), list) else [t.get("frame_id")]):
+        for f in t.get("frame_id") if isinstance(t.get("frame_id"), list) else [t.get("frame_id")]:
             if f:
                 users.setdefault(f, []).append(f"`{topic}`")
-    add(f"| `world` | table centre, table plane z = 0 | x along the cable (fixed end at x = {FIXED_END[0]}), "
-        f"z up | {', '.join(sorted(users.get('world', [])))} |")
-    add(f"| `gripper` | gripper centre (x_G, y_G, z_G = {GRIPPER_HEIGHT} m), midway between the finger axes | "
+    add(
+        f"| `world` | table centre, table plane z = 0 | x along the cable (fixed end at x = {FIXED_END[0]}), "
+        f"z up | {', '.join(sorted(users.get('world', [])))} |"
+    )
+    add(
+        f"| `gripper` | gripper centre (x_G, y_G, z_G = {GRIPPER_HEIGHT} m), midway between the finger axes | "
         "parallel to `world` (the gripper does not rotate): x = direction of travel, y = along the fingers | "
-        f"{', '.join(sorted(users.get('gripper', [])))} |")
+        f"{', '.join(sorted(users.get('gripper', [])))} |"
+    )
     optical = [f for f in users if f not in ("world", "gripper")]
     for f in sorted(optical):
-        add(f"| `{f}` | camera centre {cam.position} m in `world` | REP-103 optical: x = world x, "
-            f"y = world -y, z = world -z (looks down) | {', '.join(sorted(users[f]))} |")
+        add(
+            f"| `{f}` | camera centre {cam.position} m in `world` | REP-103 optical: x = world x, "
+            f"y = world -y, z = world -z (looks down) | {', '.join(sorted(users[f]))} |"
+        )
     add("")
-    add("Static transforms for RViz/Foxglove (not published by the graph): "
+    add(
+        "Static transforms for RViz/Foxglove (not published by the graph): "
         f"`ros2 run tf2_ros static_transform_publisher --z {cam.position[2]} --roll 3.141592653589793 "
         "--frame-id world --child-frame-id top_camera_optical`; the `gripper` frame moves with "
-        "`/dlo/gripper/state` (translation only).\n")
+        "`/dlo/gripper/state` (translation only).\n"
+    )
     add("```")
     add(frames_diagram(FIXED_END, w, cam.position[2], GRIPPER_HEIGHT))
     add("```\n")
@@ -640,27 +763,38 @@ def render(model: dict, sem: dict, params: list, definitions: list) -> str:
     add("## Timing\n")
     step_ns = model["step_ns"]
     step_text = f"{step_ns / 1e9:g} s" if step_ns else "?"
-    add(f"One control step = {SUBSTEPS_PER_ACTION} simulation steps of {DT} s = {period:g} s; the state's stamp "
+    add(
+        f"One control step = {SUBSTEPS_PER_ACTION} simulation steps of {DT} s = {period:g} s; the state's stamp "
         f"advances by {step_text} per step (observed), continuing across episodes; an episode has {HORIZON} steps. "
         "Within a step the simulator publishes, in this order (observed): "
         + (" → ".join(f"`{t}`" for t in model["step_order"]) or "?")
-        + (": the gripper state **last**, so perception and the policy react to a complete step. "
-           if model["step_order"][-1:] == ["/dlo/gripper/state"] else ". ")
+        + (
+            ": the gripper state **last**, so perception and the policy react to a complete step. "
+            if model["step_order"][-1:] == ["/dlo/gripper/state"]
+            else ". "
+        )
         + "Perception outputs and the command carry the state's stamp; the command also echoes its episode and "
-        "step.\n")
+        "step.\n"
+    )
     sim = sim_defaults()
-    add("- **step_locked** (`mode:=step_locked`, default): the simulator advances one step when the command "
+    add(
+        "- **step_locked** (`mode:=step_locked`, default): the simulator advances one step when the command "
         "answering the current step (same episode and step) arrives; deterministic, as fast as the graph answers. "
         f"A step nobody answers within `step_timeout` (default {sim.get('step_timeout')} s) is republished with the "
         "same stamp (perception and policy answer it again, unchanged); at start-up the first state is republished "
-        "every 0.25 s until answered.")
-    add(f"- **real_time** (`mode:=real_time`): a timer advances one step every {period:g} s / `rate_factor` "
+        "every 0.25 s until answered."
+    )
+    add(
+        f"- **real_time** (`mode:=real_time`): a timer advances one step every {period:g} s / `rate_factor` "
         f"(default {sim.get('rate_factor')}) of wall time with the last accepted command; a command for another "
         "episode, or for a step older than `command_timeout` (default "
         f"{sim.get('command_timeout')} s), is rejected; when the last command is older than `command_timeout` the "
-        "gripper stops and holds its closure. This is how a real robot driver runs.")
-    add("- In both modes a non-finite or out-of-range command is rejected with a warning (at most one line a "
-        "second per cause) and the gripper holds.\n")
+        "gripper stops and holds its closure. This is how a real robot driver runs."
+    )
+    add(
+        "- In both modes a non-finite or out-of-range command is rejected with a warning (at most one line a "
+        "second per cause) and the gripper holds.\n"
+    )
     add("Timers of the running graph (period [s], callback):\n")
     add("| node | period [s] | callback |")
     add("|---|---|---|")
@@ -675,19 +809,22 @@ def render(model: dict, sem: dict, params: list, definitions: list) -> str:
     for topic in order:
         s = sem.get(topic, {})
         if s.get("sim_only"):
-            add(f"| `{topic}` | {', '.join('`' + e['node'] + '`' for e in topics[topic]['publishers'])} | "
-                f"{s['driver']} |")
+            add(f"| `{topic}` | {', '.join('`' + e['node'] + '`' for e in topics[topic]['publishers'])} | {s['driver']} |")
     add("")
-    add("A driver publishes `/dlo/gripper/state`, `/dlo/camera/image` + `/dlo/camera/camera_info` and a tactile "
+    add(
+        "A driver publishes `/dlo/gripper/state`, `/dlo/camera/image` + `/dlo/camera/camera_info` and a tactile "
         "source, and obeys `/dlo/gripper/cmd` (see the **Real robot** lines above); the perception and policy "
         "nodes then run unchanged. Without `/dlo/task/state` there is no reward or outcome: run a trained policy, "
-        "judge episodes yourself (or from the camera).\n")
+        "judge episodes yourself (or from the camera).\n"
+    )
 
     add("## Message definitions\n")
-    add("The project's own interfaces (`ros_ws/src/dlo_msgs`), with their comments (units in brackets). The "
+    add(
+        "The project's own interfaces (`ros_ws/src/dlo_msgs`), with their comments (units in brackets). The "
         "standard messages used are `sensor_msgs/PointCloud2`, `Image`, `CameraInfo`, "
         "`visualization_msgs/MarkerArray`, `rosgraph_msgs/Clock` and `std_msgs/String` (layouts in the topic "
-        "details).\n")
+        "details).\n"
+    )
     for name, text in definitions:
         add(f"### `{name}`\n")
         add("```")
@@ -695,10 +832,12 @@ def render(model: dict, sem: dict, params: list, definitions: list) -> str:
         add("```\n")
 
     add("## Node parameters\n")
-    add("Rendered from each node module's `PARAMETERS` declarations by `dlo_common.params.markdown_table`, the "
+    add(
+        "Rendered from each node module's `PARAMETERS` declarations by `dlo_common.params.markdown_table`, the "
         "same declarations the node checks at start and prints with `--help` (`ros2 run <package> <executable> "
         "--help`); set them with `--ros-args -p name:=value` or `--params-file` (each package's "
-        "`config/<executable>.yaml`).\n")
+        "`config/<executable>.yaml`).\n"
+    )
     for package, exe, table in params:
         add(f"### `{package} {exe}`\n")
         add(table.rstrip())
@@ -782,44 +921,64 @@ def deviations(model: dict) -> list[str]:
     topics = model["topics"]
     extra = sorted(set(topics) - set(CONTRACT_TOPICS))
     if extra:
-        lines.append("Topics the graph has that docs/ARCHITECTURE.md#topics does not list: "
-                     + ", ".join(f"`{t}`" for t in extra) + ".")
+        lines.append(
+            "Topics the graph has that docs/ARCHITECTURE.md#topics does not list: " + ", ".join(f"`{t}`" for t in extra) + "."
+        )
     missing = sorted(set(CONTRACT_TOPICS) - set(topics))
     if missing:
-        lines.append("Topics docs/ARCHITECTURE.md#topics lists that the running graph lacks: "
-                     + ", ".join(f"`{t}`" for t in missing) + ".")
+        lines.append(
+            "Topics docs/ARCHITECTURE.md#topics lists that the running graph lacks: " + ", ".join(f"`{t}`" for t in missing) + "."
+        )
     headerless = sorted(t for t, v in topics.items() if t.startswith("/dlo/") and v.get("frame_id") is None)
     if headerless:
-        lines.append("docs/ARCHITECTURE.md#topics: \"every message has a `std_msgs/Header`\"; these have none: "
-                     + ", ".join(f"`{t}` (`{topics[t]['type']}`)" for t in headerless) + ".")
+        lines.append(
+            'docs/ARCHITECTURE.md#topics: "every message has a `std_msgs/Header`"; these have none: '
+            + ", ".join(f"`{t}` (`{topics[t]['type']}`)" for t in headerless)
+            + "."
+        )
     own = sorted(t for t, v in topics.items() if v.get("stamp") == "own")
     if own:
-        lines.append("docs/ARCHITECTURE.md#topics: outputs \"carry the stamp of the input they were computed from\"; these "
-                     "carry stamps that are not a state's: " + ", ".join(f"`{t}`" for t in own) + ".")
+        lines.append(
+            'docs/ARCHITECTURE.md#topics: outputs "carry the stamp of the input they were computed from"; these '
+            "carry stamps that are not a state's: " + ", ".join(f"`{t}`" for t in own) + "."
+        )
     unframed = sorted(t for t, v in topics.items() if v.get("frame_id") == "")
     if unframed:
-        lines.append("docs/ARCHITECTURE.md#topics: \"every message's `frame_id` names the frame its values are in\"; empty "
-                     "in: " + ", ".join(f"`{t}`" for t in unframed) + ".")
+        lines.append(
+            'docs/ARCHITECTURE.md#topics: "every message\'s `frame_id` names the frame its values are in"; empty '
+            "in: " + ", ".join(f"`{t}`" for t in unframed) + "."
+        )
     if model["services"]:
-        lines.append("docs/ARCHITECTURE.md#topics names no services; the graph serves "
-                     + ", ".join(f"`{name}`" for name, _, _ in model["services"]) + ".")
+        lines.append(
+            "docs/ARCHITECTURE.md#topics names no services; the graph serves "
+            + ", ".join(f"`{name}`" for name, _, _ in model["services"])
+            + "."
+        )
     sim_time = sorted(n for n, v in model["use_sim_time"].items() if v)
     if len(sim_time) < len(model["use_sim_time"]):
-        lines.append("The topic contract: \"nodes run with `use_sim_time`\". In the launched graph `use_sim_time` is "
-                     f"{'true only for ' + ', '.join(sim_time) if sim_time else 'false for every node'}: nodes "
-                     "stamp their outputs with the stamp of their inputs (so the matching by stamp holds), and their "
-                     "timers and logs run on wall time (the real_time tick must: it drives `/clock`).")
+        lines.append(
+            'The topic contract: "nodes run with `use_sim_time`". In the launched graph `use_sim_time` is '
+            f"{'true only for ' + ', '.join(sim_time) if sim_time else 'false for every node'}: nodes "
+            "stamp their outputs with the stamp of their inputs (so the matching by stamp holds), and their "
+            "timers and logs run on wall time (the real_time tick must: it drives `/clock`)."
+        )
     if not {"/tf", "/tf_static"} & set(topics):
-        lines.append("docs/ARCHITECTURE.md#world names the frames but no node publishes `/tf` or `/tf_static` "
-                     "(see Frames for the "
-                     "static transform to publish yourself).")
+        lines.append(
+            "docs/ARCHITECTURE.md#world names the frames but no node publishes `/tf` or `/tf_static` "
+            "(see Frames for the "
+            "static transform to publish yourself)."
+        )
     info = topics.get("/dlo/camera/camera_info", {})
     if info.get("stamp", "").startswith("0"):
-        lines.append("`/dlo/camera/camera_info` is published once with stamp 0 (latched), not with each image: "
-                     "a consumer pairs them by frame_id, not by stamp (image_transport's CameraSubscriber would not).")
-    lines.append("docs/ARCHITECTURE.md#topics: \"a driver that publishes `gripper/state` and `camera/image` and obeys "
-                 "`gripper/cmd` replaces the sim node with no change elsewhere\". It must also provide a tactile "
-                 "source (`/dlo/rope/particles` contact points or `/dlo/tactile/pose`): tactile_node needs particles.")
+        lines.append(
+            "`/dlo/camera/camera_info` is published once with stamp 0 (latched), not with each image: "
+            "a consumer pairs them by frame_id, not by stamp (image_transport's CameraSubscriber would not)."
+        )
+    lines.append(
+        'docs/ARCHITECTURE.md#topics: "a driver that publishes `gripper/state` and `camera/image` and obeys '
+        '`gripper/cmd` replaces the sim node with no change elsewhere". It must also provide a tactile '
+        "source (`/dlo/rope/particles` contact points or `/dlo/tactile/pose`): tactile_node needs particles."
+    )
     return lines
 
 
@@ -845,8 +1004,10 @@ def generate(snapshot: dict, log=print) -> str:
         from dlo_sim.config import DT, SUBSTEPS_PER_ACTION
 
         hz, configured = state["count"] / state["observed_s"], 1.0 / (DT * SUBSTEPS_PER_ACTION)
-        log(f"[gen_interfaces] /dlo/gripper/state: {hz:.1f} Hz measured in real_time, {configured:g} Hz configured"
-            + ("" if abs(hz - configured) <= 0.2 * configured else " (warning: more than 20% off; a loaded machine?)"))
+        log(
+            f"[gen_interfaces] /dlo/gripper/state: {hz:.1f} Hz measured in real_time, {configured:g} Hz configured"
+            + ("" if abs(hz - configured) <= 0.2 * configured else " (warning: more than 20% off; a loaded machine?)")
+        )
     for topic in sorted(set(snapshot.get("samples", {})) - set(sem)):
         log(f"[gen_interfaces] warning: {topic} has no entry in the semantics table (units, rate, driver)")
     return render(build_model(snapshot), sem, parameter_tables(), message_definitions())
@@ -854,18 +1015,27 @@ def generate(snapshot: dict, log=print) -> str:
 
 def parse_args(argv=None):
     parser = argparse.ArgumentParser(
-        prog="gen_interfaces.py", description=__doc__.split("\n\n")[0],
-        epilog="Exit status: 0 written (or current with --check), 1 stale (--check), 2 error, 130 interrupted.")
-    parser.add_argument("--check", action="store_true",
-                        help="regenerate in memory and compare with the committed file; exit 1 with a diff if stale")
+        prog="gen_interfaces.py",
+        description=__doc__.split("\n\n")[0],
+        epilog="Exit status: 0 written (or current with --check), 1 stale (--check), 2 error, 130 interrupted.",
+    )
+    parser.add_argument(
+        "--check",
+        action="store_true",
+        help="regenerate in memory and compare with the committed file; exit 1 with a diff if stale",
+    )
     parser.add_argument("--output", type=Path, default=DOC, help=f"file to write or check (default {DOC.relative_to(ROOT)})")
-    parser.add_argument("--domain-id", type=int, default=None,
-                        help="ROS_DOMAIN_ID of the graph it starts (default: a free one in 201..232)")
+    parser.add_argument(
+        "--domain-id", type=int, default=None, help="ROS_DOMAIN_ID of the graph it starts (default: a free one in 201..232)"
+    )
     parser.add_argument("--window", type=float, default=4.0, help="seconds of messages to observe (default 4)")
-    parser.add_argument("--timeout", type=float, default=240.0,
-                        help="seconds to wait for the graph to come up (default 240)")
-    parser.add_argument("--snapshot", type=Path, default=None,
-                        help="render from this snapshot JSON (written by --save-snapshot) instead of starting a graph")
+    parser.add_argument("--timeout", type=float, default=240.0, help="seconds to wait for the graph to come up (default 240)")
+    parser.add_argument(
+        "--snapshot",
+        type=Path,
+        default=None,
+        help="render from this snapshot JSON (written by --save-snapshot) instead of starting a graph",
+    )
     parser.add_argument("--save-snapshot", type=Path, default=None, help="also write the observed snapshot as JSON")
     parser.add_argument("--keep", action="store_true", help="keep the graph's logs and bag (the path is printed)")
     args = parser.parse_args(argv)
@@ -916,8 +1086,11 @@ def main(argv=None) -> int:
         if old == text:
             log(f"[gen_interfaces] {args.output} is current")
             return 0
-        print(f"gen_interfaces: {args.output} is stale; regenerate with: python tools/gen_interfaces.py\n"
-              + diff_summary(old, text), file=sys.stderr)
+        print(
+            f"gen_interfaces: {args.output} is stale; regenerate with: python tools/gen_interfaces.py\n"
+            + diff_summary(old, text),
+            file=sys.stderr,
+        )
         return EXIT_STALE
     args.output.parent.mkdir(parents=True, exist_ok=True)
     args.output.write_text(text)

@@ -22,6 +22,7 @@ Speed: a fork server imports numpy, torch, taichi and rclpy once; each mutant ru
 forked child (``-x``, the module's listed tests only), its own process group, killed at the limit.
 Not in CI: it takes minutes to hours (Taichi kernels recompile for every kernel mutant).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -44,14 +45,49 @@ PACKAGES = ("dlo_common", "dlo_sim", "dlo_perception", "dlo_policy", "dlo_bag", 
 LOG_CALLS = {"debug", "info", "warning", "warn", "error", "fatal", "print", "exception"}
 
 # ---------------------------------------------------------------- mutation operators
-COMPARE_SWAP = {ast.Lt: ast.LtE, ast.LtE: ast.Lt, ast.Gt: ast.GtE, ast.GtE: ast.Gt, ast.Eq: ast.NotEq,
-                ast.NotEq: ast.Eq, ast.In: ast.NotIn, ast.NotIn: ast.In, ast.Is: ast.IsNot, ast.IsNot: ast.Is}
-BINOP_SWAP = {ast.Add: ast.Sub, ast.Sub: ast.Add, ast.Mult: ast.Div, ast.Div: ast.Mult, ast.FloorDiv: ast.Mult,
-              ast.Pow: ast.Mult, ast.BitAnd: ast.BitOr, ast.BitOr: ast.BitAnd, ast.Mod: ast.FloorDiv}
-AUG_SWAP = {ast.Add: ast.Sub, ast.Sub: ast.Add, ast.Mult: ast.Div, ast.Div: ast.Mult, ast.BitOr: ast.BitAnd,
-            ast.BitAnd: ast.BitOr}
-NAME_SWAP = {"min": "max", "max": "min", "minimum": "maximum", "maximum": "minimum", "any": "all", "all": "any",
-             "argmin": "argmax", "argmax": "argmin", "floor": "ceil", "ceil": "floor"}
+COMPARE_SWAP = {
+    ast.Lt: ast.LtE,
+    ast.LtE: ast.Lt,
+    ast.Gt: ast.GtE,
+    ast.GtE: ast.Gt,
+    ast.Eq: ast.NotEq,
+    ast.NotEq: ast.Eq,
+    ast.In: ast.NotIn,
+    ast.NotIn: ast.In,
+    ast.Is: ast.IsNot,
+    ast.IsNot: ast.Is,
+}
+BINOP_SWAP = {
+    ast.Add: ast.Sub,
+    ast.Sub: ast.Add,
+    ast.Mult: ast.Div,
+    ast.Div: ast.Mult,
+    ast.FloorDiv: ast.Mult,
+    ast.Pow: ast.Mult,
+    ast.BitAnd: ast.BitOr,
+    ast.BitOr: ast.BitAnd,
+    ast.Mod: ast.FloorDiv,
+}
+AUG_SWAP = {
+    ast.Add: ast.Sub,
+    ast.Sub: ast.Add,
+    ast.Mult: ast.Div,
+    ast.Div: ast.Mult,
+    ast.BitOr: ast.BitAnd,
+    ast.BitAnd: ast.BitOr,
+}
+NAME_SWAP = {
+    "min": "max",
+    "max": "min",
+    "minimum": "maximum",
+    "maximum": "minimum",
+    "any": "all",
+    "all": "any",
+    "argmin": "argmax",
+    "argmax": "argmin",
+    "floor": "ceil",
+    "ceil": "floor",
+}
 UNWRAP = {"abs", "clip"}  # f(x, ...) -> x
 KEEP_KEYWORDS = {"dtype"}  # dropping np.asarray(x, dtype=...) is nearly always equivalent on these inputs
 
@@ -98,8 +134,12 @@ class _Collector(ast.NodeVisitor):
 
     def visit_FunctionDef(self, node):
         body = node.body
-        if body and isinstance(body[0], ast.Expr) and isinstance(body[0].value, ast.Constant) \
-                and isinstance(body[0].value.value, str):
+        if (
+            body
+            and isinstance(body[0], ast.Expr)
+            and isinstance(body[0].value, ast.Constant)
+            and isinstance(body[0].value.value, str)
+        ):
             body = body[1:]
         for statement in body:
             self.visit(statement)
@@ -119,8 +159,11 @@ class _Collector(ast.NodeVisitor):
     def visit_Call(self, node):
         func = node.func
         name = func.attr if isinstance(func, ast.Attribute) else func.id if isinstance(func, ast.Name) else ""
-        if name in LOG_CALLS or (isinstance(func, ast.Attribute) and isinstance(func.value, ast.Call)
-                                 and getattr(func.value.func, "attr", "") == "get_logger"):
+        if name in LOG_CALLS or (
+            isinstance(func, ast.Attribute)
+            and isinstance(func.value, ast.Call)
+            and getattr(func.value.func, "attr", "") == "get_logger"
+        ):
             return
         if name in NAME_SWAP:
             new = copy.deepcopy(node)
@@ -199,8 +242,11 @@ class _Collector(ast.NodeVisitor):
     def _is_log(call):
         func = call.func
         name = func.attr if isinstance(func, ast.Attribute) else getattr(func, "id", "")
-        return name in LOG_CALLS or (isinstance(func, ast.Attribute) and isinstance(func.value, ast.Call)
-                                     and getattr(func.value.func, "attr", "") == "get_logger")
+        return name in LOG_CALLS or (
+            isinstance(func, ast.Attribute)
+            and isinstance(func.value, ast.Call)
+            and getattr(func.value.func, "attr", "") == "get_logger"
+        )
 
     def visit_Assign(self, node):
         if all(isinstance(t, (ast.Attribute, ast.Subscript)) for t in node.targets):
@@ -265,8 +311,19 @@ def generate(module: str, path: str, functions: list[str] | None) -> list[Mutant
             seen.add(mutated)
             label = f"{qualname}|{operator}|{_short(original, 200)}|{_short(replacement, 200)}"
             counts[label] = counts.get(label, 0) + 1
-            mutants.append(Mutant(module, path, qualname, node.lineno, operator, _short(original), _short(replacement),
-                                  mutated, key=f"{label}|#{counts[label]}"))
+            mutants.append(
+                Mutant(
+                    module,
+                    path,
+                    qualname,
+                    node.lineno,
+                    operator,
+                    _short(original),
+                    _short(replacement),
+                    mutated,
+                    key=f"{label}|#{counts[label]}",
+                )
+            )
     return mutants
 
 
@@ -277,20 +334,25 @@ def named_mutants(module: str, path: str, entries: list[dict]) -> list[Mutant]:
     for entry in entries:
         find, replace = entry["find"], entry["replace"]
         if source.count(find) != 1:
-            raise SystemExit(f"mutation_check: named bug {entry['name']!r}: its text occurs {source.count(find)} "
-                             f"times in {path} (must be once): {find!r}")
+            raise SystemExit(
+                f"mutation_check: named bug {entry['name']!r}: its text occurs {source.count(find)} "
+                f"times in {path} (must be once): {find!r}"
+            )
         begin = source.index(find)
-        mutated = source[:begin] + replace + source[begin + len(find):]
+        mutated = source[:begin] + replace + source[begin + len(find) :]
         compile(mutated, path, "exec")
         line = source.count("\n", 0, begin) + 1
-        mutants.append(Mutant(module, path, entry["name"], line, "named", _short(find), _short(replace), mutated,
-                              key=f"named|{entry['name']}"))
+        mutants.append(
+            Mutant(
+                module, path, entry["name"], line, "named", _short(find), _short(replace), mutated, key=f"named|{entry['name']}"
+            )
+        )
     return mutants
 
 
 def _col(source: str, starts: list[int], line: int, col: int) -> int:
     """ast column offsets count UTF-8 bytes: convert to characters."""
-    text = source[starts[line - 1]:starts[line]]
+    text = source[starts[line - 1] : starts[line]]
     return len(text.encode()[:col].decode(errors="ignore"))
 
 
@@ -314,8 +376,7 @@ def redirect_paths(work: Path) -> None:
     live = {str(ROOT / "ros_ws" / "src" / p) for p in PACKAGES}
     sys.path[:] = [str(work / "ros_ws" / "src" / Path(p).name) if p in live else p for p in sys.path]
     parts = os.environ.get("PYTHONPATH", "").split(os.pathsep)
-    os.environ["PYTHONPATH"] = os.pathsep.join(str(work / "ros_ws" / "src" / Path(p).name) if p in live else p
-                                               for p in parts)
+    os.environ["PYTHONPATH"] = os.pathsep.join(str(work / "ros_ws" / "src" / Path(p).name) if p in live else p for p in parts)
     for p in PACKAGES:  # even where env.sh was not the one to set it up
         entry = str(work / "ros_ws" / "src" / p)
         if entry not in sys.path:
@@ -326,9 +387,27 @@ def preload() -> None:
     """Import the heavy third-party modules once, before forking (not the project's own)."""
     import numpy  # noqa: F401
     import pytest  # noqa: F401
-    for name in ("_pytest.python", "_pytest.fixtures", "_pytest.assertion.rewrite", "_pytest.runner", "_pytest.main",
-                 "_pytest.terminal", "_pytest.capture", "_pytest.monkeypatch", "_pytest.tmpdir", "pytest_timeout",
-                 "torch", "taichi", "gymnasium", "rclpy", "rclpy.node", "rosbags.typesys", "yaml", "scipy"):
+
+    for name in (
+        "_pytest.python",
+        "_pytest.fixtures",
+        "_pytest.assertion.rewrite",
+        "_pytest.runner",
+        "_pytest.main",
+        "_pytest.terminal",
+        "_pytest.capture",
+        "_pytest.monkeypatch",
+        "_pytest.tmpdir",
+        "pytest_timeout",
+        "torch",
+        "taichi",
+        "gymnasium",
+        "rclpy",
+        "rclpy.node",
+        "rosbags.typesys",
+        "yaml",
+        "scipy",
+    ):
         try:
             __import__(name)
         except ImportError:
@@ -337,8 +416,21 @@ def preload() -> None:
 
 def run_tests(work: Path, tests: list[str], timeout: float, log: Path, fork: bool) -> tuple[str, float]:
     """('passed' | 'failed' | 'timeout' | 'error:<rc>', seconds) of pytest on ``tests`` in ``work``."""
-    args = [*tests, "-x", "-q", "-p", "pytest_timeout", "-c", str(work / "pytest.ini"), "--rootdir", str(work),
-            "-o", "addopts=--import-mode=importlib -p no:cacheprovider", "--timeout", str(int(timeout) + 5)]
+    args = [
+        *tests,
+        "-x",
+        "-q",
+        "-p",
+        "pytest_timeout",
+        "-c",
+        str(work / "pytest.ini"),
+        "--rootdir",
+        str(work),
+        "-o",
+        "addopts=--import-mode=importlib -p no:cacheprovider",
+        "--timeout",
+        str(int(timeout) + 5),
+    ]
     start = time.monotonic()
     if fork:
         pid = os.fork()
@@ -378,8 +470,9 @@ def run_tests(work: Path, tests: list[str], timeout: float, log: Path, fork: boo
         rc = os.waitstatus_to_exitcode(status)
     else:
         with open(log, "w") as out:
-            proc = subprocess.Popen([sys.executable, "-m", "pytest", *args], cwd=work, stdout=out,
-                                    stderr=subprocess.STDOUT, start_new_session=True)
+            proc = subprocess.Popen(
+                [sys.executable, "-m", "pytest", *args], cwd=work, stdout=out, stderr=subprocess.STDOUT, start_new_session=True
+            )
             try:
                 rc = proc.wait(timeout=timeout)
             except subprocess.TimeoutExpired:
@@ -433,8 +526,9 @@ def digest(*texts: str) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="mutation_check", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        prog="mutation_check", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     parser.add_argument("--config", type=Path, default=ROOT / "tools" / "mutation.toml")
     parser.add_argument("--module", action="append", default=[], help="only this module (repeatable)")
     parser.add_argument("--list", action="store_true", help="list the mutants and exit")
@@ -448,8 +542,9 @@ def main(argv: list[str] | None = None) -> int:
 
     config = load_config(args.config)
     target = float(config.get("target", 0.9))
-    modules = [m for m in config["module"] if m["name"] in args.module
-               or (not args.module and (args.slow or not m.get("slow", False)))]
+    modules = [
+        m for m in config["module"] if m["name"] in args.module or (not args.module and (args.slow or not m.get("slow", False)))
+    ]
     unknown = set(args.module) - {m["name"] for m in config["module"]}
     if unknown:
         print(f"mutation_check: unknown module(s) {', '.join(sorted(unknown))}", file=sys.stderr)
@@ -461,12 +556,14 @@ def main(argv: list[str] | None = None) -> int:
     if unknown_named:
         print(f"mutation_check: [[named]] for unknown module(s) {', '.join(sorted(unknown_named))}", file=sys.stderr)
         return 2
-    plan = {m["name"]: named_mutants(m["name"], m["file"], [n for n in named if n["module"] == m["name"]])
-            + generate(m["name"], m["file"], m.get("functions")) for m in modules}
-    for (module, key) in equivalent:
+    plan = {
+        m["name"]: named_mutants(m["name"], m["file"], [n for n in named if n["module"] == m["name"]])
+        + generate(m["name"], m["file"], m.get("functions"))
+        for m in modules
+    }
+    for module, key in equivalent:
         if module in plan and key not in {mu.key for mu in plan[module]}:
-            print(f"mutation_check: warning: [[equivalent]] of {module} matches no mutant (stale key?): {key}",
-                  file=sys.stderr)
+            print(f"mutation_check: warning: [[equivalent]] of {module} matches no mutant (stale key?): {key}", file=sys.stderr)
     if args.list:
         for m in modules:
             for mutant in plan[m["name"]]:
@@ -502,13 +599,11 @@ def main(argv: list[str] | None = None) -> int:
             tests = [t for t in tests if t not in missing]
         status, base = run_tests(work, tests, float(m.get("timeout", 1800)), logs / f"{name}.baseline.log", fork)
         if status != "passed":
-            print(f"{name}: the unmutated tests do not pass ({status}); see {logs / (name + '.baseline.log')}",
-                  flush=True)
+            print(f"{name}: the unmutated tests do not pass ({status}); see {logs / (name + '.baseline.log')}", flush=True)
             results[name] = None
             continue
         limit = max(60.0, 4.0 * base + 30.0)
-        mutants = plan[name][: args.max or None] if not args.named_only else \
-            [mu for mu in plan[name] if mu.operator == "named"]
+        mutants = plan[name][: args.max or None] if not args.named_only else [mu for mu in plan[name] if mu.operator == "named"]
         print(f"{name}: {len(mutants)} mutants, baseline {base:.0f} s, limit {limit:.0f} s each", flush=True)
         outcome = []
         try:
@@ -525,7 +620,8 @@ def main(argv: list[str] | None = None) -> int:
                 finally:
                     write_source(target_file, original)
                 verdict = {"passed": "survived", "failed": "killed", "timeout": "killed (timeout)"}.get(
-                    status, f"killed ({status})")
+                    status, f"killed ({status})"
+                )
                 outcome.append((mutant, verdict, seconds))
                 verdicts[vkey] = {"signature": signature, "verdict": verdict, "describe": mutant.describe()}
                 verdict_file.write_text(json.dumps(verdicts, indent=1))
@@ -551,8 +647,10 @@ def main(argv: list[str] | None = None) -> int:
         killable = total - len(equiv)
         score = killed / killable if killable else 1.0
         ok &= score >= target
-        print(f"{name:<34} {killed:4d} / {total:4d} killed, {len(equiv):3d} equivalent, {len(alive):3d} surviving"
-              f"  score {score:6.1%}{'' if score >= target else '  BELOW TARGET'}")
+        print(
+            f"{name:<34} {killed:4d} / {total:4d} killed, {len(equiv):3d} equivalent, {len(alive):3d} surviving"
+            f"  score {score:6.1%}{'' if score >= target else '  BELOW TARGET'}"
+        )
         survivors += [(name, mu) for mu in alive]
         survivors += [(name, mu, equivalent[(name, mu.key)]) for mu in equiv]
     alive = [s for s in survivors if len(s) == 2]
@@ -560,8 +658,7 @@ def main(argv: list[str] | None = None) -> int:
         print("\n=== surviving mutants (no test fails) ===")
         for name, mutant in alive:
             print(f"{name}: {mutant.describe()}\n    key = {mutant.key!r}")
-    named_results = [(name, mu, v) for name in results if results[name] for mu, v, _ in results[name]
-                     if mu.operator == "named"]
+    named_results = [(name, mu, v) for name in results if results[name] for mu, v, _ in results[name] if mu.operator == "named"]
     if named_results:
         print("\n=== named bugs (tools/mutation.toml [[named]]: the weaknesses of issue 14) ===")
         for name, mutant, verdict in named_results:

@@ -10,6 +10,7 @@ rule asks < 5), the largest index held on the last step from the last particle, 
 outcome pairs and, for the episodes both rules count as holding and those only the paper rule counts, the
 medians and ranges. A diagnostic for docs/RESULTS.md, not a product command.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -20,7 +21,6 @@ from pathlib import Path
 
 import numpy as np
 import torch
-
 from dlo_policy.env import make_vec_env
 from dlo_policy.rundir import read_trained_config
 from dlo_policy.sac import SAC
@@ -36,19 +36,27 @@ def episode_ends(run: Path, episodes: int, seed: int) -> list[dict]:
         observation, _, terminated, truncated, info = env.step(agent.predict(observation, deterministic=True))
         if terminated[0] or truncated[0]:
             tracker, task, n_c = env.tracker, env.task, int(env.tracker.num_particles[0])
-            ends.append({"seed": seed + len(ends), "paper": str(info["outcome"][0]),
-                         "authors": str(info["outcome_authors"][0]),
-                         "authors_mean_from_end": float(n_c - 1 - tracker.last_p_i_authors[0]),
-                         "largest_held_from_end": int(n_c - 1 - task.max_held_index[0]),
-                         "narrow_held": int(task.n_held_authors[0]), "wide_held": int(task.n_held[0])})
+            ends.append(
+                {
+                    "seed": seed + len(ends),
+                    "paper": str(info["outcome"][0]),
+                    "authors": str(info["outcome_authors"][0]),
+                    "authors_mean_from_end": float(n_c - 1 - tracker.last_p_i_authors[0]),
+                    "largest_held_from_end": int(n_c - 1 - task.max_held_index[0]),
+                    "narrow_held": int(task.n_held_authors[0]),
+                    "wide_held": int(task.n_held[0]),
+                }
+            )
             observation, _ = env.reset()
     env.close()
     return ends
 
 
 def describe(ends: list[dict]) -> str:
-    lines = [f"{n:3d} episodes: paper rule {p}, authors' rule {a}"
-             for (p, a), n in collections.Counter((e["paper"], e["authors"]) for e in ends).most_common()]
+    lines = [
+        f"{n:3d} episodes: paper rule {p}, authors' rule {a}"
+        for (p, a), n in collections.Counter((e["paper"], e["authors"]) for e in ends).most_common()
+    ]
     for pair in (("hold_the_end", "hold_the_end"), ("hold_the_end", "stop_before")):
         chosen = [e for e in ends if (e["paper"], e["authors"]) == pair]
         if not chosen:

@@ -13,6 +13,7 @@ round on stdout and in OUT/rounds.jsonl.
 A diagnostic for the middleware's teardown (docs/appendix/REHEARSALS.md: rehearsals 98 and 99), not a product command.
 Needs scripts/env.sh sourced and gdb for the stacks.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -54,20 +55,28 @@ def one_round(index: int, run_s: float, out: Path) -> dict:
             except subprocess.TimeoutExpired:
                 hung.append(name)
                 (out / f"hang_{index}_{name}.txt").write_text(
-                    hang_report(proc, name, STOP_WAIT, lambda name=name: stderr[name].read_text(errors="replace")))
+                    hang_report(proc, name, STOP_WAIT, lambda name=name: stderr[name].read_text(errors="replace"))
+                )
         unexpected = [name for name, code in codes.items() if code != INTERRUPTED.get(name, 0)]
         for name in procs:
             if name not in hung and name not in unexpected:
                 stderr[name].unlink()
-        return {"round": index, "domain": domain, "hung": hung, "exit_codes": codes, "unexpected": unexpected,
-                "stop_s": round(time.monotonic() - start, 2)}
+        return {
+            "round": index,
+            "domain": domain,
+            "hung": hung,
+            "exit_codes": codes,
+            "unexpected": unexpected,
+            "stop_s": round(time.monotonic() - start, 2),
+        }
     finally:
         release_domains(domain)
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(prog="tools/stop_together.py", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        prog="tools/stop_together.py", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     parser.add_argument("--rounds", type=int, default=100, help="graphs started and stopped (default 100)")
     parser.add_argument("--run", type=float, default=20.0, help="seconds each graph runs before the SIGINT")
     parser.add_argument("--out", type=Path, default=Path("/tmp/stop_together"), help="where the lines and stacks go")
@@ -83,8 +92,10 @@ def main(argv=None) -> int:
             log.flush()  # (a round's line is on disk while the next one runs)
             hangs += bool(result["hung"])
             cut += bool(result["unexpected"])
-    print(f"{hangs} of {args.rounds} rounds left a node running {STOP_WAIT:g} s after the SIGINT; in {cut} a node "
-          "exited with another status than its interrupted one (stderr kept in --out)")
+    print(
+        f"{hangs} of {args.rounds} rounds left a node running {STOP_WAIT:g} s after the SIGINT; in {cut} a node "
+        "exited with another status than its interrupted one (stderr kept in --out)"
+    )
     return 1 if hangs else 0
 
 

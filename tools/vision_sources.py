@@ -9,6 +9,7 @@ Prints, per distance from the end (in particles, rounded), the share of states i
 "visible", and the median distance at which each source's v first turns off in an episode; a JSON line last.
 docs/FIDELITY.md row 11 cites it.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -36,8 +37,13 @@ def main(argv=None) -> int:
     agent = SAC.load(path)
     settings = trained_sim_settings(path) or {"task_rules": "authors_code", "single_particle_grip": False}
     num_envs = min(args.episodes, 20)
-    env = make_vec_env(num_envs, agent.modalities, seed=args.seed, task_rules=settings["task_rules"],
-                       single_particle_grip=settings["single_particle_grip"])
+    env = make_vec_env(
+        num_envs,
+        agent.modalities,
+        seed=args.seed,
+        task_rules=settings["task_rules"],
+        single_particle_grip=settings["single_particle_grip"],
+    )
     v_index = list(agent.modalities).index("V") if "V" in agent.modalities else None
     if v_index is None:
         print("the policy does not observe V", file=sys.stderr)
@@ -49,13 +55,18 @@ def main(argv=None) -> int:
     finished = 0
     while finished < args.episodes:
         task = env.task
-        particles = visual_pose_particles(task.state.positions, task.held_task, env.sim.num_particles,
-                                          task.state.gripper[:, :2])
+        particles = visual_pose_particles(task.state.positions, task.held_task, env.sim.num_particles, task.state.gripper[:, :2])
         distance = env.sim.num_particles - 1 - task.mean_held_index_authors
         for i in range(num_envs):
             if env.episode_seed[i] < args.seed + args.episodes and task.mean_held_index_authors[i] >= 0:
-                rows.append((int(env.episode_seed[i]), float(distance[i]), bool(observation[i, v_start] > 0.5),
-                             bool(particles.visible[i])))
+                rows.append(
+                    (
+                        int(env.episode_seed[i]),
+                        float(distance[i]),
+                        bool(observation[i, v_start] > 0.5),
+                        bool(particles.visible[i]),
+                    )
+                )
         observation, _, terminated, truncated, _ = env.step(agent.predict(observation, deterministic=True))
         finished += int(np.sum(terminated | truncated))
     data = np.array(rows, dtype=float)
@@ -63,8 +74,11 @@ def main(argv=None) -> int:
     for d in range(0, 16):
         near = np.abs(data[:, 1] - d) < 0.5
         if near.any():
-            result["by_distance"][d] = {"states": int(near.sum()), "image_visible": float(data[near, 2].mean()),
-                                        "particles_visible": float(data[near, 3].mean())}
+            result["by_distance"][d] = {
+                "states": int(near.sum()),
+                "image_visible": float(data[near, 2].mean()),
+                "particles_visible": float(data[near, 3].mean()),
+            }
     first_off = {"image": [], "particles": []}
     for seed in np.unique(data[:, 0]):
         episode = data[data[:, 0] == seed]
@@ -76,8 +90,10 @@ def main(argv=None) -> int:
     print("distance  states  image v  particles v")
     for d, row in result["by_distance"].items():
         print(f"{d:8d}  {row['states']:6d}  {row['image_visible']:7.0%}  {row['particles_visible']:11.0%}")
-    print(f"median distance where v first turns off: image {result['median_distance_first_off']['image']}, "
-          f"particles {result['median_distance_first_off']['particles']}")
+    print(
+        f"median distance where v first turns off: image {result['median_distance_first_off']['image']}, "
+        f"particles {result['median_distance_first_off']['particles']}"
+    )
     if args.json:
         with open(args.json, "w") as f:
             json.dump(result, f, indent=2)

@@ -46,16 +46,29 @@ def _install(dump_dir: str) -> None:
     def qos_record(qos) -> dict:
         if isinstance(qos, int):
             qos = rclpy.qos.QoSProfile(depth=qos)
-        return {"history": qos.history.name.lower(), "depth": int(qos.depth),
-                "reliability": qos.reliability.name.lower(), "durability": qos.durability.name.lower()}
+        return {
+            "history": qos.history.name.lower(),
+            "depth": int(qos.depth),
+            "reliability": qos.reliability.name.lower(),
+            "durability": qos.durability.name.lower(),
+        }
 
     def node_of(node) -> dict:
         return {"node": node.get_name(), "namespace": node.get_namespace(), "exe": exe(), "pid": os.getpid()}
 
     Node = rclpy.node.Node
-    original = {name: getattr(Node, name) for name in (
-        "__init__", "create_publisher", "create_subscription", "create_service", "create_client",
-        "create_timer", "declare_parameter")}
+    original = {
+        name: getattr(Node, name)
+        for name in (
+            "__init__",
+            "create_publisher",
+            "create_subscription",
+            "create_service",
+            "create_client",
+            "create_timer",
+            "declare_parameter",
+        )
+    }
 
     def wrap(name, record):
         method = original[name]
@@ -70,6 +83,7 @@ def _install(dump_dir: str) -> None:
             except Exception:  # noqa: BLE001 - the hook never breaks a node
                 pass
             return result
+
         setattr(Node, name, wrapper)
 
     def on_init(self, result, *args, **kwargs):
@@ -79,8 +93,7 @@ def _install(dump_dir: str) -> None:
         return {"kind": "publisher", "topic": pub.topic_name, "type": type_name(msg_type), **qos_record(qos_profile)}
 
     def on_subscription(self, sub, msg_type, topic, callback, qos_profile=10, **kwargs):
-        return {"kind": "subscription", "topic": sub.topic_name, "type": type_name(msg_type),
-                **qos_record(qos_profile)}
+        return {"kind": "subscription", "topic": sub.topic_name, "type": type_name(msg_type), **qos_record(qos_profile)}
 
     def on_service(self, service, srv_type, srv_name, callback, **kwargs):
         return {"kind": "service", "name": service.service_name, "type": type_name(srv_type)}
@@ -89,12 +102,20 @@ def _install(dump_dir: str) -> None:
         return {"kind": "client", "name": getattr(client, "service_name", srv_name), "type": type_name(srv_type)}
 
     def on_timer(self, timer, period, callback, *args, **kwargs):
-        return {"kind": "timer", "period_s": timer.timer_period_ns / 1e9,
-                "callback": getattr(callback, "__name__", type(callback).__name__)}
+        return {
+            "kind": "timer",
+            "period_s": timer.timer_period_ns / 1e9,
+            "callback": getattr(callback, "__name__", type(callback).__name__),
+        }
 
     def on_parameter(self, param, name, value=None, descriptor=None, *args, **kwargs):
-        return {"kind": "parameter", "name": name, "default": value, "value": param.value,
-                "description": getattr(descriptor, "description", "") or ""}
+        return {
+            "kind": "parameter",
+            "name": name,
+            "default": value,
+            "value": param.value,
+            "description": getattr(descriptor, "description", "") or "",
+        }
 
     publish = rclpy.publisher.Publisher.publish
     published = [0]
@@ -105,6 +126,7 @@ def _install(dump_dir: str) -> None:
             published[0] += 1
             write({"kind": "publish", "pid": os.getpid(), "seq": published[0], "topic": self.topic_name})
         return publish(self, msg)
+
     rclpy.publisher.Publisher.publish = publish_wrapper
 
     wrap("__init__", on_init)

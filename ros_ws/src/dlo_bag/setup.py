@@ -19,7 +19,7 @@ setup(
     maintainer="dlo-vitac maintainers",
     maintainer_email="maintainers@dlo-vitac.dev",
     description="Recording (rosbag2 MCAP, crash-safe), playback, recovery, inspection and analysis (plots, videos) "
-                "of the dlo-vitac graph's topics.",
+    "of the dlo-vitac graph's topics.",
     license="Apache-2.0",
     entry_points={
         "console_scripts": [

@@ -19,7 +19,7 @@ setup(
     maintainer="dlo-vitac maintainers",
     maintainer_email="maintainers@dlo-vitac.dev",
     description="Starts the dlo-vitac graph: one description of its nodes, from which the launcher "
-                "(scripts/launch_graph.sh) and the ROS 2 launch file are built.",
+    "(scripts/launch_graph.sh) and the ROS 2 launch file are built.",
     license="Apache-2.0",
     entry_points={
         "console_scripts": [

@@ -15,6 +15,6 @@ setup(
     maintainer="dlo-vitac maintainers",
     maintainer_email="maintainers@dlo-vitac.dev",
     description="Base of the dlo-vitac nodes: declared and checked parameters, --help, parameter files, "
-                "the shared main() (init, spin, clean shutdown, exit codes), and the process's one Taichi runtime.",
+    "the shared main() (init, spin, clean shutdown, exit codes), and the process's one Taichi runtime.",
     license="Apache-2.0",
 )

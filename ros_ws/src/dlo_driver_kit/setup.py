@@ -19,7 +19,7 @@ setup(
     maintainer="dlo-vitac maintainers",
     maintainer_email="maintainers@dlo-vitac.dev",
     description="The reference driver for a real robot (mock_driver_node) and the checker of the driver contract "
-                "(dlo-driver-check).",
+    "(dlo-driver-check).",
     license="Apache-2.0",
     entry_points={
         "console_scripts": [

@@ -18,7 +18,7 @@ setup(
     zip_safe=True,
     maintainer="dlo-vitac maintainers",
     maintainer_email="maintainers@dlo-vitac.dev",
-    description='Tactile and top-view vision distillation of the cable pose, and their ROS 2 nodes.',
+    description="Tactile and top-view vision distillation of the cable pose, and their ROS 2 nodes.",
     license="Apache-2.0",
     entry_points={
         "console_scripts": [

@@ -20,8 +20,9 @@ setup(
     zip_safe=True,
     maintainer="dlo-vitac maintainers",
     maintainer_email="maintainers@dlo-vitac.dev",
-    description=('Gymnasium environment, Soft Actor-Critic training and evaluation, scripted baselines, '
-                 'and the ROS 2 policy node.'),
+    description=(
+        "Gymnasium environment, Soft Actor-Critic training and evaluation, scripted baselines, and the ROS 2 policy node."
+    ),
     license="Apache-2.0",
     entry_points={
         "console_scripts": [

@@ -18,7 +18,7 @@ setup(
     zip_safe=True,
     maintainer="dlo-vitac maintainers",
     maintainer_email="maintainers@dlo-vitac.dev",
-    description='Taichi particle-rope simulator of a cable with a two-finger tactile gripper, and its ROS 2 sim node.',
+    description="Taichi particle-rope simulator of a cable with a two-finger tactile gripper, and its ROS 2 sim node.",
     license="Apache-2.0",
     entry_points={
         "console_scripts": [

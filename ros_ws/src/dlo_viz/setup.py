@@ -19,7 +19,7 @@ setup(
     maintainer="dlo-vitac maintainers",
     maintainer_email="maintainers@dlo-vitac.dev",
     description="Live view of the dlo-vitac graph: the Foxglove WebSocket bridge, its layout, and the launcher's "
-                "episode and status lines.",
+    "episode and status lines.",
     license="Apache-2.0",
     entry_points={
         "console_scripts": [

@@ -34,14 +34,13 @@ from collections import defaultdict
 from pathlib import Path
 
 import numpy as np
-
 from dlo_common.console import console_main
 from dlo_common.topics import select, topic
 from dlo_perception.cloud import unpack_particles
 from dlo_perception.sync import stamp_to_ns
 from dlo_sim.task import OUTCOME_NAMES, EpisodeTracker, recorded_task_rules
-from dlo_bag.bag import (EXIT_BAD_BAG, EXIT_NO_TASK_STATE, EXIT_USAGE, BagError, NotABagError, bag_info,
-                         read_messages)
+
+from dlo_bag.bag import EXIT_BAD_BAG, EXIT_NO_TASK_STATE, EXIT_USAGE, BagError, NotABagError, bag_info, read_messages
 from dlo_bag.outcome_table import outcome_table
 from dlo_bag.recording import POLICY_KEY, POLICY_TOPIC
 
@@ -123,8 +122,9 @@ def policy_label(record: dict) -> str:
     if record.get("single_particle_grip") is not None:
         trained.append("single-particle grip" if record["single_particle_grip"] else "finite grip")
     options = record.get("env_options") if isinstance(record.get("env_options"), dict) else {}
-    trained += [f"{key} {options[key]}" for key, default in TRAINED_DEFAULTS.items()
-                if key in options and options[key] != default]
+    trained += [
+        f"{key} {options[key]}" for key, default in TRAINED_DEFAULTS.items() if key in options and options[key] != default
+    ]
     return text + (f"; trained {', '.join(trained)}" if trained else "")
 
 
@@ -147,24 +147,31 @@ def recompute_episode(task_states: dict) -> dict:
         """p_i, n_h, largest held index (paper-text held set), p_i and n_h of the authors' held set."""
         held = np.asarray(msg.held_indices, dtype=np.int64)
         held_authors = np.asarray(msg.held_indices_authors, dtype=np.int64)
-        return (np.array([held.mean() if len(held) else -1.0]), np.array([len(held)]),
-                np.array([held.max() if len(held) else -1]),
-                np.array([held_authors.mean() if len(held_authors) else -1.0]), np.array([len(held_authors)]))
+        return (
+            np.array([held.mean() if len(held) else -1.0]),
+            np.array([len(held)]),
+            np.array([held.max() if len(held) else -1]),
+            np.array([held_authors.mean() if len(held_authors) else -1.0]),
+            np.array([len(held_authors)]),
+        )
 
     first = task_states[0]
     p_i, _, max_index, p_i_authors, _ = held_inputs(first)
     tracker.reset([0], p_i, max_index, np.array([first.num_particles]), p_i_authors)
-    for step in steps[1:final + 1 if final else None]:
+    for step in steps[1 : final + 1 if final else None]:
         msg = task_states[step]
         p_i, n_h, max_index, p_i_authors, n_h_authors = held_inputs(msg)
-        tracker.step(p_i, n_h, max_index, np.array([msg.num_particles]), np.array([msg.cable_length]), p_i_authors,
-                     n_h_authors)
+        tracker.step(p_i, n_h, max_index, np.array([msg.num_particles]), np.array([msg.cable_length]), p_i_authors, n_h_authors)
     last = task_states[final if final else steps[-1]]
     summary = tracker.summary(0)
-    summary.update(seed=int(first.seed), complete=final is not None, task_rules=rules,
-                   recorded_outcome=OUTCOME_NAMES[int(last.outcome)],
-                   recorded_outcome_authors=OUTCOME_NAMES[int(last.outcome_authors)],
-                   recorded_return=float(last.episode_return))
+    summary.update(
+        seed=int(first.seed),
+        complete=final is not None,
+        task_rules=rules,
+        recorded_outcome=OUTCOME_NAMES[int(last.outcome)],
+        recorded_outcome_authors=OUTCOME_NAMES[int(last.outcome_authors)],
+        recorded_return=float(last.episode_return),
+    )
     return summary
 
 
@@ -205,8 +212,10 @@ def episode_figure(episode: int, streams: dict, summary: dict | None = None):
     top = fig.add_subplot(grid[0])
     particles = streams.get("particles", {})
     fixed = None
-    for step, style, label in ((min(particles, default=None), "-", "cable at start"),
-                               (max(particles, default=None), "--", "cable at end")):
+    for step, style, label in (
+        (min(particles, default=None), "-", "cable at start"),
+        (max(particles, default=None), "--", "cable at end"),
+    ):
         if step is not None:
             xyz, _held = unpack_particles(particles[step])
             top.plot(xyz[:, 0], xyz[:, 1], style, color="tab:orange", lw=2, label=f"{label} (step {step})")
@@ -216,24 +225,44 @@ def episode_figure(episode: int, streams: dict, summary: dict | None = None):
         top.plot(s["x"][:1], s["y"][:1], "^", color="tab:blue", ms=8, label=f"gripper at step {steps[0]}")
     if fixed is not None:
         top.plot([fixed[0]], [fixed[1]], "s", color="k", ms=8, label="fixed end (particle 0)")
-    for mark, marker, color, rule in ((s.first_at_end, "*", "tab:green", "paper rule"),
-                                      (s.first_at_end_authors, "D", "tab:purple", "authors' rule")):
+    for mark, marker, color, rule in (
+        (s.first_at_end, "*", "tab:green", "paper rule"),
+        (s.first_at_end_authors, "D", "tab:purple", "authors' rule"),
+    ):
         if mark is not None:
             i = int(np.searchsorted(steps, mark))
-            top.plot([s["x"][i]], [s["y"][i]], marker, color=color, ms=11, ls="none",
-                     label=f"gripper when first at the end,\n{rule} (step {mark})")
+            top.plot(
+                [s["x"][i]],
+                [s["y"][i]],
+                marker,
+                color=color,
+                ms=11,
+                ls="none",
+                label=f"gripper when first at the end,\n{rule} (step {mark})",
+            )
     top.set(xlabel="x [m]", ylabel="y [m]", title="top view (world frame)", aspect="equal")
     top.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False, borderaxespad=0)
 
     # signals over the control steps: one axis per unit
     held_end = s["num_particles"] - 10
     axes_spec = [
-        ("closure [-]", [("c_G measured", s["closure"], {}), ("c_G commanded", s["cmd_closure"], {"ls": "--"}),
-                         ("q_V vision confidence", s["q_V"], {"alpha": 0.8})]),
-        ("held particle\nindex [-]", [("largest held", s["max_held_index"], {}),
-                                       ("mean held (paper)", s["mean_held_index"], {"alpha": 0.8}),
-                                       ("mean held (authors)", s["mean_held_index_authors"], {"ls": ":"}),
-                                       ("end: n_c - 10", held_end, {"color": "k", "lw": 0.8, "ls": "--"})]),
+        (
+            "closure [-]",
+            [
+                ("c_G measured", s["closure"], {}),
+                ("c_G commanded", s["cmd_closure"], {"ls": "--"}),
+                ("q_V vision confidence", s["q_V"], {"alpha": 0.8}),
+            ],
+        ),
+        (
+            "held particle\nindex [-]",
+            [
+                ("largest held", s["max_held_index"], {}),
+                ("mean held (paper)", s["mean_held_index"], {"alpha": 0.8}),
+                ("mean held (authors)", s["mean_held_index_authors"], {"ls": ":"}),
+                ("end: n_c - 10", held_end, {"color": "k", "lw": 0.8, "ls": "--"}),
+            ],
+        ),
         ("angle [rad]", [("θ_T tactile", s["theta_T"], {}), ("θ_V vision", s["theta_V"], {})]),
         ("offset [mm]", [("y_T tactile", s["y_T_mm"], {}), ("y_V vision", s["y_V_mm"], {})]),
         ("command\n[m/s]", [("v_x", s["cmd_vx"], {}), ("v_y", s["cmd_vy"], {})]),
@@ -258,12 +287,22 @@ def episode_figure(episode: int, streams: dict, summary: dict | None = None):
         if row < len(axes_spec) - 1:
             ax.tick_params(labelbottom=False)
         axes.append(ax)
-    axes[0].set_title("signals over the episode (dotted: first step at the end, green = paper rule, "
-                      "purple = authors' rule; grey: gripper still)", fontsize=9)
+    axes[0].set_title(
+        "signals over the episode (dotted: first step at the end, green = paper rule, "
+        "purple = authors' rule; grey: gripper still)",
+        fontsize=9,
+    )
     for a, b in spans:
-        axes[0].annotate(f"gripper still (no motion, constant closure): steps {a}-{b}", xy=((a + b) / 2, 0.5),
-                         xycoords=("data", "axes fraction"), ha="center", va="center", fontsize=8,
-                         color="0.3", bbox={"boxstyle": "round", "fc": "white", "ec": "0.7", "alpha": 0.8})
+        axes[0].annotate(
+            f"gripper still (no motion, constant closure): steps {a}-{b}",
+            xy=((a + b) / 2, 0.5),
+            xycoords=("data", "axes fraction"),
+            ha="center",
+            va="center",
+            fontsize=8,
+            color="0.3",
+            bbox={"boxstyle": "round", "fc": "white", "ec": "0.7", "alpha": 0.8},
+        )
     axes[-1].set_xlabel("control step (0.08 s each)")
     fig.align_ylabels(axes)
     if len(steps):
@@ -271,8 +310,17 @@ def episode_figure(episode: int, streams: dict, summary: dict | None = None):
     return fig
 
 
-def write_videos(run: dict, summaries: dict, out: Path, *, fmt: str = "mp4", policy: str | None = None,
-                 speed: float = 1.0, width: int | None = None, log=None) -> list[dict]:
+def write_videos(
+    run: dict,
+    summaries: dict,
+    out: Path,
+    *,
+    fmt: str = "mp4",
+    policy: str | None = None,
+    speed: float = 1.0,
+    width: int | None = None,
+    log=None,
+) -> list[dict]:
     """One video per episode of ``run`` into ``out`` (``episode_NNNN.mp4`` / ``.gif``).
 
     ``log``: a text stream for progress (dlo-analyze: stderr, so that stdout stays the table): a line
@@ -299,12 +347,22 @@ def write_videos(run: dict, summaries: dict, out: Path, *, fmt: str = "mp4", pol
     written = []
     try:
         for k, (episode, streams) in enumerate(todo, 1):
-            item = render_episode_video(episode, streams, summaries.get(episode, {}),
-                                        out / f"episode_{episode:04d}.{fmt}", fmt=fmt, policy=policy,
-                                        speed=speed, width=width, progress=bar.update if bar is not None else None)
+            item = render_episode_video(
+                episode,
+                streams,
+                summaries.get(episode, {}),
+                out / f"episode_{episode:04d}.{fmt}",
+                fmt=fmt,
+                policy=policy,
+                speed=speed,
+                width=width,
+                progress=bar.update if bar is not None else None,
+            )
             written.append({"episode": int(episode), **item})
-            say(f"dlo-analyze: video {k}/{len(todo)}: {item['path']} (episode {episode}, {item['frames']} frames "
-                f"in {item['render_s']:.1f} s)")
+            say(
+                f"dlo-analyze: video {k}/{len(todo)}: {item['path']} (episode {episode}, {item['frames']} frames "
+                f"in {item['render_s']:.1f} s)"
+            )
     finally:
         if bar is not None:
             bar.close()
@@ -315,8 +373,10 @@ class NoTaskState(ValueError):
     """The bag has no ``/dlo/task/state`` (a driver's bag: only the sim publishes the task state)."""
 
     def __init__(self, path, gripper_states: int = 0) -> None:
-        super().__init__(f"{path} has no /dlo/task/state: a driver bag ({gripper_states} gripper states); outcomes "
-                         "need the task state (the sim publishes it)")
+        super().__init__(
+            f"{path} has no /dlo/task/state: a driver bag ({gripper_states} gripper states); outcomes "
+            "need the task state (the sim publishes it)"
+        )
 
 
 def analyse(path, plots: Path | None = None, video: dict | None = None, records: list | None = None) -> list:
@@ -334,8 +394,7 @@ def analyse(path, plots: Path | None = None, video: dict | None = None, records:
     for episode, streams in run.items():
         if "task" not in streams:
             continue
-        summary = {"episode": int(episode), **recompute_episode(streams["task"]),
-                   "policy": records[-1] if records else None}
+        summary = {"episode": int(episode), **recompute_episode(streams["task"]), "policy": records[-1] if records else None}
         summaries.append(summary)
         if plots is not None:
             plots.mkdir(parents=True, exist_ok=True)
@@ -349,28 +408,42 @@ def analyse(path, plots: Path | None = None, video: dict | None = None, records:
 
 @console_main("dlo-analyze")
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description="Recompute outcomes and metrics of a recorded dlo-vitac run "
-                                                 "with the shared task module, and plot its episodes.",
-                                     epilog="Exit status: 0 analysed, 1 a recomputed outcome differs from the "
-                                            "recorded one, 2 unreadable bag or bad option, 3 the bag has no "
-                                            "/dlo/task/state (a driver bag: no outcomes to compute).")
+    parser = argparse.ArgumentParser(
+        description="Recompute outcomes and metrics of a recorded dlo-vitac run "
+        "with the shared task module, and plot its episodes.",
+        epilog="Exit status: 0 analysed, 1 a recomputed outcome differs from the "
+        "recorded one, 2 unreadable bag or bad option, 3 the bag has no "
+        "/dlo/task/state (a driver bag: no outcomes to compute).",
+    )
     parser.add_argument("bag", help="rosbag2 directory (MCAP) written by recorder_node")
     parser.add_argument("--plots", type=Path, help="write one PNG per episode into this directory")
     parser.add_argument("--json", type=Path, help="write the per-episode summaries to this JSON file")
-    parser.add_argument("--video", type=Path, metavar="DIR",
-                        help="write one video per episode into this directory (episode_NNNN.mp4): top camera, "
-                             "side view, closure/poses/reward strip; one frame per control step")
-    parser.add_argument("--video-format", choices=("mp4", "gif"), default="mp4",
-                        help="mp4 (H.264, default) or gif")
-    parser.add_argument("--video-speed", type=float, default=1.0,
-                        help="playback speed: 1.0 = real time (12.5 frames/s, default), 2.0 = twice as fast")
-    parser.add_argument("--video-width", type=int, default=None,
-                        help="frame width in pixels (height = 3/4); default 960 (mp4), 480 (gif)")
-    parser.add_argument("--policy", default=None, metavar="TEXT",
-                        help="label the video titles with TEXT instead of the policy the bag records (the policy "
-                             "node's /dlo/policy/info: checkpoint and sha256, modalities, the task rules and grip it "
-                             "was trained under); for a bag recorded before that, whose titles otherwise say "
-                             "'policy not recorded', e.g. 'sac (shipped)'")
+    parser.add_argument(
+        "--video",
+        type=Path,
+        metavar="DIR",
+        help="write one video per episode into this directory (episode_NNNN.mp4): top camera, "
+        "side view, closure/poses/reward strip; one frame per control step",
+    )
+    parser.add_argument("--video-format", choices=("mp4", "gif"), default="mp4", help="mp4 (H.264, default) or gif")
+    parser.add_argument(
+        "--video-speed",
+        type=float,
+        default=1.0,
+        help="playback speed: 1.0 = real time (12.5 frames/s, default), 2.0 = twice as fast",
+    )
+    parser.add_argument(
+        "--video-width", type=int, default=None, help="frame width in pixels (height = 3/4); default 960 (mp4), 480 (gif)"
+    )
+    parser.add_argument(
+        "--policy",
+        default=None,
+        metavar="TEXT",
+        help="label the video titles with TEXT instead of the policy the bag records (the policy "
+        "node's /dlo/policy/info: checkpoint and sha256, modalities, the task rules and grip it "
+        "was trained under); for a bag recorded before that, whose titles otherwise say "
+        "'policy not recorded', e.g. 'sac (shipped)'",
+    )
     args = parser.parse_args(argv)
     if args.video_speed <= 0:
         parser.error("--video-speed must be > 0")
@@ -378,8 +451,14 @@ def main(argv=None) -> int:
         parser.error("--video-width must be >= 160 pixels")
     video = None
     if args.video:
-        video = {"out": args.video, "fmt": args.video_format, "policy": args.policy,
-                 "speed": args.video_speed, "width": args.video_width, "log": sys.stderr}
+        video = {
+            "out": args.video,
+            "fmt": args.video_format,
+            "policy": args.policy,
+            "speed": args.video_speed,
+            "width": args.video_width,
+            "log": sys.stderr,
+        }
     try:
         records = policy_records(args.bag)
         summaries = analyse(args.bag, args.plots, video, records)
@@ -401,13 +480,20 @@ def main(argv=None) -> int:
     print(outcome_table(complete))
     if len(complete) < len(summaries):
         print(f"({len(summaries) - len(complete)} episode(s) unfinished in the bag, not counted)")
-    mismatched = [s for s in complete if s["outcome"] != s["recorded_outcome"]
-                  or s["outcome_authors"] != s["recorded_outcome_authors"]
-                  or abs(s["episode_return"] - s["recorded_return"]) > 1e-6]
+    mismatched = [
+        s
+        for s in complete
+        if s["outcome"] != s["recorded_outcome"]
+        or s["outcome_authors"] != s["recorded_outcome_authors"]
+        or abs(s["episode_return"] - s["recorded_return"]) > 1e-6
+    ]
     for s in mismatched:
-        print(f"MISMATCH episode {s['episode']}: recomputed {s['outcome']} / {s['outcome_authors']} "
-              f"{s['episode_return']:.6f}, recorded {s['recorded_outcome']} / {s['recorded_outcome_authors']} "
-              f"{s['recorded_return']:.6f} (paper rule / authors' rule, return)", file=sys.stderr)
+        print(
+            f"MISMATCH episode {s['episode']}: recomputed {s['outcome']} / {s['outcome_authors']} "
+            f"{s['episode_return']:.6f}, recorded {s['recorded_outcome']} / {s['recorded_outcome_authors']} "
+            f"{s['recorded_return']:.6f} (paper rule / authors' rule, return)",
+            file=sys.stderr,
+        )
     if args.json:
         args.json.write_text(json.dumps(summaries, indent=1) + "\n")
     if args.plots:

@@ -69,6 +69,7 @@ EXIT_NO_TASK_STATE = 3  # dlo-analyze: a bag without /dlo/task/state (recorded f
 
 # ---- types ----------------------------------------------------------------------------------
 
+
 def ament_prefixes() -> list[Path]:
     """Install prefixes from ``AMENT_PREFIX_PATH`` (first wins, as in the ament index)."""
     return [Path(p) for p in os.environ.get("AMENT_PREFIX_PATH", "").split(os.pathsep) if p]
@@ -139,15 +140,17 @@ def make_typestore(packages: Iterable[str] = DEFAULT_PACKAGES) -> Typestore:
             raise BagError(
                 f"no installed messages of '{package}' under AMENT_PREFIX_PATH="
                 f"{os.environ.get('AMENT_PREFIX_PATH', '')!r}; build ros_ws (scripts/setup.sh) "
-                "and 'source scripts/env.sh'")
+                "and 'source scripts/env.sh'"
+            )
     return typestore
 
 
 def type_hash(typestore: Typestore, msgtype: str) -> str:
     """RIHS01 hash of ``msgtype`` (registering it from the ament index when needed)."""
     if not register_type(typestore, msgtype):
-        raise BagError(f"unknown message type '{msgtype}': not in the Jazzy typestore and no "
-                       "installed .msg file under AMENT_PREFIX_PATH")
+        raise BagError(
+            f"unknown message type '{msgtype}': not in the Jazzy typestore and no installed .msg file under AMENT_PREFIX_PATH"
+        )
     return typestore.hash_rihs01(msgtype)
 
 
@@ -161,6 +164,7 @@ def message_definition(typestore: Typestore, msgtype: str) -> tuple[str, str]:
 
 
 # ---- QoS ------------------------------------------------------------------------------------
+
 
 def _enum_value(value: Any) -> int:
     return int(getattr(value, "value", value))
@@ -247,8 +251,14 @@ def qos_yaml(qos: Sequence[Qos]) -> str:
     return yaml.safe_dump(dump_qos_v9(list(qos)), default_flow_style=False).strip()
 
 
-def bag_metadata(mcap_name: str, topics: Sequence[TopicSpec], counts: dict[str, int],
-                 start: int | None, end: int | None, custom: dict[str, str] | None = None) -> dict:
+def bag_metadata(
+    mcap_name: str,
+    topics: Sequence[TopicSpec],
+    counts: dict[str, int],
+    start: int | None,
+    end: int | None,
+    custom: dict[str, str] | None = None,
+) -> dict:
     """The ``rosbag2_bagfile_information`` (version 9) of a one-file MCAP bag."""
     count = sum(counts.get(t.topic, 0) for t in topics)
     start_ns = int(start) if count and start is not None else 0
@@ -260,16 +270,29 @@ def bag_metadata(mcap_name: str, topics: Sequence[TopicSpec], counts: dict[str, 
         "starting_time": {"nanoseconds_since_epoch": start_ns},
         "message_count": count,
         "topics_with_message_count": [
-            {"topic_metadata": {"name": t.topic, "type": t.msgtype, "serialization_format": "cdr",
-                                "offered_qos_profiles": dump_qos_v9(list(t.qos)),
-                                "type_description_hash": t.rihs01},
-             "message_count": counts.get(t.topic, 0)}
-            for t in topics],
+            {
+                "topic_metadata": {
+                    "name": t.topic,
+                    "type": t.msgtype,
+                    "serialization_format": "cdr",
+                    "offered_qos_profiles": dump_qos_v9(list(t.qos)),
+                    "type_description_hash": t.rihs01,
+                },
+                "message_count": counts.get(t.topic, 0),
+            }
+            for t in topics
+        ],
         "compression_format": "",
         "compression_mode": "",
         "relative_file_paths": [mcap_name],
-        "files": [{"path": mcap_name, "starting_time": {"nanoseconds_since_epoch": start_ns},
-                   "duration": {"nanoseconds": duration}, "message_count": count}],
+        "files": [
+            {
+                "path": mcap_name,
+                "starting_time": {"nanoseconds_since_epoch": start_ns},
+                "duration": {"nanoseconds": duration},
+                "message_count": count,
+            }
+        ],
         "custom_data": dict(custom) if custom else None,
         "ros_distro": "jazzy",
     }
@@ -277,8 +300,7 @@ def bag_metadata(mcap_name: str, topics: Sequence[TopicSpec], counts: dict[str, 
 
 def write_metadata(part: Path, info: dict) -> None:
     """Write ``part/metadata.yaml`` atomically (temporary file, fsync, rename)."""
-    text = yaml.safe_dump({"rosbag2_bagfile_information": info}, default_flow_style=False,
-                          sort_keys=False)
+    text = yaml.safe_dump({"rosbag2_bagfile_information": info}, default_flow_style=False, sort_keys=False)
     tmp = part / (METADATA + ".tmp")
     try:
         with open(tmp, "w", encoding="utf-8") as f:
@@ -328,13 +350,21 @@ class BagWriter:
     ``counts`` are the messages on disk per topic.
     """
 
-    def __init__(self, path: str | os.PathLike, typestore: Typestore | None = None, *,
-                 split: bool = False, chunk_size: int = CHUNK_SIZE, fsync: bool = True,
-                 reserve: bool = True) -> None:
+    def __init__(
+        self,
+        path: str | os.PathLike,
+        typestore: Typestore | None = None,
+        *,
+        split: bool = False,
+        chunk_size: int = CHUNK_SIZE,
+        fsync: bool = True,
+        reserve: bool = True,
+    ) -> None:
         self.path = Path(path)
         if self.path.exists():
-            raise BagError(f"output '{self.path}' exists already; rosbag2 bags are never "
-                           "overwritten: choose another path or delete it")
+            raise BagError(
+                f"output '{self.path}' exists already; rosbag2 bags are never overwritten: choose another path or delete it"
+            )
         self.typestore = typestore if typestore is not None else make_typestore()
         self.split = split
         self.chunk_size = chunk_size
@@ -359,8 +389,7 @@ class BagWriter:
         spec = self.topics.get(topic)
         if spec is not None:
             if spec.msgtype != msgtype:
-                raise BagError(f"topic '{topic}' is already recorded as '{spec.msgtype}', "
-                               f"not '{msgtype}'")
+                raise BagError(f"topic '{topic}' is already recorded as '{spec.msgtype}', not '{msgtype}'")
             return spec
         msgdef, rihs01 = message_definition(self.typestore, msgtype)
         spec = TopicSpec(topic, msgtype, list(qos), rihs01, msgdef)
@@ -374,8 +403,7 @@ class BagWriter:
         known = self.topics.get(spec.topic)
         if known is not None:
             if known.msgtype != spec.msgtype:
-                raise BagError(f"topic '{spec.topic}' is already recorded as '{known.msgtype}', "
-                               f"not '{spec.msgtype}'")
+                raise BagError(f"topic '{spec.topic}' is already recorded as '{known.msgtype}', not '{spec.msgtype}'")
             return known
         self.topics[spec.topic] = spec
         if self._mcap is not None:
@@ -388,8 +416,8 @@ class BagWriter:
         if not schema_id:
             schema_id = self._mcap.add_schema(spec.msgtype, "ros2msg", spec.msgdef.encode())
         self._channels[spec.topic] = self._mcap.add_channel(
-            spec.topic, schema_id, "cdr",
-            {"offered_qos_profiles": qos_yaml(spec.qos), "topic_type_hash": spec.rihs01})
+            spec.topic, schema_id, "cdr", {"offered_qos_profiles": qos_yaml(spec.qos), "topic_type_hash": spec.rihs01}
+        )
 
     def _open(self) -> None:
         if self._closed:
@@ -407,16 +435,18 @@ class BagWriter:
             self.parts.append(part)
             if self.use_reserve:
                 self._reserve = _Reserve(part / RESERVE_FILE)
-            self._mcap = ChunkedMcapWriter(part / f"{part.name}.mcap", chunk_size=self.chunk_size,
-                                           library=f"{WRITER_NAME} (rosbag2 v{BAG_VERSION})")
+            self._mcap = ChunkedMcapWriter(
+                part / f"{part.name}.mcap", chunk_size=self.chunk_size, library=f"{WRITER_NAME} (rosbag2 v{BAG_VERSION})"
+            )
             self._channels = {}
             self._chunks_seen = 0
             for spec in self.topics.values():
                 self._connect(spec)
             self._ensure_reserve()
         except FileExistsError:
-            raise BagError(f"output '{part}' exists already; rosbag2 bags are never "
-                           "overwritten: choose another path or delete it") from None
+            raise BagError(
+                f"output '{part}' exists already; rosbag2 bags are never overwritten: choose another path or delete it"
+            ) from None
         except OSError as err:
             raise self._fail(err, f"cannot create the bag '{part}'") from None
 
@@ -483,8 +513,7 @@ class BagWriter:
         if not mcap.finished:
             counts = self._part_counts(pending=not drop_pending)
             start, end = mcap.time_range(pending=not drop_pending)
-            info = bag_metadata(mcap.path.name, list(self.topics.values()), counts, start, end,
-                                self.custom_data)
+            info = bag_metadata(mcap.path.name, list(self.topics.values()), counts, start, end, self.custom_data)
             serialized = yaml.safe_dump(info, default_flow_style=False, sort_keys=False)
             records = {"rosbag2": {"serialized_metadata": serialized}}
             if drop_pending:
@@ -496,8 +525,7 @@ class BagWriter:
                 mcap.finish(records, fsync=self.fsync)
         counts = self._part_counts(pending=False)
         start, end = mcap.time_range(pending=False)
-        write_metadata(part, bag_metadata(mcap.path.name, list(self.topics.values()), counts,
-                                          start, end, self.custom_data))
+        write_metadata(part, bag_metadata(mcap.path.name, list(self.topics.values()), counts, start, end, self.custom_data))
 
     def _close_part(self) -> None:
         mcap = self._mcap
@@ -524,7 +552,8 @@ class BagWriter:
                             f"cannot close the bag '{part}': {os_error_cause(last)}; every complete "
                             f"chunk is on disk: free some space, then {recover_hint(self.path)}",
                             self.failed.cause if self.failed else os_error_cause(last),
-                            last.errno) from None
+                            last.errno,
+                        ) from None
         finally:
             for topic, n in self._part_counts(pending=False).items():
                 self._done[topic] = self._done.get(topic, 0) + n
@@ -582,6 +611,7 @@ class BagWriter:
 
 # ---- reading --------------------------------------------------------------------------------
 
+
 def _needs_recovery(path: Path, why: str) -> BagError:
     return BagError(f"'{path}' needs recovering: {why}; {recover_hint(path)}")
 
@@ -597,14 +627,11 @@ def bag_parts(path: str | os.PathLike) -> list[Path]:
         return [path]
     if path.is_dir():
         if any(path.glob("*.mcap")):
-            raise _needs_recovery(path, f"its .mcap data has no {METADATA} (the recorder was killed "
-                                        "or could not close the bag)")
-        parts = sorted(p for p in path.iterdir()
-                       if p.is_dir() and ((p / METADATA).is_file() or any(p.glob("*.mcap"))))
+            raise _needs_recovery(path, f"its .mcap data has no {METADATA} (the recorder was killed or could not close the bag)")
+        parts = sorted(p for p in path.iterdir() if p.is_dir() and ((p / METADATA).is_file() or any(p.glob("*.mcap"))))
         broken = [p.name for p in parts if not (p / METADATA).is_file()]
         if broken:
-            raise _needs_recovery(path, f"part {broken[0]} has no {METADATA} (the recorder was "
-                                        "killed or could not close it)")
+            raise _needs_recovery(path, f"part {broken[0]} has no {METADATA} (the recorder was killed or could not close it)")
         if parts:
             return parts
     if not path.exists():
@@ -631,15 +658,15 @@ class _Parts:
         try:
             for part in self.parts:
                 if not any(part.glob("*.mcap")):  # no data at all: nothing dlo-bag-recover could salvage either
-                    raise NotABagError(f"'{part}' has a {METADATA} but no .mcap data: not an MCAP bag, and "
-                                       "nothing to recover")
+                    raise NotABagError(f"'{part}' has a {METADATA} but no .mcap data: not an MCAP bag, and nothing to recover")
                 try:
                     reader = Reader(part)
                     reader.open()
                 except Exception as err:  # noqa: BLE001 - any damage: one line, the recovery command
-                    raise _needs_recovery(self.path, f"{part.name} cannot be read ({_first_line(err)}; "
-                                                     "the recording was interrupted or the file cut short)"
-                                          ) from None
+                    raise _needs_recovery(
+                        self.path,
+                        f"{part.name} cannot be read ({_first_line(err)}; the recording was interrupted or the file cut short)",
+                    ) from None
                 self.readers.append(reader)
         except BaseException:
             self.__exit__()
@@ -688,11 +715,11 @@ def _graph_topics(available: Iterable[str], wanted: Iterable[str]) -> dict[str, 
     prefixes: dict[str, list[str]] = {}
     for topic in set(wanted) - set(mapping):
         for name in available:
-            prefix = name[:-len(topic)]
+            prefix = name[: -len(topic)]
             if name.endswith(topic) and len(prefix) > 1 and prefix.startswith("/") and not prefix.endswith("/"):
                 prefixes.setdefault(prefix, []).append(topic)
     if len(prefixes) == 1:
-        (prefix, topics), = prefixes.items()
+        ((prefix, topics),) = prefixes.items()
         mapping.update({prefix + t: t for t in topics})
     return mapping
 
@@ -707,8 +734,9 @@ class BagMessage:
     msg: Any
 
 
-def read_messages(path: str | os.PathLike, topics: Iterable[str] | None = None, *,
-                  raw: bool = False, typestore: Typestore | None = None) -> Iterator[BagMessage]:
+def read_messages(
+    path: str | os.PathLike, topics: Iterable[str] | None = None, *, raw: bool = False, typestore: Typestore | None = None
+) -> Iterator[BagMessage]:
     """Iterate the messages of a bag (or of all its rolled parts) in timestamp order.
 
     ``raw=True`` yields the CDR bytes; otherwise rosbags messages (attribute access like the
@@ -720,8 +748,11 @@ def read_messages(path: str | os.PathLike, topics: Iterable[str] | None = None, 
     wanted = set(topics) if topics is not None else None
     bag = Path(path)
     with _Parts(bag) as readers:
-        names = ({c.topic: c.topic for r in readers for c in r.connections} if wanted is None
-                 else _graph_topics((c.topic for r in readers for c in r.connections), wanted))
+        names = (
+            {c.topic: c.topic for r in readers for c in r.connections}
+            if wanted is None
+            else _graph_topics((c.topic for r in readers for c in r.connections), wanted)
+        )
         conns = [c for r in readers for c in r.connections if c.topic in names]
         if not conns:
             return
@@ -742,16 +773,16 @@ def read_messages(path: str | os.PathLike, topics: Iterable[str] | None = None, 
             except StopIteration:
                 return
             except Exception as err:  # noqa: BLE001 - damage inside an indexed file
-                raise _needs_recovery(bag, f"reading stopped after {count} messages "
-                                           f"({_first_line(err)})") from None
+                raise _needs_recovery(bag, f"reading stopped after {count} messages ({_first_line(err)})") from None
             if raw:
                 msg = data
             else:
                 try:
                     msg = store.deserialize_cdr(data, conn.msgtype)
                 except Exception as err:  # noqa: BLE001
-                    raise BagError(f"'{bag}': message {count} on {conn.topic} cannot be decoded as "
-                                   f"{conn.msgtype}: {_first_line(err)}") from None
+                    raise BagError(
+                        f"'{bag}': message {count} on {conn.topic} cannot be decoded as {conn.msgtype}: {_first_line(err)}"
+                    ) from None
             count += 1
             yield BagMessage(names[conn.topic], conn.msgtype, timestamp, msg)
 
@@ -807,14 +838,12 @@ def bag_info(path: str | os.PathLike) -> BagInfo:
                 info = topics.get(conn.topic)
                 qos = list(getattr(conn.ext, "offered_qos_profiles", []) or [])
                 if info is None:
-                    topics[conn.topic] = TopicInfo(conn.topic, conn.msgtype, conn.msgcount,
-                                                   conn.digest, qos)
+                    topics[conn.topic] = TopicInfo(conn.topic, conn.msgtype, conn.msgcount, conn.digest, qos)
                 else:
                     info.count += conn.msgcount
     size = sum(f.stat().st_size for f in files if f.exists())
     size += sum((p / METADATA).stat().st_size for p in parts_.parts)
-    return BagInfo(Path(path), parts_.parts, files, size, min(starts, default=0), max(ends, default=0),
-                   total, topics, custom)
+    return BagInfo(Path(path), parts_.parts, files, size, min(starts, default=0), max(ends, default=0), total, topics, custom)
 
 
 def _human_size(n: float) -> str:
@@ -848,19 +877,19 @@ def format_info(info: BagInfo, *, verbose: bool = False) -> str:
     for i, name in enumerate(sorted(info.topics)):
         t = info.topics[name]
         head = "Topic information: " if i == 0 else " " * 19
-        lines.append(f"{head}Topic: {name:<{width}} | Type: {t.msgtype} | Count: {t.count} | "
-                     "Serialization Format: cdr")
+        lines.append(f"{head}Topic: {name:<{width}} | Type: {t.msgtype} | Count: {t.count} | Serialization Format: cdr")
         if verbose:
             lines.append(" " * 21 + f"hash: {t.rihs01}")
             for q in t.qos:
-                lines.append(" " * 21 + f"qos: {q.reliability.name.lower()}, "
-                             f"{q.durability.name.lower()}, {q.history.name.lower()} "
-                             f"depth {q.depth}")
+                lines.append(
+                    " " * 21 + f"qos: {q.reliability.name.lower()}, "
+                    f"{q.durability.name.lower()}, {q.history.name.lower()} "
+                    f"depth {q.depth}"
+                )
     if not info.topics:
         lines.append("Topic information: (none)")
     if verbose:
         for i, c in enumerate(info.custom_data):
             if c:
-                lines.append(f"Custom data [{info.parts[i].name}]: "
-                             + ", ".join(f"{k}={v}" for k, v in sorted(c.items())))
+                lines.append(f"Custom data [{info.parts[i].name}]: " + ", ".join(f"{k}={v}" for k, v in sorted(c.items())))
     return "\n".join(lines)

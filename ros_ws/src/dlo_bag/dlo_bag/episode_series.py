@@ -12,7 +12,6 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-
 from dlo_sim.task import at_end, at_end_authors
 
 CONTROL_PERIOD = 0.08  # s per control step (8 simulation steps of 0.01 s, docs/ARCHITECTURE.md#world)
@@ -46,22 +45,31 @@ def episode_series(episode: int, streams: dict) -> EpisodeSeries:
     tactile = streams.get("tactile", {})
     vision = streams.get("vision", {})
     v = {
-        "x": _get(gripper, steps, "x"), "y": _get(gripper, steps, "y"), "z": _get(gripper, steps, "z"),
+        "x": _get(gripper, steps, "x"),
+        "y": _get(gripper, steps, "y"),
+        "z": _get(gripper, steps, "z"),
         "closure": _get(gripper, steps, "closure"),
         # the command answering step s acts between s and s + 1
-        "cmd_vx": _get(command, steps, "vx"), "cmd_vy": _get(command, steps, "vy"),
+        "cmd_vx": _get(command, steps, "vx"),
+        "cmd_vy": _get(command, steps, "vy"),
         "cmd_closure": _get(command, steps, "closure"),
-        "theta_T": _get(tactile, steps, "angle"), "y_T_mm": _get(tactile, steps, "y", 1000.0),
+        "theta_T": _get(tactile, steps, "angle"),
+        "y_T_mm": _get(tactile, steps, "y", 1000.0),
         "contact_T": _get(tactile, steps, "contact"),
-        "theta_V": _get(vision, steps, "angle"), "y_V_mm": _get(vision, steps, "y", 1000.0),
-        "q_V": _get(vision, steps, "confidence"), "visible_V": _get(vision, steps, "visible"),
-        "reward": _get(task, steps, "reward"), "return": _get(task, steps, "episode_return"),
-        "n_held": _get(task, steps, "n_held"), "num_particles": _get(task, steps, "num_particles"),
+        "theta_V": _get(vision, steps, "angle"),
+        "y_V_mm": _get(vision, steps, "y", 1000.0),
+        "q_V": _get(vision, steps, "confidence"),
+        "visible_V": _get(vision, steps, "visible"),
+        "reward": _get(task, steps, "reward"),
+        "return": _get(task, steps, "episode_return"),
+        "n_held": _get(task, steps, "n_held"),
+        "num_particles": _get(task, steps, "num_particles"),
         "mean_held_index": _get(task, steps, "mean_held_index"),
         "mean_held_index_authors": _get(task, steps, "mean_held_index_authors"),
     }
-    v["max_held_index"] = np.array([max(task[s].held_indices) if s in task and len(task[s].held_indices) else -1
-                                    for s in steps], dtype=float)
+    v["max_held_index"] = np.array(
+        [max(task[s].held_indices) if s in task and len(task[s].held_indices) else -1 for s in steps], dtype=float
+    )
     n_c = v["num_particles"]
     known = ~np.isnan(n_c)
     end_paper = np.zeros(len(steps), bool)
@@ -71,14 +79,18 @@ def episode_series(episode: int, streams: dict) -> EpisodeSeries:
     v["at_end"], v["at_end_authors"] = end_paper, end_authors
     final = next((int(s) for s in steps if s in task and task[s].done), None)
     return EpisodeSeries(
-        episode=int(episode), steps=steps, values=v,
+        episode=int(episode),
+        steps=steps,
+        values=v,
         first_at_end=int(steps[end_paper][0]) if end_paper.any() else None,
         first_at_end_authors=int(steps[end_authors][0]) if end_authors.any() else None,
-        final_step=final)
+        final_step=final,
+    )
 
 
-def still_spans(series: EpisodeSeries, keys=("x", "y", "closure"), min_steps: int = 15,
-                tol: float = 1e-5) -> list[tuple[int, int]]:
+def still_spans(
+    series: EpisodeSeries, keys=("x", "y", "closure"), min_steps: int = 15, tol: float = 1e-5
+) -> list[tuple[int, int]]:
     """Runs of at least ``min_steps`` consecutive steps over which none of ``keys`` changes by more
     than ``tol`` (default: the gripper stands still with a constant closure, so the robot does
     nothing): [(first step, last step)], for shading plots."""

@@ -93,8 +93,7 @@ class ChunkedMcapWriter:
     Every method that writes raises ``OSError`` on a write error, after cutting the file back.
     """
 
-    def __init__(self, path: str | os.PathLike, *, library: str = WRITER_NAME,
-                 chunk_size: int = CHUNK_SIZE) -> None:
+    def __init__(self, path: str | os.PathLike, *, library: str = WRITER_NAME, chunk_size: int = CHUNK_SIZE) -> None:
         self.path = Path(path)
         self.chunk_size = chunk_size
         self._fd: int | None = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644)
@@ -116,22 +115,33 @@ class ChunkedMcapWriter:
         schema.write(self._pending.builder)
         return schema.id
 
-    def add_channel(self, topic: str, schema_id: int, message_encoding: str = "cdr",
-                    metadata: dict[str, str] | None = None) -> int:
-        channel = Channel(id=len(self.channels) + 1, topic=topic, message_encoding=message_encoding,
-                          metadata=dict(metadata or {}), schema_id=schema_id)
+    def add_channel(
+        self, topic: str, schema_id: int, message_encoding: str = "cdr", metadata: dict[str, str] | None = None
+    ) -> int:
+        channel = Channel(
+            id=len(self.channels) + 1,
+            topic=topic,
+            message_encoding=message_encoding,
+            metadata=dict(metadata or {}),
+            schema_id=schema_id,
+        )
         self.channels[channel.id] = channel
         channel.write(self._pending.builder)
         return channel.id
 
-    def add_message(self, channel_id: int, log_time: int, data: bytes | memoryview,
-                    publish_time: int | None = None, sequence: int = 0) -> None:
+    def add_message(
+        self, channel_id: int, log_time: int, data: bytes | memoryview, publish_time: int | None = None, sequence: int = 0
+    ) -> None:
         """Add one message; appends the pending chunk when it is full (may raise OSError)."""
         pending = self._pending
         pending.index[channel_id].append((log_time, pending.builder.count))
-        Message(channel_id=channel_id, log_time=log_time, data=bytes(data),
-                publish_time=log_time if publish_time is None else publish_time,
-                sequence=sequence).write(pending.builder)
+        Message(
+            channel_id=channel_id,
+            log_time=log_time,
+            data=bytes(data),
+            publish_time=log_time if publish_time is None else publish_time,
+            sequence=sequence,
+        ).write(pending.builder)
         pending.counts[channel_id] += 1
         pending.start = log_time if pending.start is None else min(pending.start, log_time)
         pending.end = log_time if pending.end is None else max(pending.end, log_time)
@@ -186,9 +196,16 @@ class ChunkedMcapWriter:
         records = pending.builder.end()
         start = pending.start if pending.start is not None else 0
         end = pending.end if pending.end is not None else 0
-        chunk = _record_bytes(Chunk(compression="", data=records, message_start_time=start,
-                                    message_end_time=end, uncompressed_crc=zlib.crc32(records),
-                                    uncompressed_size=len(records)))
+        chunk = _record_bytes(
+            Chunk(
+                compression="",
+                data=records,
+                message_start_time=start,
+                message_end_time=end,
+                uncompressed_crc=zlib.crc32(records),
+                uncompressed_size=len(records),
+            )
+        )
         chunk_start = self.committed
         offsets: dict[int, int] = {}
         indexes = bytearray()
@@ -200,11 +217,19 @@ class ChunkedMcapWriter:
         except OSError:
             pending.builder.write(records)  # kept whole for a retry
             raise
-        self.chunk_indexes.append(ChunkIndex(
-            message_start_time=start, message_end_time=end, chunk_start_offset=chunk_start,
-            chunk_length=len(chunk), message_index_offsets=offsets,
-            message_index_length=len(indexes), compression="", compressed_size=len(records),
-            uncompressed_size=len(records)))
+        self.chunk_indexes.append(
+            ChunkIndex(
+                message_start_time=start,
+                message_end_time=end,
+                chunk_start_offset=chunk_start,
+                chunk_length=len(chunk),
+                message_index_offsets=offsets,
+                message_index_length=len(indexes),
+                compression="",
+                compressed_size=len(records),
+                uncompressed_size=len(records),
+            )
+        )
         self.counts.update(pending.counts)
         if pending.start is not None:
             self.start_time = pending.start if self.start_time is None else min(self.start_time, pending.start)
@@ -220,8 +245,10 @@ class ChunkedMcapWriter:
     def summary_size(self) -> int:
         """Upper bound of the bytes :meth:`finish` appends besides the pending chunk."""
         schemas = sum(len(s.data) + len(s.name) + len(s.encoding) + 32 for s in self.schemas.values())
-        channels = sum(64 + len(c.topic) + len(c.message_encoding) + sum(len(k) + len(v) + 8 for k, v in c.metadata.items())
-                       for c in self.channels.values())
+        channels = sum(
+            64 + len(c.topic) + len(c.message_encoding) + sum(len(k) + len(v) + 8 for k, v in c.metadata.items())
+            for c in self.channels.values()
+        )
         chunks = (len(self.chunk_indexes) + 1) * (96 + 10 * max(1, len(self.channels)))
         return 512 + schemas + channels + chunks + 10 * len(self.channels)
 
@@ -230,8 +257,7 @@ class ChunkedMcapWriter:
         self.flush()
         self._finish(metadata or {}, fsync)
 
-    def finish_committed(self, metadata: dict[str, dict[str, str]] | None = None,
-                         fsync: bool = True) -> Counter:
+    def finish_committed(self, metadata: dict[str, dict[str, str]] | None = None, fsync: bool = True) -> Counter:
         """Finish with what is on disk: the pending chunk is dropped (its counts returned)."""
         lost = self.discard_pending()
         self._finish(metadata or {}, fsync)
@@ -242,8 +268,7 @@ class ChunkedMcapWriter:
         metadata_indexes = []
         for name, values in metadata.items():
             record = _record_bytes(Metadata(name=name, metadata=dict(values)))
-            metadata_indexes.append(MetadataIndex(offset=self.committed + len(data),
-                                                  length=len(record), name=name))
+            metadata_indexes.append(MetadataIndex(offset=self.committed + len(data), length=len(record), name=name))
             data += record
         data += _record_bytes(DataEnd(data_section_crc=0))
         summary_start = self.committed + len(data)
@@ -254,24 +279,34 @@ class ChunkedMcapWriter:
                 start = self.committed + len(data)
                 for record in records:
                     data.extend(_record_bytes(record))
-                offsets.append(SummaryOffset(group_opcode=opcode, group_start=start,
-                                             group_length=self.committed + len(data) - start))
+                offsets.append(
+                    SummaryOffset(group_opcode=opcode, group_start=start, group_length=self.committed + len(data) - start)
+                )
 
         group(Opcode.SCHEMA, list(self.schemas.values()))
         group(Opcode.CHANNEL, list(self.channels.values()))
         group(Opcode.CHUNK_INDEX, self.chunk_indexes)
         group(Opcode.METADATA_INDEX, metadata_indexes)
-        group(Opcode.STATISTICS, [Statistics(
-            message_count=sum(self.counts.values()), schema_count=len(self.schemas),
-            channel_count=len(self.channels), attachment_count=0, metadata_count=len(metadata),
-            chunk_count=len(self.chunk_indexes), message_start_time=self.start_time or 0,
-            message_end_time=self.end_time or 0,
-            channel_message_counts={cid: self.counts.get(cid, 0) for cid in self.channels})])
+        group(
+            Opcode.STATISTICS,
+            [
+                Statistics(
+                    message_count=sum(self.counts.values()),
+                    schema_count=len(self.schemas),
+                    channel_count=len(self.channels),
+                    attachment_count=0,
+                    metadata_count=len(metadata),
+                    chunk_count=len(self.chunk_indexes),
+                    message_start_time=self.start_time or 0,
+                    message_end_time=self.end_time or 0,
+                    channel_message_counts={cid: self.counts.get(cid, 0) for cid in self.channels},
+                )
+            ],
+        )
         summary_offset_start = self.committed + len(data)
         for offset in offsets:
             data += _record_bytes(offset)
-        data += _record_bytes(Footer(summary_start=summary_start,
-                                     summary_offset_start=summary_offset_start, summary_crc=0))
+        data += _record_bytes(Footer(summary_start=summary_start, summary_offset_start=summary_offset_start, summary_crc=0))
         data += MAGIC
         self._append(bytes(data), fsync)
         self.finished = True
@@ -285,6 +320,7 @@ class ChunkedMcapWriter:
 
 
 # ---- scanning --------------------------------------------------------------------------------
+
 
 @dataclass
 class ScannedMessage:
@@ -339,8 +375,9 @@ def _body_stream(body: bytes) -> ReadDataStream:
     return ReadDataStream(BytesIO(body))
 
 
-def _inner_records(scan: McapScan, data: bytes, used: list[int] | None = None,
-                   definitions_only: bool = False) -> Iterator[ScannedMessage]:
+def _inner_records(
+    scan: McapScan, data: bytes, used: list[int] | None = None, definitions_only: bool = False
+) -> Iterator[ScannedMessage]:
     """Schemas, channels and messages of a chunk's records; stops at an incomplete record.
 
     ``used[0]`` is set to the bytes of ``data`` taken by complete records.
@@ -351,7 +388,7 @@ def _inner_records(scan: McapScan, data: bytes, used: list[int] | None = None,
         opcode, length = _RECORD_HEAD.unpack_from(data, pos)
         if pos + 9 + length > len(data):
             break
-        body = data[pos + 9:pos + 9 + length]
+        body = data[pos + 9 : pos + 9 + length]
         pos += 9 + length
         if used is not None:
             used[0] = pos
@@ -381,8 +418,7 @@ def _read_summary_definitions(scan: McapScan, f) -> None:
             pass
 
 
-def _handle_record(scan: McapScan, opcode: int, body: bytes, in_chunk: bool = False
-                   ) -> Iterator[ScannedMessage]:
+def _handle_record(scan: McapScan, opcode: int, body: bytes, in_chunk: bool = False) -> Iterator[ScannedMessage]:
     if opcode == Opcode.SCHEMA:
         schema = Schema.read(_body_stream(body))
         scan.schemas.setdefault(schema.id, schema)
@@ -414,8 +450,7 @@ def scan_mcap(path: str | os.PathLike) -> tuple[McapScan, Iterator[ScannedMessag
     magic = f.read(8)
     if magic != MAGIC:
         f.close()
-        raise McapScanError(f"{path} is not an MCAP file"
-                            + (" (it is empty)" if not magic else " (wrong magic bytes)"))
+        raise McapScanError(f"{path} is not an MCAP file" + (" (it is empty)" if not magic else " (wrong magic bytes)"))
 
     _read_summary_definitions(scan, f)
     f.seek(8)
@@ -446,8 +481,7 @@ def scan_mcap(path: str | os.PathLike) -> tuple[McapScan, Iterator[ScannedMessag
                         chunk = Chunk.read(_body_stream(body))
                         data = _decompress(chunk.data, chunk.compression, chunk.uncompressed_size)
                         if chunk.uncompressed_crc and zlib.crc32(data) != chunk.uncompressed_crc:
-                            scan.problems.append(f"chunk at byte {scan.good_end}: CRC mismatch, its "
-                                                 "messages skipped")
+                            scan.problems.append(f"chunk at byte {scan.good_end}: CRC mismatch, its messages skipped")
                             for _ in _inner_records(scan, data, definitions_only=True):
                                 pass
                         else:
@@ -473,13 +507,12 @@ def _cut_chunk(scan: McapScan, rest: bytes) -> Iterator[ScannedMessage]:
     if len(rest) < records:
         scan.problems.append(f"chunk cut at byte {scan.good_end} (its header is incomplete)")
         return
-    compression = rest[name:name + name_length].decode(errors="replace")
+    compression = rest[name : name + name_length].decode(errors="replace")
     if compression:
         scan.problems.append(f"{compression}-compressed chunk cut at byte {scan.good_end}: its messages are lost")
         return
     before, used = scan.messages, [0]
     yield from _inner_records(scan, rest[records:], used)
-    scan.problems.append(f"chunk cut at byte {scan.good_end}: kept its {scan.messages - before} "
-                         "complete message(s)")
+    scan.problems.append(f"chunk cut at byte {scan.good_end}: kept its {scan.messages - before} complete message(s)")
     if used[0]:
         scan.good_end += 9 + records + used[0]

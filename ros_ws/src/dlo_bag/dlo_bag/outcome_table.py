@@ -22,8 +22,10 @@ SHIPPED = "the shipped All policy"
 
 def episode_row(e: dict) -> str:
     """One episode as a fixed-width row of the outcome table."""
-    return (f"{e['episode']:>7} {e['seed']:>6}  {e['outcome']:<20} {e.get('outcome_authors', '?'):<20} "
-            f"{e['episode_return']:>8.3f} {e['time_at_end']:>19} {e['how_far']:>8}")
+    return (
+        f"{e['episode']:>7} {e['seed']:>6}  {e['outcome']:<20} {e.get('outcome_authors', '?'):<20} "
+        f"{e['episode_return']:>8.3f} {e['time_at_end']:>19} {e['how_far']:>8}"
+    )
 
 
 def episode_line(e: dict, done: int = 0, total: int = 0) -> str:
@@ -31,17 +33,21 @@ def episode_line(e: dict, done: int = 0, total: int = 0) -> str:
     ``total``, 0 = unlimited): episode and seed, outcome under both rules, return, steps."""
     count = f"; {done}/{total or 'unlimited'} done" if done else ""
     steps = e.get("episode_length")
-    return (f"episode {e['episode']} (seed {e['seed']}{count}): {e['outcome']}, authors' rule "
-            f"{e.get('outcome_authors', '?')}; return {e['episode_return']:.3f}"
-            + (f", {steps} steps" if steps is not None else "")
-            + f", {e['how_far']} particles from the end")
+    return (
+        f"episode {e['episode']} (seed {e['seed']}{count}): {e['outcome']}, authors' rule "
+        f"{e.get('outcome_authors', '?')}; return {e['episode_return']:.3f}"
+        + (f", {steps} steps" if steps is not None else "")
+        + f", {e['how_far']} particles from the end"
+    )
 
 
 def outcome_table(episodes) -> str:
     """Per-episode lines and the fraction of each outcome under both rules (paper text, authors'
     code: dlo_sim.task), as fixed-width text."""
-    lines = [f"{'episode':>7} {'seed':>6}  {'outcome (paper rule)':<20} {'authors rule':<20} {'return':>8} "
-             f"{'time at end [steps]':>19} {'from end':>8}"]
+    lines = [
+        f"{'episode':>7} {'seed':>6}  {'outcome (paper rule)':<20} {'authors rule':<20} {'return':>8} "
+        f"{'time at end [steps]':>19} {'from end':>8}"
+    ]
     lines += [episode_row(e) for e in episodes]
     n = len(episodes)
     lines += ["", f"{'outcome':<20} {'paper rule':>16} {'authors rule':>16}"]
@@ -63,8 +69,16 @@ def seed_ranges(seeds) -> str:
     return ", ".join(f"{a}" if a == b else f"{a}..{b}" for a, b in parts) or "none"
 
 
-def run_header(episodes, policy: str = "", checkpoint: str = "", without: str = "", tactile_noise="",
-               mode: str = "", policy_line: str = "", train_out: str = "") -> str:
+def run_header(
+    episodes,
+    policy: str = "",
+    checkpoint: str = "",
+    without: str = "",
+    tactile_noise="",
+    mode: str = "",
+    policy_line: str = "",
+    train_out: str = "",
+) -> str:
     """What produced the outcomes: policy (and the modalities it observes, from the policy node's start-up
     line ``policy_line``, e.g. 'policy sac on T+K+V without T'), checkpoint, ablation, tactile noise (a
     setting as ``dlo_perception.tactile.noise_setting`` reads it, '' = none; named by ``noise_label``: a
@@ -84,10 +98,13 @@ def run_header(episodes, policy: str = "", checkpoint: str = "", without: str = 
     rules = sorted({recorded_task_rules(e.get("task_rules")).name for e in episodes})  # older files: the legacy rules
     grips = sorted({"single-particle" if e.get("single_particle_grip") else "finite" for e in episodes})  # older: finite
     noise = noise_label(tactile_noise) if tactile_noise not in ("", None) else "none"
-    return (f"run: {described} ({source}); {ablation}; tactile noise: {noise}"
-            + (f"; mode {mode}" if mode else "") + f"; task rules {', '.join(rules) or LEGACY_TASK_RULES}"
-            + f"; grip {', '.join(grips) or 'finite'}"
-            + f"; seeds {seeds} ({count})")
+    return (
+        f"run: {described} ({source}); {ablation}; tactile noise: {noise}"
+        + (f"; mode {mode}" if mode else "")
+        + f"; task rules {', '.join(rules) or LEGACY_TASK_RULES}"
+        + f"; grip {', '.join(grips) or 'finite'}"
+        + f"; seeds {seeds} ({count})"
+    )
 
 
 # ---------------------------------------------------------------- node health from the logs
@@ -131,8 +148,9 @@ def status_line(steps_per_s, sim_time_factor, done: int, total: int, alive: dict
         rate += f" (sim time x{sim_time_factor:.2f})"
     dead = [name for name, up in alive.items() if not up]
     nodes = f"nodes alive {len(alive) - len(dead)}/{len(alive)}" + (f" (dead: {', '.join(dead)})" if dead else "")
-    return (f"{rate}, {done}{'/' + str(total) if total else ''} episodes done, {nodes}"
-            + ("; " + "; ".join(notes) if notes else "; no warnings"))
+    return f"{rate}, {done}{'/' + str(total) if total else ''} episodes done, {nodes}" + (
+        "; " + "; ".join(notes) if notes else "; no warnings"
+    )
 
 
 def read_episodes(path: str) -> list:

@@ -4,10 +4,8 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-from rosbags.interfaces import Qos, QosDurability, QosReliability
-
 from dlo_common.topics import message_class
-
+from rosbags.interfaces import Qos, QosDurability, QosReliability
 
 # The generated Python class of ``pkg/msg/Name``: the one resolver lives with the topic registry.
 import_message_class = message_class

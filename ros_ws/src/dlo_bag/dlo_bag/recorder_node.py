@@ -23,43 +23,56 @@ import time
 from pathlib import Path
 
 import rclpy
+from dlo_common.node_main import handle_help, shut_down
+from dlo_common.node_util import ParameterError, ShutdownRequest, declare_parameters
+from dlo_common.params import Param
 from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 
-from dlo_common.node_main import handle_help, shut_down
-from dlo_common.node_util import ParameterError, ShutdownRequest, declare_parameters
-from dlo_common.params import Param
-
 from .bag import BagError, BagWriteError, qos_from_profile, subscription_qos
 from .playback import import_message_class
 from .recording import TASK_TOPIC, Recorder, RecordSummary, default_output, topic_selected
 
 PARAMETERS = (
-    ("output", "", "Bag directory to create (must not exist). Empty: bags/rosbag2_<date-time> "
-                   "in the working directory."),
+    ("output", "", "Bag directory to create (must not exist). Empty: bags/rosbag2_<date-time> in the working directory."),
     ("namespace", "/dlo", "Record every topic in this namespace ('/' = all topics)."),
     ("record_clock", False, "Also record /clock."),
     ("extra_topics", [], "Further topics to record (string list)."),
-    Param("split_episodes", 0, "0: one bag per run. N > 0: 'output' becomes a directory of bags, a new "
-                               "one every N episodes (by the episode of task_topic).", at_least=0),
+    Param(
+        "split_episodes",
+        0,
+        "0: one bag per run. N > 0: 'output' becomes a directory of bags, a new "
+        "one every N episodes (by the episode of task_topic).",
+        at_least=0,
+    ),
     ("task_topic", TASK_TOPIC, "dlo_msgs/TaskState topic that marks episodes for split_episodes."),
     Param("discovery_period", 0.25, "Seconds between topic discovery passes.", above=0.0),
     Param("queue_depth", 1000, "Subscription history depth (KEEP_LAST) per topic.", at_least=1),
-    ("summary_file", "", "If set, write the received/written/dropped counts there as JSON at "
-                         "shutdown."),
-    Param("drain_timeout", 2.0, "On shutdown, keep taking already-delivered messages for at most this "
-                                "many seconds (stops earlier once nothing arrives for 0.2 s).", at_least=0.0),
-    Param("flush_period", 0.5, "Seconds between writes of what was received to disk (a killed "
-                               "recorder loses at most this much).", above=0.0),
+    ("summary_file", "", "If set, write the received/written/dropped counts there as JSON at shutdown."),
+    Param(
+        "drain_timeout",
+        2.0,
+        "On shutdown, keep taking already-delivered messages for at most this "
+        "many seconds (stops earlier once nothing arrives for 0.2 s).",
+        at_least=0.0,
+    ),
+    Param(
+        "flush_period",
+        0.5,
+        "Seconds between writes of what was received to disk (a killed recorder loses at most this much).",
+        above=0.0,
+    ),
     ("fsync", True, "fsync the bag on every flush (survives a power loss, not only a kill)."),
 )
 
 EXIT_DROPPED, EXIT_BAD_PARAMETER, EXIT_RECORDING_FAILED = 1, 2, 3
-EXIT_CODES = ("0 complete bag (also after a signal), 1 messages were dropped (or, after the bag was closed, the "
-              "middleware's teardown hung: see stderr), 2 bad parameter or output, 3 recording failed")
+EXIT_CODES = (
+    "0 complete bag (also after a signal), 1 messages were dropped (or, after the bag was closed, the "
+    "middleware's teardown hung: see stderr), 2 bad parameter or output, 3 recording failed"
+)
 
 
 class RecorderNode(Node):
@@ -76,8 +89,7 @@ class RecorderNode(Node):
         self.drain_timeout = p["drain_timeout"]
         self.summary_file = p["summary_file"]
         output = p["output"] or str(default_output())
-        self.recorder = Recorder(output, split_episodes=p["split_episodes"],
-                                 task_topic=p["task_topic"], fsync=p["fsync"])
+        self.recorder = Recorder(output, split_episodes=p["split_episodes"], task_topic=p["task_topic"], fsync=p["fsync"])
         self._recorded: dict[str, object] = {}
         self._reliability: dict[str, object] = {}
         self._skipped: set[str] = set()
@@ -86,7 +98,8 @@ class RecorderNode(Node):
         self.get_logger().info(
             f"recording '{self.namespace}'{' + /clock' if self.record_clock else ''}"
             f"{' + ' + ', '.join(self.extra_topics) if self.extra_topics else ''} "
-            f"to {self.recorder.path}")
+            f"to {self.recorder.path}"
+        )
         self.create_timer(p["discovery_period"], self.discover)
         self.create_timer(p["flush_period"], self.flush)
         self._failure_logged = False
@@ -100,7 +113,8 @@ class RecorderNode(Node):
         """Subscribe to new topics that have at least one publisher."""
         for topic, types in self.get_topic_names_and_types():
             if topic in self._skipped or not topic_selected(
-                    topic, self.namespace, clock=self.record_clock, extra=self.extra_topics):
+                topic, self.namespace, clock=self.record_clock, extra=self.extra_topics
+            ):
                 continue
             infos = self.get_publishers_info_by_topic(topic)
             if not infos:  # only subscribers so far: wait for a publisher to learn its QoS
@@ -109,8 +123,9 @@ class RecorderNode(Node):
             if topic in self._recorded:
                 rel, _ = subscription_qos(offered)
                 if rel.value != self._reliability[topic]:
-                    self._warn_once(topic, "a publisher now offers best-effort QoS; the reliable "
-                                           "subscription cannot receive from it")
+                    self._warn_once(
+                        topic, "a publisher now offers best-effort QoS; the reliable subscription cannot receive from it"
+                    )
                 continue
             msgtype = types[0]
             if len(types) > 1:
@@ -125,21 +140,25 @@ class RecorderNode(Node):
             for info in infos:
                 graph_hash = str(info.topic_type_hash)
                 if graph_hash.startswith("RIHS01_") and graph_hash != spec.rihs01:
-                    self._warn_once(topic, f"publisher type hash {graph_hash} differs from the "
-                                           f"installed definition's {spec.rihs01}")
+                    self._warn_once(
+                        topic, f"publisher type hash {graph_hash} differs from the installed definition's {spec.rihs01}"
+                    )
             rel, dur = subscription_qos(offered)
-            qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=self.queue_depth,
-                             reliability=ReliabilityPolicy(rel.value),
-                             durability=DurabilityPolicy(dur.value))
+            qos = QoSProfile(
+                history=HistoryPolicy.KEEP_LAST,
+                depth=self.queue_depth,
+                reliability=ReliabilityPolicy(rel.value),
+                durability=DurabilityPolicy(dur.value),
+            )
             events = SubscriptionEventCallbacks(
                 message_lost=functools.partial(self._on_lost, topic),
-                incompatible_qos=functools.partial(self._on_incompatible, topic))
+                incompatible_qos=functools.partial(self._on_incompatible, topic),
+            )
             self._recorded[topic] = self.create_subscription(
-                msg_class, topic, functools.partial(self._on_message, topic), qos, raw=True,
-                event_callbacks=events)
+                msg_class, topic, functools.partial(self._on_message, topic), qos, raw=True, event_callbacks=events
+            )
             self._reliability[topic] = rel.value
-            self.get_logger().info(f"recording {topic} [{msgtype}] "
-                                   f"({rel.name.lower()}, {dur.name.lower()})")
+            self.get_logger().info(f"recording {topic} [{msgtype}] ({rel.name.lower()}, {dur.name.lower()})")
 
     def _on_message(self, topic: str, data: bytes) -> None:
         error = self.recorder.on_message(topic, data, self.get_clock().now().nanoseconds)
@@ -159,19 +178,24 @@ class RecorderNode(Node):
         if self._failure_logged:
             return
         self._failure_logged = True
-        self.get_logger().error(f"recording failed: {self.recorder.failure} ({self.recorder.last_error}); "
-                                "stopping and closing the bag with what was written")
+        self.get_logger().error(
+            f"recording failed: {self.recorder.failure} ({self.recorder.last_error}); "
+            "stopping and closing the bag with what was written"
+        )
         if self.stop is not None:
             self.stop.request()
 
     def _on_lost(self, topic: str, info) -> None:
         self.recorder.on_lost(topic, int(info.total_count_change))
-        self.get_logger().error(f"{topic}: the middleware lost {info.total_count_change} "
-                                f"message(s) before delivery ({info.total_count} so far)")
+        self.get_logger().error(
+            f"{topic}: the middleware lost {info.total_count_change} message(s) before delivery ({info.total_count} so far)"
+        )
 
     def _on_incompatible(self, topic: str, info) -> None:
-        self._warn_once(topic, "a publisher's QoS is incompatible with the recorder's "
-                               f"subscription (policy {info.last_policy_kind}); not recorded")
+        self._warn_once(
+            topic,
+            f"a publisher's QoS is incompatible with the recorder's subscription (policy {info.last_policy_kind}); not recorded",
+        )
 
     @property
     def received(self) -> int:

@@ -22,10 +22,9 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
+from dlo_common.topics import topic as topic_record
 from rosbags.interfaces import Qos
 from rosbags.typesys.store import Typestore
-
-from dlo_common.topics import topic as topic_record
 
 from .bag import BagError, BagWriteError, BagWriter, TopicSpec, make_typestore
 from .mcap_file import WRITER_NAME
@@ -43,8 +42,7 @@ def default_output(root: str | os.PathLike = "bags") -> Path:
     return Path(root) / f"rosbag2_{stamp}"
 
 
-def topic_selected(topic: str, namespace: str = "/dlo", *, clock: bool = False,
-                   extra: Iterable[str] = ()) -> bool:
+def topic_selected(topic: str, namespace: str = "/dlo", *, clock: bool = False, extra: Iterable[str] = ()) -> bool:
     """True for ``namespace`` and topics under it, ``/clock`` if asked, and ``extra`` topics."""
     ns = "/" + namespace.strip("/") if namespace.strip("/") else "/"
     if ns == "/" or topic == ns or topic.startswith(ns + "/"):
@@ -88,32 +86,43 @@ class RecordSummary:
 
     def to_dict(self) -> dict:
         """JSON-ready counts (e.g. for benchmarks: ``dropped`` must be 0)."""
-        return {"path": str(self.path), "parts": [str(p) for p in self.parts],
-                "received": self.total_received, "written": self.total_written,
-                "lost": self.total_lost, "dropped": self.dropped, "errors": self.errors,
-                "failure": self.failure, "received_at_failure": self.received_at_failure,
-                "complete": self.complete,
-                "topics": {t: {"received": self.received.get(t, 0),
-                               "written": self.written.get(t, 0),
-                               "lost": (self.lost or {}).get(t, 0)}
-                           for t in sorted(set(self.received) | set(self.written))}}
+        return {
+            "path": str(self.path),
+            "parts": [str(p) for p in self.parts],
+            "received": self.total_received,
+            "written": self.total_written,
+            "lost": self.total_lost,
+            "dropped": self.dropped,
+            "errors": self.errors,
+            "failure": self.failure,
+            "received_at_failure": self.received_at_failure,
+            "complete": self.complete,
+            "topics": {
+                t: {"received": self.received.get(t, 0), "written": self.written.get(t, 0), "lost": (self.lost or {}).get(t, 0)}
+                for t in sorted(set(self.received) | set(self.written))
+            },
+        }
 
     def lines(self) -> list[str]:
-        out = [f"bag {self.path} ({len(self.parts)} part{'s' if len(self.parts) != 1 else ''}): "
-               f"received {self.total_received}, written {self.total_written}, "
-               f"dropped {self.dropped}"]
+        out = [
+            f"bag {self.path} ({len(self.parts)} part{'s' if len(self.parts) != 1 else ''}): "
+            f"received {self.total_received}, written {self.total_written}, "
+            f"dropped {self.dropped}"
+        ]
         lost = self.lost or {}
         for topic in sorted(set(self.received) | set(self.written)):
-            out.append(f"  {topic}: received {self.received.get(topic, 0)}, "
-                       f"written {self.written.get(topic, 0)}"
-                       + (f", lost before delivery {lost[topic]}" if lost.get(topic) else ""))
+            out.append(
+                f"  {topic}: received {self.received.get(topic, 0)}, "
+                f"written {self.written.get(topic, 0)}" + (f", lost before delivery {lost[topic]}" if lost.get(topic) else "")
+            )
         if self.errors:
             out.append(f"  {self.errors} write errors; last: {self.last_error}")
         if self.failure:
-            out.append(f"  after the write error ({self.failure}) the bag was closed with the "
-                       f"{self.total_written} message(s) written, of {self.received_at_failure} "
-                       "received until the error"
-                       + ("" if self.complete else f"; it needs recovering: dlo-bag-recover {self.path}"))
+            out.append(
+                f"  after the write error ({self.failure}) the bag was closed with the "
+                f"{self.total_written} message(s) written, of {self.received_at_failure} "
+                "received until the error" + ("" if self.complete else f"; it needs recovering: dlo-bag-recover {self.path}")
+            )
         return out
 
 
@@ -125,8 +134,15 @@ class Recorder:
     episode k*N (messages that arrive later but belong to the previous step land in the new part).
     """
 
-    def __init__(self, output: str | os.PathLike, *, typestore: Typestore | None = None,
-                 split_episodes: int = 0, task_topic: str = TASK_TOPIC, fsync: bool = True) -> None:
+    def __init__(
+        self,
+        output: str | os.PathLike,
+        *,
+        typestore: Typestore | None = None,
+        split_episodes: int = 0,
+        task_topic: str = TASK_TOPIC,
+        fsync: bool = True,
+    ) -> None:
         if split_episodes < 0:
             raise ValueError(f"split_episodes must be >= 0, got {split_episodes}")
         self.typestore = typestore if typestore is not None else make_typestore()
@@ -165,8 +181,7 @@ class Recorder:
             self._episodes = set()
         self._chunk = chunk
         self._episodes.add(episode)
-        self.writer.custom_data[f"{WRITER_NAME}.episodes"] = (
-            f"{min(self._episodes)}-{max(self._episodes)}")
+        self.writer.custom_data[f"{WRITER_NAME}.episodes"] = f"{min(self._episodes)}-{max(self._episodes)}"
 
     def _note_policy(self, data: bytes) -> None:
         """Copy the policy record (a std_msgs/String) into the bag's metadata; a message that does not decode is
@@ -234,7 +249,15 @@ class Recorder:
                 self.last_error = str(err)
             finally:
                 self._summary = RecordSummary(
-                    self.writer.path, list(self.writer.parts), dict(self.received),
-                    dict(self.writer.counts), self.errors, self.last_error, dict(self.lost),
-                    self.failure, self.received_at_failure, self.writer.complete)
+                    self.writer.path,
+                    list(self.writer.parts),
+                    dict(self.received),
+                    dict(self.writer.counts),
+                    self.errors,
+                    self.last_error,
+                    dict(self.lost),
+                    self.failure,
+                    self.received_at_failure,
+                    self.writer.complete,
+                )
         return self._summary

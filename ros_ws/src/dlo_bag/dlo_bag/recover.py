@@ -24,10 +24,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import yaml
+from dlo_common.console import console_main
 from rosbags.rosbag2.metadata import parse_qos
 from rosbags.typesys import Stores, get_types_from_idl, get_types_from_msg, get_typestore
-
-from dlo_common.console import console_main
 
 from .bag import (
     EXIT_BAD_BAG,
@@ -68,12 +67,12 @@ class RecoverReport:
             return f"{self.part}: complete and readable ({self.messages} messages); nothing to recover"
         if self.action == "failed":
             return f"{self.part}: cannot be recovered: {self.error}"
-        cut = (f"; the last {self.discarded_bytes} byte(s), an incomplete record, discarded"
-               if self.discarded_bytes else "")
-        kept = (f"; original kept as {self.original.name}" if self.original is not None else "")
+        cut = f"; the last {self.discarded_bytes} byte(s), an incomplete record, discarded" if self.discarded_bytes else ""
+        kept = f"; original kept as {self.original.name}" if self.original is not None else ""
         where = f" into {self.output}" if self.output is not None and self.output != self.part else ""
-        return (f"{self.part}: recovered {self.messages} messages on {len(self.topics)} topics{where}"
-                f" ({METADATA} rebuilt{cut}{kept})")
+        return (
+            f"{self.part}: recovered {self.messages} messages on {len(self.topics)} topics{where} ({METADATA} rebuilt{cut}{kept})"
+        )
 
 
 def _hash_from_definition(msgtype: str, encoding: str, text: str) -> str:
@@ -103,8 +102,7 @@ def _topic_spec(scan, channel_id: int) -> TopicSpec | None:
         qos = parse_qos(channel.metadata.get("offered_qos_profiles", "") or [])
     except Exception:  # noqa: BLE001 - unreadable QoS: record without it
         qos = []
-    digest = channel.metadata.get("topic_type_hash") or _hash_from_definition(
-        schema.name, schema.encoding, text)
+    digest = channel.metadata.get("topic_type_hash") or _hash_from_definition(schema.name, schema.encoding, text)
     return TopicSpec(channel.topic, schema.name, list(qos), digest, text)
 
 
@@ -138,15 +136,16 @@ def recover_part(part: Path, *, output: Path | None = None, keep_original: bool 
     if not mcaps:
         return RecoverReport(part, "failed", error="no .mcap file in it")
     if len(mcaps) > 1:
-        return RecoverReport(part, "failed", error=f"{len(mcaps)} .mcap files; recover a bag of one "
-                                                   "file (copy each into its own directory)")
+        return RecoverReport(
+            part, "failed", error=f"{len(mcaps)} .mcap files; recover a bag of one file (copy each into its own directory)"
+        )
     source = mcaps[0]
     try:
         scan, messages = scan_mcap(source)
     except (McapScanError, OSError) as err:
         return RecoverReport(part, "failed", error=str(err))
     report = RecoverReport(part, "recovered", output=output or part)
-    work = (output if output is not None else part / WORK_DIR / part.name)
+    work = output if output is not None else part / WORK_DIR / part.name
     if output is None and work.parent.exists():
         shutil.rmtree(work.parent)
     try:
@@ -173,21 +172,24 @@ def recover_part(part: Path, *, output: Path | None = None, keep_original: bool 
             writer.custom_data.update((yaml.safe_load(old) or {}).get("custom_data") or {})
         writer.custom_data[f"{WRITER_NAME}.recovered"] = (
             f"{datetime.datetime.now():%Y-%m-%d %H:%M:%S} by dlo-bag-recover from {source.name}: "
-            f"{sum(counts.values())} messages, {scan.discarded} bytes discarded")
+            f"{sum(counts.values())} messages, {scan.discarded} bytes discarded"
+        )
         writer.close()
     except (BagError, OSError) as err:
         if output is None:
             shutil.rmtree(part / WORK_DIR, ignore_errors=True)
         cause = err.cause if isinstance(err, BagWriteError) else str(err)
-        return RecoverReport(part, "failed", error=f"cannot write the recovered bag: {cause} "
-                                                   "(free some space, or use --output DIR elsewhere)")
+        return RecoverReport(
+            part, "failed", error=f"cannot write the recovered bag: {cause} (free some space, or use --output DIR elsewhere)"
+        )
     if not counts and not any(s is not None for s in specs.values()):
         if output is None:
             shutil.rmtree(part / WORK_DIR, ignore_errors=True)
         else:
             shutil.rmtree(output, ignore_errors=True)
-        return RecoverReport(part, "failed", error=f"{source.name} holds no complete record to salvage",
-                             problems=list(scan.problems))
+        return RecoverReport(
+            part, "failed", error=f"{source.name} holds no complete record to salvage", problems=list(scan.problems)
+        )
     report.messages = sum(counts.values())
     report.topics = dict(counts)
     report.discarded_bytes = scan.discarded
@@ -211,13 +213,15 @@ def recover_part(part: Path, *, output: Path | None = None, keep_original: bool 
     return report
 
 
-def recover_bag(path: str | os.PathLike, *, output: str | os.PathLike | None = None,
-                keep_original: bool = True) -> list[RecoverReport]:
+def recover_bag(
+    path: str | os.PathLike, *, output: str | os.PathLike | None = None, keep_original: bool = True
+) -> list[RecoverReport]:
     """Recover a bag directory or a directory of parts; one report per bag directory."""
     path = Path(path)
     if not path.is_dir():
-        raise NotABagError(f"'{path}' is not a directory (give the bag directory, not a file)"
-                       if path.exists() else f"'{path}' does not exist")
+        raise NotABagError(
+            f"'{path}' is not a directory (give the bag directory, not a file)" if path.exists() else f"'{path}' does not exist"
+        )
     parts = bag_dirs(path)
     out = Path(output) if output is not None else None
     if out is not None and out.exists():
@@ -236,12 +240,16 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="dlo-bag-recover",
         description="Recover a rosbag2 MCAP bag whose recorder was killed (no metadata.yaml) or whose "
-                    ".mcap was cut short: salvage every complete message into a valid, indexed bag "
-                    "and rebuild metadata.yaml (like 'ros2 bag reindex' + 'mcap recover').")
+        ".mcap was cut short: salvage every complete message into a valid, indexed bag "
+        "and rebuild metadata.yaml (like 'ros2 bag reindex' + 'mcap recover').",
+    )
     parser.add_argument("bag", help="bag directory (or a directory of rolled parts)")
     parser.add_argument("--output", "-o", help="write the recovered bag here and leave BAG untouched")
-    parser.add_argument("--delete-original", action="store_true",
-                        help="in place: delete the damaged .mcap instead of keeping it as *.mcap.damaged")
+    parser.add_argument(
+        "--delete-original",
+        action="store_true",
+        help="in place: delete the damaged .mcap instead of keeping it as *.mcap.damaged",
+    )
     parser.add_argument("-v", "--verbose", action="store_true", help="also list what was damaged")
     args = parser.parse_args(argv)
     try:

@@ -21,7 +21,6 @@ import time
 from pathlib import Path
 
 import numpy as np
-
 from dlo_perception.cloud import unpack_particles
 from dlo_sim.config import FINGER_AXIS_OFFSET, FINGER_RADIUS, FIXED_END
 
@@ -49,8 +48,7 @@ def video_title(episode: int, summary: dict, policy: str | None) -> str:
     ret = summary.get("episode_return", summary.get("recorded_return"))
     head = f"episode {episode}  ·  seed {seed}" + (f"  ·  return {ret:.2f}" if ret is not None else "")
     if summary.get("complete", True):
-        tail = (f"outcome: {summary.get('outcome', '?')} (paper rule)  ·  "
-                f"{summary.get('outcome_authors', '?')} (authors' rule)")
+        tail = f"outcome: {summary.get('outcome', '?')} (paper rule)  ·  {summary.get('outcome_authors', '?')} (authors' rule)"
     else:
         tail = "episode unfinished in the bag: no outcome"
     who = textwrap.fill(f"policy {policy or 'not recorded'}", TITLE_CHARS, break_on_hyphens=False)
@@ -60,8 +58,9 @@ def video_title(episode: int, summary: dict, policy: str | None) -> str:
 class EpisodeFrames:
     """Draws the frames of one episode (matplotlib Agg canvas reused for every frame)."""
 
-    def __init__(self, episode: int, streams: dict, summary: dict, *, policy: str | None = None,
-                 width: int = DEFAULT_WIDTH["mp4"]) -> None:
+    def __init__(
+        self, episode: int, streams: dict, summary: dict, *, policy: str | None = None, width: int = DEFAULT_WIDTH["mp4"]
+    ) -> None:
         from matplotlib.backends.backend_agg import FigureCanvasAgg
         from matplotlib.figure import Figure
         from matplotlib.patches import Circle
@@ -79,8 +78,7 @@ class EpisodeFrames:
         self.fig = fig
         fs = max(5.0, 9.0 * scale)
         title = fig.suptitle(video_title(episode, summary, policy), fontsize=fs * 1.15, y=0.985)
-        outer = fig.add_gridspec(2, 1, height_ratios=[3.0, 1.7], left=0.08, right=0.86, top=0.83,
-                                 bottom=0.075, hspace=0.2)
+        outer = fig.add_gridspec(2, 1, height_ratios=[3.0, 1.7], left=0.08, right=0.86, top=0.83, bottom=0.075, hspace=0.2)
         views = outer[0].subgridspec(1, 2, width_ratios=[1.0, 2.0], wspace=0.22)
         strip_grid = outer[1].subgridspec(3, 1, hspace=0.12)
         # top camera
@@ -102,7 +100,7 @@ class EpisodeFrames:
         ax.set_ylabel("z [m]", fontsize=fs)
         ax.tick_params(labelsize=fs * 0.85)
         (self.line,) = ax.plot([], [], "-", color="0.6", lw=1.0 * scale, zorder=1)
-        self.dots = ax.scatter([], [], s=10 * scale ** 2, zorder=2)
+        self.dots = ax.scatter([], [], s=10 * scale**2, zorder=2)
         self.fingers = [Circle((0, 0), FINGER_RADIUS, color="tab:blue", alpha=0.5, zorder=3) for _ in range(2)]
         for finger in self.fingers:
             ax.add_patch(finger)
@@ -143,14 +141,15 @@ class EpisodeFrames:
                 a.tick_params(labelbottom=False)
         if len(steps):
             share.set_xlim(steps[0], max(steps[-1], steps[0] + 1))
-        self.strip_axes[-1].set_xlabel("control step (0.08 s each); dotted: first at the end "
-                                       "(green paper rule, purple authors' rule)", fontsize=fs * 0.85)
+        self.strip_axes[-1].set_xlabel(
+            "control step (0.08 s each); dotted: first at the end (green paper rule, purple authors' rule)", fontsize=fs * 0.85
+        )
 
     def _image(self, step: int) -> np.ndarray:
         msg = self.images.get(step)
         if msg is None:
             return np.zeros((8, 8), np.uint8)
-        return np.frombuffer(bytes(msg.data), np.uint8).reshape(int(msg.height), int(msg.step))[:, :int(msg.width)]
+        return np.frombuffer(bytes(msg.data), np.uint8).reshape(int(msg.height), int(msg.step))[:, : int(msg.width)]
 
     def _extent(self):
         pts = [unpack_particles(self.particles[k])[0] for k in self.steps if k in self.particles]
@@ -197,7 +196,8 @@ class EpisodeFrames:
         self.status.set_text(
             f"step {step:3d}  t = {step * CONTROL_PERIOD:5.2f} s  closure {closure:4.2f}  held "
             f"{0 if np.isnan(n_held) else int(n_held):2d} (largest index {int(biggest):2d} of "
-            f"{0 if np.isnan(n_c) else int(n_c) - 1}){at}")
+            f"{0 if np.isnan(n_c) else int(n_c) - 1}){at}"
+        )
         self.canvas.draw()
         rgba = np.asarray(self.canvas.buffer_rgba())
         return np.ascontiguousarray(rgba[:, :, :3])
@@ -214,21 +214,48 @@ def _writer(path: Path, size: tuple[int, int], fps: float, fmt: str):
 
     if fmt == "mp4":
         gen = imageio_ffmpeg.write_frames(
-            str(path), size, fps=fps, codec="libx264", pix_fmt_out="yuv420p", quality=7, macro_block_size=2,
-            ffmpeg_log_level="error", output_params=["-movflags", "+faststart"])
+            str(path),
+            size,
+            fps=fps,
+            codec="libx264",
+            pix_fmt_out="yuv420p",
+            quality=7,
+            macro_block_size=2,
+            ffmpeg_log_level="error",
+            output_params=["-movflags", "+faststart"],
+        )
     else:
-        palette = ("split[a][b];[a]palettegen=max_colors=96:stats_mode=diff[p];"
-                   "[b][p]paletteuse=dither=bayer:bayer_scale=4:diff_mode=rectangle")
+        palette = (
+            "split[a][b];[a]palettegen=max_colors=96:stats_mode=diff[p];"
+            "[b][p]paletteuse=dither=bayer:bayer_scale=4:diff_mode=rectangle"
+        )
         gen = imageio_ffmpeg.write_frames(
-            str(path), size, fps=fps, codec="gif", pix_fmt_out="pal8", quality=None, macro_block_size=2,
-            ffmpeg_log_level="error", output_params=["-vf", palette, "-loop", "0"])
+            str(path),
+            size,
+            fps=fps,
+            codec="gif",
+            pix_fmt_out="pal8",
+            quality=None,
+            macro_block_size=2,
+            ffmpeg_log_level="error",
+            output_params=["-vf", palette, "-loop", "0"],
+        )
     gen.send(None)
     return gen
 
 
-def render_episode_video(episode: int, streams: dict, summary: dict, path, *, fmt: str = "mp4",
-                         policy: str | None = None, speed: float = 1.0, width: int | None = None,
-                         progress=None) -> dict:
+def render_episode_video(
+    episode: int,
+    streams: dict,
+    summary: dict,
+    path,
+    *,
+    fmt: str = "mp4",
+    policy: str | None = None,
+    speed: float = 1.0,
+    width: int | None = None,
+    progress=None,
+) -> dict:
     """Write one episode's video to ``path``; returns {frames, seconds, fps, render_fps, bytes}.
 
     ``speed`` 1.0 = real time (12.5 frames/s); ``width`` in pixels (height = 3/4 of it); ``progress``:
@@ -262,6 +289,14 @@ def render_episode_video(episode: int, streams: dict, summary: dict, path, *, fm
     finally:
         frames.close()
     seconds = time.perf_counter() - t0
-    return {"path": str(path), "frames": len(frames), "duration_s": round(len(frames) / fps, 2),
-            "fps": fps, "render_s": round(seconds, 3), "render_fps": round(len(frames) / seconds, 2),
-            "bytes": path.stat().st_size, "width": frames.width, "height": frames.height}
+    return {
+        "path": str(path),
+        "frames": len(frames),
+        "duration_s": round(len(frames) / fps, 2),
+        "fps": fps,
+        "render_s": round(seconds, 3),
+        "render_fps": round(len(frames) / seconds, 2),
+        "bytes": path.stat().st_size,
+        "width": frames.width,
+        "height": frames.height,
+    }

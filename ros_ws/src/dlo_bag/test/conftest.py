@@ -5,7 +5,6 @@ from __future__ import annotations
 import shutil
 
 import pytest
-
 from dlo_common.testing import Procs, package_test_env
 
 

@@ -22,8 +22,9 @@ def small_disk(base: Path) -> Iterator[Path | None]:
     if shutil.which("mount") is None or os.geteuid() != 0:
         yield None
         return
-    done = subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={TMPFS_SIZE}", "tmpfs", str(mount)],
-                          capture_output=True, text=True)
+    done = subprocess.run(
+        ["mount", "-t", "tmpfs", "-o", f"size={TMPFS_SIZE}", "tmpfs", str(mount)], capture_output=True, text=True
+    )
     if done.returncode != 0:
         yield None
         return
@@ -35,7 +36,9 @@ def small_disk(base: Path) -> Iterator[Path | None]:
 
 def file_size_limit(limit: int):
     """preexec_fn: writes past ``limit`` bytes of any one file fail with EFBIG (no root needed)."""
+
     def apply() -> None:
         signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # EFBIG instead of being killed
         resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))
+
     return apply

@@ -20,15 +20,13 @@ import sys
 import time
 
 import rclpy
+from dlo_common.node_main import shut_down
+from dlo_common.topics import topic as topic_record
+from dlo_msgs.msg import GripperCommand, GripperState, TactilePose, TaskState, VisualPose
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
-
-from dlo_msgs.msg import GripperCommand, GripperState, TactilePose, TaskState, VisualPose
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2, PointField
-
-from dlo_common.node_main import shut_down
-from dlo_common.topics import topic as topic_record
 
 TOPICS = {
     "/dlo/gripper/state": GripperState,
@@ -40,12 +38,13 @@ TOPICS = {
     "/dlo/camera/image": Image,
 }
 TYPE_NAMES = {name: topic_record(name).type for name in TOPICS}  # as the graph's topic registry names them
-QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000,
-                 reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE)
+QOS = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST, depth=1000, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE
+)
 LATCHED_TOPIC = "/dlo/camera/camera_info"
-LATCHED_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
-                         reliability=ReliabilityPolicy.RELIABLE,
-                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
+LATCHED_QOS = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL
+)
 
 
 def latched_message() -> CameraInfo:
@@ -78,8 +77,7 @@ def make_message(topic: str, i: int, episode_every: int = 0):
         msg.reward, msg.done, msg.outcome = 0.5, False, 0
     elif topic == "/dlo/rope/particles":
         msg.height, msg.width = 1, 40
-        msg.fields = [PointField(name=n, offset=4 * k, datatype=PointField.FLOAT32, count=1)
-                      for k, n in enumerate("xyz")]
+        msg.fields = [PointField(name=n, offset=4 * k, datatype=PointField.FLOAT32, count=1) for k, n in enumerate("xyz")]
         msg.point_step, msg.row_step, msg.is_dense = 12, 12 * 40, True
         msg.data = bytes((i + k) % 256 for k in range(12 * 40))
     elif topic == "/dlo/camera/image":
@@ -144,8 +142,7 @@ def run_sub(args, stop) -> int:
     def cb(topic, data):
         received[topic].append(data.hex())
 
-    subs = [node.create_subscription(TOPICS[t], t, lambda d, t=t: cb(t, d), QOS, raw=True)
-            for t in args.topics]
+    subs = [node.create_subscription(TOPICS[t], t, lambda d, t=t: cb(t, d), QOS, raw=True) for t in args.topics]
     print("SUBSCRIBED", flush=True)
     end = time.monotonic() + args.timeout
     while not stop[0] and time.monotonic() < end:

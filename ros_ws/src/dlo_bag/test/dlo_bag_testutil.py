@@ -12,8 +12,7 @@ HELPER = HERE / "dlo_bag_graph_helper.py"
 
 
 def recorder_cmd(output: Path, *params: str) -> list[str]:
-    cmd = [str(ROS2RUN), "dlo_bag", "recorder_node", "--ros-args",
-           "-p", f"output:={output}", "-p", "discovery_period:=0.1"]
+    cmd = [str(ROS2RUN), "dlo_bag", "recorder_node", "--ros-args", "-p", f"output:={output}", "-p", "discovery_period:=0.1"]
     for p in params:
         cmd += ["-p", p]
     return cmd

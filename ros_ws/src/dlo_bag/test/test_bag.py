@@ -6,13 +6,6 @@ import json
 import os
 
 import pytest
-from mcap.reader import make_reader
-from rclpy.duration import Infinite
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
-from rclpy.serialization import serialize_message
-from rosbags.interfaces import QosDurability, QosReliability
-
-from dlo_msgs.msg import GripperState, TaskState
 from dlo_bag.bag import (
     BagError,
     BagWriter,
@@ -26,6 +19,12 @@ from dlo_bag.bag import (
     subscription_qos,
 )
 from dlo_bag.recording import Recorder, topic_selected
+from dlo_msgs.msg import GripperState, TaskState
+from mcap.reader import make_reader
+from rclpy.duration import Infinite
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.serialization import serialize_message
+from rosbags.interfaces import QosDurability, QosReliability
 
 
 def installed_msgs(package):
@@ -49,8 +48,7 @@ def test_dlo_msgs_hashes_match_rosidl():
 
 
 def test_qos_from_rclpy_profile():
-    profile = QoSProfile(depth=7, reliability=ReliabilityPolicy.BEST_EFFORT,
-                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
+    profile = QoSProfile(depth=7, reliability=ReliabilityPolicy.BEST_EFFORT, durability=DurabilityPolicy.TRANSIENT_LOCAL)
     qos = qos_from_profile(profile)
     assert qos.depth == 7
     assert qos.reliability == QosReliability.BEST_EFFORT
@@ -60,8 +58,9 @@ def test_qos_from_rclpy_profile():
 
 
 def test_subscription_qos_matches_every_publisher():
-    rel = qos_from_profile(QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                                      durability=DurabilityPolicy.TRANSIENT_LOCAL))
+    rel = qos_from_profile(
+        QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+    )
     be = qos_from_profile(QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT))
     assert subscription_qos([rel]) == (QosReliability.RELIABLE, QosDurability.TRANSIENT_LOCAL)
     assert subscription_qos([rel, be]) == (QosReliability.BEST_EFFORT, QosDurability.VOLATILE)
@@ -111,6 +110,7 @@ def synced_files(monkeypatch) -> list[str]:
     def spy(fd):
         synced.append(os.readlink(f"/proc/self/fd/{fd}"))
         return real(fd)
+
     monkeypatch.setattr(os, "fsync", spy)
     return synced
 
@@ -173,8 +173,7 @@ def test_recorder_rolls_every_n_episodes(tmp_path):
     assert [p.name for p in parts] == ["run_0000", "run_0001", "run_0002"]
     eps = [sorted({m.msg.episode for m in read_messages(p, ["/dlo/task/state"])}) for p in parts]
     assert eps == [[0, 1], [2, 3], [4]]
-    assert [m.msg.step for m in read_messages(tmp_path / "run", ["/dlo/gripper/state"])] == \
-        list(range(0, 30, 2))
+    assert [m.msg.step for m in read_messages(tmp_path / "run", ["/dlo/gripper/state"])] == list(range(0, 30, 2))
     assert rec.close() is summary
 
 

@@ -1,11 +1,11 @@
 """One exit-status table for the bag tools (dlo_bag.bag EXIT_*), each case as a user meets it."""
-import pytest
-from rclpy.serialization import serialize_message
 
-from dlo_msgs.msg import TaskState
+import pytest
 from dlo_bag import analysis, bag_info, recover
 from dlo_bag.analysis import recompute_episode
 from dlo_bag.bag import EXIT_BAD_BAG, EXIT_OK, EXIT_USAGE, BagWriter
+from dlo_msgs.msg import TaskState
+from rclpy.serialization import serialize_message
 
 TOOLS = {"dlo-bag-info": bag_info.main, "dlo-analyze": analysis.main, "dlo-bag-recover": recover.main}
 
@@ -48,13 +48,26 @@ def _task_bag(path, recorded_outcome=None, recorded_return_offset=0.0):
     whose recorded outcome and return are what dlo_sim.task gives, or ``recorded_outcome`` instead, and
     the return plus ``recorded_return_offset``."""
     held = {0: [1, 2], 1: [28, 29], 2: []}
-    states = {step: TaskState(episode=0, seed=42, step=step, held_indices=held[step], n_held=len(held[step]),
-                              held_indices_authors=held[step], num_particles=30, cable_length=0.1247,
-                              done=step == 2, task_rules="paper_text") for step in held}
+    states = {
+        step: TaskState(
+            episode=0,
+            seed=42,
+            step=step,
+            held_indices=held[step],
+            n_held=len(held[step]),
+            held_indices_authors=held[step],
+            num_particles=30,
+            cable_length=0.1247,
+            done=step == 2,
+            task_rules="paper_text",
+        )
+        for step in held
+    }
     summary = recompute_episode(states)
     final = states[2]
-    final.outcome = final.outcome_authors = {"hold_the_end": 1, "stop_before": 2, "reach_end_but_drop": 3,
-                                             "drop_before": 4}[recorded_outcome or summary["outcome"]]
+    final.outcome = final.outcome_authors = {"hold_the_end": 1, "stop_before": 2, "reach_end_but_drop": 3, "drop_before": 4}[
+        recorded_outcome or summary["outcome"]
+    ]
     final.episode_return = summary["episode_return"] + recorded_return_offset
     with BagWriter(path) as writer:
         writer.add_topic("/dlo/task/state", "dlo_msgs/msg/TaskState")
@@ -94,9 +107,17 @@ def test_a_bag_whose_only_episode_is_unfinished_prints_an_empty_table(tmp_path, 
     with BagWriter(tmp_path / "run") as writer:
         writer.add_topic("/dlo/task/state", "dlo_msgs/msg/TaskState")
         for step in range(3):
-            msg = TaskState(episode=0, seed=7, step=step, held_indices=[10, 11], n_held=2,
-                            held_indices_authors=[10, 11], num_particles=30, cable_length=0.1247,
-                            task_rules="paper_text")
+            msg = TaskState(
+                episode=0,
+                seed=7,
+                step=step,
+                held_indices=[10, 11],
+                n_held=2,
+                held_indices_authors=[10, 11],
+                num_particles=30,
+                cable_length=0.1247,
+                task_rules="paper_text",
+            )
             msg.header.stamp.nanosec = step + 1
             writer.write("/dlo/task/state", serialize_message(msg), 100 + step)
     assert analysis.main([str(tmp_path / "run")]) == EXIT_OK

@@ -6,11 +6,10 @@ import os
 import subprocess
 import sys
 
-from rclpy.serialization import serialize_message
-
-from dlo_msgs.msg import GripperState
 from dlo_bag import bag_info as bag_info_cli
 from dlo_bag.bag import BagWriter
+from dlo_msgs.msg import GripperState
+from rclpy.serialization import serialize_message
 
 
 def write_bag(path):
@@ -39,8 +38,12 @@ def test_topics_types_counts_and_duration_plain_verbose_and_as_json(tmp_path, ca
     assert info["message_count"] == 4 and info["duration_s"] == 0.75 and info["path"] == str(bag)
     assert info["topics"] == {
         "/dlo/gripper/state": {"type": "dlo_msgs/msg/GripperState", "count": 4, "type_hash": rihs01},
-        "/dlo/rope/particles": {"type": "sensor_msgs/msg/PointCloud2", "count": 0,
-                                "type_hash": info["topics"]["/dlo/rope/particles"]["type_hash"]}}
+        "/dlo/rope/particles": {
+            "type": "sensor_msgs/msg/PointCloud2",
+            "count": 0,
+            "type_hash": info["topics"]["/dlo/rope/particles"]["type_hash"],
+        },
+    }
 
 
 def test_a_reader_that_stops_early_ends_it_quietly(tmp_path):
@@ -51,8 +54,13 @@ def test_a_reader_that_stops_early_ends_it_quietly(tmp_path):
     read, write = os.pipe()
     os.close(read)  # the reader has gone (head read its lines)
     try:
-        result = subprocess.run([sys.executable, "-c", "import sys\nfrom dlo_bag.bag_info import main\nsys.exit(main())",
-                                 str(bag), "-v"], stdout=write, stderr=subprocess.PIPE, text=True, timeout=120)
+        result = subprocess.run(
+            [sys.executable, "-c", "import sys\nfrom dlo_bag.bag_info import main\nsys.exit(main())", str(bag), "-v"],
+            stdout=write,
+            stderr=subprocess.PIPE,
+            text=True,
+            timeout=120,
+        )
     finally:
         os.close(write)
     assert (result.returncode, result.stderr) == (141, "")
@@ -62,6 +70,7 @@ def test_a_folder_with_only_a_junk_metadata_file_is_not_a_bag_and_not_sent_to_re
     """A folder holding a metadata.yaml but no .mcap data is not a bag (exit 2, one line); the tools do not tell the
     user to run dlo-bag-recover, which would only answer that there is nothing to recover."""
     from dlo_bag import recover
+
     junk = tmp_path / "junk"
     junk.mkdir()
     (junk / "metadata.yaml").write_text("not: a bag\n")

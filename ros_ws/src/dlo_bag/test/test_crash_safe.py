@@ -16,16 +16,14 @@ import textwrap
 from pathlib import Path
 
 import pytest
+from dlo_msgs.msg import GripperState, TaskState
 from mcap.records import Message
 from rclpy.serialization import serialize_message
-
-from dlo_msgs.msg import GripperState, TaskState
 from sensor_msgs.msg import Image
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # --import-mode=importlib
 
-from dlo_bag_faults import file_size_limit, small_disk  # noqa: E402
-
+from dlo_bag import bag_info as bag_info_cli  # noqa: E402
 from dlo_bag.bag import (  # noqa: E402
     EXIT_OK,
     EXIT_USAGE,
@@ -37,9 +35,9 @@ from dlo_bag.bag import (  # noqa: E402
     read_messages,
 )
 from dlo_bag.mcap_file import _record_bytes  # noqa: E402
-from dlo_bag import bag_info as bag_info_cli  # noqa: E402
 from dlo_bag.recover import main as recover_cli  # noqa: E402
 from dlo_bag.recover import recover_bag  # noqa: E402
+from dlo_bag_faults import file_size_limit, small_disk  # noqa: E402
 
 STATE = "/dlo/gripper/state"
 IMAGE = "/dlo/camera/image"
@@ -63,8 +61,7 @@ def seqs(bag, topic=None) -> list[int]:
 
 
 def run_py(code: str, **kwargs) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-c", textwrap.dedent(code)], capture_output=True, text=True,
-                          timeout=120, **kwargs)
+    return subprocess.run([sys.executable, "-c", textwrap.dedent(code)], capture_output=True, text=True, timeout=120, **kwargs)
 
 
 def cli(module: str, *args: str) -> subprocess.CompletedProcess:
@@ -89,6 +86,7 @@ def one_line(result: subprocess.CompletedProcess) -> str:
 
 
 # ---- SIGKILL -------------------------------------------------------------------------------
+
 
 def test_sigkilled_writer_loses_only_what_was_not_flushed(tmp_path):
     bag = tmp_path / "run"
@@ -134,6 +132,7 @@ def test_sigkilled_writer_loses_only_what_was_not_flushed(tmp_path):
 
 # ---- truncation ----------------------------------------------------------------------------
 
+
 def test_cut_mcap_keeps_every_complete_message(tmp_path):
     """Cut a closed bag's .mcap everywhere that matters (a copy interrupted); recovery keeps
     exactly the messages whose record lies wholly before the cut."""
@@ -149,14 +148,25 @@ def test_cut_mcap_keeps_every_complete_message(tmp_path):
     # where each message record ends in the file (independent of the scanner: a byte search)
     ends = []
     for m in read_messages(source, raw=True):
-        record = _record_bytes(Message(channel_id=1 if m.topic == STATE else 2, log_time=m.timestamp,
-                                       data=bytes(m.msg), publish_time=m.timestamp, sequence=0))
+        record = _record_bytes(
+            Message(
+                channel_id=1 if m.topic == STATE else 2,
+                log_time=m.timestamp,
+                data=bytes(m.msg),
+                publish_time=m.timestamp,
+                sequence=0,
+            )
+        )
         pos = data.find(record)
         assert pos > 0
         ends.append(pos + len(record))
     assert ends == sorted(ends)
-    cuts = sorted({len(data) - 1, len(data) - 30, ends[-1], ends[-1] - 1, 200, 9}
-                  | {e for e in ends[::17]} | {e - 5 for e in ends[5::23]} | {e + 40 for e in ends[7::31]})
+    cuts = sorted(
+        {len(data) - 1, len(data) - 30, ends[-1], ends[-1] - 1, 200, 9}
+        | {e for e in ends[::17]}
+        | {e - 5 for e in ends[5::23]}
+        | {e + 40 for e in ends[7::31]}
+    )
     everything = seqs(source)
     for cut in cuts:
         bag = tmp_path / f"cut_{cut}"
@@ -259,7 +269,7 @@ def test_not_an_mcap_and_garbage_are_one_line_errors(tmp_path):
             writer.write(STATE, state(i), 1 + i)
     raw = bytearray((good / "good.mcap").read_bytes())
     middle = len(raw) // 2
-    raw[middle:middle + 60] = os.urandom(60)  # bytes flipped inside a chunk in the middle
+    raw[middle : middle + 60] = os.urandom(60)  # bytes flipped inside a chunk in the middle
     (good / "good.mcap").write_bytes(bytes(raw))
     from dlo_bag import analysis
 
@@ -302,13 +312,18 @@ def test_disk_full_is_final_and_the_bag_stays_readable(tmp_path):
     with small_disk(tmp_path) as disk:
         if disk is not None:
             bag = disk / "run"
-            child = subprocess.run([sys.executable, "-c", textwrap.dedent(WRITER_UNTIL_FULL), str(bag)],
-                                   capture_output=True, text=True, timeout=300)
+            child = subprocess.run(
+                [sys.executable, "-c", textwrap.dedent(WRITER_UNTIL_FULL), str(bag)], capture_output=True, text=True, timeout=300
+            )
         else:  # not root: a per-file size limit fails the writes the same way (EFBIG)
             bag = tmp_path / "run"
-            child = subprocess.run([sys.executable, "-c", textwrap.dedent(WRITER_UNTIL_FULL), str(bag)],
-                                   capture_output=True, text=True, timeout=300,
-                                   preexec_fn=file_size_limit(1_500_000))
+            child = subprocess.run(
+                [sys.executable, "-c", textwrap.dedent(WRITER_UNTIL_FULL), str(bag)],
+                capture_output=True,
+                text=True,
+                timeout=300,
+                preexec_fn=file_size_limit(1_500_000),
+            )
         assert child.returncode == 0 and "Traceback" not in child.stderr, child.stderr
         summary = json.loads(child.stdout.splitlines()[-1])
         assert summary["failure"] == ("no space left on device" if disk is not None else "file too large")
@@ -323,6 +338,7 @@ def test_disk_full_is_final_and_the_bag_stays_readable(tmp_path):
 
 
 # ---- names and reading ---------------------------------------------------------------------
+
 
 def test_bag_directory_named_dot_bag(tmp_path):
     """rosbags takes '*.bag' for ROS 1 files; a rosbag2 directory of that name must still read."""
@@ -357,6 +373,7 @@ def test_delete_original_recovers_in_place_and_keeps_no_damaged_copy(tmp_path):
 
 # ---- dlo-bag-recover, case by case ---------------------------------------------------------
 
+
 def killed_bag(path, messages: int = 60):
     """A bag whose writer was "killed" after flushing `messages` gripper states: no metadata.yaml."""
     writer = BagWriter(path, chunk_size=2000)
@@ -375,13 +392,21 @@ def test_the_report_line_of_each_outcome():
     from dlo_bag.recover import RecoverReport
 
     part = Path("bags/run")
-    assert RecoverReport(part, "intact", messages=7).line() == \
-        "bags/run: complete and readable (7 messages); nothing to recover"
+    assert RecoverReport(part, "intact", messages=7).line() == "bags/run: complete and readable (7 messages); nothing to recover"
     assert RecoverReport(part, "failed", error="why").line() == "bags/run: cannot be recovered: why"
-    full = RecoverReport(part, "recovered", messages=5, topics={"/a": 3, "/b": 2}, discarded_bytes=17,
-                         original=part / "run.mcap.damaged", output=Path("bags/fixed"))
-    assert full.line() == ("bags/run: recovered 5 messages on 2 topics into bags/fixed (metadata.yaml rebuilt; "
-                           "the last 17 byte(s), an incomplete record, discarded; original kept as run.mcap.damaged)")
+    full = RecoverReport(
+        part,
+        "recovered",
+        messages=5,
+        topics={"/a": 3, "/b": 2},
+        discarded_bytes=17,
+        original=part / "run.mcap.damaged",
+        output=Path("bags/fixed"),
+    )
+    assert full.line() == (
+        "bags/run: recovered 5 messages on 2 topics into bags/fixed (metadata.yaml rebuilt; "
+        "the last 17 byte(s), an incomplete record, discarded; original kept as run.mcap.damaged)"
+    )
     in_place = RecoverReport(part, "recovered", messages=5, topics={"/a": 5}, output=part)
     assert in_place.line() == "bags/run: recovered 5 messages on 1 topics (metadata.yaml rebuilt)"
     assert RecoverReport(part, "recovered", messages=5, topics={"/a": 5}).line() == in_place.line()
@@ -403,26 +428,35 @@ def test_topic_specs_of_scanned_channels(tmp_path):
     quietly."""
     from types import SimpleNamespace
 
+    from dlo_bag.bag import qos_from_profile, qos_yaml
+    from dlo_bag.recover import _topic_spec
     from mcap.records import Channel, Schema
     from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
-    from dlo_bag.bag import qos_from_profile, qos_yaml
-    from dlo_bag.recover import _topic_spec
-
     with BagWriter(tmp_path / "reference") as writer:
         reference = writer.add_topic(STATE, "dlo_msgs/msg/GripperState")
-    qos = qos_from_profile(QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT,
-                                      durability=DurabilityPolicy.TRANSIENT_LOCAL))
-    scan = SimpleNamespace(problems=[], schemas={
-        1: Schema(id=1, name="dlo_msgs/msg/GripperState", encoding="ros2msg", data=reference.msgdef.encode()),
-        2: Schema(id=2, name="dlo_msgs/msg/GripperState", encoding="ros2msg", data=b"int32 a\n# \xff\n")},
+    qos = qos_from_profile(
+        QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+    )
+    scan = SimpleNamespace(
+        problems=[],
+        schemas={
+            1: Schema(id=1, name="dlo_msgs/msg/GripperState", encoding="ros2msg", data=reference.msgdef.encode()),
+            2: Schema(id=2, name="dlo_msgs/msg/GripperState", encoding="ros2msg", data=b"int32 a\n# \xff\n"),
+        },
         channels={
-        1: Channel(id=1, topic=STATE, schema_id=1, message_encoding="cdr",
-                   metadata={"offered_qos_profiles": qos_yaml([qos]), "topic_type_hash": "RIHS01_recorded"}),
-        2: Channel(id=2, topic="/no/hash", schema_id=1, message_encoding="cdr", metadata={}),
-        3: Channel(id=3, topic="/bad/bytes", schema_id=2, message_encoding="cdr",
-                   metadata={"topic_type_hash": "RIHS01_x"}),
-        4: Channel(id=4, topic="/lost", schema_id=9, message_encoding="cdr", metadata={})})
+            1: Channel(
+                id=1,
+                topic=STATE,
+                schema_id=1,
+                message_encoding="cdr",
+                metadata={"offered_qos_profiles": qos_yaml([qos]), "topic_type_hash": "RIHS01_recorded"},
+            ),
+            2: Channel(id=2, topic="/no/hash", schema_id=1, message_encoding="cdr", metadata={}),
+            3: Channel(id=3, topic="/bad/bytes", schema_id=2, message_encoding="cdr", metadata={"topic_type_hash": "RIHS01_x"}),
+            4: Channel(id=4, topic="/lost", schema_id=9, message_encoding="cdr", metadata={}),
+        },
+    )
     recorded = _topic_spec(scan, 1)
     assert (recorded.topic, recorded.msgtype, recorded.rihs01) == (STATE, "dlo_msgs/msg/GripperState", "RIHS01_recorded")
     assert recorded.qos == [qos] and recorded.msgdef == reference.msgdef
@@ -452,14 +486,17 @@ def test_only_sub_directories_with_an_mcap_are_parts_and_output_keeps_the_layout
     assert bag_dirs(out) == [out / "run_0000", out / "run_0001"]
     assert [r.action for r in recover_bag(out)] == ["intact", "intact"]
     reports = recover_bag(out, output=tmp_path / "copy")  # parts: one directory each under DIR
-    assert [(r.action, r.output) for r in reports] == [("recovered", tmp_path / "copy" / "run_0000"),
-                                                      ("recovered", tmp_path / "copy" / "run_0001")]
+    assert [(r.action, r.output) for r in reports] == [
+        ("recovered", tmp_path / "copy" / "run_0000"),
+        ("recovered", tmp_path / "copy" / "run_0001"),
+    ]
     assert sorted(p.name for p in (tmp_path / "copy").iterdir()) == ["run_0000", "run_0001"]
     assert seqs(tmp_path / "copy") == list(range(20))
     single = write_bag(tmp_path / "single")  # one bag: DIR is the bag
     assert recover_cli([str(single), "--output", str(tmp_path / "one")]) == EXIT_OK
-    assert capsys.readouterr().out == (f"{single}: recovered 50 messages on 1 topics into {tmp_path / 'one'} "
-                                       f"({METADATA} rebuilt)\n")
+    assert capsys.readouterr().out == (
+        f"{single}: recovered 50 messages on 1 topics into {tmp_path / 'one'} ({METADATA} rebuilt)\n"
+    )
     assert sorted(p.name for p in (tmp_path / "one").iterdir()) == [METADATA, "one.mcap"]
 
 
@@ -491,8 +528,9 @@ def test_a_part_without_one_mcap_cannot_be_recovered(tmp_path, capsys):
     shutil.copy(source / "source.mcap", two / "a.mcap")
     shutil.copy(source / "source.mcap", two / "b.mcap")
     assert recover_cli([str(two)]) == 1
-    assert capsys.readouterr().out == (f"{two}: cannot be recovered: 2 .mcap files; recover a bag of one file "
-                                       "(copy each into its own directory)\n")
+    assert capsys.readouterr().out == (
+        f"{two}: cannot be recovered: 2 .mcap files; recover a bag of one file (copy each into its own directory)\n"
+    )
     assert listing(two) == ["a.mcap", "b.mcap"]
 
 
@@ -512,8 +550,13 @@ def test_recovery_holds_no_disk_space_in_reserve(tmp_path):
     """The recovered bag is written without the recorder's reserve (at least 256 KiB): a small bag recovers
     where a file may grow to 200 kB only (a per-file size limit stands in for a nearly full disk)."""
     bag = killed_bag(tmp_path / "run")
-    result = subprocess.run([sys.executable, "-m", "dlo_bag.recover", str(bag)], capture_output=True, text=True,
-                            timeout=120, preexec_fn=file_size_limit(200_000))
+    result = subprocess.run(
+        [sys.executable, "-m", "dlo_bag.recover", str(bag)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        preexec_fn=file_size_limit(200_000),
+    )
     assert result.returncode == 0 and "recovered 60 messages" in one_line(result)
     assert seqs(bag) == list(range(60))
 
@@ -532,8 +575,11 @@ def test_custom_data_is_kept_and_the_recovery_is_noted(tmp_path):
     assert recover_bag(bag, output=tmp_path / "copy")[0].action == "recovered"
     custom = bag_info(tmp_path / "copy").custom_data[0]
     assert sorted(custom) == ["dlo.episode", f"{WRITER_NAME}.recovered"] and custom["dlo.episode"] == "3"
-    assert re.fullmatch(r"\d{4}-\d\d-\d\d \d\d:\d\d:\d\d by dlo-bag-recover from run\.mcap: 50 messages, "
-                        r"0 bytes discarded", custom[f"{WRITER_NAME}.recovered"])
+    assert re.fullmatch(
+        r"\d{4}-\d\d-\d\d \d\d:\d\d:\d\d by dlo-bag-recover from run\.mcap: 50 messages, "
+        r"0 bytes discarded",
+        custom[f"{WRITER_NAME}.recovered"],
+    )
 
 
 def test_a_recovered_bag_that_cannot_be_written_is_one_line_and_leaves_the_bag_as_it_was(tmp_path, monkeypatch):
@@ -553,12 +599,16 @@ def test_a_recovered_bag_that_cannot_be_written_is_one_line_and_leaves_the_bag_a
     def denied(path, *args, **kwargs):
         raise PermissionError(13, "Permission denied", str(path))
 
-    for writer, cause in ((full_disk, "no space left on device"),
-                          (denied, f"[Errno 13] Permission denied: '{bag / '.dlo_recovering' / 'run'}'")):
+    for writer, cause in (
+        (full_disk, "no space left on device"),
+        (denied, f"[Errno 13] Permission denied: '{bag / '.dlo_recovering' / 'run'}'"),
+    ):
         monkeypatch.setattr(recover, "BagWriter", writer)
         report = recover.recover_bag(bag)[0]
         assert (report.action, report.error) == (
-            "failed", f"cannot write the recovered bag: {cause} (free some space, or use --output DIR elsewhere)")
+            "failed",
+            f"cannot write the recovered bag: {cause} (free some space, or use --output DIR elsewhere)",
+        )
         assert {name: (bag / name).read_bytes() for name in listing(bag)} == before
 
 
@@ -567,8 +617,10 @@ def test_nothing_to_salvage_fails_and_leaves_nothing_behind(tmp_path, capsys):
     os.truncate(bag / "run.mcap", 60)  # the first chunk's header is cut: not one record
     before = ["run.mcap"]  # (the killed writer's .dlo_reserve is freed first)
     assert recover_cli([str(bag), "-v"]) == 1
-    assert capsys.readouterr().out == (f"{bag}: cannot be recovered: run.mcap holds no complete record to salvage\n"
-                                       "  chunk cut at byte 51 (its header is incomplete)\n")
+    assert capsys.readouterr().out == (
+        f"{bag}: cannot be recovered: run.mcap holds no complete record to salvage\n"
+        "  chunk cut at byte 51 (its header is incomplete)\n"
+    )
     assert listing(bag) == before
     assert recover_cli([str(bag), "--output", str(tmp_path / "copy")]) == 1
     assert "holds no complete record" in capsys.readouterr().out
@@ -595,8 +647,10 @@ def test_a_cut_bag_reports_its_topics_and_the_bytes_discarded(tmp_path, capsys):
     assert report.action == "recovered" and 0 < kept < 200
     assert report.messages == kept and report.topics == {STATE: kept}
     assert 0 < report.discarded_bytes < size * 2 // 3
-    assert f"on 1 topics ({METADATA} rebuilt; the last {report.discarded_bytes} byte(s), an incomplete record, " \
-           f"discarded; original kept as run.mcap.damaged)" in report.line()
+    assert (
+        f"on 1 topics ({METADATA} rebuilt; the last {report.discarded_bytes} byte(s), an incomplete record, "
+        f"discarded; original kept as run.mcap.damaged)" in report.line()
+    )
 
 
 def test_a_data_file_named_otherwise_keeps_its_name(tmp_path):
@@ -617,8 +671,9 @@ def test_the_command_line_errors_help_and_exit_status(tmp_path, capsys, monkeypa
 
     bag = write_bag(tmp_path / "run")
     assert recover_cli([str(bag / "run.mcap")]) == EXIT_USAGE
-    assert capsys.readouterr().err == (f"dlo-bag-recover: error: '{bag / 'run.mcap'}' is not a directory "
-                                       "(give the bag directory, not a file)\n")
+    assert capsys.readouterr().err == (
+        f"dlo-bag-recover: error: '{bag / 'run.mcap'}' is not a directory (give the bag directory, not a file)\n"
+    )
     # a split bag with one part beyond recovery: exit 1, the good part still reported
     out = tmp_path / "split"
     writer = BagWriter(out, split=True, chunk_size=1000)
@@ -644,11 +699,13 @@ def test_the_command_line_errors_help_and_exit_status(tmp_path, capsys, monkeypa
     assert exit_info.value.code == 0
     text = " ".join(capsys.readouterr().out.split())
     assert text.startswith("usage: dlo-bag-recover [-h] [--output OUTPUT] [--delete-original] [-v] bag")
-    for words in ("Recover a rosbag2 MCAP bag whose recorder was killed (no metadata.yaml) or whose .mcap was cut "
-                  "short: salvage every complete message into a valid, indexed bag and rebuild metadata.yaml "
-                  "(like 'ros2 bag reindex' + 'mcap recover').",
-                  "bag bag directory (or a directory of rolled parts)",
-                  "--output OUTPUT, -o OUTPUT write the recovered bag here and leave BAG untouched",
-                  "--delete-original in place: delete the damaged .mcap instead of keeping it as *.mcap.damaged",
-                  "-v, --verbose also list what was damaged"):
+    for words in (
+        "Recover a rosbag2 MCAP bag whose recorder was killed (no metadata.yaml) or whose .mcap was cut "
+        "short: salvage every complete message into a valid, indexed bag and rebuild metadata.yaml "
+        "(like 'ros2 bag reindex' + 'mcap recover').",
+        "bag bag directory (or a directory of rolled parts)",
+        "--output OUTPUT, -o OUTPUT write the recovered bag here and leave BAG untouched",
+        "--delete-original in place: delete the damaged .mcap instead of keeping it as *.mcap.damaged",
+        "-v, --verbose also list what was damaged",
+    ):
         assert words in text, words

@@ -12,14 +12,13 @@ import zlib
 from io import BytesIO
 
 import pytest
+from dlo_bag.mcap_file import MAGIC, WRITER_NAME, ChunkedMcapWriter, McapScanError, scan_mcap
 from mcap.data_stream import ReadDataStream
 from mcap.opcode import Opcode
 from mcap.reader import make_reader
-from mcap.stream_reader import StreamReader
 from mcap.records import Chunk, Footer, Header, Message, MessageIndex, Metadata, SummaryOffset
+from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, IndexType, Writer
-
-from dlo_bag.mcap_file import MAGIC, WRITER_NAME, ChunkedMcapWriter, McapScanError, scan_mcap
 
 HEAD = struct.Struct("<BQ")
 
@@ -29,7 +28,7 @@ def records_at(data: bytes, start: int, end: int) -> list[tuple[int, int, int, b
     out, pos = [], start
     while pos < end:
         opcode, length = HEAD.unpack_from(data, pos)
-        out.append((pos, opcode, 9 + length, data[pos + 9:pos + 9 + length]))
+        out.append((pos, opcode, 9 + length, data[pos + 9 : pos + 9 + length]))
         pos += 9 + length
     assert pos == end, (pos, end)
     return out
@@ -37,7 +36,7 @@ def records_at(data: bytes, start: int, end: int) -> list[tuple[int, int, int, b
 
 def record_at(data: bytes, offset: int) -> tuple[int, int, bytes]:
     opcode, length = HEAD.unpack_from(data, offset)
-    return opcode, 9 + length, data[offset + 9:offset + 9 + length]
+    return opcode, 9 + length, data[offset + 9 : offset + 9 + length]
 
 
 def stream(body: bytes) -> ReadDataStream:
@@ -54,11 +53,14 @@ def check_indexes(data: bytes) -> dict:
     assert (opcode, length) == (Opcode.FOOTER, 29)
     footer = Footer.read(stream(body))
     if footer.summary_crc:  # 0: none; else the CRC of the summary up to the footer's summary_offset_start
-        assert footer.summary_crc == zlib.crc32(data[footer.summary_start:len(data) - 12])
+        assert footer.summary_crc == zlib.crc32(data[footer.summary_start : len(data) - 12])
     list(StreamReader(BytesIO(data), validate_crcs=True).records)  # chunk and data section CRCs
     summary = records_at(data, footer.summary_start, footer.summary_offset_start)
-    offsets = [SummaryOffset.read(stream(b)) for _, op, _, b in
-               records_at(data, footer.summary_offset_start, len(data) - 37) if op == Opcode.SUMMARY_OFFSET]
+    offsets = [
+        SummaryOffset.read(stream(b))
+        for _, op, _, b in records_at(data, footer.summary_offset_start, len(data) - 37)
+        if op == Opcode.SUMMARY_OFFSET
+    ]
     groups = {}
     pos = footer.summary_start
     for off in offsets:  # the groups tile the summary section, each of records of its opcode only
@@ -115,9 +117,11 @@ def write_example(path, chunk_size: int = 400, metadata=None):
     s1 = w.add_schema("dlo_msgs/msg/GripperState", "ros2msg", b"float64 x\n")
     s2 = w.add_schema("sensor_msgs/msg/Image", "ros2msg", b"uint32 height\n")
     assert (s1, s2) == (1, 2)  # schema id 0 means "no schema" in MCAP
-    topics = {w.add_channel("/dlo/gripper/state", s1): "/dlo/gripper/state",
-              w.add_channel("/dlo/camera/image", s2, metadata={"offered_qos_profiles": "- depth: 1"}): "/dlo/camera/image",
-              w.add_channel("/dlo/empty", s1, message_encoding="json"): "/dlo/empty"}
+    topics = {
+        w.add_channel("/dlo/gripper/state", s1): "/dlo/gripper/state",
+        w.add_channel("/dlo/camera/image", s2, metadata={"offered_qos_profiles": "- depth: 1"}): "/dlo/camera/image",
+        w.add_channel("/dlo/empty", s1, message_encoding="json"): "/dlo/empty",
+    }
     assert list(topics) == [1, 2, 3]
     written = []
     log_times = [500, 100, 300, 200, 900, 700, 800, 600, 1000, 1200, 1100, 400]
@@ -144,8 +148,9 @@ def test_the_writer_makes_an_indexed_mcap_the_mcap_reader_reads_exactly(tmp_path
         reader = make_reader(f, validate_crcs=True)
         header = reader.get_header()
         assert (header.profile, header.library) == ("ros2", WRITER_NAME)
-        in_file_order = [(c.topic, m.log_time, m.publish_time, m.sequence, m.data)
-                         for _, c, m in reader.iter_messages(log_time_order=False)]
+        in_file_order = [
+            (c.topic, m.log_time, m.publish_time, m.sequence, m.data) for _, c, m in reader.iter_messages(log_time_order=False)
+        ]
         assert in_file_order == written
         by_time = [(c.topic, m.log_time) for _, c, m in reader.iter_messages()]
         assert by_time == sorted(((t, lt) for t, lt, *_ in written), key=lambda x: x[1])
@@ -153,15 +158,25 @@ def test_the_writer_makes_an_indexed_mcap_the_mcap_reader_reads_exactly(tmp_path
         assert schemas == {"/dlo/gripper/state": "dlo_msgs/msg/GripperState", "/dlo/camera/image": "sensor_msgs/msg/Image"}
         summary = reader.get_summary()
         assert {c.topic: (c.schema_id, c.message_encoding, c.metadata) for c in summary.channels.values()} == {
-            "/dlo/gripper/state": (1, "cdr", {}), "/dlo/camera/image": (2, "cdr", {"offered_qos_profiles": "- depth: 1"}),
-            "/dlo/empty": (1, "json", {})}
+            "/dlo/gripper/state": (1, "cdr", {}),
+            "/dlo/camera/image": (2, "cdr", {"offered_qos_profiles": "- depth: 1"}),
+            "/dlo/empty": (1, "json", {}),
+        }
         stats = summary.statistics
-        assert (stats.message_count, stats.schema_count, stats.channel_count, stats.attachment_count,
-                stats.metadata_count, stats.chunk_count) == (12, 2, 3, 0, 2, len(chunks))
+        assert (
+            stats.message_count,
+            stats.schema_count,
+            stats.channel_count,
+            stats.attachment_count,
+            stats.metadata_count,
+            stats.chunk_count,
+        ) == (12, 2, 3, 0, 2, len(chunks))
         assert (stats.message_start_time, stats.message_end_time) == (100, 1200)
         assert stats.channel_message_counts == {1: 6, 2: 6, 3: 0}
         assert {m.name: m.metadata for m in reader.iter_metadata()} == {
-            "rosbag2": {"ros_distro": "jazzy"}, "other": {"a": "1", "b": "2"}}
+            "rosbag2": {"ros_distro": "jazzy"},
+            "other": {"a": "1", "b": "2"},
+        }
     scan, messages = scan_mcap(path)
     got = [(m.channel_id, m.log_time, m.publish_time, m.sequence, m.data) for m in messages]
     assert got == [({"/dlo/gripper/state": 1, "/dlo/camera/image": 2}[t], lt, pt, sq, d) for t, lt, pt, sq, d in written]
@@ -235,7 +250,8 @@ def test_the_pending_chunk_is_appended_once_it_reaches_chunk_size(tmp_path):
         before = w.committed
         w.add_message(1, 1, b"1234")
         assert (w.committed > before, w.pending_bytes == 0, dict(w.counts)) == (
-            (True, True, {1: 1}) if appended else (False, False, {})), chunk_size
+            (True, True, {1: 1}) if appended else (False, False, {})
+        ), chunk_size
         w.close()
 
 
@@ -289,6 +305,7 @@ def test_a_failed_append_cuts_the_file_back_and_keeps_the_pending_chunk(tmp_path
         if len(calls) == 1:
             return real_write(fd, bytes(data[:10]))  # a partial write...
         raise OSError(28, "No space left on device")  # ...then the disk is full
+
     monkeypatch.setattr(os, "write", short_then_fail)
     with pytest.raises(OSError):
         w.flush()
@@ -316,9 +333,11 @@ def test_summary_size_bounds_what_finish_appends(tmp_path):
     for k in range(12):
         w.add_schema(f"pkg/msg/Type{k}" * 3, "ros2msg", b"float64 x\n" * (k + 1))
     for k in range(30):
-        w.add_channel(f"/dlo/topic/with/a/long/name/{k}" * 2, 1 + k % 12,
-                      metadata={"offered_qos_profiles": "- history: 1\n  depth: 10\n" * 3,
-                                "topic_type_hash": "RIHS01_" + "a" * 64})
+        w.add_channel(
+            f"/dlo/topic/with/a/long/name/{k}" * 2,
+            1 + k % 12,
+            metadata={"offered_qos_profiles": "- history: 1\n  depth: 10\n" * 3, "topic_type_hash": "RIHS01_" + "a" * 64},
+        )
     for i in range(200):
         w.add_message(1 + i % 30, i, b"x" * 20)
     w.flush()
@@ -331,8 +350,11 @@ def test_summary_size_bounds_what_finish_appends(tmp_path):
     for k in range(20):
         w.add_schema(f"some_package/msg/AFairlyLongName{k:02d}", "ros2msg", b"float64 x\n")
     for k in range(3):
-        w.add_channel(f"/dlo/{k}", 1 + k, metadata={"offered_qos_profiles": "- history: 1\n  depth: 10\n" * 10,
-                                                   "topic_type_hash": "RIHS01_" + "a" * 64})
+        w.add_channel(
+            f"/dlo/{k}",
+            1 + k,
+            metadata={"offered_qos_profiles": "- history: 1\n  depth: 10\n" * 10, "topic_type_hash": "RIHS01_" + "a" * 64},
+        )
     w.add_message(1, 5, b"x")
     w.flush()
     bound, before = w.summary_size(), w.committed
@@ -385,17 +407,17 @@ def test_a_file_cut_anywhere_gives_every_complete_message_and_where_the_good_par
     # what it says about a cut chunk
     chunk_starts = [o for o, op, _, _ in top if op == Opcode.CHUNK]
     second = chunk_starts[1]
-    cut_path.write_bytes(data[:second + 20])
+    cut_path.write_bytes(data[: second + 20])
     scan, messages = scan_mcap(cut_path)
     list(messages)
     assert scan.problems == [f"chunk cut at byte {second} (its header is incomplete)"]
     first_message_end = min(e for *_, e in chunks[second])
-    cut_path.write_bytes(data[:first_message_end + 3])
+    cut_path.write_bytes(data[: first_message_end + 3])
     scan, messages = scan_mcap(cut_path)
     assert len(list(messages)) == len(chunks[chunk_starts[0]]) + 1
     assert scan.problems == [f"chunk cut at byte {second}: kept its 1 complete message(s)"]
     index_record = next(o for o, op, _, _ in top if op == Opcode.MESSAGE_INDEX)
-    cut_path.write_bytes(data[:index_record + 12])
+    cut_path.write_bytes(data[: index_record + 12])
     scan, messages = scan_mcap(cut_path)
     list(messages)
     assert scan.problems == [f"record (opcode 0x{Opcode.MESSAGE_INDEX:02x}) cut at byte {index_record}"]
@@ -413,8 +435,9 @@ def test_a_damaged_chunk_is_skipped_its_definitions_kept_and_the_summary_supplie
     path.write_bytes(bytes(data))
     scan, messages = scan_mcap(path)
     got = [m.sequence for m in messages]
-    skipped = {sq for (_, _, _, sq, _), e in zip(written, sorted(e for c in chunks.values() for *_, e in c))
-               if second < e < last_end + 1}
+    skipped = {
+        sq for (_, _, _, sq, _), e in zip(written, sorted(e for c in chunks.values() for *_, e in c)) if second < e < last_end + 1
+    }
     assert got == [sq for _, _, _, sq, _ in written if sq not in skipped] and skipped
     assert scan.problems == [f"chunk at byte {second}: CRC mismatch, its messages skipped"]
     assert scan.messages == len(got)  # the skipped chunk's messages are not counted either
@@ -430,7 +453,7 @@ def test_a_damaged_chunk_is_skipped_its_definitions_kept_and_the_summary_supplie
     assert scan.channels[2].metadata == {"offered_qos_profiles": "- depth: 1"}
     # without the footer (cut after DataEnd's start) the definitions of the damaged chunk are lost
     footer = Footer.read(stream(record_at(bytes(data), len(data) - 37)[2]))
-    path.write_bytes(bytes(data[:footer.summary_start]))
+    path.write_bytes(bytes(data[: footer.summary_start]))
     scan, messages = scan_mcap(path)
     list(messages)
     assert scan.channels == {} and scan.complete
@@ -450,12 +473,13 @@ def test_compressed_chunks_are_read_and_a_cut_one_is_reported_lost(tmp_path):
             writer.finish()
         scan, messages = scan_mcap(path)
         assert [(m.log_time, m.publish_time, m.sequence, m.data) for m in messages] == [
-            (i, i + 1, i, bytes([i]) * 40) for i in range(30)]
+            (i, i + 1, i, bytes([i]) * 40) for i in range(30)
+        ]
         assert scan.complete and scan.problems == [] and scan.chunks > 1 and scan.metadata == {"m": {"k": "v"}}
         data = path.read_bytes()
         reader_chunks = make_reader(BytesIO(data)).get_summary().chunk_indexes
         last = reader_chunks[-1]
-        path.write_bytes(data[:last.chunk_start_offset + last.chunk_length - 5])
+        path.write_bytes(data[: last.chunk_start_offset + last.chunk_length - 5])
         scan, messages = scan_mcap(path)
         assert len(list(messages)) < 30
         assert scan.problems == [f"{name}-compressed chunk cut at byte {last.chunk_start_offset}: its messages are lost"]
@@ -475,31 +499,50 @@ def test_odd_records_are_reported_and_the_scan_goes_on(tmp_path):
     w.close()
     good = path.read_bytes()
     short_message = record(Opcode.MESSAGE, b"\x01\x00" + b"\x00" * 10)  # 12 bytes, a message needs 22
-    unknown = _record_bytes(Chunk(message_start_time=0, message_end_time=0, uncompressed_size=3,
-                                  uncompressed_crc=0, compression="brotli", data=b"abc"))
+    unknown = _record_bytes(
+        Chunk(
+            message_start_time=0, message_end_time=0, uncompressed_size=3, uncompressed_crc=0, compression="brotli", data=b"abc"
+        )
+    )
     top_message = record(Opcode.MESSAGE, struct.pack("<HIQQ", 1, 7, 20, 21) + b"second")
     metadata = _record_bytes(Metadata(name="top", metadata={"k": "v"}))
     path.write_bytes(good + short_message + unknown + top_message + metadata)
     scan, messages = scan_mcap(path)
-    assert [(m.log_time, m.publish_time, m.sequence, m.data) for m in messages] == [(10, 10, 0, b"first"),
-                                                                                   (20, 21, 7, b"second")]
-    assert scan.problems == [f"record (opcode 0x05) at byte {len(good)}: message record of 12 bytes",
-                             f"record (opcode 0x06) at byte {len(good) + len(short_message)}: "
-                             "unknown chunk compression 'brotli'"]
+    assert [(m.log_time, m.publish_time, m.sequence, m.data) for m in messages] == [(10, 10, 0, b"first"), (20, 21, 7, b"second")]
+    assert scan.problems == [
+        f"record (opcode 0x05) at byte {len(good)}: message record of 12 bytes",
+        f"record (opcode 0x06) at byte {len(good) + len(short_message)}: unknown chunk compression 'brotli'",
+    ]
     assert scan.metadata == {"top": {"k": "v"}} and not scan.complete and scan.discarded == 0
     assert scan.good_end == scan.size
     # metadata inside a chunk is not the file's
     in_chunk = bytearray()
     in_chunk += metadata
-    chunk = _record_bytes(Chunk(message_start_time=0, message_end_time=0, uncompressed_size=len(in_chunk),
-                                uncompressed_crc=zlib.crc32(bytes(in_chunk)), compression="", data=bytes(in_chunk)))
+    chunk = _record_bytes(
+        Chunk(
+            message_start_time=0,
+            message_end_time=0,
+            uncompressed_size=len(in_chunk),
+            uncompressed_crc=zlib.crc32(bytes(in_chunk)),
+            compression="",
+            data=bytes(in_chunk),
+        )
+    )
     path.write_bytes(good + chunk)
     scan, messages = scan_mcap(path)
     list(messages)
     assert scan.metadata == {} and scan.problems == [] and scan.chunks == 2
     # a chunk without a CRC (0) is not checked
-    chunk = _record_bytes(Chunk(message_start_time=0, message_end_time=0, uncompressed_size=len(top_message),
-                                uncompressed_crc=0, compression="", data=top_message))
+    chunk = _record_bytes(
+        Chunk(
+            message_start_time=0,
+            message_end_time=0,
+            uncompressed_size=len(top_message),
+            uncompressed_crc=0,
+            compression="",
+            data=top_message,
+        )
+    )
     path.write_bytes(good + chunk)
     scan, messages = scan_mcap(path)
     assert [m.data for m in messages] == [b"first", b"second"] and scan.problems == []
@@ -533,8 +576,12 @@ def test_a_chunk_of_definitions_only(tmp_path):
     with path.open("rb") as f:
         summary = make_reader(f).get_summary()
     first = summary.chunk_indexes[0]
-    assert (first.message_start_time, first.message_end_time, first.message_index_offsets,
-            first.message_index_length) == (0, 0, {}, 0)
+    assert (first.message_start_time, first.message_end_time, first.message_index_offsets, first.message_index_length) == (
+        0,
+        0,
+        {},
+        0,
+    )
     assert (summary.statistics.message_start_time, summary.statistics.message_end_time) == (40, 40)
     chunk = Chunk.read(stream(record_at(data, first.chunk_start_offset)[2]))
     assert (chunk.message_start_time, chunk.message_end_time) == (0, 0)
@@ -558,8 +605,16 @@ def test_a_cut_chunk_keeps_a_complete_record_that_ends_exactly_at_the_cut(tmp_pa
     message = HEAD.pack(Opcode.MESSAGE, 22 + 2) + struct.pack("<HIQQ", 1, 3, 7, 7) + b"ab"
     empty = HEAD.pack(0x7F, 0)  # a record of an unknown opcode and no body: 9 bytes
     records = message + empty + message
-    chunk = _record_bytes(Chunk(message_start_time=7, message_end_time=7, uncompressed_size=len(records),
-                                uncompressed_crc=zlib.crc32(records), compression="", data=records))
+    chunk = _record_bytes(
+        Chunk(
+            message_start_time=7,
+            message_end_time=7,
+            uncompressed_size=len(records),
+            uncompressed_crc=zlib.crc32(records),
+            compression="",
+            data=records,
+        )
+    )
     path = tmp_path / "a.mcap"
     cut = len(good) + len(chunk) - len(message)  # the chunk cut right after the 9-byte record
     path.write_bytes((good + chunk)[:cut])
@@ -573,6 +628,7 @@ def test_summary_size_bounds_what_finish_appends_at_its_tightest(tmp_path):
     allowances are used up: every channel in every chunk (each chunk index lists them all), a pending chunk at
     finish (its chunk index is in the summary too), channels with long message encodings and many schemas with
     a long encoding (both counted by their length, not by an allowance)."""
+
     def appended_besides_the_pending_chunk(w):
         bound, before = w.summary_size(), w.committed
         w.flush(fsync=False)  # what finish() appends first: the pending chunk and its message indexes
@@ -580,10 +636,12 @@ def test_summary_size_bounds_what_finish_appends_at_its_tightest(tmp_path):
         w.finish(fsync=False)
         return w.committed - before - chunk, bound
 
-    cases = (("many_chunks", 30, 10, "cdr", 1, "ros2msg"),
-             ("long_encodings", 60, 2, "application/x-dlo-" + "e" * 18, 1, "ros2msg"),
-             ("longer_encodings", 60, 2, "application/x-dlo-" + "e" * 27, 1, "ros2msg"),  # beyond the allowance
-             ("many_jsonschemas", 1, 1, "cdr", 1000, "jsonschema"))
+    cases = (
+        ("many_chunks", 30, 10, "cdr", 1, "ros2msg"),
+        ("long_encodings", 60, 2, "application/x-dlo-" + "e" * 18, 1, "ros2msg"),
+        ("longer_encodings", 60, 2, "application/x-dlo-" + "e" * 27, 1, "ros2msg"),  # beyond the allowance
+        ("many_jsonschemas", 1, 1, "cdr", 1000, "jsonschema"),
+    )
     for name, channels, chunks, encoding, schemas, schema_encoding in cases:
         w = ChunkedMcapWriter(tmp_path / f"{name}.mcap", chunk_size=10**9)
         for k in range(schemas):
@@ -637,18 +695,35 @@ def test_a_cut_chunk_whose_compression_name_is_damaged_does_not_stop_the_scan(tm
 
     good = MAGIC + _record_bytes(Header(profile="ros2", library="x"))
     message = HEAD.pack(Opcode.MESSAGE, 22 + 2) + struct.pack("<HIQQ", 1, 3, 7, 7) + b"ab"
-    first = _record_bytes(Chunk(message_start_time=7, message_end_time=7, uncompressed_size=len(message),
-                                uncompressed_crc=zlib.crc32(message), compression="", data=message))
-    chunk = bytearray(_record_bytes(Chunk(message_start_time=7, message_end_time=7, uncompressed_size=len(message),
-                                          uncompressed_crc=0, compression="zstd", data=message * 3)))
+    first = _record_bytes(
+        Chunk(
+            message_start_time=7,
+            message_end_time=7,
+            uncompressed_size=len(message),
+            uncompressed_crc=zlib.crc32(message),
+            compression="",
+            data=message,
+        )
+    )
+    chunk = bytearray(
+        _record_bytes(
+            Chunk(
+                message_start_time=7,
+                message_end_time=7,
+                uncompressed_size=len(message),
+                uncompressed_crc=0,
+                compression="zstd",
+                data=message * 3,
+            )
+        )
+    )
     name_at = chunk.index(b"zstd")
-    chunk[name_at:name_at + 4] = b"\xff\xfez\xc3"  # not UTF-8
+    chunk[name_at : name_at + 4] = b"\xff\xfez\xc3"  # not UTF-8
     path = tmp_path / "a.mcap"
     path.write_bytes(good + first + bytes(chunk[:-10]))
     scan, messages = scan_mcap(path)
     assert [m.data for m in messages] == [b"ab"]
-    assert scan.problems == [f"\ufffd\ufffdz\ufffd-compressed chunk cut at byte {len(good) + len(first)}: "
-                             "its messages are lost"]
+    assert scan.problems == [f"\ufffd\ufffdz\ufffd-compressed chunk cut at byte {len(good) + len(first)}: its messages are lost"]
     assert scan.good_end == len(good) + len(first) and not scan.complete
 
 
@@ -660,26 +735,48 @@ def test_a_chunk_cut_inside_its_header_is_reported_as_such(tmp_path):
 
     good = MAGIC + _record_bytes(Header(profile="ros2", library="x"))
     message = HEAD.pack(Opcode.MESSAGE, 22 + 2) + struct.pack("<HIQQ", 1, 3, 7, 7) + b"ab"
-    first = _record_bytes(Chunk(message_start_time=7, message_end_time=7, uncompressed_size=len(message),
-                                uncompressed_crc=zlib.crc32(message), compression="", data=message))
+    first = _record_bytes(
+        Chunk(
+            message_start_time=7,
+            message_end_time=7,
+            uncompressed_size=len(message),
+            uncompressed_crc=zlib.crc32(message),
+            compression="",
+            data=message,
+        )
+    )
     for compression in ("", "zstd"):
-        chunk = _record_bytes(Chunk(message_start_time=7, message_end_time=7, uncompressed_size=len(message),
-                                    uncompressed_crc=0, compression=compression, data=message))
+        chunk = _record_bytes(
+            Chunk(
+                message_start_time=7,
+                message_end_time=7,
+                uncompressed_size=len(message),
+                uncompressed_crc=0,
+                compression=compression,
+                data=message,
+            )
+        )
         header_end = 9 + 8 * 3 + 4 + 4 + len(compression) + 8  # opcode, length; times, size, crc; name; records length
         for cut in range(9, header_end):
             path = tmp_path / f"cut{compression}{cut}.mcap"
             path.write_bytes(good + first + chunk[:cut])
             scan, messages = scan_mcap(path)
             assert [m.data for m in messages] == [b"ab"], (compression, cut)
-            assert scan.problems == [f"chunk cut at byte {len(good) + len(first)} (its header is incomplete)"], \
-                (compression, cut, scan.problems)
+            assert scan.problems == [f"chunk cut at byte {len(good) + len(first)} (its header is incomplete)"], (
+                compression,
+                cut,
+                scan.problems,
+            )
         path = tmp_path / f"header{compression}.mcap"  # cut right after its header: no record of it read
         path.write_bytes(good + first + chunk[:header_end])
         scan, messages = scan_mcap(path)
         assert [m.data for m in messages] == [b"ab"]
         at = len(good) + len(first)
-        assert scan.problems == [f"zstd-compressed chunk cut at byte {at}: its messages are lost" if compression
-                                 else f"chunk cut at byte {at}: kept its 0 complete message(s)"], scan.problems
+        assert scan.problems == [
+            f"zstd-compressed chunk cut at byte {at}: its messages are lost"
+            if compression
+            else f"chunk cut at byte {at}: kept its 0 complete message(s)"
+        ], scan.problems
 
 
 def test_a_file_that_is_not_mcap_is_closed_at_once(tmp_path):
@@ -713,7 +810,7 @@ def test_the_summary_supplies_what_parses_and_only_a_footer_makes_it_trusted(tmp
     schema_record = footer.summary_start
     assert record_at(bytes(data), schema_record)[0] == Opcode.SCHEMA
     damaged = bytearray(data)
-    damaged[schema_record + 9 + 2:schema_record + 9 + 6] = b"\xff\xff\xff\x7f"  # schema 1's name length: too long
+    damaged[schema_record + 9 + 2 : schema_record + 9 + 6] = b"\xff\xff\xff\x7f"  # schema 1's name length: too long
     path.write_bytes(bytes(damaged))
     scan, messages = scan_mcap(path)
     list(messages)
@@ -729,8 +826,14 @@ def test_the_summary_supplies_what_parses_and_only_a_footer_makes_it_trusted(tmp
     # a summary of schemas and channels only (another writer's choice): the last channel ends at the footer
     other = tmp_path / "other.mcap"
     with other.open("wb") as f:
-        writer = Writer(f, chunk_size=10**6, compression=CompressionType.NONE, index_types=IndexType.NONE,
-                        use_statistics=False, use_summary_offsets=False)
+        writer = Writer(
+            f,
+            chunk_size=10**6,
+            compression=CompressionType.NONE,
+            index_types=IndexType.NONE,
+            use_statistics=False,
+            use_summary_offsets=False,
+        )
         writer.start(profile="ros2", library="test")
         schema = writer.register_schema("s", "ros2msg", b"float64 x\n")
         for k in range(3):

@@ -12,11 +12,10 @@ from rclpy.serialization import serialize_message
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # --import-mode=importlib
 
-from dlo_bag_graph_helper import TOPICS, TYPE_NAMES, make_message  # noqa: E402
-from dlo_bag_testutil import helper_cmd  # noqa: E402
-
 from dlo_bag.bag import BagWriter, read_messages  # noqa: E402
 from dlo_bag.playback import Pacer, import_message_class  # noqa: E402
+from dlo_bag_graph_helper import TOPICS, TYPE_NAMES, make_message  # noqa: E402
+from dlo_bag_testutil import helper_cmd  # noqa: E402
 from dlo_common.testing import ROS2RUN  # noqa: E402
 
 N = 8
@@ -42,14 +41,28 @@ def write_bag(path: Path) -> dict[str, list[bytes]]:
 def test_playback_republishes_the_same_messages(procs, tmp_path):
     bag = tmp_path / "run.bag"  # a '.bag' directory name is a rosbag2 bag too (not ROS 1)
     sent = write_bag(bag)
-    assert [m.topic for m in read_messages(bag)][:len(TOPICS)] == list(TOPICS)
-    sub = procs("sub", helper_cmd("sub", "--topics", *PLAYED, "--expect", str(N),
-                                  "--timeout", "60"))
+    assert [m.topic for m in read_messages(bag)][: len(TOPICS)] == list(TOPICS)
+    sub = procs("sub", helper_cmd("sub", "--topics", *PLAYED, "--expect", str(N), "--timeout", "60"))
     sub.wait_line("SUBSCRIBED")
-    play = procs("playback", [str(ROS2RUN), "dlo_bag", "playback_node", "--ros-args",
-                              "-p", f"bag:={bag}", "-p", "rate:=4.0",
-                              "-p", f"topics:={json.dumps(PLAYED)}",
-                              "-p", "wait_for_subscribers:=1", "-p", "wait_timeout:=60.0"])
+    play = procs(
+        "playback",
+        [
+            str(ROS2RUN),
+            "dlo_bag",
+            "playback_node",
+            "--ros-args",
+            "-p",
+            f"bag:={bag}",
+            "-p",
+            "rate:=4.0",
+            "-p",
+            f"topics:={json.dumps(PLAYED)}",
+            "-p",
+            "wait_for_subscribers:=1",
+            "-p",
+            "wait_timeout:=60.0",
+        ],
+    )
     received = json.loads(sub.wait_line("RECEIVED ", timeout=90).split(" ", 1)[1])
     assert play.wait(timeout=60) == 0, play.output()
     assert f"published {N * len(PLAYED)} messages" in play.output()
@@ -60,20 +73,39 @@ def test_playback_republishes_the_same_messages(procs, tmp_path):
             assert same_cdr(want, have), topic
 
 
-def test_it_plays_at_once_without_wait_for_subscribers_else_once_every_topic_has_them_or_after_wait_timeout(
-        procs, tmp_path):
+def test_it_plays_at_once_without_wait_for_subscribers_else_once_every_topic_has_them_or_after_wait_timeout(procs, tmp_path):
     bag = tmp_path / "bag"
     write_bag(bag)
-    play = procs("playback", [str(ROS2RUN), "dlo_bag", "playback_node", "--ros-args", "-p", f"bag:={bag}",
-                              "-p", "rate:=0.0", "-p", "linger:=60.0"])
+    play = procs(
+        "playback",
+        [str(ROS2RUN), "dlo_bag", "playback_node", "--ros-args", "-p", f"bag:={bag}", "-p", "rate:=0.0", "-p", "linger:=60.0"],
+    )
     assert play.wait(timeout=60) == 0, play.output()
     assert f"published {N * len(TOPICS)} messages" in play.output()  # with nobody to acknowledge, no waiting
     assert "subscriber(s)" not in play.output() and "waiting up to" not in play.output(), play.output()
     sub = procs("sub", helper_cmd("sub", "--topics", PLAYED[0], "--expect", str(N), "--timeout", "60"))
     sub.wait_line("SUBSCRIBED")  # a subscriber of one topic of the four
-    play = procs("playback", [str(ROS2RUN), "dlo_bag", "playback_node", "--ros-args", "-p", f"bag:={bag}",
-                              "-p", "rate:=0.0", "-p", f"topics:={json.dumps(PLAYED)}", "-p", "linger:=60.0",
-                              "-p", "wait_for_subscribers:=1", "-p", "wait_timeout:=3.0"])
+    play = procs(
+        "playback",
+        [
+            str(ROS2RUN),
+            "dlo_bag",
+            "playback_node",
+            "--ros-args",
+            "-p",
+            f"bag:={bag}",
+            "-p",
+            "rate:=0.0",
+            "-p",
+            f"topics:={json.dumps(PLAYED)}",
+            "-p",
+            "linger:=60.0",
+            "-p",
+            "wait_for_subscribers:=1",
+            "-p",
+            "wait_timeout:=3.0",
+        ],
+    )
     assert play.wait(timeout=60) == 0, play.output()
     assert "not every topic has 1 subscriber(s) after 3 s; playing anyway" in play.output()
     assert f"published {N * len(PLAYED)} messages" in play.output()
@@ -139,20 +171,36 @@ def test_the_warning_names_the_topics_whose_subscriber_did_not_acknowledge_withi
 def start_slow_playback(procs, bag: Path, topics: list[str], linger: float):
     """The playback of ``bag`` once every topic has a subscriber, at rate 0.05: the playing takes 5.6 s, so most
     messages are sent after a test stops its subscribers even on a loaded machine."""
-    return procs("playback", [str(ROS2RUN), "dlo_bag", "playback_node", "--ros-args", "-p", f"bag:={bag}",
-                              "-p", "rate:=0.05", "-p", f"topics:={json.dumps(topics)}", "-p", f"linger:={linger}",
-                              "-p", "wait_for_subscribers:=1", "-p", "wait_timeout:=60.0"])
+    return procs(
+        "playback",
+        [
+            str(ROS2RUN),
+            "dlo_bag",
+            "playback_node",
+            "--ros-args",
+            "-p",
+            f"bag:={bag}",
+            "-p",
+            "rate:=0.05",
+            "-p",
+            f"topics:={json.dumps(topics)}",
+            "-p",
+            f"linger:={linger}",
+            "-p",
+            "wait_for_subscribers:=1",
+            "-p",
+            "wait_timeout:=60.0",
+        ],
+    )
 
 
 def same_cdr(sent: bytes, received: bytes) -> bool:
     """Equal CDR payloads; DDS may pad the end to 4 bytes (noted in the header's options)."""
-    return (received[:2] == sent[:2] and received[4:len(sent)] == sent[4:]
-            and 0 <= len(received) - len(sent) < 4)
+    return received[:2] == sent[:2] and received[4 : len(sent)] == sent[4:] and 0 <= len(received) - len(sent) < 4
 
 
 def test_playback_bad_parameters(procs, tmp_path):
-    play = procs("playback", [str(ROS2RUN), "dlo_bag", "playback_node", "--ros-args",
-                              "-p", f"bag:={tmp_path / 'missing'}"])
+    play = procs("playback", [str(ROS2RUN), "dlo_bag", "playback_node", "--ros-args", "-p", f"bag:={tmp_path / 'missing'}"])
     assert play.wait(timeout=60) == 2
     assert "does not exist" in play.output() and "Traceback" not in play.output()
     bag = tmp_path / "bag"
@@ -160,17 +208,17 @@ def test_playback_bad_parameters(procs, tmp_path):
     killed = tmp_path / "killed"  # a recorder killed before closing: .mcap, no metadata.yaml
     killed.mkdir()
     (killed / "killed.mcap").write_bytes((bag / "bag.mcap").read_bytes()[:-200])
-    play = procs("playback", [str(ROS2RUN), "dlo_bag", "playback_node", "--ros-args",
-                              "-p", f"bag:={killed}"])
+    play = procs("playback", [str(ROS2RUN), "dlo_bag", "playback_node", "--ros-args", "-p", f"bag:={killed}"])
     assert play.wait(timeout=60) == 2
     lines = [line for line in play.output().splitlines() if line.strip()]
     assert len(lines) == 1 and f"dlo-bag-recover {killed}" in lines[0], play.output()
-    for param, text in [("rate:=-1.0", "parameter 'rate'"),
-                        ("rate:=fast", "parameter 'rate': expected a number"),
-                        ("topics:=['/dlo/nope']", "parameter 'topics'"),
-                        ("linger:=-1.0", "parameter 'linger': must be >= 0, got -1.0")]:
-        play = procs("playback", [str(ROS2RUN), "dlo_bag", "playback_node", "--ros-args",
-                                  "-p", f"bag:={bag}", "-p", param])
+    for param, text in [
+        ("rate:=-1.0", "parameter 'rate'"),
+        ("rate:=fast", "parameter 'rate': expected a number"),
+        ("topics:=['/dlo/nope']", "parameter 'topics'"),
+        ("linger:=-1.0", "parameter 'linger': must be >= 0, got -1.0"),
+    ]:
+        play = procs("playback", [str(ROS2RUN), "dlo_bag", "playback_node", "--ros-args", "-p", f"bag:={bag}", "-p", param])
         assert play.wait(timeout=60) == 2, play.output()
         assert text in play.output() and "Traceback" not in play.output()
 
@@ -192,9 +240,8 @@ def test_pacer_keeps_relative_timing():
 
 
 def test_import_message_class():
-    from sensor_msgs.msg import Image
-
     from dlo_msgs.msg import TaskState
+    from sensor_msgs.msg import Image
 
     assert import_message_class("sensor_msgs/msg/Image") is Image
     assert import_message_class("dlo_msgs/msg/TaskState") is TaskState

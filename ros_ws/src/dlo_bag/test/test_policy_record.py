@@ -18,11 +18,10 @@ import yaml
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # --import-mode=importlib
 
-from dlo_bag_testutil import helper_cmd, recorder_cmd  # noqa: E402
-
 from dlo_bag import analysis, video  # noqa: E402
 from dlo_bag.bag import bag_info, bag_parts, make_typestore, read_messages  # noqa: E402
 from dlo_bag.recording import POLICY_KEY, POLICY_TOPIC, POLICY_TYPE, Recorder  # noqa: E402
+from dlo_bag_testutil import helper_cmd, recorder_cmd  # noqa: E402
 from dlo_common.testing import ROS2RUN  # noqa: E402
 
 
@@ -55,18 +54,23 @@ def test_a_recorded_run_carries_its_policy_and_dlo_analyze_shows_it(procs, tmp_b
     assert Path(record["checkpoint"]) == shipped.resolve() and record["sha256"] == sha256(shipped)
     assert record["modalities"] == "K+T+V" and record["without"] == ""
     assert record["env_options"] == trained  # what the shipped policy was trained under, its grip included
-    assert (record["task_rules"], record["single_particle_grip"]) == (trained["task_rules"],
-                                                                       trained["single_particle_grip"])
+    assert (record["task_rules"], record["single_particle_grip"]) == (trained["task_rules"], trained["single_particle_grip"])
     parts = bag_parts(out)
     assert len(parts) == 2 and [json.loads(bag_info(p).custom_data[0][POLICY_KEY]) for p in parts] == [record] * 2
     assert analysis.policy_records(parts[1]) == [record]  # the later part: from its metadata (the message is in 0)
 
-    result = subprocess.run([sys.executable, "-m", "dlo_bag.analysis", str(out), "--json", str(tmp_bags / "a.json")],
-                            env=ros_env, capture_output=True, text=True, timeout=300)
+    result = subprocess.run(
+        [sys.executable, "-m", "dlo_bag.analysis", str(out), "--json", str(tmp_bags / "a.json")],
+        env=ros_env,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert result.returncode == 0, result.stdout + result.stderr
     grip = "single-particle grip" if trained["single_particle_grip"] else "finite grip"
-    assert result.stdout.splitlines()[0] == (f"policy: sac shipped all/policy.pt (sha256 {sha256(shipped)[:8]}) on "
-                                             f"K+T+V; trained {trained['task_rules']}, {grip}")
+    assert result.stdout.splitlines()[0] == (
+        f"policy: sac shipped all/policy.pt (sha256 {sha256(shipped)[:8]}) on K+T+V; trained {trained['task_rules']}, {grip}"
+    )
     summaries = json.loads((tmp_bags / "a.json").read_text())
     assert len(summaries) == 4 and all(s["policy"] == record for s in summaries)
 
@@ -84,8 +88,11 @@ def write_bag(path: Path, records=(), episodes: int = 1, split: int = 0) -> Path
     ts = make_typestore()
     T = ts.types
     recorder = Recorder(path, typestore=ts, split_episodes=split, fsync=False)
-    types = {POLICY_TOPIC: POLICY_TYPE, "/dlo/task/state": "dlo_msgs/msg/TaskState",
-             "/dlo/gripper/state": "dlo_msgs/msg/GripperState"}
+    types = {
+        POLICY_TOPIC: POLICY_TYPE,
+        "/dlo/task/state": "dlo_msgs/msg/TaskState",
+        "/dlo/gripper/state": "dlo_msgs/msg/GripperState",
+    }
     for topic, msgtype in types.items():
         recorder.add_topic(topic, msgtype)
     t = 1_000_000_000
@@ -100,26 +107,53 @@ def write_bag(path: Path, records=(), episodes: int = 1, split: int = 0) -> Path
     for episode in range(episodes):
         tracker = EpisodeTracker(1, horizon=STEPS, task_rules="paper_text")
         for step in range(STEPS + 1):
-            header = T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](sec=10 * episode + step,
-                                                                                      nanosec=0), frame_id="world")
+            header = T["std_msgs/msg/Header"](
+                stamp=T["builtin_interfaces/msg/Time"](sec=10 * episode + step, nanosec=0), frame_id="world"
+            )
             held = np.arange(step, step + 3, dtype=np.int32)
             p_i, largest = float(held.mean()), int(held.max())
             if step == 0:
                 tracker.reset([0], np.array([p_i]), np.array([largest]), np.array([30]), np.array([p_i]))
                 reward, done = 0.0, False
             else:
-                r, term, trunc = tracker.step(np.array([p_i]), np.array([3]), np.array([largest]), np.array([30]),
-                                              np.array([0.3]), np.array([p_i]), np.array([3]))
+                r, term, trunc = tracker.step(
+                    np.array([p_i]),
+                    np.array([3]),
+                    np.array([largest]),
+                    np.array([30]),
+                    np.array([0.3]),
+                    np.array([p_i]),
+                    np.array([3]),
+                )
                 reward, done = float(r[0]), bool(term[0] or trunc[0])
-            put("/dlo/task/state", T["dlo_msgs/msg/TaskState"](
-                header=header, episode=episode, seed=70 + episode, step=step, held_indices=held, n_held=3,
-                mean_held_index=p_i, num_particles=30, cable_length=0.3, reward=reward,
-                episode_return=float(tracker.episode_return[0]), done=done,
-                outcome=int(tracker.outcome[0]) if done else 0, held_indices_authors=held,
-                mean_held_index_authors=p_i, outcome_authors=int(tracker.outcome_authors[0]) if done else 0,
-                task_rules="paper_text"))
-            put("/dlo/gripper/state", T["dlo_msgs/msg/GripperState"](header=header, x=-0.25 + 0.01 * step, y=0.0,
-                                                                     z=0.1, closure=0.8, episode=episode, step=step))
+            put(
+                "/dlo/task/state",
+                T["dlo_msgs/msg/TaskState"](
+                    header=header,
+                    episode=episode,
+                    seed=70 + episode,
+                    step=step,
+                    held_indices=held,
+                    n_held=3,
+                    mean_held_index=p_i,
+                    num_particles=30,
+                    cable_length=0.3,
+                    reward=reward,
+                    episode_return=float(tracker.episode_return[0]),
+                    done=done,
+                    outcome=int(tracker.outcome[0]) if done else 0,
+                    held_indices_authors=held,
+                    mean_held_index_authors=p_i,
+                    outcome_authors=int(tracker.outcome_authors[0]) if done else 0,
+                    task_rules="paper_text",
+                ),
+            )
+            put(
+                "/dlo/gripper/state",
+                T["dlo_msgs/msg/GripperState"](
+                    header=header, x=-0.25 + 0.01 * step, y=0.0, z=0.1, closure=0.8, episode=episode, step=step
+                ),
+            )
     summary = recorder.close()
     assert summary.dropped == 0 and summary.complete
     return path
@@ -136,8 +170,13 @@ def trained_checkpoint(tmp_path):
     run.mkdir(parents=True)
     shutil.copy(shipped, run / "best_policy.pt")
     config = yaml.safe_load((shipped.parent / CONFIG_FILE).read_text())
-    config["env_options"] = {"task_rules": "authors_code", "single_particle_grip": False, "carry_law": "authors",
-                             "vision_source": "particles", "contact_radius": 0.006}
+    config["env_options"] = {
+        "task_rules": "authors_code",
+        "single_particle_grip": False,
+        "carry_law": "authors",
+        "vision_source": "particles",
+        "contact_radius": 0.006,
+    }
     (run / CONFIG_FILE).write_text(yaml.safe_dump(config))
     return run / "best_policy.pt"
 
@@ -151,6 +190,7 @@ def titles(monkeypatch):
     def spy(episode, summary, policy):
         drawn.append(original(episode, summary, policy))
         return drawn[-1]
+
     monkeypatch.setattr(video, "video_title", spy)
     return drawn
 
@@ -163,11 +203,17 @@ def test_the_record_of_a_checkpoint_names_its_file_hash_and_training(trained_che
     assert record["sha256"] == sha256(trained_checkpoint)
     assert (record["modalities"], record["without"]) == ("K+T", "T")
     assert (record["task_rules"], record["single_particle_grip"]) == ("authors_code", False)
-    assert record["env_options"] == {"task_rules": "authors_code", "single_particle_grip": False,
-                                     "carry_law": "authors", "vision_source": "particles", "contact_radius": 0.006}
+    assert record["env_options"] == {
+        "task_rules": "authors_code",
+        "single_particle_grip": False,
+        "carry_law": "authors",
+        "vision_source": "particles",
+        "contact_radius": 0.006,
+    }
     assert analysis.policy_label(record) == (
         f"sac fidelity_s3/best_policy.pt (sha256 {record['sha256'][:8]}) on K+T without T; trained authors_code, "
-        "finite grip, carry_law authors, contact_radius 0.006, vision_source particles")
+        "finite grip, carry_law authors, contact_radius 0.006, vision_source particles"
+    )
     scripted = policy_record("tactile_reactive", "", ("K", "T", "V"))
     assert scripted["checkpoint"] is None and scripted["sha256"] is None and scripted["task_rules"] is None
     assert analysis.policy_label(scripted) == "tactile_reactive on K+T+V"
@@ -180,8 +226,9 @@ def test_the_video_titles_and_the_analysis_show_the_recorded_policy(tmp_path, tr
     record = policy_record("sac", str(trained_checkpoint), ("K", "T", "V"))
     bag = write_bag(tmp_path / "bag", [record], episodes=2)
     label = analysis.policy_label(record)
-    assert analysis.main([str(bag), "--video", str(tmp_path / "v"), "--video-width", "160",
-                          "--json", str(tmp_path / "a.json")]) == 0
+    assert (
+        analysis.main([str(bag), "--video", str(tmp_path / "v"), "--video-width", "160", "--json", str(tmp_path / "a.json")]) == 0
+    )
     out = capsys.readouterr().out
     assert out.splitlines()[0] == f"policy: {label}"
     for title in titles:  # the episode, the policy (wrapped: at most 100 characters a line), the outcome
@@ -192,8 +239,7 @@ def test_the_video_titles_and_the_analysis_show_the_recorded_policy(tmp_path, tr
     assert sorted(p.name for p in (tmp_path / "v").iterdir()) == ["episode_0000.mp4", "episode_0001.mp4"]
     assert [s["policy"] for s in json.loads((tmp_path / "a.json").read_text())] == [record, record]
     # --policy: the titles say what is asked instead
-    assert analysis.main([str(bag), "--video", str(tmp_path / "w"), "--video-width", "160",
-                          "--policy", "sac (shipped)"]) == 0
+    assert analysis.main([str(bag), "--video", str(tmp_path / "w"), "--video-width", "160", "--policy", "sac (shipped)"]) == 0
     assert titles[-1].splitlines()[1] == "policy sac (shipped)"
 
 
@@ -208,5 +254,4 @@ def test_a_bag_without_a_record_says_so_and_several_records_are_all_named(tmp_pa
     first, second = policy_record("random", "", ("K",), seed=1), policy_record("tactile_reactive", "", ("K", "T", "V"))
     both = write_bag(tmp_path / "both", [first, first, second, "not json"])
     assert analysis.policy_records(both) == [first, second, {"policy": "not json"}]  # distinct, in order
-    assert analysis.recorded_policy(analysis.policy_records(both)) == \
-        "random on K, then tactile_reactive on K+T+V, then not json"
+    assert analysis.recorded_policy(analysis.policy_records(both)) == "random on K, then tactile_reactive on K+T+V, then not json"

@@ -5,19 +5,17 @@ from __future__ import annotations
 import json
 import signal
 import subprocess
-from collections import Counter
-
 import sys
+from collections import Counter
 from pathlib import Path
 
 import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # --import-mode=importlib
 
+from dlo_bag.bag import bag_info, bag_parts, read_messages  # noqa: E402
 from dlo_bag_graph_helper import TOPICS, TYPE_NAMES  # noqa: E402
 from dlo_bag_testutil import helper_cmd, recorder_cmd  # noqa: E402
-
-from dlo_bag.bag import bag_info, bag_parts, read_messages  # noqa: E402
 from dlo_common.testing import ROS2RUN  # noqa: E402
 
 N = 12
@@ -88,8 +86,9 @@ def test_records_every_topic_exact_counts_and_hashes(procs, tmp_bags, ros_env):
     assert counts == {t: N for t in TOPICS}
 
     # dlo-bag-info
-    res = subprocess.run([str(ROS2RUN), "dlo_bag", "dlo-bag-info", str(bag)], env=ros_env,
-                         capture_output=True, text=True, timeout=60)
+    res = subprocess.run(
+        [str(ROS2RUN), "dlo_bag", "dlo-bag-info", str(bag)], env=ros_env, capture_output=True, text=True, timeout=60
+    )
     assert res.returncode == 0, res.stderr
     assert f"Messages:          {N * len(TOPICS)}" in res.stdout
     for topic, typ in TYPE_NAMES.items():
@@ -122,8 +121,7 @@ def test_survives_publisher_dying_and_restarting(procs, tmp_bags):
     first = procs("pub1", helper_cmd("pub", "--count", str(N), "--then", "exit"))
     first.wait_line("PUBLISHED ")
     assert first.wait(timeout=30) == 0
-    second = procs("pub2", helper_cmd("pub", "--count", str(N), "--start", str(N),
-                                      "--then", "exit"))
+    second = procs("pub2", helper_cmd("pub", "--count", str(N), "--start", str(N), "--then", "exit"))
     second.wait_line("PUBLISHED ")
     assert second.wait(timeout=30) == 0
     stop_recorder(rec)
@@ -134,8 +132,9 @@ def test_survives_publisher_dying_and_restarting(procs, tmp_bags):
 def test_split_every_n_episodes(procs, tmp_bags):
     out = tmp_bags / "run"
     rec = procs("recorder", recorder_cmd(out, "split_episodes:=2"))
-    pub = procs("pub", helper_cmd("pub", "--count", "16", "--episode-every", "4",
-                                  "--topics", "/dlo/task/state", "/dlo/gripper/state"))
+    pub = procs(
+        "pub", helper_cmd("pub", "--count", "16", "--episode-every", "4", "--topics", "/dlo/task/state", "/dlo/gripper/state")
+    )
     pub.wait_line("PUBLISHED ")
     pub.wait(timeout=30)
     stop_recorder(rec)
@@ -150,11 +149,14 @@ def test_split_every_n_episodes(procs, tmp_bags):
     assert seqs(out, "/dlo/gripper/state") == list(range(16))
 
 
-@pytest.mark.parametrize("param, expected", [
-    ("queue_depth:=abc", "parameter 'queue_depth': expected an integer"),
-    ("split_episodes:=-1", "parameter 'split_episodes': must be >= 0"),
-    ("record_clock:=3", "parameter 'record_clock': expected a bool"),
-])
+@pytest.mark.parametrize(
+    "param, expected",
+    [
+        ("queue_depth:=abc", "parameter 'queue_depth': expected an integer"),
+        ("split_episodes:=-1", "parameter 'split_episodes': must be >= 0"),
+        ("record_clock:=3", "parameter 'record_clock': expected a bool"),
+    ],
+)
 def test_malformed_parameter_is_a_clear_error(procs, tmp_bags, param, expected):
     bag = tmp_bags / "never"
     rec = procs("recorder", recorder_cmd(bag, param))
@@ -195,8 +197,9 @@ def run_patched_recorder(procs, tmp_bags, script):
     """recorder_node run by ``script`` (``python -c``: it patches the node, then calls main) into tmp_bags/run,
     with a summary_file: -> (exit status, output, bag, summary or None when it wrote none)."""
     bag, summary_file = tmp_bags / "run", tmp_bags / "summary.json"
-    rec = procs("recorder", [sys.executable, "-c", script, "--ros-args", "-p", f"output:={bag}",
-                             "-p", f"summary_file:={summary_file}"])
+    rec = procs(
+        "recorder", [sys.executable, "-c", script, "--ros-args", "-p", f"output:={bag}", "-p", f"summary_file:={summary_file}"]
+    )
     rc = rec.wait(timeout=60)
     return rc, rec.output(), bag, json.loads(summary_file.read_text()) if summary_file.exists() else None
 

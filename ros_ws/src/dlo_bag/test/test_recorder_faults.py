@@ -13,12 +13,11 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # --import-mode=importlib
 
+from dlo_bag.bag import bag_info, read_messages  # noqa: E402
+from dlo_bag.mcap_file import scan_mcap  # noqa: E402
 from dlo_bag_faults import file_size_limit, small_disk  # noqa: E402
 from dlo_bag_graph_helper import LATCHED_TOPIC, TOPICS, latched_message  # noqa: E402
 from dlo_bag_testutil import helper_cmd, recorder_cmd  # noqa: E402
-
-from dlo_bag.bag import bag_info, read_messages  # noqa: E402
-from dlo_bag.mcap_file import scan_mcap  # noqa: E402
 from dlo_common.testing import ROS2RUN  # noqa: E402
 
 N = 12
@@ -40,8 +39,9 @@ def on_disk(mcap: Path) -> Counter:
 
 
 def tool(ros_env, exe, *args) -> subprocess.CompletedProcess:
-    return subprocess.run([str(ROS2RUN), "dlo_bag", exe, *map(str, args)], env=ros_env,
-                          capture_output=True, text=True, timeout=120)
+    return subprocess.run(
+        [str(ROS2RUN), "dlo_bag", exe, *map(str, args)], env=ros_env, capture_output=True, text=True, timeout=120
+    )
 
 
 def test_sigkill_loses_nothing_that_reached_the_recorder_before_the_last_flush(procs, tmp_bags, ros_env):
@@ -84,10 +84,8 @@ def test_disk_full_stops_the_recorder_loudly_with_a_readable_bag(procs, tmp_bags
             rec = procs("recorder", recorder_cmd(bag, f"summary_file:={summary_file}"))
         else:  # not root: the same write failures from a per-file size limit (EFBIG)
             bag = tmp_bags / "run"
-            rec = procs("recorder", recorder_cmd(bag, f"summary_file:={summary_file}"),
-                        preexec_fn=file_size_limit(1_500_000))
-        pub = procs("pub", helper_cmd("pub", "--count", "1", "--then", "stream",
-                                      "--stream-topic", "/dlo/camera/image"))
+            rec = procs("recorder", recorder_cmd(bag, f"summary_file:={summary_file}"), preexec_fn=file_size_limit(1_500_000))
+        pub = procs("pub", helper_cmd("pub", "--count", "1", "--then", "stream", "--stream-topic", "/dlo/camera/image"))
         rc = rec.wait(timeout=120)  # it stops by itself once the disk is full
         pub.signal(signal.SIGINT)
         pub.wait(timeout=30)
@@ -111,8 +109,7 @@ def test_receive_timestamps_and_a_transient_local_topic(procs, tmp_bags):
     """Bag timestamps are the recorder's receive times (not the header stamps); a latched topic
     published before the recorder started is recorded, with its transient-local QoS."""
     bag = tmp_bags / "run"
-    pub = procs("pub", helper_cmd("pub", "--count", str(N), "--latched", "--then", "hold",
-                                  "--timeout", "90"))
+    pub = procs("pub", helper_cmd("pub", "--count", str(N), "--latched", "--then", "hold", "--timeout", "90"))
     pub.wait_line("LATCHED")
     t0 = time.time_ns()
     rec = procs("recorder", recorder_cmd(bag))

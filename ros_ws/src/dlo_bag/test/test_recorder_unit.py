@@ -15,16 +15,15 @@ import time
 import pytest
 
 rclpy = pytest.importorskip("rclpy")
+from dlo_bag import recorder_node as recorder_module  # noqa: E402
+from dlo_bag.bag import bag_info, read_messages  # noqa: E402
+from dlo_common.testing import LogLines, reserved_domain  # noqa: E402
+from dlo_msgs.msg import GripperState  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
 from rosbags.interfaces import QosDurability, QosReliability  # noqa: E402
 from rosgraph_msgs.msg import Clock  # noqa: E402
 from sensor_msgs.msg import CameraInfo  # noqa: E402
-
-from dlo_common.testing import LogLines, reserved_domain  # noqa: E402
-from dlo_msgs.msg import GripperState  # noqa: E402
-from dlo_bag import recorder_node as recorder_module  # noqa: E402
-from dlo_bag.bag import bag_info, read_messages  # noqa: E402
 
 N = 5
 
@@ -55,22 +54,27 @@ def old_state(i):
 
 def test_receive_timestamps_latched_and_best_effort_topics_and_selection(context, tmp_path, monkeypatch):
     pub_node = rclpy.create_node("recorder_unit_publisher", context=context)
-    latched = pub_node.create_publisher(CameraInfo, "/dlo/camera/camera_info",
-                                        QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL))
+    latched = pub_node.create_publisher(
+        CameraInfo, "/dlo/camera/camera_info", QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+    )
     info = CameraInfo(width=32, height=32)
     info.header.frame_id = "top_camera_optical"
     latched.publish(info)  # before the recorder exists
     states = pub_node.create_publisher(GripperState, "/dlo/gripper/state", 10)
-    best_effort = pub_node.create_publisher(GripperState, "/dlo/best_effort",
-                                            QoSProfile(depth=10, reliability=ReliabilityPolicy.BEST_EFFORT))
+    best_effort = pub_node.create_publisher(
+        GripperState, "/dlo/best_effort", QoSProfile(depth=10, reliability=ReliabilityPolicy.BEST_EFFORT)
+    )
     clock = pub_node.create_publisher(Clock, "/clock", 10)
     outside = pub_node.create_publisher(GripperState, "/dlox/state", 10)
     pub_node.create_subscription(GripperState, "/dlo/nobody_publishes", lambda m: None, 10)
 
     bag = tmp_path / "bag"
     declare = recorder_module.declare_parameters
-    monkeypatch.setattr(recorder_module, "declare_parameters", lambda n, specs: {
-        **declare(n, specs), "output": str(bag), "discovery_period": 0.05, "flush_period": 0.1, "fsync": False})
+    monkeypatch.setattr(
+        recorder_module,
+        "declare_parameters",
+        lambda n, specs: {**declare(n, specs), "output": str(bag), "discovery_period": 0.05, "flush_period": 0.1, "fsync": False},
+    )
     init = rclpy.node.Node.__init__
     monkeypatch.setattr(rclpy.node.Node, "__init__", lambda self, *a, **k: init(self, *a, **{"context": context, **k}))
     recorder = recorder_module.RecorderNode(None)
@@ -124,9 +128,18 @@ def test_clock_is_recorded_when_asked(context, tmp_path, monkeypatch):
     clock = pub_node.create_publisher(Clock, "/clock", 10)
     bag = tmp_path / "bag"
     declare = recorder_module.declare_parameters
-    monkeypatch.setattr(recorder_module, "declare_parameters", lambda n, specs: {
-        **declare(n, specs), "output": str(bag), "discovery_period": 0.05, "record_clock": True,
-        "extra_topics": ["/extra/topic"], "fsync": False})
+    monkeypatch.setattr(
+        recorder_module,
+        "declare_parameters",
+        lambda n, specs: {
+            **declare(n, specs),
+            "output": str(bag),
+            "discovery_period": 0.05,
+            "record_clock": True,
+            "extra_topics": ["/extra/topic"],
+            "fsync": False,
+        },
+    )
     extra = pub_node.create_publisher(GripperState, "/extra/topic", 10)
     init = rclpy.node.Node.__init__
     monkeypatch.setattr(rclpy.node.Node, "__init__", lambda self, *a, **k: init(self, *a, **{"context": context, **k}))
@@ -140,8 +153,9 @@ def test_clock_is_recorded_when_asked(context, tmp_path, monkeypatch):
         assert spin_until(executor, lambda: clock.get_subscription_count() >= 1 and extra.get_subscription_count() >= 1)
         clock.publish(Clock())
         extra.publish(old_state(1))
-        assert spin_until(executor, lambda: recorder.recorder.received["/clock"] == 1
-                          and recorder.recorder.received["/extra/topic"] == 1)
+        assert spin_until(
+            executor, lambda: recorder.recorder.received["/clock"] == 1 and recorder.recorder.received["/extra/topic"] == 1
+        )
     finally:
         recorder.finish()
         executor.shutdown()
@@ -157,8 +171,7 @@ def test_clock_is_recorded_when_asked(context, tmp_path, monkeypatch):
 class PublisherInfo:
     """What get_publishers_info_by_topic tells about one publisher (the fields discover() reads)."""
 
-    def __init__(self, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE,
-                 type_hash=""):
+    def __init__(self, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE, type_hash=""):
         self.qos_profile = QoSProfile(depth=10, reliability=reliability, durability=durability)
         self.topic_type_hash = type_hash
 
@@ -175,8 +188,11 @@ class FakeStop:
 def offline_recorder(context, tmp_path, monkeypatch):
     """A RecorderNode (no timers firing: nothing spins it) whose graph, subscriptions and log are the test's."""
     declare = recorder_module.declare_parameters
-    monkeypatch.setattr(recorder_module, "declare_parameters", lambda n, specs: {
-        **declare(n, specs), "output": str(tmp_path / "bag"), "fsync": False})
+    monkeypatch.setattr(
+        recorder_module,
+        "declare_parameters",
+        lambda n, specs: {**declare(n, specs), "output": str(tmp_path / "bag"), "fsync": False},
+    )
     init = rclpy.node.Node.__init__
     monkeypatch.setattr(rclpy.node.Node, "__init__", lambda self, *a, **k: init(self, *a, **{"context": context, **k}))
     stop = FakeStop()
@@ -190,6 +206,7 @@ def offline_recorder(context, tmp_path, monkeypatch):
     def create_subscription(msg_class, topic, callback, qos, **kwargs):
         node.subscribed.append((topic, qos, kwargs))
         return real_subscribe(msg_class, topic, callback, qos, **kwargs)
+
     node.create_subscription = create_subscription
     log = LogLines()
     node.get_logger = lambda: log
@@ -201,26 +218,34 @@ def offline_recorder(context, tmp_path, monkeypatch):
 
 def test_discovery_warns_about_several_types_a_new_best_effort_publisher_and_a_foreign_type_hash(offline_recorder):
     node, log = offline_recorder, offline_recorder.log
-    node.graph = [("/dlo/gripper/state", ["dlo_msgs/msg/GripperState"]),
-                  ("/dlo/two_types", ["dlo_msgs/msg/GripperState", "sensor_msgs/msg/CameraInfo"])]
-    node.publishers_of = {"/dlo/gripper/state": [PublisherInfo(type_hash="not a RIHS01 hash")],
-                          "/dlo/two_types": [PublisherInfo()]}
+    node.graph = [
+        ("/dlo/gripper/state", ["dlo_msgs/msg/GripperState"]),
+        ("/dlo/two_types", ["dlo_msgs/msg/GripperState", "sensor_msgs/msg/CameraInfo"]),
+    ]
+    node.publishers_of = {
+        "/dlo/gripper/state": [PublisherInfo(type_hash="not a RIHS01 hash")],
+        "/dlo/two_types": [PublisherInfo()],
+    }
     node.discover()
     assert [t for t, _, _ in node.subscribed] == ["/dlo/gripper/state", "/dlo/two_types"]
     assert node.recorder.topics["/dlo/two_types"].msgtype == "dlo_msgs/msg/GripperState"  # the first type
-    assert log.of("warning") == ["/dlo/two_types: several types ['dlo_msgs/msg/GripperState', "
-                                 "'sensor_msgs/msg/CameraInfo']; recording dlo_msgs/msg/GripperState only"]
+    assert log.of("warning") == [
+        "/dlo/two_types: several types ['dlo_msgs/msg/GripperState', "
+        "'sensor_msgs/msg/CameraInfo']; recording dlo_msgs/msg/GripperState only"
+    ]
     _, qos, kwargs = node.subscribed[0]
-    assert (qos.depth, qos.reliability, qos.durability) == (1000, ReliabilityPolicy.RELIABLE,
-                                                           DurabilityPolicy.VOLATILE)
+    assert (qos.depth, qos.reliability, qos.durability) == (1000, ReliabilityPolicy.RELIABLE, DurabilityPolicy.VOLATILE)
     events = kwargs["event_callbacks"]  # a message lost or an incompatible publisher is reported, per topic
     assert events.message_lost is not None and events.incompatible_qos is not None
 
     class Incompatible:
         last_policy_kind = "RELIABILITY"
+
     events.incompatible_qos(Incompatible())
-    assert log.of("warning")[-1] == ("/dlo/gripper/state: a publisher's QoS is incompatible with the recorder's "
-                                     "subscription (policy RELIABILITY); not recorded")
+    assert log.of("warning")[-1] == (
+        "/dlo/gripper/state: a publisher's QoS is incompatible with the recorder's "
+        "subscription (policy RELIABILITY); not recorded"
+    )
 
     # a best-effort publisher joins a topic subscribed reliably: warned once, not subscribed again
     del log.lines[:]
@@ -228,19 +253,23 @@ def test_discovery_warns_about_several_types_a_new_best_effort_publisher_and_a_f
     node.discover()
     node.discover()
     assert len(node.subscribed) == 2
-    assert log.of("warning") == ["/dlo/gripper/state: a publisher now offers best-effort QoS; the reliable "
-                                 "subscription cannot receive from it"]
+    assert log.of("warning") == [
+        "/dlo/gripper/state: a publisher now offers best-effort QoS; the reliable subscription cannot receive from it"
+    ]
 
     # a publisher whose RIHS01 type hash differs from the installed definition's; the same hash says nothing
     rihs01 = node.recorder.topics["/dlo/gripper/state"].rihs01
     assert rihs01.startswith("RIHS01_")
     del log.lines[:]
     node.graph = [("/dlo/same_hash", ["dlo_msgs/msg/GripperState"]), ("/dlo/other_hash", ["dlo_msgs/msg/GripperState"])]
-    node.publishers_of = {"/dlo/same_hash": [PublisherInfo(type_hash=rihs01)],
-                          "/dlo/other_hash": [PublisherInfo(type_hash="RIHS01_" + "0" * 64)]}
+    node.publishers_of = {
+        "/dlo/same_hash": [PublisherInfo(type_hash=rihs01)],
+        "/dlo/other_hash": [PublisherInfo(type_hash="RIHS01_" + "0" * 64)],
+    }
     node.discover()
-    assert log.of("warning") == [f"/dlo/other_hash: publisher type hash RIHS01_{'0' * 64} differs from the "
-                                 f"installed definition's {rihs01}"]
+    assert log.of("warning") == [
+        f"/dlo/other_hash: publisher type hash RIHS01_{'0' * 64} differs from the installed definition's {rihs01}"
+    ]
     assert [t for t, _, _ in node.subscribed][2:] == ["/dlo/same_hash", "/dlo/other_hash"]
 
 
@@ -257,9 +286,8 @@ def test_a_topic_that_cannot_be_recorded_is_reported_once_and_left_alone(offline
 
 
 def test_write_errors_are_logged_once_a_second_and_a_failed_recording_stops_the_node(offline_recorder, monkeypatch):
-    from rclpy.serialization import serialize_message
-
     from dlo_bag.bag import BagWriteError
+    from rclpy.serialization import serialize_message
 
     node, log = offline_recorder, offline_recorder.log
     node.graph = [("/dlo/gripper/state", ["dlo_msgs/msg/GripperState"])]
@@ -272,12 +300,14 @@ def test_write_errors_are_logged_once_a_second_and_a_failed_recording_stops_the_
         @staticmethod
         def monotonic():
             return now[0]
+
     monkeypatch.setattr(recorder_module, "time", Clock)
     node._on_message("/dlo/gripper/state", data)  # written: nothing logged
     assert log.of("error") == [] and node.recorder.received["/dlo/gripper/state"] == 1
 
     def bad_write(topic, data, timestamp):
         raise ValueError("bad message")
+
     monkeypatch.setattr(node.recorder.writer, "write", bad_write)
     logged = []
     for t in (100.0, 100.5, 101.0, 101.01, 101.5, 102.02):
@@ -292,6 +322,7 @@ def test_write_errors_are_logged_once_a_second_and_a_failed_recording_stops_the_
 
     def full_disk(topic, data, timestamp):
         raise BagWriteError("cannot write", cause="no space left on device")
+
     monkeypatch.setattr(node.recorder.writer, "write", full_disk)
     now[0] = 200.0
     del log.lines[:]
@@ -299,4 +330,5 @@ def test_write_errors_are_logged_once_a_second_and_a_failed_recording_stops_the_
     node._on_message("/dlo/gripper/state", data)
     assert node.stop_request.requests == 1  # the failure stops the node (once)
     assert len(log.of("error")) == 1 and log.of("error")[0].startswith(
-        "recording failed: no space left on device (cannot write); stopping"), log.lines
+        "recording failed: no space left on device (cannot write); stopping"
+    ), log.lines

@@ -23,15 +23,13 @@ def declared_executables() -> dict[str, list[str]]:
             if isinstance(node, ast.Dict):
                 for key, value in zip(node.keys, node.values):
                     if isinstance(key, ast.Constant) and key.value == "console_scripts":
-                        names += [e.value.split("=")[0].strip() for e in value.elts
-                                  if isinstance(e, ast.Constant)]
+                        names += [e.value.split("=")[0].strip() for e in value.elts if isinstance(e, ast.Constant)]
         out[setup.parent.name] = names
     return out
 
 
 def run(env, *args):
-    return subprocess.run([str(ROS2RUN), *args], env=env, capture_output=True, text=True,
-                          timeout=60)
+    return subprocess.run([str(ROS2RUN), *args], env=env, capture_output=True, text=True, timeout=60)
 
 
 def test_finds_every_declared_executable(ros_env):
@@ -43,8 +41,7 @@ def test_finds_every_declared_executable(ros_env):
     pairs = set(listing.stdout.split("\n"))
     for pkg, exes in declared.items():
         for exe in exes:
-            assert f"{pkg} {exe}" in pairs, (
-                f"ros2run cannot find {pkg} {exe}: rebuild with scripts/setup.sh")
+            assert f"{pkg} {exe}" in pairs, f"ros2run cannot find {pkg} {exe}: rebuild with scripts/setup.sh"
             per_pkg = run(ros_env, pkg)
             assert f"{pkg} {exe}" in per_pkg.stdout.split("\n")
 
@@ -64,8 +61,7 @@ def test_runs_with_arguments_and_explains_misses(ros_env):
 
 def test_sources_env_sh_when_not_sourced():
     clean = {"PATH": "/usr/bin:/bin", "HOME": "/tmp"}
-    res = subprocess.run([str(ROS2RUN), "dlo_bag"], env=clean, capture_output=True, text=True,
-                         timeout=60)
+    res = subprocess.run([str(ROS2RUN), "dlo_bag"], env=clean, capture_output=True, text=True, timeout=60)
     assert res.returncode == 0, res.stderr
     assert "dlo_bag recorder_node" in res.stdout.split("\n")
 
@@ -93,7 +89,8 @@ def test_the_old_package_name_runs_each_executable_from_its_new_package_with_a_n
     listed = run(ros_env, OLD)
     assert listed.returncode == 0
     assert {"dlo_bag recorder_node", "dlo_viz foxglove_bridge", "dlo_driver_kit mock_driver_node"} <= set(
-        listed.stdout.splitlines())
+        listed.stdout.splitlines()
+    )
     missing = run(ros_env, OLD, "no_such_exe")
     assert missing.returncode == 1 and "no executable 'no_such_exe' in dlo_bag, dlo_viz or dlo_driver_kit" in missing.stderr
 
@@ -148,9 +145,13 @@ def test_a_sigint_before_the_node_starts_ends_ros2run_instead_of_the_node_starti
 
     def start():
         (tmp_path / "started").unlink(missing_ok=True)
-        return subprocess.Popen([str(ROS2RUN), "fake_pkg", "forever"], env=env, stdout=subprocess.PIPE,
-                                stderr=subprocess.STDOUT,
-                                preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+        return subprocess.Popen(
+            [str(ROS2RUN), "fake_pkg", "forever"],
+            env=env,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+        )
 
     to_the_node = []
     for _ in range(3):
@@ -171,8 +172,9 @@ def test_a_sigint_before_the_node_starts_ends_ros2run_instead_of_the_node_starti
         except subprocess.TimeoutExpired:
             proc.kill()
             proc.communicate()
-            raise AssertionError(f"SIGINT {1000 * window * k / 40:.1f} ms after the start was lost: ros2run went "
-                                 f"on and started the node") from None
+            raise AssertionError(
+                f"SIGINT {1000 * window * k / 40:.1f} ms after the start was lost: ros2run went on and started the node"
+            ) from None
         assert proc.returncode in (130, -signal.SIGINT), (k, proc.returncode, out)
         ended_before_the_node += not (tmp_path / "started").exists()
     # some signals did arrive before the node (the case this test is about), and some after (the sweep is wide enough)

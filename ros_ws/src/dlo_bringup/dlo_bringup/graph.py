@@ -94,12 +94,22 @@ def graph_nodes(o: GraphOptions, logs: Path | None = None) -> list[NodeSpec]:
 
         remap = tuple((name, prefix + name) for name in names())
     seed = int(o.seed)
-    sim = [("mode", o.mode), ("seed", seed), ("episodes", int(o.episodes)), ("rate_factor", _number(o.rate_factor)),
-           ("min_subscribers", 4 if o.record else 3)]
+    sim = [
+        ("mode", o.mode),
+        ("seed", seed),
+        ("episodes", int(o.episodes)),
+        ("rate_factor", _number(o.rate_factor)),
+        ("min_subscribers", 4 if o.record else 3),
+    ]
     if logs is not None:
         sim.append(("summary_file", str(logs / OUTCOMES_FILE)))
-    sim += [("task_rules", o.task_rules), ("single_particle_grip", o.single_particle_grip == "true"),
-            ("carry_law", o.carry_law), ("contact_radius", float(o.contact_radius)), ("start_pose", o.start_pose)]
+    sim += [
+        ("task_rules", o.task_rules),
+        ("single_particle_grip", o.single_particle_grip == "true"),
+        ("carry_law", o.carry_law),
+        ("contact_radius", float(o.contact_radius)),
+        ("start_pose", o.start_pose),
+    ]
     if o.record:
         sim.append(("wait_for_recorder", "recorder"))  # the first episode is recorded whole
     nodes = [NodeSpec("sim", "dlo_sim", "sim_node", tuple(sim), remap, ready_line=SIM_READY)]
@@ -110,11 +120,24 @@ def graph_nodes(o: GraphOptions, logs: Path | None = None) -> list[NodeSpec]:
             recorder.append(("summary_file", str(logs / RECORDER_SUMMARY_FILE)))
         nodes.append(NodeSpec("recorder", "dlo_bag", "recorder_node", tuple(recorder), remap))
     if o.foxglove:
-        nodes.append(NodeSpec("foxglove", "dlo_viz", "foxglove_bridge",
-                              (("port", int(o.foxglove)), ("address", "127.0.0.1"),
-                               ("topics", f"{prefix}/dlo,{prefix}/clock")), ready_line=FOXGLOVE_READY))
-    nodes.append(NodeSpec("tactile", "dlo_perception", "tactile_node",
-                          (("tactile_noise", _tactile_noise(o.tactile_noise)), ("seed", seed)), remap))
+        nodes.append(
+            NodeSpec(
+                "foxglove",
+                "dlo_viz",
+                "foxglove_bridge",
+                (("port", int(o.foxglove)), ("address", "127.0.0.1"), ("topics", f"{prefix}/dlo,{prefix}/clock")),
+                ready_line=FOXGLOVE_READY,
+            )
+        )
+    nodes.append(
+        NodeSpec(
+            "tactile",
+            "dlo_perception",
+            "tactile_node",
+            (("tactile_noise", _tactile_noise(o.tactile_noise)), ("seed", seed)),
+            remap,
+        )
+    )
     nodes.append(NodeSpec("vision", "dlo_perception", "vision_node", (("vision_source", o.vision_source),), remap))
     policy = [("policy", o.policy)]
     if o.checkpoint:

@@ -39,7 +39,7 @@ class ClockReader:
         for line in stream:
             parts = line.split()
             if parts[:1] == ["error"]:
-                self.error = line.strip()[len("error "):]
+                self.error = line.strip()[len("error ") :]
             elif len(parts) == 3:
                 try:
                     steps, last_ns, wall = int(parts[0]), int(parts[1]), float(parts[2])
@@ -54,9 +54,17 @@ class Monitor:
     """The episode and status lines of one run. ``alive()``: {node name: running}, in start order (their logs are
     ``logs/<name>.log``); ``clock``: a :class:`ClockReader` or None (no step rate); ``say``: prints one line."""
 
-    def __init__(self, outcomes: Path, logs: Path, episodes: int, status_period: float,
-                 alive: Callable[[], dict], clock: ClockReader | None = None, say: Callable[[str], None] = print,
-                 now: Callable[[], float] = time.monotonic):
+    def __init__(
+        self,
+        outcomes: Path,
+        logs: Path,
+        episodes: int,
+        status_period: float,
+        alive: Callable[[], dict],
+        clock: ClockReader | None = None,
+        say: Callable[[str], None] = print,
+        now: Callable[[], float] = time.monotonic,
+    ):
         from dlo_viz.graph_monitor import LogTail, NodeHealth
 
         self.outcomes = LogTail(str(outcomes))
@@ -111,8 +119,10 @@ class Monitor:
 
 def main(argv=None) -> int:
     """The launcher's /clock step counter (see the module docstring); ends on SIGINT/SIGTERM."""
-    parser = argparse.ArgumentParser(prog="python -m dlo_bringup.graph_monitor",
-                                     description="Count the control steps on /clock for the launcher's status line.")
+    parser = argparse.ArgumentParser(
+        prog="python -m dlo_bringup.graph_monitor",
+        description="Count the control steps on /clock for the launcher's status line.",
+    )
     parser.add_argument("--clock-topic", default="/clock", help="the sim's clock topic")
     args = parser.parse_args(argv)
     stop = []
@@ -131,8 +141,7 @@ def main(argv=None) -> int:
             counter.spin(0.2)
             state = (counter.steps, counter.last_ns, counter.last_step_wall)
             if state != said:
-                print(f"{state[0]} {-1 if state[1] is None else state[1]} {-1 if state[2] is None else state[2]}",
-                      flush=True)
+                print(f"{state[0]} {-1 if state[1] is None else state[1]} {-1 if state[2] is None else state[2]}", flush=True)
                 said = state
     finally:
         counter.close()

@@ -32,10 +32,11 @@ SIM_START_LIMIT = 120.0  # s for the sim to say it is alone on its domain
 FOXGLOVE_START_LIMIT = 30.0  # s for another node with a ready line (the Foxglove bridge: its URL) to say it
 MONITOR_STOP_LIMIT = 5.0  # s for the /clock counter to stop after SIGTERM
 # an example of the lines the graph prints while it runs (tests/test_launch_graph_exit_codes.py: as printed)
-EPISODE_EXAMPLE = ("[launch] episode 0 (seed 0; 1/5 done): hold_the_end, authors' rule hold_the_end; return 4.321, "
-                   "97 steps, 0 particles from the end")
-STATUS_EXAMPLE = ("[launch] status: 11.8 steps/s (sim time x0.94), 1/5 episodes done, nodes alive 4/4; policy: no "
-                  "tactile input")
+EPISODE_EXAMPLE = (
+    "[launch] episode 0 (seed 0; 1/5 done): hold_the_end, authors' rule hold_the_end; return 4.321, "
+    "97 steps, 0 particles from the end"
+)
+STATUS_EXAMPLE = "[launch] status: 11.8 steps/s (sim time x0.94), 1/5 episodes done, nodes alive 4/4; policy: no tactile input"
 
 
 def usage() -> str:
@@ -49,24 +50,38 @@ def usage() -> str:
         head = head.ljust(23) if len(head) < 23 else head + "  "
         lines += textwrap.wrap(text, 112, initial_indent=head, subsequent_indent=" " * 23)
     lines.append("  -h, --help           this help")
-    lines += ["", *textwrap.wrap(
-        "output (stdout): the chosen domain and how to watch it, each node's pid and log; while the graph runs one "
-        "line per finished episode, e.g.", 112), EPISODE_EXAMPLE,
-        "and every S s a status line, e.g.", STATUS_EXAMPLE, *textwrap.wrap(
-        "at the end a header naming the policy, checkpoint, ablation, tactile noise, mode, task rules and seeds, "
-        "then the outcome table under both outcome rules (time at end: control steps; from end: particles), and "
-        "where the logs are when they are kept.", 112),
-        "", *textwrap.wrap(
-        "The same graph on a real ROS 2 install: ros2 launch dlo_bringup graph.launch.py episodes:=5 ... (each "
-        "option as an argument, --task-rules R as task_rules:=R; --show-args lists them).", 112),
-        "", "exit status:",
+    lines += [
+        "",
+        *textwrap.wrap(
+            "output (stdout): the chosen domain and how to watch it, each node's pid and log; while the graph runs one "
+            "line per finished episode, e.g.",
+            112,
+        ),
+        EPISODE_EXAMPLE,
+        "and every S s a status line, e.g.",
+        STATUS_EXAMPLE,
+        *textwrap.wrap(
+            "at the end a header naming the policy, checkpoint, ablation, tactile noise, mode, task rules and seeds, "
+            "then the outcome table under both outcome rules (time at end: control steps; from end: particles), and "
+            "where the logs are when they are kept.",
+            112,
+        ),
+        "",
+        *textwrap.wrap(
+            "The same graph on a real ROS 2 install: ros2 launch dlo_bringup graph.launch.py episodes:=5 ... (each "
+            "option as an argument, --task-rules R as task_rules:=R; --show-args lists them).",
+            112,
+        ),
+        "",
+        "exit status:",
         "  0    every episode ran (and the bag, with --record, is complete)",
         "  2    bad option, or a node rejected its parameters",
         "  3    a node died or exited early (also the sim interrupted on its own, or the sim refusing to",
         "       start because another simulator publishes on the domain); the graph was stopped",
         "  4    the recording failed (a write error such as a full disk, or the recorder died or dropped",
         "       messages); the graph was stopped and the cause printed",
-        "  130  interrupted (Ctrl-C or SIGTERM to the launcher)"]
+        "  130  interrupted (Ctrl-C or SIGTERM to the launcher)",
+    ]
     return "\n".join(lines)
 
 
@@ -198,8 +213,14 @@ class Launcher:
     def start(self, spec) -> Child:
         log = self.logs / f"{spec.name}.log"
         with open(log, "w") as out:
-            proc = subprocess.Popen(self.command(spec), stdout=out, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
-                                    env=self.env, pass_fds=self.inherited_fds())
+            proc = subprocess.Popen(
+                self.command(spec),
+                stdout=out,
+                stderr=subprocess.STDOUT,
+                stdin=subprocess.DEVNULL,
+                env=self.env,
+                pass_fds=self.inherited_fds(),
+            )
         child = Child(spec.name, proc, log)
         self.children.append(child)
         self.say(f"[launch] {spec.name} (pid {proc.pid}) -> {log}")
@@ -221,14 +242,24 @@ class Launcher:
         if period > 0:
             with open(self.logs / "graph_monitor.log", "w") as err:
                 self.clock_child = subprocess.Popen(
-                    [*self.prefix, sys.executable, "-m", "dlo_bringup.graph_monitor", "--clock-topic",
-                     f"{self.o.prefix}/clock"], stdout=subprocess.PIPE, stderr=err, stdin=subprocess.DEVNULL,
-                    env=self.env, text=True)
+                    [*self.prefix, sys.executable, "-m", "dlo_bringup.graph_monitor", "--clock-topic", f"{self.o.prefix}/clock"],
+                    stdout=subprocess.PIPE,
+                    stderr=err,
+                    stdin=subprocess.DEVNULL,
+                    env=self.env,
+                    text=True,
+                )
             clock = ClockReader(self.clock_child.stdout)
         by_name = {c.name: c for c in self.children}
-        self.monitor = Monitor(self.logs / "outcomes.jsonl", self.logs, int(self.o.episodes), period,
-                               alive=lambda: {name: by_name[name].running() for name in nodes}, clock=clock,
-                               say=self.say)
+        self.monitor = Monitor(
+            self.logs / "outcomes.jsonl",
+            self.logs,
+            int(self.o.episodes),
+            period,
+            alive=lambda: {name: by_name[name].running() for name in nodes},
+            clock=clock,
+            say=self.say,
+        )
 
     def stop_clock_child(self) -> None:
         proc = self.clock_child
@@ -269,11 +300,15 @@ class Launcher:
             domain = int(self.o.domain_id)
             self.lock_fd = lock_domain(domain)
             if self.lock_fd is None:
-                self.warn(f"[launch] warning: ROS_DOMAIN_ID={domain} is held by another launch_graph.sh or test run",
-                          problem=False)
+                self.warn(
+                    f"[launch] warning: ROS_DOMAIN_ID={domain} is held by another launch_graph.sh or test run", problem=False
+                )
             if not self.o.namespace and domain_busy(domain):
-                self.warn(f"[launch] warning: ROS_DOMAIN_ID={domain} is in use on this machine; without --namespace "
-                          "the graphs' topics mix (the sim refuses to start next to another simulator)", problem=False)
+                self.warn(
+                    f"[launch] warning: ROS_DOMAIN_ID={domain} is in use on this machine; without --namespace "
+                    "the graphs' topics mix (the sim refuses to start next to another simulator)",
+                    problem=False,
+                )
             return domain
         found = free_domain()
         if found is None:
@@ -352,8 +387,10 @@ class Launcher:
         episodes = int(self.o.episodes)
         if sim.status == 0 and episodes != 0 and done >= episodes:
             return EXIT_OK
-        self.warn(f"[launch] sim exited early ({describe(sim.status)}, {done} of {episodes or 'unlimited'} episodes "
-                  "done); the end of its log:")
+        self.warn(
+            f"[launch] sim exited early ({describe(sim.status)}, {done} of {episodes or 'unlimited'} episodes "
+            "done); the end of its log:"
+        )
         self.show_log_end(sim)
         return EXIT_USAGE if sim.status == 2 else EXIT_NODE_FAILED
 
@@ -364,8 +401,10 @@ class Launcher:
         if url:
             layout = self.root / "docs" / "foxglove" / "dlo_vitac.json" if self.root else "docs/foxglove/dlo_vitac.json"
             self.say(f"[launch] Foxglove live view: open {url.group(1)}")
-            self.say(f"[launch]   (Foxglove app: Open connection -> Foxglove WebSocket -> {ws.group(0) if ws else '?'}; "
-                     f"layout: {layout})")
+            self.say(
+                f"[launch]   (Foxglove app: Open connection -> Foxglove WebSocket -> {ws.group(0) if ws else '?'}; "
+                f"layout: {layout})"
+            )
 
     def child(self, name: str) -> Child | None:
         return next((c for c in self.children if c.name == name), None)
@@ -406,8 +445,7 @@ class Launcher:
         except (OSError, ValueError) as error:
             print(f"[launch] cannot read {outcomes}: {error}", file=sys.stderr, flush=True)
         else:
-            self.say(run_header(episodes, o.policy, o.checkpoint, o.without, o.tactile_noise, o.mode, policy_line,
-                                o.train_out))
+            self.say(run_header(episodes, o.policy, o.checkpoint, o.without, o.tactile_noise, o.mode, policy_line, o.train_out))
             self.say(outcome_table(episodes))
         if not o.record:
             return rc
@@ -423,9 +461,12 @@ class Launcher:
         elif status == 1:
             summary = self.complete_recording()
             if summary is not None and bag_closed(Path(o.record)):
-                self.warn(f"[launch] the recorder's middleware teardown was cut short after it had closed the bag "
-                          f"(status 1; its stacks: {recorder.log}); the recording is complete: "
-                          f"{summary.get('written')} messages written, none dropped", problem=False)
+                self.warn(
+                    f"[launch] the recorder's middleware teardown was cut short after it had closed the bag "
+                    f"(status 1; its stacks: {recorder.log}); the recording is complete: "
+                    f"{summary.get('written')} messages written, none dropped",
+                    problem=False,
+                )
             else:
                 self.warn(f"[launch] recording incomplete: the recorder dropped messages (see {recorder.log})")
                 rc = rc if interrupted else EXIT_RECORDING_FAILED

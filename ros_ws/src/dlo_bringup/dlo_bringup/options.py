@@ -33,37 +33,78 @@ OPTIONS = (
     ("without", "M", "", "test-time ablation: zero modality M (T or V) for the policy"),
     ("train-out", "DIR", "", "learn online (SAC) while running; checkpoints and policy.pt go to DIR"),
     ("train-config", "YAML", "", "online training: dlo-train config file (SAC hyperparameters)"),
-    ("tactile-noise", "N", "none", "tactile noise (the tactile node's tactile_noise parameter): none (default), "
-                                   "partial, full, or sigma_theta,sigma_y [rad, m] such as 0.1,0.001 (or [0.1,0.001])"),
-    ("task-rules", "R", "", "authors_code or paper_text: the held set the reward, the episode's end and the tactile "
-                            "input use (the sim's task_rules parameter). Default: what the --policy sac checkpoint "
-                            "was trained on (its run's config.yaml), else authors_code"),
-    ("single-particle-grip", "[true|false]", "", "the grip carries one particle, as the authors' code did (the sim's "
-                                                 "single_particle_grip parameter; alone = true). Default: what the "
-                                                 "--policy sac checkpoint was trained on "
-                                                 "(env_options.single_particle_grip), else false."),
+    (
+        "tactile-noise",
+        "N",
+        "none",
+        "tactile noise (the tactile node's tactile_noise parameter): none (default), "
+        "partial, full, or sigma_theta,sigma_y [rad, m] such as 0.1,0.001 (or [0.1,0.001])",
+    ),
+    (
+        "task-rules",
+        "R",
+        "",
+        "authors_code or paper_text: the held set the reward, the episode's end and the tactile "
+        "input use (the sim's task_rules parameter). Default: what the --policy sac checkpoint "
+        "was trained on (its run's config.yaml), else authors_code",
+    ),
+    (
+        "single-particle-grip",
+        "[true|false]",
+        "",
+        "the grip carries one particle, as the authors' code did (the sim's "
+        "single_particle_grip parameter; alone = true). Default: what the "
+        "--policy sac checkpoint was trained on "
+        "(env_options.single_particle_grip), else false.",
+    ),
     ("carry-law", "L", "", "paper or authors: how the grip carries the cable (the sim's carry_law parameter)"),
     ("contact-radius", "R", "", "the cable's contact half-thickness [m], up to 0.006 (the sim's contact_radius)"),
     ("vision-source", "S", "", "image or particles: where the vision node's O_V comes from (its vision_source)"),
-    ("start-pose", "P", "", "ours or authors: where the gripper starts (the sim's start_pose). These four default "
-                            "to what the --policy sac checkpoint was trained on (its env_options), else paper, "
-                            "0.004, image and ours. Settings that differ from the checkpoint's training are run "
-                            "as asked, with a note"),
+    (
+        "start-pose",
+        "P",
+        "",
+        "ours or authors: where the gripper starts (the sim's start_pose). These four default "
+        "to what the --policy sac checkpoint was trained on (its env_options), else paper, "
+        "0.004, image and ours. Settings that differ from the checkpoint's training are run "
+        "as asked, with a note",
+    ),
     ("record", "DIR", "", "record every /dlo topic to the rosbag2 (MCAP) directory DIR"),
-    ("foxglove", "[PORT]", "", f"live view: also start the Foxglove bridge (dlo_viz foxglove_bridge) on "
-                               f"127.0.0.1:PORT (default {FOXGLOVE_PORT}; 0 = any free port) and print the URL to "
-                               "open; layout to import: docs/foxglove/dlo_vitac.json"),
-    ("logs", "DIR", "", "node logs and the outcome file go here, and stay (default: a new temp dir, removed at "
-                        "the end unless the run failed)"),
+    (
+        "foxglove",
+        "[PORT]",
+        "",
+        f"live view: also start the Foxglove bridge (dlo_viz foxglove_bridge) on "
+        f"127.0.0.1:PORT (default {FOXGLOVE_PORT}; 0 = any free port) and print the URL to "
+        "open; layout to import: docs/foxglove/dlo_vitac.json",
+    ),
+    (
+        "logs",
+        "DIR",
+        "",
+        "node logs and the outcome file go here, and stay (default: a new temp dir, removed at the end unless the run failed)",
+    ),
     ("status-period", "S", "10", "seconds between status lines while the graph runs (default 10; 0 = none)"),
-    ("domain-id", "N", "", "run on ROS_DOMAIN_ID N (default: a free domain of its own, so that two graphs on one "
-                           "machine never see each other; the chosen id is printed)"),
-    ("namespace", "NS", "", "put every topic of the graph under /NS (/NS/dlo/..., /NS/clock): several graphs can "
-                            "then share a domain deliberately (with --domain-id)"),
+    (
+        "domain-id",
+        "N",
+        "",
+        "run on ROS_DOMAIN_ID N (default: a free domain of its own, so that two graphs on one "
+        "machine never see each other; the chosen id is printed)",
+    ),
+    (
+        "namespace",
+        "NS",
+        "",
+        "put every topic of the graph under /NS (/NS/dlo/..., /NS/clock): several graphs can "
+        "then share a domain deliberately (with --domain-id)",
+    ),
 )
 LAUNCHER_ONLY = ("status-period", "domain-id")  # ros2 launch: ROS_DOMAIN_ID from the environment, its own output
-OPTIONAL_VALUE = {"single-particle-grip": (re.compile(r"(true|false)"), "true"),  # alone: this value
-                  "foxglove": (re.compile(r"[0-9]+"), str(FOXGLOVE_PORT))}
+OPTIONAL_VALUE = {
+    "single-particle-grip": (re.compile(r"(true|false)"), "true"),  # alone: this value
+    "foxglove": (re.compile(r"[0-9]+"), str(FOXGLOVE_PORT)),
+}
 POLICIES = ("sac", "tactile_reactive", "oracle", "random")
 CONTACT_RADIUS_MAX = 0.006  # m (dlo_sim: above 4.25 mm the fingers pinch the cable)
 
@@ -154,8 +195,9 @@ def check(o: GraphOptions) -> None:
     _one_of("carry-law", o.carry_law, CARRY_LAWS)
     _one_of("start-pose", o.start_pose, tuple(START_POSES))
     _one_of("vision-source", o.vision_source, VISION_SOURCES)
-    if o.contact_radius and not (re.fullmatch(r"[0-9]*[.]?[0-9]+", o.contact_radius)
-                                 and 0 < float(o.contact_radius) <= CONTACT_RADIUS_MAX):
+    if o.contact_radius and not (
+        re.fullmatch(r"[0-9]*[.]?[0-9]+", o.contact_radius) and 0 < float(o.contact_radius) <= CONTACT_RADIUS_MAX
+    ):
         raise UsageError(f"--contact-radius must be a number in (0, {CONTACT_RADIUS_MAX}] m, got '{o.contact_radius}'")
     if o.policy not in POLICIES:
         raise UsageError(f"--policy must be one of {', '.join(POLICIES)}, got '{o.policy}'")
@@ -226,8 +268,7 @@ def trained_settings(checkpoint: str) -> dict | None:
         raise UsageError(f"--checkpoint: checkpoint {path}: its run's {CONFIG_FILE} cannot be read: {error}") from None
     if settings is None:
         return None
-    return {key: ("true" if value else "false") if isinstance(value, bool) else str(value)
-            for key, value in settings.items()}
+    return {key: ("true" if value else "false") if isinstance(value, bool) else str(value) for key, value in settings.items()}
 
 
 def _fill_in_from_training(o: GraphOptions, trained: dict) -> None:
@@ -242,19 +283,32 @@ def _fill_in_from_training(o: GraphOptions, trained: dict) -> None:
 
     levers = ("carry_law", "contact_radius", "vision_source", "start_pose")
     if any(differs(key) for key in levers):
-        o.notes.append("the policy was trained with " + ", ".join(f"{k}={trained[k]}" for k in levers)
-                       + "; this graph runs " + ", ".join(f"{k}={getattr(o, k)}" for k in levers) + " (as asked)")
+        o.notes.append(
+            "the policy was trained with "
+            + ", ".join(f"{k}={trained[k]}" for k in levers)
+            + "; this graph runs "
+            + ", ".join(f"{k}={getattr(o, k)}" for k in levers)
+            + " (as asked)"
+        )
     task = ("task_rules", "single_particle_grip")
     if any(differs(key) for key in task):
-        o.notes.append("the policy was trained with " + ", ".join(f"{k}={trained[k]}" for k in task)
-                       + "; this graph runs " + ", ".join(f"{k}={getattr(o, k)}" for k in task) + " (as asked)")
+        o.notes.append(
+            "the policy was trained with "
+            + ", ".join(f"{k}={trained[k]}" for k in task)
+            + "; this graph runs "
+            + ", ".join(f"{k}={getattr(o, k)}" for k in task)
+            + " (as asked)"
+        )
 
 
 def launch_arguments() -> list[tuple[str, str, str]]:
     """(name, default, description) of every launch argument of graph.launch.py: the options but the
     launcher's own (--status-period, --domain-id), with underscores (``task_rules:=paper_text``)."""
-    return [(name.replace("-", "_"), "" if name in OPTIONAL_VALUE else default, text)
-            for name, _, default, text in OPTIONS if name not in LAUNCHER_ONLY]
+    return [
+        (name.replace("-", "_"), "" if name in OPTIONAL_VALUE else default, text)
+        for name, _, default, text in OPTIONS
+        if name not in LAUNCHER_ONLY
+    ]
 
 
 def argv_from_launch_arguments(values: dict) -> list[str]:

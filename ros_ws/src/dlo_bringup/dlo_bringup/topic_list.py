@@ -23,9 +23,8 @@ def main(argv=None) -> int:
     parser.add_argument("--wait", type=float, default=WAIT, help=f"seconds to wait at least (default {WAIT:g})")
     args = parser.parse_args(sys.argv[1:] if argv is None else argv)
     import rclpy
-    from rclpy.signals import SignalHandlerOptions
-
     from dlo_common.node_main import shut_down
+    from rclpy.signals import SignalHandlerOptions
 
     rclpy.init(signal_handler_options=SignalHandlerOptions.NO)  # Ctrl-C: KeyboardInterrupt, one line below
     node = None

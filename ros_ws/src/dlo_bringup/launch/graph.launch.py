@@ -13,22 +13,27 @@ features (a free domain of its own, the episode and status lines, the outcome ta
 
 from pathlib import Path
 
+from dlo_bringup.graph import STOP_LIMIT, graph_nodes
+from dlo_bringup.options import UsageError, argv_from_launch_arguments, launch_arguments, parse_args, resolve
 from launch import LaunchDescription
 from launch.actions import DeclareLaunchArgument, OpaqueFunction, RegisterEventHandler, Shutdown
 from launch.event_handlers import OnProcessIO
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
-from dlo_bringup.graph import STOP_LIMIT, graph_nodes
-from dlo_bringup.options import UsageError, argv_from_launch_arguments, launch_arguments, parse_args, resolve
-
 
 def node_action(spec) -> Node:
     """A NodeSpec as a launch_ros Node: its parameters, its remappings, its output on the screen; the whole launch
     ends with it, and stopping it waits as long as the launcher does before SIGTERM."""
-    return Node(package=spec.package, executable=spec.executable, parameters=[dict(spec.parameters)],
-                remappings=list(spec.remappings), output="screen", sigterm_timeout=str(STOP_LIMIT),
-                on_exit=[Shutdown(reason=f"{spec.name} ended")])
+    return Node(
+        package=spec.package,
+        executable=spec.executable,
+        parameters=[dict(spec.parameters)],
+        remappings=list(spec.remappings),
+        output="screen",
+        sigterm_timeout=str(STOP_LIMIT),
+        on_exit=[Shutdown(reason=f"{spec.name} ended")],
+    )
 
 
 def graph_actions(context):
@@ -53,11 +58,11 @@ def graph_actions(context):
         started.append(True)
         return [node_action(spec) for spec in rest]
 
-    return [sim, RegisterEventHandler(OnProcessIO(target_action=sim, on_stdout=start_the_rest,
-                                                  on_stderr=start_the_rest))]
+    return [sim, RegisterEventHandler(OnProcessIO(target_action=sim, on_stdout=start_the_rest, on_stderr=start_the_rest))]
 
 
 def generate_launch_description() -> LaunchDescription:
-    return LaunchDescription([DeclareLaunchArgument(name, default_value=default, description=text)
-                              for name, default, text in launch_arguments()]
-                             + [OpaqueFunction(function=graph_actions)])
+    return LaunchDescription(
+        [DeclareLaunchArgument(name, default_value=default, description=text) for name, default, text in launch_arguments()]
+        + [OpaqueFunction(function=graph_actions)]
+    )

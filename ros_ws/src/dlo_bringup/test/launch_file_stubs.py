@@ -28,8 +28,17 @@ class LaunchConfiguration(Entity):
 def stub_modules() -> dict[str, types.ModuleType]:
     """``launch``, ``launch.actions``, ``launch.event_handlers``, ``launch.substitutions``, ``launch_ros``,
     ``launch_ros.actions`` with the names graph.launch.py imports."""
-    modules = {name: types.ModuleType(name) for name in (
-        "launch", "launch.actions", "launch.event_handlers", "launch.substitutions", "launch_ros", "launch_ros.actions")}
+    modules = {
+        name: types.ModuleType(name)
+        for name in (
+            "launch",
+            "launch.actions",
+            "launch.event_handlers",
+            "launch.substitutions",
+            "launch_ros",
+            "launch_ros.actions",
+        )
+    }
     modules["launch"].LaunchDescription = type("LaunchDescription", (Entity,), {})
     for name in ("DeclareLaunchArgument", "OpaqueFunction", "RegisterEventHandler", "Shutdown"):
         setattr(modules["launch.actions"], name, type(name, (Entity,), {}))
@@ -80,5 +89,9 @@ def launched_nodes(monkeypatch, arguments: dict) -> tuple[list, dict]:
 def node_command(node) -> tuple[str, str, list[tuple[str, object]], list[tuple[str, str]]]:
     """(package, executable, parameters, remappings) of a Node entry."""
     (parameters,) = node.kwargs["parameters"]
-    return (node.kwargs["package"], node.kwargs["executable"], list(parameters.items()),
-            [tuple(r) for r in node.kwargs["remappings"]])
+    return (
+        node.kwargs["package"],
+        node.kwargs["executable"],
+        list(parameters.items()),
+        [tuple(r) for r in node.kwargs["remappings"]],
+    )

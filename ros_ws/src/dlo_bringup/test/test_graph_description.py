@@ -11,7 +11,6 @@ from pathlib import Path
 
 import pytest
 import yaml
-
 from dlo_bringup.graph import STOP_LIMIT, graph_nodes, ros_value
 from dlo_bringup.launcher import Launcher
 from dlo_bringup.options import GraphOptions, launch_arguments, parse_args, resolve
@@ -23,20 +22,67 @@ from launch_file_stubs import launched_nodes, node_command  # noqa: E402
 # the launcher's command line and the launch arguments that ask for the same graph (written out, not derived)
 CASES = {
     "defaults": ([], {}),
-    "everything": (["--episodes", "3", "--seed", "7", "--mode", "real_time", "--rate-factor", "2", "--policy", "random",
-                    "--without", "V", "--tactile-noise", "0.1,0.001", "--task-rules", "paper_text",
-                    "--single-particle-grip", "--carry-law", "authors", "--contact-radius", ".005",
-                    "--vision-source", "particles", "--start-pose", "authors", "--record", "BAG", "--foxglove", "0",
-                    "--namespace", "/lab/robot1/"],
-                   {"episodes": "3", "seed": "7", "mode": "real_time", "rate_factor": "2", "policy": "random",
-                    "without": "V", "tactile_noise": "0.1,0.001", "task_rules": "paper_text",
-                    "single_particle_grip": "true", "carry_law": "authors", "contact_radius": ".005",
-                    "vision_source": "particles", "start_pose": "authors", "record": "BAG", "foxglove": "0",
-                    "namespace": "/lab/robot1/"}),
-    "learning_online": (["--policy", "sac", "--train-out", "RUN", "--train-config", "my.yaml", "--foxglove"],
-                        {"policy": "sac", "train_out": "RUN", "train_config": "my.yaml", "foxglove": "8765"}),
-    "a_checkpoint_and_its_training": (["--checkpoint", "SHIPPED", "--tactile-noise", "partial"],
-                                      {"checkpoint": "SHIPPED", "tactile_noise": "partial"}),
+    "everything": (
+        [
+            "--episodes",
+            "3",
+            "--seed",
+            "7",
+            "--mode",
+            "real_time",
+            "--rate-factor",
+            "2",
+            "--policy",
+            "random",
+            "--without",
+            "V",
+            "--tactile-noise",
+            "0.1,0.001",
+            "--task-rules",
+            "paper_text",
+            "--single-particle-grip",
+            "--carry-law",
+            "authors",
+            "--contact-radius",
+            ".005",
+            "--vision-source",
+            "particles",
+            "--start-pose",
+            "authors",
+            "--record",
+            "BAG",
+            "--foxglove",
+            "0",
+            "--namespace",
+            "/lab/robot1/",
+        ],
+        {
+            "episodes": "3",
+            "seed": "7",
+            "mode": "real_time",
+            "rate_factor": "2",
+            "policy": "random",
+            "without": "V",
+            "tactile_noise": "0.1,0.001",
+            "task_rules": "paper_text",
+            "single_particle_grip": "true",
+            "carry_law": "authors",
+            "contact_radius": ".005",
+            "vision_source": "particles",
+            "start_pose": "authors",
+            "record": "BAG",
+            "foxglove": "0",
+            "namespace": "/lab/robot1/",
+        },
+    ),
+    "learning_online": (
+        ["--policy", "sac", "--train-out", "RUN", "--train-config", "my.yaml", "--foxglove"],
+        {"policy": "sac", "train_out": "RUN", "train_config": "my.yaml", "foxglove": "8765"},
+    ),
+    "a_checkpoint_and_its_training": (
+        ["--checkpoint", "SHIPPED", "--tactile-noise", "partial"],
+        {"checkpoint": "SHIPPED", "tactile_noise": "partial"},
+    ),
 }
 
 
@@ -47,8 +93,9 @@ def launcher_command(options, spec) -> tuple[str, str, list, list]:
     start = command.index(spec.package)
     package, executable, ros_args, *args = command[start:]
     assert ros_args == "--ros-args" and len(args) % 2 == 0
-    parameters = [(a.split(":=", 1)[0], yaml.safe_load(a.split(":=", 1)[1])) for flag, a in zip(args[::2], args[1::2])
-                  if flag == "-p"]
+    parameters = [
+        (a.split(":=", 1)[0], yaml.safe_load(a.split(":=", 1)[1])) for flag, a in zip(args[::2], args[1::2]) if flag == "-p"
+    ]
     remappings = [tuple(a.split(":=", 1)) for flag, a in zip(args[::2], args[1::2]) if flag == "-r"]
     assert len(parameters) + len(remappings) == len(args) // 2
     return package, executable, parameters, remappings
@@ -58,8 +105,7 @@ def fill(values, tmp_path):
     from dlo_policy.rundir import shipped_policy_path
 
     paths = {"BAG": str(tmp_path / "bag"), "RUN": str(tmp_path / "run"), "SHIPPED": str(shipped_policy_path())}
-    return [paths.get(v, v) for v in values] if isinstance(values, list) else {
-        k: paths.get(v, v) for k, v in values.items()}
+    return [paths.get(v, v) for v in values] if isinstance(values, list) else {k: paths.get(v, v) for k, v in values.items()}
 
 
 @pytest.mark.parametrize("case", sorted(CASES))
@@ -91,8 +137,7 @@ def test_a_bad_launch_argument_is_one_line(monkeypatch):
 
 
 def test_the_sim_starts_first_and_a_namespace_moves_every_topic_and_service(tmp_path):
-    options = resolve(parse_args(["--policy", "random", "--namespace", "robot1", "--record", str(tmp_path / "b"),
-                                  "--foxglove"]))
+    options = resolve(parse_args(["--policy", "random", "--namespace", "robot1", "--record", str(tmp_path / "b"), "--foxglove"]))
     specs = graph_nodes(options)
     assert [s.name for s in specs] == ["sim", "recorder", "foxglove", "tactile", "vision", "policy"]
     assert specs[0].ready_line == "alone on ROS_DOMAIN_ID"

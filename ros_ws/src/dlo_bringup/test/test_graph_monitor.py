@@ -8,12 +8,24 @@ import json
 
 from dlo_bringup.graph_monitor import ClockReader, Monitor
 
-EPISODE = {"episode": 3, "seed": 13, "outcome": "hold_the_end", "outcome_authors": "stop_before",
-           "episode_return": 4.25, "episode_length": 97, "time_at_end": 12, "how_far": 1}
-SIM_WAITS = ("[INFO] [100.0] [sim_node]: waiting for 4 subscribers of /dlo/gripper/state (have 0)\n"
-             "[WARN] [104.2] [sim_node]: waiting for the recorder 'recorder' to subscribe to /dlo/gripper/cmd\n")
-SIM_EPISODE = ("[INFO] [106.1] [sim_node]: episode 0 (seed 13): hold_the_end (authors' rule: stop_before), return 4.250, "
-               "time at end 12, 1 particles from the end\n")
+EPISODE = {
+    "episode": 3,
+    "seed": 13,
+    "outcome": "hold_the_end",
+    "outcome_authors": "stop_before",
+    "episode_return": 4.25,
+    "episode_length": 97,
+    "time_at_end": 12,
+    "how_far": 1,
+}
+SIM_WAITS = (
+    "[INFO] [100.0] [sim_node]: waiting for 4 subscribers of /dlo/gripper/state (have 0)\n"
+    "[WARN] [104.2] [sim_node]: waiting for the recorder 'recorder' to subscribe to /dlo/gripper/cmd\n"
+)
+SIM_EPISODE = (
+    "[INFO] [106.1] [sim_node]: episode 0 (seed 13): hold_the_end (authors' rule: stop_before), return 4.250, "
+    "time at end 12, 1 particles from the end\n"
+)
 RECORDER_WAIT = "sim: waiting for the recorder 'recorder' to subscribe to /dlo/gripper/cmd"
 
 
@@ -29,8 +41,16 @@ class Run:
         self.clock = clock
 
     def start(self):
-        self.monitor = Monitor(self.outcomes, self.logs, 3, 0.25, alive=lambda: dict(self.alive), clock=self.clock,
-                               say=self.said.append, now=lambda: self.time)
+        self.monitor = Monitor(
+            self.outcomes,
+            self.logs,
+            3,
+            0.25,
+            alive=lambda: dict(self.alive),
+            clock=self.clock,
+            say=self.said.append,
+            now=lambda: self.time,
+        )
         return self
 
     def append(self, path, text):
@@ -52,8 +72,10 @@ def test_episodes_are_streamed_as_appended_and_status_lines_name_health(tmp_path
     run.append(run.logs / "policy.log", "[ERROR] [2.0] [policy_node]: step at t=0.08 s: no gripper input after 1.0 s\n")
     assert "policy: no gripper input" in run.tick()[0]
     run.append(run.outcomes, json.dumps(dict(EPISODE, episode=0)) + "\n")
-    assert run.tick(0.1) == ["[launch] episode 0 (seed 13; 1/3 done): hold_the_end, authors' rule stop_before; "
-                             "return 4.250, 97 steps, 1 particles from the end"]
+    assert run.tick(0.1) == [
+        "[launch] episode 0 (seed 13; 1/3 done): hold_the_end, authors' rule stop_before; "
+        "return 4.250, 97 steps, 1 particles from the end"
+    ]
     run.alive["policy"] = False
     assert run.tick()[-1] == "[launch] status: steps/s ?, 1/3 episodes done, nodes alive 0/1 (dead: policy); no warnings"
     run.append(run.outcomes, json.dumps(dict(EPISODE, episode=1)) + "\n" + json.dumps(dict(EPISODE, episode=2))[:20])
@@ -74,7 +96,8 @@ def test_status_lines_say_what_a_node_waits_for_until_it_no_longer_does(tmp_path
     run.append(run.logs / "sim.log", "[WARN] [99.0] [sim_node]: before the monitor\n" + first)
     run.start()
     assert run.tick()[0].endswith(  # the wait holds, the warning before the monitor is past
-        "0/3 episodes done, nodes alive 1/1; sim: waiting for 4 subscribers of /dlo/gripper/state (have 0)")
+        "0/3 episodes done, nodes alive 1/1; sim: waiting for 4 subscribers of /dlo/gripper/state (have 0)"
+    )
     run.append(run.logs / "sim.log", second)
     waiting = run.tick()[0]
     assert waiting.endswith(f"0/3 episodes done, nodes alive 1/1; {RECORDER_WAIT}"), waiting  # the later wait
@@ -102,6 +125,8 @@ def test_the_step_rate_comes_from_the_clock_counters_lines(tmp_path):
     broken._thread.join()
     (tmp_path / "broken").mkdir()
     run = Run(tmp_path / "broken", {"sim": True}, broken).start()
-    assert run.tick() == ["[launch] status: no step rate (ModuleNotFoundError: No module named 'rclpy')",
-                          "[launch] status: steps/s ?, 0/3 episodes done, nodes alive 1/1; no warnings"]
+    assert run.tick() == [
+        "[launch] status: no step rate (ModuleNotFoundError: No module named 'rclpy')",
+        "[launch] status: steps/s ?, 0/3 episodes done, nodes alive 1/1; no warnings",
+    ]
     assert run.tick() == ["[launch] status: steps/s ?, 0/3 episodes done, nodes alive 1/1; no warnings"]

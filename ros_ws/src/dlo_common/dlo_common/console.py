@@ -13,6 +13,7 @@ be piped; progress and notices go to stderr.
 
 Standard library only (tqdm is imported when a terminal shows a bar).
 """
+
 from __future__ import annotations
 
 import functools
@@ -34,6 +35,7 @@ def console_main(prog: str) -> Callable[[Callable[..., Any]], Callable[..., Any]
     """Decorate a console command's ``main(argv=None) -> int``: see the module docstring. The wrapped
     function returns what ``main`` returns (SystemExit, e.g. from ``--help``, passes through) after
     flushing stdout, so that a broken pipe is met here and not in the interpreter's exit."""
+
     def decorate(main: Callable[..., Any]) -> Callable[..., Any]:
         @functools.wraps(main)
         def run(*args: Any, **kwargs: Any) -> Any:
@@ -50,7 +52,9 @@ def console_main(prog: str) -> Callable[[Callable[..., Any]], Callable[..., Any]
             except KeyboardInterrupt:
                 _say(f"{prog}: interrupted")
                 return EXIT_INTERRUPTED
+
         return run
+
     return decorate
 
 
@@ -114,10 +118,20 @@ class Progress:
     each update), and one from ``close`` when the last line is not the latest count. ``enabled=False``:
     nothing at all. ``initial``: units done before (a resumed run); rates count from there."""
 
-    def __init__(self, total: int, desc: str, unit: str = "it", *, initial: int = 0, enabled: bool = True,
-                 stream: Optional[TextIO] = None, terminal: Optional[bool] = None,
-                 fraction: float = PROGRESS_FRACTION, interval: float = PROGRESS_INTERVAL,
-                 clock: Callable[[], float] = time.monotonic):
+    def __init__(
+        self,
+        total: int,
+        desc: str,
+        unit: str = "it",
+        *,
+        initial: int = 0,
+        enabled: bool = True,
+        stream: Optional[TextIO] = None,
+        terminal: Optional[bool] = None,
+        fraction: float = PROGRESS_FRACTION,
+        interval: float = PROGRESS_INTERVAL,
+        clock: Callable[[], float] = time.monotonic,
+    ):
         self.total, self.desc, self.unit, self.n, self.initial = total, desc, unit, initial, initial
         self.enabled = enabled
         self.stream = stream
@@ -131,8 +145,7 @@ class Progress:
         if enabled and (is_terminal(self._stream()) if terminal is None else terminal):
             from tqdm import tqdm  # noqa: PLC0415 (only a terminal shows a bar)
 
-            self.bar = tqdm(total=total, initial=initial, desc=desc, unit=unit, file=self._stream(),
-                            dynamic_ncols=True)
+            self.bar = tqdm(total=total, initial=initial, desc=desc, unit=unit, file=self._stream(), dynamic_ncols=True)
 
     def _stream(self) -> TextIO:
         return self.stream if self.stream is not None else sys.stderr
@@ -158,8 +171,10 @@ class Progress:
         rate = done / elapsed if elapsed > 0 else math.nan
         eta = (self.total - self.n) / rate if rate and math.isfinite(rate) and rate > 0 else math.nan
         percent = 100.0 * self.n / self.total if self.total else 100.0
-        text = (f"{self.desc}: {self.n}/{self.total} {self.unit}s ({percent:.0f}%), {_duration(elapsed)} elapsed, "
-                f"{rate:.1f} {self.unit}s/s, ETA {_duration(eta) if math.isfinite(eta) else '?'}")
+        text = (
+            f"{self.desc}: {self.n}/{self.total} {self.unit}s ({percent:.0f}%), {_duration(elapsed)} elapsed, "
+            f"{rate:.1f} {self.unit}s/s, ETA {_duration(eta) if math.isfinite(eta) else '?'}"
+        )
         self.write(text + (f", {self.status}" if self.status else ""))
         self.shown_n, self.last_time = self.n, now
         self.next_n = (self.n // self.chunk + 1) * self.chunk

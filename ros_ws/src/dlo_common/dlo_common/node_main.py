@@ -258,8 +258,10 @@ def params_file_problem(path: str) -> str:
             return f"wrong layout (the file holds {what}); {PARAMS_FILE_LAYOUT}"
         empty = _empty_parameter_section(document or {})
         if empty:
-            return (f"wrong layout ('{empty}: ros__parameters:' holds no parameters: add '    NAME: VALUE' under it "
-                    "or leave the section out)")
+            return (
+                f"wrong layout ('{empty}: ros__parameters:' holds no parameters: add '    NAME: VALUE' under it "
+                "or leave the section out)"
+            )
     return ""
 
 
@@ -302,8 +304,10 @@ def _rcl_argument_error(error: Exception) -> str:
     text = _RCL_LOCATION.sub("", str(error)).strip()
     if type(error).__name__ == "UnknownROSArgsError":  # str(error) is the list of them: "['--bogus']"
         unknown = ", ".join(re.findall(r"'([^']*)'", text)) or text
-        return (f"unknown ROS argument {unknown} after --ros-args (there: -p NAME:=VALUE, --params-file FILE, "
-                "-r FROM:=TO, --log-level LEVEL)")
+        return (
+            f"unknown ROS argument {unknown} after --ros-args (there: -p NAME:=VALUE, --params-file FILE, "
+            "-r FROM:=TO, --log-level LEVEL)"
+        )
     found = re.search(r"Couldn't parse params file: '--params-file (.*?)'\. Error: (.*)", text)
     if found:
         path, problem = found.groups()
@@ -319,13 +323,17 @@ def _rcl_argument_error(error: Exception) -> str:
         return f"params file {path}: wrong layout{where} ({what}); {PARAMS_FILE_LAYOUT}"
     found = re.search(r"Couldn't parse parameter override rule: '(.*?)'", text)
     if found:
-        return (f"cannot read {found.group(1)!r}: expected -p NAME:=VALUE (VALUE in YAML, e.g. 3, 0.5, true, text, "
-                "[1.0,2.0])")
+        return f"cannot read {found.group(1)!r}: expected -p NAME:=VALUE (VALUE in YAML, e.g. 3, 0.5, true, text, [1.0,2.0])"
     return text.removeprefix("Failed to parse ROS arguments: ")
 
 
-def handle_help(package: str, parameters: Sequence[Param | tuple], summary: str = "",
-                args: Sequence[str] | None = None, exit_codes: str = EXIT_CODES) -> int | None:
+def handle_help(
+    package: str,
+    parameters: Sequence[Param | tuple],
+    summary: str = "",
+    args: Sequence[str] | None = None,
+    exit_codes: str = EXIT_CODES,
+) -> int | None:
     """Answer ``-h``/``--help`` (print the parameters, return 0), a stray argument before
     ``--ros-args`` or ROS arguments that rcl would refuse (one line, return 2: see
     :func:`ros_arguments_problem`); None when the node should start.
@@ -337,14 +345,18 @@ def handle_help(package: str, parameters: Sequence[Param | tuple], summary: str 
     argv = list(sys.argv[1:] if args is None else args)
     executable = executable_name()
     if help_requested(argv):
-        sys.stdout.write(help_text(package, executable, parameters, summary, exit_codes,
-                                   installed_params_file(package, executable)))
+        sys.stdout.write(
+            help_text(package, executable, parameters, summary, exit_codes, installed_params_file(package, executable))
+        )
         sys.stdout.flush()
         return 0
     stray = unexpected_arguments(argv) if args is None else []  # explicit args may start with a program name
     if stray:
-        print(f"{executable}: unexpected argument {stray[0]!r} (parameters go after --ros-args: "
-              f"-p NAME:=VALUE; see '{executable} --help')", file=sys.stderr)
+        print(
+            f"{executable}: unexpected argument {stray[0]!r} (parameters go after --ros-args: "
+            f"-p NAME:=VALUE; see '{executable} --help')",
+            file=sys.stderr,
+        )
         return EXIT_BAD_PARAMETER
     problem = ros_arguments_problem(argv)
     if problem:
@@ -353,8 +365,14 @@ def handle_help(package: str, parameters: Sequence[Param | tuple], summary: str 
     return None
 
 
-def run_node(make_node: Callable[[], "rclpy.node.Node"], args=None, *, interrupted_rc: int = 0,
-             parameters: Sequence[Param | tuple] | None = None, summary: str = "") -> int:
+def run_node(
+    make_node: Callable[[], "rclpy.node.Node"],
+    args=None,
+    *,
+    interrupted_rc: int = 0,
+    parameters: Sequence[Param | tuple] | None = None,
+    summary: str = "",
+) -> int:
     """Spin the node ``make_node()`` builds until SIGINT/SIGTERM (exit code ``interrupted_rc``); the module's
     docstring lists what it promises.
 
@@ -407,8 +425,7 @@ def run_node(make_node: Callable[[], "rclpy.node.Node"], args=None, *, interrupt
         rc = EXIT_REFUSED
     except SecondInterrupt as interrupt:
         signame, doing = interrupt.args
-        print(f"[{name}] stopped by a second {signame}: {INTERRUPTED[doing]} {FORCE_AFTER:g} s after the first",
-              file=sys.stderr)
+        print(f"[{name}] stopped by a second {signame}: {INTERRUPTED[doing]} {FORCE_AFTER:g} s after the first", file=sys.stderr)
         rc = interrupted_rc
     except (KeyboardInterrupt, ExternalShutdownException):
         rc = interrupted_rc
@@ -422,8 +439,10 @@ def run_node(make_node: Callable[[], "rclpy.node.Node"], args=None, *, interrupt
                 with stop.interruptible("finish"):
                     node.finish()  # the node's own closing work (save, close, report): not bounded
             except SecondInterrupt as interrupt:
-                print(f"[{name}] could not finish: stopped by a second {interrupt.args[0]} {FORCE_AFTER:g} s after "
-                      "the first", file=sys.stderr)
+                print(
+                    f"[{name}] could not finish: stopped by a second {interrupt.args[0]} {FORCE_AFTER:g} s after the first",
+                    file=sys.stderr,
+                )
                 rc = EXIT_FAILED
             except Exception as error:  # noqa: BLE001 - one line, not a traceback over the exit code
                 print(f"[{name}] could not finish: {type(error).__name__}: {error}", file=sys.stderr)

@@ -9,11 +9,26 @@ from typing import Any
 
 from rcl_interfaces.msg import ParameterDescriptor
 
-from dlo_common.params import (Param, ParameterError, UnknownParameterError, as_params, check_value, renamed_names,
-                               renamed_notice, unknown_parameter)
+from dlo_common.params import (
+    Param,
+    ParameterError,
+    UnknownParameterError,
+    as_params,
+    check_value,
+    renamed_names,
+    renamed_notice,
+    unknown_parameter,
+)
 
-__all__ = ["NodeStartError", "Param", "ParameterError", "ShutdownRequest", "UnknownParameterError",
-           "declare_parameters", "require_bounds"]
+__all__ = [
+    "NodeStartError",
+    "Param",
+    "ParameterError",
+    "ShutdownRequest",
+    "UnknownParameterError",
+    "declare_parameters",
+    "require_bounds",
+]
 
 
 class NodeStartError(RuntimeError):
@@ -43,16 +58,16 @@ def declare_parameters(node: Any, specs: Sequence[Param | tuple[str, Any, str]])
     params = [param for param in params if not param.renamed_to]
     declared: dict[str, Any] = {}
     for param in params:
-        descriptor = ParameterDescriptor(description=param.description, dynamic_typing=True,
-                                         additional_constraints=param.range_text)
+        descriptor = ParameterDescriptor(
+            description=param.description, dynamic_typing=True, additional_constraints=param.range_text
+        )
         default = list(param.default) if isinstance(param.default, tuple) else param.default
         declared[param.name] = node.declare_parameter(param.name, default, descriptor).value
     overrides = getattr(node, "_parameter_overrides", {})  # rclpy: what -p / params files set for this node
     for name in overrides:
         if name not in old and not node.has_parameter(name) and not name.startswith("qos_overrides."):
             raise unknown_parameter(name, declared)
-    renamed = {new: [name for name in names if name in overrides]
-               for new, names in renamed_names(old.values()).items()}
+    renamed = {new: [name for name in names if name in overrides] for new, names in renamed_names(old.values()).items()}
     for new, names in renamed.items():
         if names:
             node.get_logger().warning(renamed_notice(names, new))
@@ -64,8 +79,9 @@ def declare_parameters(node: Any, specs: Sequence[Param | tuple[str, Any, str]])
     return values
 
 
-def require_bounds(values: dict[str, Any], at_least: dict[str, float] | None = None,
-                   above: dict[str, float] | None = None) -> None:
+def require_bounds(
+    values: dict[str, Any], at_least: dict[str, float] | None = None, above: dict[str, float] | None = None
+) -> None:
     """Raise ParameterError for the first value below its ``at_least`` bound or not above its ``above`` bound."""
     for name, low in (at_least or {}).items():
         if values[name] < low:

@@ -198,8 +198,10 @@ def renamed_notice(old_names: Sequence[str], new_name: str) -> str:
     'tactile_noise' (the old name works until the next release)``."""
     names = ", ".join(f"'{name}'" for name in old_names)
     several = len(old_names) > 1
-    return (f"parameter{'s' if several else ''} {names} {'are' if several else 'is'} now '{new_name}' "
-            f"(the old name{'s work' if several else ' works'} until the next release)")
+    return (
+        f"parameter{'s' if several else ''} {names} {'are' if several else 'is'} now '{new_name}' "
+        f"(the old name{'s work' if several else ' works'} until the next release)"
+    )
 
 
 def renamed_names(parameters: Iterable[Param | Sequence[Any]]) -> dict[str, list[str]]:
@@ -225,8 +227,9 @@ def coerce(param: Param, value: Any) -> Any:
     name, default = param.name, param.default
 
     def bad(expected: str) -> ParameterError:
-        return ParameterError(f"parameter '{name}': expected {expected}, e.g. {example(param)}, got {value!r} "
-                              f"({ros_type_name(value)})")
+        return ParameterError(
+            f"parameter '{name}': expected {expected}, e.g. {example(param)}, got {value!r} ({ros_type_name(value)})"
+        )
 
     if isinstance(default, bool):
         if isinstance(value, bool):
@@ -250,8 +253,7 @@ def coerce(param: Param, value: Any) -> Any:
             items = value.split(",") if isinstance(value, str) else value  # also 'x,y,z'
             expected = f"{count}numbers"
             try:
-                if not isinstance(items, (list, tuple)) or not all(_is_number(v) or isinstance(v, str)
-                                                                   for v in items):
+                if not isinstance(items, (list, tuple)) or not all(_is_number(v) or isinstance(v, str) for v in items):
                     raise ValueError
                 got = [float(v) for v in items]
             except ValueError:
@@ -326,14 +328,24 @@ def unexpected_arguments(argv: Sequence[str]) -> list[str]:
     return [a for a in own if a not in ("-h", "--help")]
 
 
-def help_text(package: str, executable: str, parameters: Iterable[Param | Sequence[Any]],
-              summary: str = "", exit_codes: str = "", params_file: str = "", width: int = 100) -> str:
+def help_text(
+    package: str,
+    executable: str,
+    parameters: Iterable[Param | Sequence[Any]],
+    summary: str = "",
+    exit_codes: str = "",
+    params_file: str = "",
+    width: int = 100,
+) -> str:
     """The ``--help`` text of a node executable: usage line, what it does (the first paragraph of
     ``summary``), every parameter with type, default, range and description, exit codes.
     ``params_file``: where the installed parameters file is (default: its path under the prefix)."""
     params = as_params(parameters)
-    lines = ["usage: " + USAGE.format(package=package, executable=executable),
-             f"       (with a ROS 2 install: ros2 run {package} {executable} ...)", ""]
+    lines = [
+        "usage: " + USAGE.format(package=package, executable=executable),
+        f"       (with a ROS 2 install: ros2 run {package} {executable} ...)",
+        "",
+    ]
     summary = inspect.cleandoc(summary or "").split("\n\n")[0]  # the first paragraph of the module docstring
     if summary:
         lines += [textwrap.fill(" ".join(summary.replace("``", "`").split()), width), ""]
@@ -347,8 +359,7 @@ def help_text(package: str, executable: str, parameters: Iterable[Param | Sequen
         head = f"  {p.name} ({p.type_name}, default {format_default(p.default)}"
         head += f", range {p.range_text})" if p.range_text else ")"
         lines.append(head)
-        lines += textwrap.wrap(" ".join(p.description.split()), width, initial_indent=" " * 6,
-                               subsequent_indent=" " * 6)
+        lines += textwrap.wrap(" ".join(p.description.split()), width, initial_indent=" " * 6, subsequent_indent=" " * 6)
     if renamed:
         lines += ["", "renamed (the old names work until the next release, with a notice):"]
         lines += [f"  {', '.join(old)} -> {new}" for new, old in renamed.items()]
@@ -383,6 +394,7 @@ def params_yaml(parameters: Iterable[Param | Sequence[Any]], header: str = "") -
 
 def markdown_table(parameters: Iterable[Param | Sequence[Any]]) -> str:
     """The parameters as a Markdown table: name | type | default | range | description (old names left out)."""
+
     def cell(text: str) -> str:
         return " ".join(str(text).split()).replace("|", "\\|")
 
@@ -391,6 +403,5 @@ def markdown_table(parameters: Iterable[Param | Sequence[Any]]) -> str:
         if p.renamed_to:
             continue
         rng = f"`{cell(p.range_text)}`" if p.range_text else ""
-        rows.append(f"| `{p.name}` | {p.type_name} | `{cell(format_default(p.default))}` | {rng} | "
-                    f"{cell(p.description)} |")
+        rows.append(f"| `{p.name}` | {p.type_name} | `{cell(format_default(p.default))}` | {rng} | {cell(p.description)} |")
     return "\n".join(rows) + "\n"

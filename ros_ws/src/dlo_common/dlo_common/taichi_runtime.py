@@ -21,6 +21,7 @@ table): importing this module keeps its "[Taichi] version ..." banner away, and 
 "[Taichi] Starting on arch=..." line that ``ti.init`` prints (with ``print``, whatever the log level);
 ``ENABLE_TAICHI_HEADER_PRINT=1`` brings both back, on stderr for the second.
 """
+
 from __future__ import annotations
 
 import contextlib
@@ -80,15 +81,22 @@ def init(arch: Optional[str] = None) -> None:
 
     printed = io.StringIO()  # ti.init's "[Taichi] Starting on arch=x64": never on stdout (module docstring)
     with contextlib.redirect_stdout(printed):
-        ti.init(arch=getattr(ti, name), fast_math=True, default_fp=ti.f32, offline_cache=True,
-                log_level=ti.WARN if name == "cpu" else ti.ERROR)  # a missing GPU: our one line, not Taichi's three
+        ti.init(
+            arch=getattr(ti, name),
+            fast_math=True,
+            default_fp=ti.f32,
+            offline_cache=True,
+            log_level=ti.WARN if name == "cpu" else ti.ERROR,
+        )  # a missing GPU: our one line, not Taichi's three
     if printed.getvalue() and _header_wanted():
         sys.stderr.write(printed.getvalue())
     _running = name
     clear_stale_cache_lock(ti.lang.impl.current_cfg().offline_cache_file_path)
     if name == "cuda" and ti.lang.impl.current_cfg().arch != ti.cuda:  # Taichi falls back to the CPU silently
-        raise ValueError(f"Taichi arch cuda asked for ({ENV_VAR} / train.sim_arch), but Taichi found no "
-                         "CUDA device and fell back to the CPU (use cpu)")
+        raise ValueError(
+            f"Taichi arch cuda asked for ({ENV_VAR} / train.sim_arch), but Taichi found no "
+            "CUDA device and fell back to the CPU (use cpu)"
+        )
 
 
 def _header_wanted() -> bool:

@@ -71,8 +71,17 @@ class Proc:
             if given is not None:
                 given()
 
-        self.p = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                                  text=True, bufsize=1, start_new_session=True, preexec_fn=preexec, **popen)
+        self.p = subprocess.Popen(
+            cmd,
+            env=env,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            text=True,
+            bufsize=1,
+            start_new_session=True,
+            preexec_fn=preexec,
+            **popen,
+        )
         self.lines: list[str] = []
         self._q: queue.Queue[str | None] = queue.Queue()
         self._t = threading.Thread(target=self._pump, daemon=True)
@@ -100,15 +109,13 @@ class Proc:
         while True:
             left = end - time.monotonic()
             if left <= 0:
-                raise AssertionError(f"{self.name}: no '{prefix}' within {timeout} s:\n"
-                                     + self.output())
+                raise AssertionError(f"{self.name}: no '{prefix}' within {timeout} s:\n" + self.output())
             try:
                 line = self._q.get(timeout=left)
             except queue.Empty:
                 continue
             if line is None:
-                raise AssertionError(f"{self.name} exited ({self.p.wait()}) before '{prefix}':\n"
-                                     + self.output())
+                raise AssertionError(f"{self.name} exited ({self.p.wait()}) before '{prefix}':\n" + self.output())
             if prefix in line:
                 return line
 
@@ -139,8 +146,9 @@ def stop_or_explain(proc: subprocess.Popen, name: str, timeout: float = 30.0, lo
     """SIGINT ``proc`` (a node) and wait up to ``timeout`` s for it to end; its return code. A node that does not
     end is a failure that must say where it hangs (:func:`hang_report`, its output read from ``log``): an
     AssertionError with its C and Python stacks; the node is killed."""
-    stop_all_or_explain([(proc, name, lambda: log.read_text(errors="replace")
-                          if log is not None and log.exists() else "(no log)")], timeout)
+    stop_all_or_explain(
+        [(proc, name, lambda: log.read_text(errors="replace") if log is not None and log.exists() else "(no log)")], timeout
+    )
     return proc.returncode
 
 
@@ -166,8 +174,9 @@ def hang_report(proc: subprocess.Popen, name: str, timeout: float, output) -> st
     installed), then a SIGABRT, which makes a node started with ``PYTHONFAULTHANDLER=1`` write its threads' Python
     stacks to its output (``output()``, read after it ended); the node is killed if SIGABRT does not end it."""
     try:
-        gdb = subprocess.run(["gdb", "-p", str(proc.pid), "-batch", "-ex", "thread apply all bt"],
-                             capture_output=True, text=True, timeout=60).stdout
+        gdb = subprocess.run(
+            ["gdb", "-p", str(proc.pid), "-batch", "-ex", "thread apply all bt"], capture_output=True, text=True, timeout=60
+        ).stdout
     except (OSError, subprocess.TimeoutExpired) as error:
         gdb = f"(no C stacks: {error})"
     proc.send_signal(signal.SIGABRT)
@@ -176,8 +185,10 @@ def hang_report(proc: subprocess.Popen, name: str, timeout: float, output) -> st
     except subprocess.TimeoutExpired:
         proc.kill()
         proc.wait()
-    return (f"{name} did not stop within {timeout:g} s of SIGINT\n--- its output, Python stacks at the end ---\n"
-            f"{output()[-20000:]}\n--- its C stacks ---\n{gdb[-20000:]}")
+    return (
+        f"{name} did not stop within {timeout:g} s of SIGINT\n--- its output, Python stacks at the end ---\n"
+        f"{output()[-20000:]}\n--- its C stacks ---\n{gdb[-20000:]}"
+    )
 
 
 # The domains of tests: 100..232 (232: the highest id Fast DDS maps to ports on Linux); scripts/launch_graph.sh

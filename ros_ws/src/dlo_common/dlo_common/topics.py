@@ -71,40 +71,119 @@ class Service:
 
 
 TOPICS = (
-    Topic("/clock", "rosgraph_msgs/msg/Clock", "sim_node", "clock",
-          "simulation time of the state just published", key="clock", sim_only=True),
-    Topic("/dlo/rope/particles", "sensor_msgs/msg/PointCloud2", "sim_node", "sensor",
-          "the cable's particles (x, y, z, held): tactile_node's input; a driver's tactile contact points",
-          key="particles", driver="publishes contact points, **or** `/dlo/tactile/pose`", sim_only=True),
-    Topic("/dlo/gripper/state", "dlo_msgs/msg/GripperState", "sim_node", "state",
-          "gripper position and closure, episode and step", key="gripper", driver="publishes"),
-    Topic("/dlo/camera/image", "sensor_msgs/msg/Image", "sim_node", "sensor",
-          "the top camera's segmented image: vision_node's input", key="image",
-          driver="publishes (or publishes `/dlo/vision/pose`)"),
-    Topic("/dlo/camera/camera_info", "sensor_msgs/msg/CameraInfo", "sim_node", "sensor",
-          "the top camera's intrinsics", key="camera_info", rate="latched", driver="publishes"),
-    Topic("/dlo/tactile/pose", "dlo_msgs/msg/TactilePose", "tactile_node", "observation",
-          "O_T: the held cable's angle and offset in the gripper frame", key="tactile",
-          driver="publishes, **or** `/dlo/rope/particles` contact points"),
-    Topic("/dlo/vision/pose", "dlo_msgs/msg/VisualPose", "vision_node", "observation",
-          "O_V: the cable just right of the gripper, seen by the top camera", key="vision"),
-    Topic("/dlo/gripper/cmd", "dlo_msgs/msg/GripperCommand", "policy_node", "command",
-          "velocity and closure answering one state", key="command", driver="subscribes (as `sim_node` does)"),
-    Topic("/dlo/task/state", "dlo_msgs/msg/TaskState", "sim_node", "task",
-          "held particles, reward, episode end and outcome under both rules", key="task", sim_only=True),
-    Topic("/dlo/markers", "visualization_msgs/msg/MarkerArray", "sim_node", "visualisation",
-          "the cable line and the two fingers", key="markers", sim_only=True),
-    Topic("/dlo/sim/instance", "std_msgs/msg/String", "sim_node", "internal",
-          "which simulator runs on this domain (two simulators: the later one leaves)", key="instance",
-          rate="latched", sim_only=True),
-    Topic("/dlo/policy/info", "std_msgs/msg/String", "policy_node", "provenance",
-          "which policy drives the graph (JSON: policy, checkpoint and its sha256, modalities, the task rules, grip "
-          "and env_options it was trained under): dlo-analyze and its video titles read it from the bag",
-          key="policy_info", rate="latched"),
+    Topic(
+        "/clock",
+        "rosgraph_msgs/msg/Clock",
+        "sim_node",
+        "clock",
+        "simulation time of the state just published",
+        key="clock",
+        sim_only=True,
+    ),
+    Topic(
+        "/dlo/rope/particles",
+        "sensor_msgs/msg/PointCloud2",
+        "sim_node",
+        "sensor",
+        "the cable's particles (x, y, z, held): tactile_node's input; a driver's tactile contact points",
+        key="particles",
+        driver="publishes contact points, **or** `/dlo/tactile/pose`",
+        sim_only=True,
+    ),
+    Topic(
+        "/dlo/gripper/state",
+        "dlo_msgs/msg/GripperState",
+        "sim_node",
+        "state",
+        "gripper position and closure, episode and step",
+        key="gripper",
+        driver="publishes",
+    ),
+    Topic(
+        "/dlo/camera/image",
+        "sensor_msgs/msg/Image",
+        "sim_node",
+        "sensor",
+        "the top camera's segmented image: vision_node's input",
+        key="image",
+        driver="publishes (or publishes `/dlo/vision/pose`)",
+    ),
+    Topic(
+        "/dlo/camera/camera_info",
+        "sensor_msgs/msg/CameraInfo",
+        "sim_node",
+        "sensor",
+        "the top camera's intrinsics",
+        key="camera_info",
+        rate="latched",
+        driver="publishes",
+    ),
+    Topic(
+        "/dlo/tactile/pose",
+        "dlo_msgs/msg/TactilePose",
+        "tactile_node",
+        "observation",
+        "O_T: the held cable's angle and offset in the gripper frame",
+        key="tactile",
+        driver="publishes, **or** `/dlo/rope/particles` contact points",
+    ),
+    Topic(
+        "/dlo/vision/pose",
+        "dlo_msgs/msg/VisualPose",
+        "vision_node",
+        "observation",
+        "O_V: the cable just right of the gripper, seen by the top camera",
+        key="vision",
+    ),
+    Topic(
+        "/dlo/gripper/cmd",
+        "dlo_msgs/msg/GripperCommand",
+        "policy_node",
+        "command",
+        "velocity and closure answering one state",
+        key="command",
+        driver="subscribes (as `sim_node` does)",
+    ),
+    Topic(
+        "/dlo/task/state",
+        "dlo_msgs/msg/TaskState",
+        "sim_node",
+        "task",
+        "held particles, reward, episode end and outcome under both rules",
+        key="task",
+        sim_only=True,
+    ),
+    Topic(
+        "/dlo/markers",
+        "visualization_msgs/msg/MarkerArray",
+        "sim_node",
+        "visualisation",
+        "the cable line and the two fingers",
+        key="markers",
+        sim_only=True,
+    ),
+    Topic(
+        "/dlo/sim/instance",
+        "std_msgs/msg/String",
+        "sim_node",
+        "internal",
+        "which simulator runs on this domain (two simulators: the later one leaves)",
+        key="instance",
+        rate="latched",
+        sim_only=True,
+    ),
+    Topic(
+        "/dlo/policy/info",
+        "std_msgs/msg/String",
+        "policy_node",
+        "provenance",
+        "which policy drives the graph (JSON: policy, checkpoint and its sha256, modalities, the task rules, grip "
+        "and env_options it was trained under): dlo-analyze and its video titles read it from the bag",
+        key="policy_info",
+        rate="latched",
+    ),
 )
-SERVICES = (
-    Service("/dlo/sim/reset", "dlo_msgs/srv/ResetEpisode", "sim_node", "start a new episode (with a seed)"),
-)
+SERVICES = (Service("/dlo/sim/reset", "dlo_msgs/srv/ResetEpisode", "sim_node", "start a new episode (with a seed)"),)
 
 _BY_KEY = {t.key: t for t in TOPICS}
 _BY_NAME = {t.name: t for t in TOPICS}
@@ -125,8 +204,11 @@ def select(*roles: str, publisher: str | None = None, exclude: tuple = ()) -> tu
     for role in roles + tuple(exclude):
         if role not in ROLES:
             raise ValueError(f"unknown role {role!r}; roles: {', '.join(ROLES)}")
-    return tuple(t for t in TOPICS if (not roles or t.role in roles) and t.role not in exclude
-                 and (publisher is None or t.publisher == publisher))
+    return tuple(
+        t
+        for t in TOPICS
+        if (not roles or t.role in roles) and t.role not in exclude and (publisher is None or t.publisher == publisher)
+    )
 
 
 def names() -> tuple:
@@ -148,8 +230,10 @@ def message_class(msgtype: str) -> type:
     try:
         module = importlib.import_module(f"{pkg}.{kind}")
     except ImportError as err:
-        raise ValueError(f"cannot import message package '{pkg}.{kind}' for '{msgtype}': "
-                         f"{err} (is it built and on PYTHONPATH? 'source scripts/env.sh')") from err
+        raise ValueError(
+            f"cannot import message package '{pkg}.{kind}' for '{msgtype}': "
+            f"{err} (is it built and on PYTHONPATH? 'source scripts/env.sh')"
+        ) from err
     try:
         return getattr(module, name)
     except AttributeError:

@@ -1,12 +1,12 @@
 """dlo_common.console: what the console commands share about their output (module docstring): a quiet end on
 a broken pipe or an unhandled Ctrl-C, progress on stderr as a bar on a terminal and plain lines elsewhere."""
+
 import io
 import os
 import subprocess
 import sys
 
 import pytest
-
 from dlo_common import console
 
 # A command printing more than a pipe holds, given a stdout pipe whose reader has already gone.
@@ -97,14 +97,14 @@ def test_off_a_terminal_progress_is_a_plain_line_every_tenth_and_at_the_end():
     lines = text.splitlines()
     assert "\r" not in text and len(lines) == 10
     assert lines[0] == "All: 20/200 steps (10%), 0:00:10 elapsed, 2.0 steps/s, ETA 0:01:30"
-    assert lines[-1] == ("All: 200/200 steps (100%), 0:01:40 elapsed, 2.0 steps/s, ETA 0:00:00, "
-                         "hold_the_end 10% paper rule / 20% authors' rule")
+    assert lines[-1] == (
+        "All: 200/200 steps (100%), 0:01:40 elapsed, 2.0 steps/s, ETA 0:00:00, hold_the_end 10% paper rule / 20% authors' rule"
+    )
 
 
 def test_off_a_terminal_a_slow_run_still_gets_a_line_every_interval_and_close_shows_the_last_count():
     stream, clock = io.StringIO(), Clock()
-    progress = console.Progress(1000, "run", "step", initial=400, stream=stream, terminal=False, clock=clock,
-                                interval=300.0)
+    progress = console.Progress(1000, "run", "step", initial=400, stream=stream, terminal=False, clock=clock, interval=300.0)
     clock.now += 299.0
     progress.update(10)  # under a tenth, under the interval: nothing
     assert stream.getvalue() == ""

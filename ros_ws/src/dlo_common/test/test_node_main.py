@@ -11,11 +11,10 @@ import sys
 import types
 
 import pytest
-
 from dlo_common import testing
 from dlo_common.node_main import handle_help, params_file_problem, params_files, ros_arguments_problem
 
-BUSY = '''import os, signal, sys, time
+BUSY = """import os, signal, sys, time
 import rclpy.node, rclpy.task
 from std_msgs.msg import String
 from dlo_common.node_main import run_node
@@ -43,9 +42,9 @@ class Busy(rclpy.node.Node):
 
 
 sys.exit(run_node(Busy, [], interrupted_rc={rc}))
-'''
+"""
 
-LATE = '''import os, signal, sys, time
+LATE = """import os, signal, sys, time
 import rclpy, rclpy.node
 from dlo_common.node_main import run_node
 
@@ -67,9 +66,9 @@ class Late(rclpy.node.Node):
 
 
 sys.exit(run_node(Late, [], interrupted_rc={rc}))
-'''
+"""
 
-THREADED = '''import os, signal, sys, threading, time
+THREADED = """import os, signal, sys, threading, time
 import rclpy, rclpy.node
 from dlo_common.node_main import run_node
 
@@ -87,9 +86,9 @@ thread = threading.Thread(target=lambda: results.append(run_node(Threaded, [], i
 thread.start()
 thread.join(60)
 print("run_node returned", results, flush=True)
-'''
+"""
 
-CALLERS_SIGTERM = '''import os, signal, sys, time
+CALLERS_SIGTERM = """import os, signal, sys, time
 import rclpy, rclpy.node
 from dlo_common.node_main import run_node
 
@@ -111,9 +110,9 @@ class Callers(rclpy.node.Node):
 
 signal.signal(signal.SIGTERM, lambda *_: print("the caller's SIGTERM handler", flush=True))
 sys.exit(run_node(Callers, [], interrupted_rc={rc}))
-'''
+"""
 
-STUCK = '''import sys, time
+STUCK = """import sys, time
 import rclpy.node
 from dlo_common.node_main import run_node
 
@@ -130,9 +129,9 @@ class Stuck(rclpy.node.Node):
 
 
 sys.exit(run_node(Stuck, [], interrupted_rc={rc}))
-'''
+"""
 
-QUIET = '''import sys, threading, time
+QUIET = """import sys, threading, time
 import rclpy, rclpy.node
 from dlo_common.node_main import run_node
 
@@ -151,9 +150,9 @@ def make():  # an idle node whose context goes down without waking its executor,
 
 
 sys.exit(run_node(make, [], interrupted_rc={rc}))
-'''
+"""
 
-EARLY = '''import signal, sys
+EARLY = """import signal, sys
 import rclpy.node
 from dlo_common.node_main import run_node
 
@@ -164,10 +163,10 @@ def make():  # a signal while the node is being built (called as Python calls it
 
 
 sys.exit(run_node(make, [], interrupted_rc={rc}))
-'''
+"""
 
 
-FAULTY = '''import sys
+FAULTY = """import sys
 import rclpy.node
 from dlo_common.node_main import run_node
 
@@ -182,10 +181,10 @@ class Faulty(rclpy.node.Node):
 
 
 sys.exit(run_node(Faulty, []))
-'''
+"""
 
 
-STOPS_ITSELF = '''import ctypes, io, os, signal, sys, time
+STOPS_ITSELF = """import ctypes, io, os, signal, sys, time
 import rclpy.node
 from dlo_common import node_main
 
@@ -194,9 +193,11 @@ class StopsItself(rclpy.node.Node):  # named after its class; sends itself a SIG
     def __init__(self):
         super().__init__(type(self).__name__.lower())
         self.create_timer(0.05, lambda: os.kill(os.getpid(), signal.SIGINT))
-'''
+"""
 
-HUNG = STOPS_ITSELF + '''
+HUNG = (
+    STOPS_ITSELF
+    + """
 node_main.TEARDOWN_LIMIT = 1.0
 
 
@@ -210,9 +211,12 @@ class Hung(StopsItself):
 
 
 sys.exit(node_main.run_node(Hung, [], interrupted_rc={rc}))
-'''
+"""
+)
 
-UNFINISHED = STOPS_ITSELF + '''
+UNFINISHED = (
+    STOPS_ITSELF
+    + """
 
 class Unfinished(StopsItself):
     def finish(self):  # saving the run on a full disk
@@ -224,9 +228,12 @@ class Unfinished(StopsItself):
 
 
 sys.exit(node_main.run_node(Unfinished, [], interrupted_rc={rc}))
-'''
+"""
+)
 
-GOES_ON = STOPS_ITSELF + '''
+GOES_ON = (
+    STOPS_ITSELF
+    + """
 node_main.TEARDOWN_LIMIT = 0.5
 
 
@@ -240,10 +247,11 @@ print("still running", flush=True)
 sys.stderr = io.StringIO()  # a test's capture: no file descriptor
 with node_main.bounded():
     time.sleep(120)
-'''
+"""
+)
 
 
-TASKS = '''import dis, os, signal, sys, threading, time, traceback
+TASKS = """import dis, os, signal, sys, threading, time, traceback
 import rclpy.node, rclpy.task
 from dlo_common import node_main
 
@@ -297,9 +305,9 @@ class Tasks(rclpy.node.Node):
 
 
 sys.exit(node_main.run_node(Tasks, [], interrupted_rc={rc}))
-'''
+"""
 
-LANDING = '''import functools, os, signal, sys, time, traceback
+LANDING = """import functools, os, signal, sys, time, traceback
 import rclpy.node, rclpy.task
 from dlo_common import node_main
 
@@ -343,9 +351,9 @@ sys.settrace(BEFORE)
 rc = node_main.run_node(Landing, [], interrupted_rc={rc})
 print("the trace function before run_node is back:", sys.gettrace() is BEFORE, flush=True)
 sys.exit(rc)
-'''
+"""
 
-DONE_CALLBACK = '''import os, signal, sys, threading, time, traceback
+DONE_CALLBACK = """import os, signal, sys, threading, time, traceback
 import rclpy.node, rclpy.task
 from dlo_common import node_main
 
@@ -383,9 +391,9 @@ class DoneCallback(rclpy.node.Node):
 
 
 sys.exit(node_main.run_node(DoneCallback, [], interrupted_rc={rc}))
-'''
+"""
 
-BUILDING = '''import os, signal, sys, time
+BUILDING = """import os, signal, sys, time
 import rclpy.node
 from dlo_common import node_main
 
@@ -405,9 +413,11 @@ def make():  # a driver that waits, while it is being built, for hardware that n
 
 
 sys.exit(node_main.run_node(make, [], interrupted_rc={rc}))
-'''
+"""
 
-FINISHING = STOPS_ITSELF + '''
+FINISHING = (
+    STOPS_ITSELF
+    + """
 from std_msgs.msg import String
 node_main.FORCE_AFTER = 0.2
 
@@ -426,9 +436,12 @@ class Finishing(StopsItself):
 
 
 sys.exit(node_main.run_node(Finishing, [], interrupted_rc={rc}))
-'''
+"""
+)
 
-CONTEXTS = STOPS_ITSELF + '''
+CONTEXTS = (
+    STOPS_ITSELF
+    + """
 from std_msgs.msg import String
 
 other = rclpy.Context()  # a context of the process's own, beside run_node's
@@ -452,9 +465,12 @@ rc = node_main.run_node(make, [], interrupted_rc={rc})
 print("after: the node's context up", built[0].context.ok(), "other up", other.ok(), flush=True)
 rclpy.try_shutdown(context=other)
 sys.exit(rc)
-'''
+"""
+)
 
-TEARDOWN = STOPS_ITSELF + '''
+TEARDOWN = (
+    STOPS_ITSELF
+    + """
 node_main.FORCE_AFTER = 0.2
 
 
@@ -468,9 +484,12 @@ class Teardown(StopsItself):
 
 
 sys.exit(node_main.run_node(Teardown, [], interrupted_rc={rc}))
-'''
+"""
+)
 
-AFTERWARDS = STOPS_ITSELF + '''
+AFTERWARDS = (
+    STOPS_ITSELF
+    + """
 
 class Quick(StopsItself):
     pass
@@ -487,9 +506,10 @@ os.kill(os.getpid(), signal.SIGTERM)
 time.sleep(5)
 print("the SIGTERM was swallowed", flush=True)
 sys.exit(rc)
-'''
+"""
+)
 
-EXITING = '''import sys
+EXITING = """import sys
 import rclpy.node
 from dlo_common.node_main import run_node
 
@@ -511,7 +531,7 @@ class Exiting(rclpy.node.Node):
 
 
 sys.exit(run_node(Exiting, []))
-'''
+"""
 
 
 def default_signals():
@@ -528,8 +548,14 @@ def sigint_ignored():
 
 
 def run_script(script, rc, preexec_fn=default_signals, **fields):
-    return subprocess.run([sys.executable, "-c", script.format(rc=rc, **fields)], env=testing.isolated_env(),
-                          capture_output=True, text=True, timeout=300, preexec_fn=preexec_fn)
+    return subprocess.run(
+        [sys.executable, "-c", script.format(rc=rc, **fields)],
+        env=testing.isolated_env(),
+        capture_output=True,
+        text=True,
+        timeout=300,
+        preexec_fn=preexec_fn,
+    )
 
 
 @pytest.mark.parametrize(("sig", "rc"), [("SIGINT", 0), ("SIGINT", 130), ("SIGTERM", 130)])
@@ -551,8 +577,15 @@ def test_a_callback_that_never_finishes_is_interrupted_by_a_later_second_signal(
     import time
 
     from dlo_common.node_main import FORCE_AFTER
-    proc = subprocess.Popen([sys.executable, "-c", STUCK.format(rc=rc)], env=testing.isolated_env(), text=True,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, preexec_fn=default_signals)
+
+    proc = subprocess.Popen(
+        [sys.executable, "-c", STUCK.format(rc=rc)],
+        env=testing.isolated_env(),
+        text=True,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        preexec_fn=default_signals,
+    )
     try:
         assert proc.stdout.readline() == "in the callback\n"
         proc.send_signal(getattr(signal, sig))
@@ -585,8 +618,10 @@ def test_a_late_sigint_that_comes_inside_rclpys_task_constructor_is_not_raised_t
     assert "interrupted outside rclpy\n" in result.stdout, result.stdout
 
 
-@pytest.mark.parametrize(("build", "where", "traced"), [("keep(done.add_done_callback(found_in_rclpy))", "keep", False),
-                                                        ("done.add_done_callback(builds)", "tick", True)])
+@pytest.mark.parametrize(
+    ("build", "where", "traced"),
+    [("keep(done.add_done_callback(found_in_rclpy))", "keep", False), ("done.add_done_callback(builds)", "tick", True)],
+)
 def test_a_late_sigint_that_finds_rclpys_code_waits_for_the_next_line_of_the_nodes_own_code(build, where, traced):
     """Promise 5: a late SIGINT found while rclpy's add_done_callback runs (its handler called as Python calls it, with
     that frame) waits until rclpy has returned to the callback: raised as the callback calls keep() on the same line,
@@ -596,7 +631,9 @@ def test_a_late_sigint_that_finds_rclpys_code_waits_for_the_next_line_of_the_nod
     pytest.importorskip("rclpy")
     result = run_script(LANDING, 130, build=build, traced=traced)
     assert (result.returncode, result.stderr) == (
-        130, "[landing] stopped by a second SIGINT: a callback had not finished 0.2 s after the first\n")
+        130,
+        "[landing] stopped by a second SIGINT: a callback had not finished 0.2 s after the first\n",
+    )
     assert f"interrupted in {where}\n" in result.stdout, result.stdout
     assert result.stdout.splitlines()[-1:] == ["the trace function before run_node is back: True"], result.stdout
 
@@ -609,7 +646,9 @@ def test_a_late_sigint_that_finds_the_nodes_code_is_raised_there_also_while_an_e
     pytest.importorskip("rclpy")
     result = run_script(DONE_CALLBACK, 130)
     assert (result.returncode, result.stderr) == (
-        130, "[done_callback] stopped by a second SIGINT: a callback had not finished 0.2 s after the first\n")
+        130,
+        "[done_callback] stopped by a second SIGINT: a callback had not finished 0.2 s after the first\n",
+    )
     assert "interrupted in arms_then_sleeps\n" in result.stdout, result.stdout
 
 
@@ -618,7 +657,9 @@ def test_a_make_node_that_never_returns_is_interrupted_by_a_later_second_sigint(
     pytest.importorskip("rclpy")
     result = run_script(BUILDING, 130)
     assert (result.returncode, result.stderr) == (
-        130, "[building_node] stopped by a second SIGINT: the node was not built 0.2 s after the first\n")
+        130,
+        "[building_node] stopped by a second SIGINT: the node was not built 0.2 s after the first\n",
+    )
 
 
 def test_a_finish_that_never_returns_is_interrupted_by_a_later_second_sigint_with_exit_1():
@@ -627,7 +668,9 @@ def test_a_finish_that_never_returns_is_interrupted_by_a_later_second_sigint_wit
     pytest.importorskip("rclpy")
     result = run_script(FINISHING, 130)
     assert (result.returncode, result.stderr) == (
-        1, "[finishing] could not finish: stopped by a second SIGINT 0.2 s after the first\n")
+        1,
+        "[finishing] could not finish: stopped by a second SIGINT 0.2 s after the first\n",
+    )
     assert "destroyed\n" in result.stdout and "never interrupted" not in result.stdout, result.stdout
 
 
@@ -752,8 +795,9 @@ def test_a_finish_that_fails_is_one_line_and_exit_1_and_the_node_is_still_torn_d
 def test_an_error_in_a_callback_without_a_signal_is_a_traceback():
     """Promises 2 and 10."""
     pytest.importorskip("rclpy")
-    result = subprocess.run([sys.executable, "-c", FAULTY], env=testing.isolated_env(), capture_output=True,
-                            text=True, timeout=120)
+    result = subprocess.run(
+        [sys.executable, "-c", FAULTY], env=testing.isolated_env(), capture_output=True, text=True, timeout=120
+    )
     assert result.returncode == 1 and "RuntimeError: a real bug" in result.stderr, result.stderr
 
 
@@ -770,9 +814,9 @@ def test_run_node_destroys_the_node_it_built_also_when_the_context_was_shut_down
     destroyed (its entities gone from the graph), also when something else shut the context down while it spun."""
     pytest.importorskip("rclpy")
     import rclpy
+    from dlo_common.node_main import run_node
     from rclpy.node import Node
 
-    from dlo_common.node_main import run_node
     built = []
 
     def make():
@@ -789,8 +833,22 @@ def test_run_node_destroys_the_node_it_built_also_when_the_context_was_shut_down
 
 def test_params_files_are_those_inside_ros_args_only():
     """`--params-file F` counts between `--ros-args` and `--` (or the end), as rcl reads it; a trailing one has no file."""
-    argv = ["--params-file", "before.yaml", "--ros-args", "-p", "x:=1", "--params-file", "a.yaml", "--",
-            "--params-file", "app.yaml", "--ros-args", "--params-file", "b.yaml", "--params-file"]
+    argv = [
+        "--params-file",
+        "before.yaml",
+        "--ros-args",
+        "-p",
+        "x:=1",
+        "--params-file",
+        "a.yaml",
+        "--",
+        "--params-file",
+        "app.yaml",
+        "--ros-args",
+        "--params-file",
+        "b.yaml",
+        "--params-file",
+    ]
     assert params_files(argv) == ["a.yaml", "b.yaml"]
     assert params_files(["--params-file", "x.yaml"]) == []
 
@@ -807,10 +865,10 @@ def test_a_utf8_params_file_is_read_as_utf8_in_a_c_locale(tmp_path):
     good = write(tmp_path, "# the grip in \u00b5m\n/**:\n  ros__parameters:\n    a: 1\n")
     latin = write(tmp_path, b"# \xb5m\n/**:\n  ros__parameters:\n    a: 1\n", "latin1.yaml")
     env = dict(testing.isolated_env(), LC_ALL="C", LANG="C", PYTHONUTF8="0", PYTHONCOERCECLOCALE="0")
-    code = ("import sys; from dlo_common.node_main import params_file_problem as p; "
-            "print(repr(p(sys.argv[1])), repr(p(sys.argv[2])))")
-    result = subprocess.run([sys.executable, "-c", code, good, latin], env=env, capture_output=True, text=True,
-                            timeout=120)
+    code = (
+        "import sys; from dlo_common.node_main import params_file_problem as p; print(repr(p(sys.argv[1])), repr(p(sys.argv[2])))"
+    )
+    result = subprocess.run([sys.executable, "-c", code, good, latin], env=env, capture_output=True, text=True, timeout=120)
     assert result.returncode == 0, result.stderr
     good_problem, latin_problem = (eval(x) for x in result.stdout.split(" ", 1))  # noqa: S307 - our own reprs
     assert good_problem == ""
@@ -821,8 +879,9 @@ def test_yaml_errors_name_their_line_also_a_character_yaml_does_not_allow(tmp_pa
     syntax = write(tmp_path, "/**:\n  ros__parameters:\n    a: [1\n    b: 2\n", "syntax.yaml")
     assert params_file_problem(syntax) == "YAML syntax error at line 4: expected ',' or ']', but got ':'"
     bell = write(tmp_path, "/**:\n  ros__parameters:\n    a: 1\n    b: \x07\n", "bell.yaml")
-    assert params_file_problem(bell) == ("YAML syntax error at line 4: unacceptable character #x0007: special "
-                                         "characters are not allowed")
+    assert params_file_problem(bell) == (
+        "YAML syntax error at line 4: unacceptable character #x0007: special characters are not allowed"
+    )
 
 
 def test_an_empty_section_is_named_by_its_whole_path(tmp_path):
@@ -836,8 +895,7 @@ def test_every_yaml_document_of_a_params_file_is_checked_as_rcl_reads_them_all(t
     two = "/**:\n  ros__parameters:\n    a: 1\n---\nsim_node:\n  ros__parameters:\n    b: 2\n"
     assert params_file_problem(write(tmp_path, two, "two.yaml")) == ""  # rcl takes it: so do we
     listed = "/**:\n  ros__parameters:\n    a: 1\n---\n- 1\n"
-    assert params_file_problem(write(tmp_path, listed, "listed.yaml")).startswith(
-        "wrong layout (the file holds a list)")
+    assert params_file_problem(write(tmp_path, listed, "listed.yaml")).startswith("wrong layout (the file holds a list)")
 
 
 def test_an_rcl_refusal_without_a_line_is_one_line_without_one(tmp_path):
@@ -845,8 +903,8 @@ def test_an_rcl_refusal_without_a_line_is_one_line_without_one(tmp_path):
     pytest.importorskip("rclpy")
     path = write(tmp_path, "sim-node:\n  ros__parameters:\n    a: 1\n")
     assert ros_arguments_problem(["x", "--ros-args", "--params-file", path]) == (
-        f"params file {path}: rcl cannot read it: node name must not contain characters other than alphanumerics "
-        "or '_'")
+        f"params file {path}: rcl cannot read it: node name must not contain characters other than alphanumerics or '_'"
+    )
 
 
 def test_help_reads_the_arguments_it_is_given_and_sys_argv_only_without(monkeypatch, capsys):
@@ -874,13 +932,17 @@ def make_nothing():  # never called: --help answers before any node is built
     raise AssertionError("a node was built for --help")
 
 
-@pytest.mark.parametrize(("interrupted_rc", "codes"), [
-    (0, "Exit codes: 0 done or stopped by a signal, 1 failed (see stderr), 2 bad parameter, 3 refused to start."),
-    (130, "Exit codes: 0 done or stopped by a signal (130), 1 failed (see stderr), 2 bad parameter, 3 refused to "
-          "start.")])
+@pytest.mark.parametrize(
+    ("interrupted_rc", "codes"),
+    [
+        (0, "Exit codes: 0 done or stopped by a signal, 1 failed (see stderr), 2 bad parameter, 3 refused to start."),
+        (130, "Exit codes: 0 done or stopped by a signal (130), 1 failed (see stderr), 2 bad parameter, 3 refused to start."),
+    ],
+)
 def test_help_names_the_package_and_the_exit_code_of_an_interruption(monkeypatch, capsys, interrupted_rc, codes):
     """Promises 1 and 10."""
     from dlo_common.node_main import run_node
+
     monkeypatch.setattr(sys, "argv", ["sim_node", "--help"])
     monkeypatch.setattr(make_nothing, "__module__", "dlo_bag.recorder_node")  # the package is the module's first part
     assert run_node(make_nothing, parameters=[], interrupted_rc=interrupted_rc) == 0
@@ -888,8 +950,7 @@ def test_help_names_the_package_and_the_exit_code_of_an_interruption(monkeypatch
     assert "ros2 run dlo_bag sim_node" in out and codes in out.splitlines()
     # run as `python -m dlo_sim.sim_node`: the make function's module is __main__, the package is the spec's
     monkeypatch.setattr(make_nothing, "__module__", "__main__")
-    monkeypatch.setattr(sys.modules["__main__"], "__spec__", types.SimpleNamespace(name="dlo_sim.sim_node"),
-                        raising=False)
+    monkeypatch.setattr(sys.modules["__main__"], "__spec__", types.SimpleNamespace(name="dlo_sim.sim_node"), raising=False)
     assert run_node(make_nothing, parameters=[], interrupted_rc=interrupted_rc) == 0
     assert "ros2 run dlo_sim sim_node" in capsys.readouterr().out
 
@@ -897,7 +958,6 @@ def test_help_names_the_package_and_the_exit_code_of_an_interruption(monkeypatch
 def refusing_probe(seen):
     """A make_node that builds a node, notes the `answer` parameter it got, and refuses to start (exit 3)."""
     import rclpy.node
-
     from dlo_common.node_util import NodeStartError
 
     def make():
@@ -905,6 +965,7 @@ def refusing_probe(seen):
         seen.append(node.declare_parameter("answer", 0).value)
         node.destroy_node()
         raise NodeStartError("refused")
+
     return make
 
 
@@ -916,6 +977,7 @@ def test_run_node_gives_rcl_its_own_arguments_and_runs_in_a_thread(monkeypatch, 
     import threading
 
     from dlo_common.node_main import run_node
+
     with testing.reserved_domain() as domain:
         monkeypatch.setenv("ROS_DOMAIN_ID", str(domain))
         monkeypatch.setattr(sys, "argv", ["probe", "--ros-args", "-p", "answer:=1"])

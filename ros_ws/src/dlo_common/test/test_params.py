@@ -3,13 +3,27 @@
 import re
 
 import pytest
-
 import yaml
-
-from dlo_common.params import (Param, ParameterError, UnknownParameterError, as_param, check_value, coerce, example,
-                               format_default, help_requested, help_text, markdown_table, params_yaml, renamed_names,
-                               renamed_notice, unexpected_arguments, unknown_parameter, YamlProblem,
-                               yaml_problem)
+from dlo_common.params import (
+    Param,
+    ParameterError,
+    UnknownParameterError,
+    YamlProblem,
+    as_param,
+    check_value,
+    coerce,
+    example,
+    format_default,
+    help_requested,
+    help_text,
+    markdown_table,
+    params_yaml,
+    renamed_names,
+    renamed_notice,
+    unexpected_arguments,
+    unknown_parameter,
+    yaml_problem,
+)
 
 INT = Param("n", 1, "count", at_least=1)
 BOUNDED = Param("port", 10, "port", at_least=0, at_most=20)
@@ -23,36 +37,59 @@ POSITION = Param("position", (0.0, 0.0, 1.0), "x, y, z [m]", length=3)
 EMPTY_TOPICS = Param("extra", [], "more topics")
 
 
-@pytest.mark.parametrize("param,value,expected", [
-    (FLAG, True, True), (FLAG, False, False),
-    (INT, 3, 3), (ABOVE, 2, 2.0), (ABOVE, 0.5, 0.5),
-    (TEXT, "b", "b"), (TEXT, 5, "5"), (TEXT, 1.5, "1.5"),
-    (TOPICS, "/x, /y,", ["/x", "/y"]), (TOPICS, ["/x"], ["/x"]), (TOPICS, ("/x", "/y"), ["/x", "/y"]),
-])
+@pytest.mark.parametrize(
+    "param,value,expected",
+    [
+        (FLAG, True, True),
+        (FLAG, False, False),
+        (INT, 3, 3),
+        (ABOVE, 2, 2.0),
+        (ABOVE, 0.5, 0.5),
+        (TEXT, "b", "b"),
+        (TEXT, 5, "5"),
+        (TEXT, 1.5, "1.5"),
+        (TOPICS, "/x, /y,", ["/x", "/y"]),
+        (TOPICS, ["/x"], ["/x"]),
+        (TOPICS, ("/x", "/y"), ["/x", "/y"]),
+    ],
+)
 def test_values_of_the_declared_type_are_read(param, value, expected):
     got = coerce(param, value)
     assert got == expected and type(got) is type(expected)
 
 
-@pytest.mark.parametrize("param,value,expected", [
-    (FLAG, 1, "a bool"), (FLAG, "true", "a bool"),
-    (INT, True, "an integer"), (INT, 1.5, "an integer"), (INT, "3", "an integer"),
-    (ABOVE, True, "a number"), (ABOVE, "fast", "a number"),
-    (TEXT, True, "a string"), (TEXT, ["a"], "a string"),
-    (TOPICS, 3, "a list of strings"), (TOPICS, ["/a", 3], "a list of strings"), (TOPICS, [1, 2], "a list of strings"),
-])
+@pytest.mark.parametrize(
+    "param,value,expected",
+    [
+        (FLAG, 1, "a bool"),
+        (FLAG, "true", "a bool"),
+        (INT, True, "an integer"),
+        (INT, 1.5, "an integer"),
+        (INT, "3", "an integer"),
+        (ABOVE, True, "a number"),
+        (ABOVE, "fast", "a number"),
+        (TEXT, True, "a string"),
+        (TEXT, ["a"], "a string"),
+        (TOPICS, 3, "a list of strings"),
+        (TOPICS, ["/a", 3], "a list of strings"),
+        (TOPICS, [1, 2], "a list of strings"),
+    ],
+)
 def test_values_of_another_type_are_one_line_errors(param, value, expected):
     with pytest.raises(ValueError, match=re.escape(f"parameter '{param.name}': expected {expected}")):
         coerce(param, value)
 
 
-@pytest.mark.parametrize("param,good,bad,message", [
-    (INT, [1, 5], [0, -1], "must be >= 1"),
-    (BOUNDED, [0, 20, 7], [-1, 21], "must be in 0..20"),
-    (UPPER, [2.0, -5.0], [2.5], "must be <= 2"),
-    (ABOVE, [1e-9, 3.0], [0.0, -1.0, float("nan")], ""),
-    (MODE, ["x", "y"], ["z", "X"], "expected one of ('x', 'y')"),
-])
+@pytest.mark.parametrize(
+    "param,good,bad,message",
+    [
+        (INT, [1, 5], [0, -1], "must be >= 1"),
+        (BOUNDED, [0, 20, 7], [-1, 21], "must be in 0..20"),
+        (UPPER, [2.0, -5.0], [2.5], "must be <= 2"),
+        (ABOVE, [1e-9, 3.0], [0.0, -1.0, float("nan")], ""),
+        (MODE, ["x", "y"], ["z", "X"], "expected one of ('x', 'y')"),
+    ],
+)
 def test_ranges_and_choices(param, good, bad, message):
     for value in good:
         assert check_value(param, value) == value
@@ -62,17 +99,14 @@ def test_ranges_and_choices(param, good, bad, message):
 
 
 def test_range_text():
-    assert [p.range_text for p in (INT, BOUNDED, UPPER, ABOVE, MODE, FLAG)] == [
-        ">= 1", "0..20", "<= 2", "> 0", "x | y", ""]
+    assert [p.range_text for p in (INT, BOUNDED, UPPER, ABOVE, MODE, FLAG)] == [">= 1", "0..20", "<= 2", "> 0", "x | y", ""]
     assert Param("q", 1.0, "", at_least=0.5, above=0.0).range_text == ">= 0.5, > 0"
     assert Param("q", 1.0, "", above=0.25, at_most=3.0).range_text == "> 0.25, <= 3"
 
 
 def test_type_names_and_defaults():
-    assert [p.type_name for p in (FLAG, INT, ABOVE, TEXT, TOPICS)] == ["bool", "integer", "double", "string",
-                                                                         "string_array"]
-    assert [format_default(p.default) for p in (FLAG, INT, ABOVE, TEXT, TOPICS)] == ["false", "1", "1.0", '"a"',
-                                                                                    '["/a"]']
+    assert [p.type_name for p in (FLAG, INT, ABOVE, TEXT, TOPICS)] == ["bool", "integer", "double", "string", "string_array"]
+    assert [format_default(p.default) for p in (FLAG, INT, ABOVE, TEXT, TOPICS)] == ["false", "1", "1.0", '"a"', '["/a"]']
     assert as_param(("x", 2, "two")) == Param("x", 2, "two") and as_param(INT) is INT
 
 
@@ -89,7 +123,7 @@ def test_help_text_lists_each_parameter_once():
     assert text.splitlines()[0] == ("usage: ros2run pkg exe [--ros-args (-p NAME:=VALUE | --params-file FILE) ...]")
     assert "exe: does one thing." in text and "Details" not in text
     assert "\n  n (integer, default 1, range >= 1)\n      count\n" in text
-    assert "\n  mode (string, default \"x\", range x | y)\n      mode\n" in text
+    assert '\n  mode (string, default "x", range x | y)\n      mode\n' in text
     assert text.endswith("Exit codes: 0 ok.\n")
 
 
@@ -99,21 +133,35 @@ def test_a_list_of_numbers_is_a_double_array_of_fixed_length():
     for value in ([0.5, 0.0, 2.0], [1, 0, 2], (1, 0, 2.0), "0.5, 0, 2", ["0.5", "0", "2"]):
         got = check_value(POSITION, value)
         assert type(got) is list and all(type(v) is float for v in got) and len(got) == 3, value
-    for value, shown in [([0.0, 1.0], "[0.0, 1.0] (double_array)"), ("up", "'up' (string)"),
-                         ([True, 0.0, 1.0], "[True, 0.0, 1.0] (array)"), (1.0, "1.0 (double)")]:
-        with pytest.raises(ValueError, match=re.escape(
-                f"parameter 'position': expected 3 numbers, e.g. -p position:=[0.0,0.0,1.0], got {shown}")):
+    for value, shown in [
+        ([0.0, 1.0], "[0.0, 1.0] (double_array)"),
+        ("up", "'up' (string)"),
+        ([True, 0.0, 1.0], "[True, 0.0, 1.0] (array)"),
+        (1.0, "1.0 (double)"),
+    ]:
+        with pytest.raises(
+            ValueError, match=re.escape(f"parameter 'position': expected 3 numbers, e.g. -p position:=[0.0,0.0,1.0], got {shown}")
+        ):
             check_value(POSITION, value)
     with pytest.raises(ValueError, match="expected finite numbers"):
         check_value(POSITION, [0.0, float("nan"), 1.0])
 
 
-@pytest.mark.parametrize("param,shown", [
-    (FLAG, "-p flag:=true"), (INT, "-p n:=1"), (ABOVE, "-p rate:=1.0"), (TEXT, "-p name:=a"),
-    (TOPICS, "-p topics:=/a"), (EMPTY_TOPICS, "-p extra:=/dlo/a,/dlo/b"), (MODE, "-p mode:=x"),
-    (POSITION, "-p position:=[0.0,0.0,1.0]"), (Param("path", "", "a file"), "-p path:=text"),
-    (Param("without", "", "test-time ablation: zero these modalities, e.g. 'T' or 'V'"), "-p without:=T"),
-])
+@pytest.mark.parametrize(
+    "param,shown",
+    [
+        (FLAG, "-p flag:=true"),
+        (INT, "-p n:=1"),
+        (ABOVE, "-p rate:=1.0"),
+        (TEXT, "-p name:=a"),
+        (TOPICS, "-p topics:=/a"),
+        (EMPTY_TOPICS, "-p extra:=/dlo/a,/dlo/b"),
+        (MODE, "-p mode:=x"),
+        (POSITION, "-p position:=[0.0,0.0,1.0]"),
+        (Param("path", "", "a file"), "-p path:=text"),
+        (Param("without", "", "test-time ablation: zero these modalities, e.g. 'T' or 'V'"), "-p without:=T"),
+    ],
+)
 def test_each_type_error_shows_an_example_that_fits_the_parameter(param, shown):
     assert example(param) == shown
     check_value(param, yaml.safe_load(shown.split(":=", 1)[1]))  # rcl reads a -p value as YAML
@@ -126,8 +174,7 @@ def test_an_unknown_name_suggests_the_closest_declared_one():
     error = unknown_parameter("sead", ["mode", "seed", "horizon"])
     assert isinstance(error, UnknownParameterError) and isinstance(error, ValueError)
     assert str(error) == "unknown parameter 'sead'; did you mean 'seed'?"
-    assert str(unknown_parameter("horizn", ["seed", "horizon"])) == \
-        "unknown parameter 'horizn'; did you mean 'horizon'?"
+    assert str(unknown_parameter("horizn", ["seed", "horizon"])) == "unknown parameter 'horizn'; did you mean 'horizon'?"
     assert str(unknown_parameter("x", [])) == "unknown parameter 'x'"
 
 
@@ -149,8 +196,16 @@ def level(value):
     return low, high
 
 
-LEVEL = Param("level", "low", "how loud", check=level, types="string or double_array", accepts="low | high | [a,b]",
-              choices=("never",), at_least=5.0)  # a check replaces choices and bounds
+LEVEL = Param(
+    "level",
+    "low",
+    "how loud",
+    check=level,
+    types="string or double_array",
+    accepts="low | high | [a,b]",
+    choices=("never",),
+    at_least=5.0,
+)  # a check replaces choices and bounds
 OLD_LEVEL = Param("loudness", "low", "old name: level", choices=("low", "high"), renamed_to="level")
 OLD_PAIR = Param("low", 0.0, "old name: level", at_least=0.0, renamed_to="level")
 
@@ -158,16 +213,20 @@ OLD_PAIR = Param("low", 0.0, "old name: level", at_least=0.0, renamed_to="level"
 def test_a_parameter_with_its_own_check():
     assert LEVEL.type_name == "string or double_array" and LEVEL.range_text == "low | high | [a,b]"
     assert check_value(LEVEL, "high") == "high" and check_value(LEVEL, [1, 2]) == (1.0, 2.0)
-    for value, message in [("loud", "could not convert string to float: 'l'"), (3, "'int' object is not iterable"),
-                           ([-1.0, 2.0], "expected low, high or a pair >= 0, got [-1.0, 2.0]")]:
+    for value, message in [
+        ("loud", "could not convert string to float: 'l'"),
+        (3, "'int' object is not iterable"),
+        ([-1.0, 2.0], "expected low, high or a pair >= 0, got [-1.0, 2.0]"),
+    ]:
         with pytest.raises(ParameterError) as error:
             check_value(LEVEL, value)
         assert str(error.value) == f"parameter 'level': {message}", value
-    assert ("\n  level (string or double_array, default \"low\", range low | high | [a,b])\n"
-            in help_text("p", "e", [LEVEL]))
-    assert "    # type string or double_array, range low | high | [a,b]\n    level: \"low\"\n" in params_yaml([LEVEL])
-    assert markdown_table([LEVEL]).splitlines()[2] == \
-        '| `level` | string or double_array | `"low"` | `low \\| high \\| [a,b]` | how loud |'
+    assert '\n  level (string or double_array, default "low", range low | high | [a,b])\n' in help_text("p", "e", [LEVEL])
+    assert '    # type string or double_array, range low | high | [a,b]\n    level: "low"\n' in params_yaml([LEVEL])
+    assert (
+        markdown_table([LEVEL]).splitlines()[2]
+        == '| `level` | string or double_array | `"low"` | `low \\| high \\| [a,b]` | how loud |'
+    )
 
 
 def test_old_names_are_listed_once_and_left_out_of_the_file_and_the_tables():
@@ -175,8 +234,7 @@ def test_old_names_are_listed_once_and_left_out_of_the_file_and_the_tables():
     assert renamed_names(params) == {"level": ["loudness", "low"]} and renamed_names([LEVEL, INT]) == {}
     text = help_text("p", "e", params)
     assert "\n  loudness (" not in text and "\n  low (" not in text and "\n  n (integer" in text
-    assert ("\nrenamed (the old names work until the next release, with a notice):\n  loudness, low -> level\n"
-            in text)
+    assert "\nrenamed (the old names work until the next release, with a notice):\n  loudness, low -> level\n" in text
     assert "renamed" not in help_text("p", "e", [LEVEL, INT])
     assert params_yaml(params) == params_yaml([LEVEL, INT]) and markdown_table(params) == markdown_table([LEVEL, INT])
     assert "loudness" not in params_yaml(params) + markdown_table(params)
@@ -186,10 +244,11 @@ def test_old_names_are_listed_once_and_left_out_of_the_file_and_the_tables():
 
 
 def test_the_notice_for_old_names_names_the_new_one():
-    assert renamed_notice(["noise"], "tactile_noise") == \
-        "parameter 'noise' is now 'tactile_noise' (the old name works until the next release)"
-    assert renamed_notice(["a", "b"], "c") == \
-        "parameters 'a', 'b' are now 'c' (the old names work until the next release)"
+    assert (
+        renamed_notice(["noise"], "tactile_noise")
+        == "parameter 'noise' is now 'tactile_noise' (the old name works until the next release)"
+    )
+    assert renamed_notice(["a", "b"], "c") == "parameters 'a', 'b' are now 'c' (the old names work until the next release)"
 
 
 def _problem(text: str):
@@ -198,14 +257,17 @@ def _problem(text: str):
     return yaml_problem(raised.value, text)
 
 
-@pytest.mark.parametrize("text, line, column, problem", [
-    ("a: 1\nb: [1\nc: 2\n", 3, 2, "expected ',' or ']', but got ':'"),  # a parser error: its mark
-    ("a: b: c\n", 1, 5, "mapping values are not allowed here"),  # a scanner error
-    ("a: 1\nb: x\x07y\n", 2, 5, "unacceptable character #x0007: special characters are not allowed"),  # reader
-    ("\x07", 1, 1, "unacceptable character #x0007: special characters are not allowed"),  # the first character
-    ("a: 1\n\nb: \x1b\n", 3, 4, "unacceptable character #x001b: special characters are not allowed"),
-    ("\nb: \x07\n", 2, 4, "unacceptable character #x0007: special characters are not allowed"),  # text[0] a break
-])
+@pytest.mark.parametrize(
+    "text, line, column, problem",
+    [
+        ("a: 1\nb: [1\nc: 2\n", 3, 2, "expected ',' or ']', but got ':'"),  # a parser error: its mark
+        ("a: b: c\n", 1, 5, "mapping values are not allowed here"),  # a scanner error
+        ("a: 1\nb: x\x07y\n", 2, 5, "unacceptable character #x0007: special characters are not allowed"),  # reader
+        ("\x07", 1, 1, "unacceptable character #x0007: special characters are not allowed"),  # the first character
+        ("a: 1\n\nb: \x1b\n", 3, 4, "unacceptable character #x001b: special characters are not allowed"),
+        ("\nb: \x07\n", 2, 4, "unacceptable character #x0007: special characters are not allowed"),  # text[0] a break
+    ],
+)
 def test_a_yaml_problem_names_its_line_and_column_in_one_line(text, line, column, problem):
     """Every kind of PyYAML error, a reader error (a character YAML does not allow) too, gives the 1-based
     line and column of the text and a one-line reason without PyYAML's 'in "<unicode string>"' part."""

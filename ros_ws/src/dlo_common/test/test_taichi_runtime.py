@@ -1,4 +1,5 @@
 """dlo_common.taichi_runtime: the process's one Taichi runtime (dlo_common README)."""
+
 import json
 import os
 import subprocess
@@ -46,7 +47,8 @@ def test_taichi_starts_once_on_the_cpu_only_when_asked_and_refuses_a_second_back
     assert probe["errors"] == {
         "unknown": "Taichi arch: expected one of cpu, cuda, gpu, vulkan, got 'tpu'",
         "env": "DLO_TI_ARCH='warp': expected one of cpu, cuda, gpu, vulkan",
-        "other": "Taichi is already running on cpu in this process"}
+        "other": "Taichi is already running on cpu in this process",
+    }
 
 
 CAPITALS_PROBE = """
@@ -62,8 +64,7 @@ def test_the_backend_named_in_capitals_is_the_same_backend():
     """DLO_TI_ARCH, the user's switch (dlo_sim/README.md), is read case-insensitively: DLO_TI_ARCH=CPU is
     the CPU backend, not a one-line error."""
     env = {**os.environ, "DLO_TI_ARCH": "CPU"}
-    result = subprocess.run([sys.executable, "-c", CAPITALS_PROBE], capture_output=True, text=True, timeout=300,
-                            env=env)
+    result = subprocess.run([sys.executable, "-c", CAPITALS_PROBE], capture_output=True, text=True, timeout=300, env=env)
     assert result.returncode == 0, result.stderr
     assert json.loads(result.stdout.splitlines()[-1]) == {"before": "cpu", "after": "cpu"}
 

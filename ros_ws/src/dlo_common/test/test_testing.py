@@ -13,17 +13,17 @@ import time
 from pathlib import Path
 
 import pytest
-
 from dlo_common import testing
 
 
 def reserve_in_another_process(first: int, last: int, span: int = 1) -> str:
     """What reserve_domains gives a second process ('none' when nothing is free)."""
-    code = ("from dlo_common import testing\n"
-            f"try:\n    print(testing.reserve_domains({span}, {first}, {last}))\n"
-            "except RuntimeError:\n    print('none')\n")
-    return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120,
-                          check=True).stdout.strip()
+    code = (
+        "from dlo_common import testing\n"
+        f"try:\n    print(testing.reserve_domains({span}, {first}, {last}))\n"
+        "except RuntimeError:\n    print('none')\n"
+    )
+    return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, check=True).stdout.strip()
 
 
 def test_a_reserved_domain_is_refused_to_another_process_until_released():
@@ -101,13 +101,24 @@ def test_only_new_dds_files_no_process_uses_are_removed(tmp_path):
     (shm / "fastrtps_before").write_bytes(b"x")
     before = testing.dds_shm_entries(shm)
     assert before == {"fastrtps_before"}
-    for name in ("fastrtps_orphan", "fastrtps_orphan_el", "sem.fastrtps_port7001_mutex", "fastrtps_open",
-                 "fastrtps_mapped", "someone_else", "fastrtps_port7002", "sem.fastrtps_port7002_mutex"):
+    for name in (
+        "fastrtps_orphan",
+        "fastrtps_orphan_el",
+        "sem.fastrtps_port7001_mutex",
+        "fastrtps_open",
+        "fastrtps_mapped",
+        "someone_else",
+        "fastrtps_port7002",
+        "sem.fastrtps_port7002_mutex",
+    ):
         (shm / name).write_bytes(b"x" * 4096)
     # The holder maps fastrtps_port7002 but not its mutex: a running participant's port, whose mutex Fast DDS
     # maps only while it opens the port. The mutex stays with its port.
-    holder = subprocess.Popen([sys.executable, "-c", HOLDER, str(shm / "fastrtps_open"), str(shm / "fastrtps_mapped"),
-                               str(shm / "fastrtps_port7002")], stdout=subprocess.PIPE, text=True)
+    holder = subprocess.Popen(
+        [sys.executable, "-c", HOLDER, str(shm / "fastrtps_open"), str(shm / "fastrtps_mapped"), str(shm / "fastrtps_port7002")],
+        stdout=subprocess.PIPE,
+        text=True,
+    )
     try:
         assert holder.stdout.readline().strip() == "ready"
         removed = testing.remove_orphaned_dds_shm(before, shm)
@@ -115,11 +126,20 @@ def test_only_new_dds_files_no_process_uses_are_removed(tmp_path):
         holder.kill()
         holder.wait()
     assert sorted(removed) == ["fastrtps_orphan", "fastrtps_orphan_el", "sem.fastrtps_port7001_mutex"]
-    assert sorted(p.name for p in shm.iterdir()) == ["fastrtps_before", "fastrtps_mapped", "fastrtps_open",
-                                                     "fastrtps_port7002", "sem.fastrtps_port7002_mutex",
-                                                     "someone_else"]
+    assert sorted(p.name for p in shm.iterdir()) == [
+        "fastrtps_before",
+        "fastrtps_mapped",
+        "fastrtps_open",
+        "fastrtps_port7002",
+        "sem.fastrtps_port7002_mutex",
+        "someone_else",
+    ]
     assert testing.remove_orphaned_dds_shm(before, shm) == [  # holder gone
-        "fastrtps_mapped", "fastrtps_open", "fastrtps_port7002", "sem.fastrtps_port7002_mutex"]
+        "fastrtps_mapped",
+        "fastrtps_open",
+        "fastrtps_port7002",
+        "sem.fastrtps_port7002_mutex",
+    ]
 
 
 NODE = """import time, rclpy
@@ -139,16 +159,19 @@ def test_a_killed_participants_shared_memory_is_removed_and_a_live_ones_kept():
         pytest.skip("no /dev/shm here")
     before = testing.dds_shm_entries()
     env = testing.isolated_env()
-    live, killed = (subprocess.Popen([sys.executable, "-c", NODE], env=env, stdout=subprocess.PIPE, text=True)
-                    for _ in range(2))
+    live, killed = (subprocess.Popen([sys.executable, "-c", NODE], env=env, stdout=subprocess.PIPE, text=True) for _ in range(2))
     try:
         for proc in (live, killed):
             assert proc.stdout.readline().strip() == "up"
-        killed_files = {name for name in testing.dds_shm_entries() - before
-                        if f"{testing.SHM / name}" in (Path(f"/proc/{killed.pid}/maps").read_text())}
+        killed_files = {
+            name
+            for name in testing.dds_shm_entries() - before
+            if f"{testing.SHM / name}" in (Path(f"/proc/{killed.pid}/maps").read_text())
+        }
         live_maps = Path(f"/proc/{live.pid}/maps").read_text()  # its files, its ports' mutexes (dds_shm_owner) too
-        live_files = {name for name in testing.dds_shm_entries() - before
-                      if f"{testing.SHM / testing.dds_shm_owner(name)}" in live_maps}
+        live_files = {
+            name for name in testing.dds_shm_entries() - before if f"{testing.SHM / testing.dds_shm_owner(name)}" in live_maps
+        }
         if not killed_files:
             pytest.skip("this DDS set-up uses no shared memory")
         killed.kill()
@@ -161,8 +184,9 @@ def test_a_killed_participants_shared_memory_is_removed_and_a_live_ones_kept():
         left = testing.dds_shm_entries()
         used_by_live = testing.files_in_use([live.pid])
         assert all(str(testing.SHM / testing.dds_shm_owner(name)) in used_by_live for name in killed_files & left), (
-            killed_files & left)
-        assert live_files <= left and not live_files & removed, (live_files - left)  # the live node's stay
+            killed_files & left
+        )
+        assert live_files <= left and not live_files & removed, live_files - left  # the live node's stay
     finally:
         for proc in (live, killed):
             proc.kill()
@@ -173,16 +197,31 @@ def test_stop_or_explain_returns_the_code_of_a_node_that_stops_and_names_where_o
     """A node that ends on SIGINT: its code. One that does not: an AssertionError with its Python stacks
     (faulthandler on SIGABRT) and C stacks (gdb), and it is gone."""
     default_sigint = lambda: signal.signal(signal.SIGINT, signal.SIG_DFL)  # (pytest run with SIGINT ignored)
-    stops = subprocess.Popen([sys.executable, "-c", "import time\ntry:\n    print('up', flush=True)\n    time.sleep(60)\n"
-                              "except KeyboardInterrupt:\n    raise SystemExit(7)"], stdout=subprocess.PIPE,
-                             preexec_fn=default_sigint)
+    stops = subprocess.Popen(
+        [
+            sys.executable,
+            "-c",
+            "import time\ntry:\n    print('up', flush=True)\n    time.sleep(60)\n"
+            "except KeyboardInterrupt:\n    raise SystemExit(7)",
+        ],
+        stdout=subprocess.PIPE,
+        preexec_fn=default_sigint,
+    )
     assert stops.stdout.readline() == b"up\n"
     assert testing.stop_or_explain(stops, "stops", 30) == 7
     log = tmp_path / "hangs.log"
-    hangs = subprocess.Popen([sys.executable, "-c", "import signal, time\nsignal.signal(signal.SIGINT, signal.SIG_IGN)\n"
-                              "print('up', flush=True)\ndef stuck_in_shutdown():\n    time.sleep(600)\nstuck_in_shutdown()"],
-                             env=dict(os.environ, PYTHONFAULTHANDLER="1"), stdout=log.open("w"), stderr=subprocess.STDOUT,
-                             preexec_fn=default_sigint)
+    hangs = subprocess.Popen(
+        [
+            sys.executable,
+            "-c",
+            "import signal, time\nsignal.signal(signal.SIGINT, signal.SIG_IGN)\n"
+            "print('up', flush=True)\ndef stuck_in_shutdown():\n    time.sleep(600)\nstuck_in_shutdown()",
+        ],
+        env=dict(os.environ, PYTHONFAULTHANDLER="1"),
+        stdout=log.open("w"),
+        stderr=subprocess.STDOUT,
+        preexec_fn=default_sigint,
+    )
     while "up" not in log.read_text():
         time.sleep(0.05)
     with pytest.raises(AssertionError) as failure:
@@ -199,10 +238,14 @@ def test_procs_stop_every_process_on_sigint_and_one_that_ignores_it_fails_with_i
     """Procs.stop_all: processes that end on SIGINT end (also when the tests themselves run with SIGINT ignored,
     as a background job); one that ignores SIGINT is an AssertionError naming it, with its Python stack, and
     is gone; every other one still stopped."""
-    stops = ("import time\ntry:\n    print('up', flush=True)\n    time.sleep(60)\nexcept KeyboardInterrupt:\n"
-             "    print('interrupted', flush=True)")
-    hangs = ("import signal, time\nsignal.signal(signal.SIGINT, signal.SIG_IGN)\nprint('up', flush=True)\n"
-             "def ignores_ctrl_c():\n    time.sleep(600)\nignores_ctrl_c()")
+    stops = (
+        "import time\ntry:\n    print('up', flush=True)\n    time.sleep(60)\nexcept KeyboardInterrupt:\n"
+        "    print('interrupted', flush=True)"
+    )
+    hangs = (
+        "import signal, time\nsignal.signal(signal.SIGINT, signal.SIG_IGN)\nprint('up', flush=True)\n"
+        "def ignores_ctrl_c():\n    time.sleep(600)\nignores_ctrl_c()"
+    )
     previous = signal.signal(signal.SIGINT, signal.SIG_IGN)  # the children inherit an ignored SIGINT
     try:
         with testing.Procs(dict(os.environ), stop_timeout=5) as start:

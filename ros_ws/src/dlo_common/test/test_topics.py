@@ -2,7 +2,6 @@
 its lookups and subsets, and the name list the launcher remaps under --namespace."""
 
 import pytest
-
 from dlo_common import topics
 from dlo_common.topics import ROLES, SERVICES, TOPICS, Topic, names, select, topic
 
@@ -28,8 +27,16 @@ def test_lookup_by_key_or_name_and_a_clear_error():
 
 def test_subsets_are_filters_of_the_registry():
     assert [t.key for t in select("observation")] == ["tactile", "vision"]
-    assert {t.key for t in select(publisher="sim_node")} == {"clock", "particles", "gripper", "image", "camera_info",
-                                                             "task", "markers", "instance"}
+    assert {t.key for t in select(publisher="sim_node")} == {
+        "clock",
+        "particles",
+        "gripper",
+        "image",
+        "camera_info",
+        "task",
+        "markers",
+        "instance",
+    }
     assert [t.name for t in select(exclude=("internal",))] == [t.name for t in TOPICS if t.key != "instance"]
     assert select() == TOPICS
     with pytest.raises(ValueError, match="unknown role"):

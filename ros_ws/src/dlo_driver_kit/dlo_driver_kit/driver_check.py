@@ -73,7 +73,6 @@ from collections import Counter
 from dataclasses import dataclass, field
 
 import numpy as np
-
 from dlo_common.console import console_main
 from dlo_common.topics import SERVICES, message_class, select
 from dlo_common.topics import topic as topic_record
@@ -96,8 +95,18 @@ STILL = 0.0005  # m per step: the gripper counts as not moving below this
 WORKSPACE_SLACK = 0.001  # m
 PIPELINE_SLACK = 0.1  # s of delivery on top of two control periods for the stale stop
 REACT_PERIODS = 2  # control periods an invalid command may take to stop the gripper (the pipeline, as for 'stale')
-ENCODING_BYTES = {"mono8": 1, "8UC1": 1, "mono16": 2, "16UC1": 2, "rgb8": 3, "bgr8": 3, "8UC3": 3,
-                  "rgba8": 4, "bgra8": 4, "32FC1": 4}
+ENCODING_BYTES = {
+    "mono8": 1,
+    "8UC1": 1,
+    "mono16": 2,
+    "16UC1": 2,
+    "rgb8": 3,
+    "bgr8": 3,
+    "8UC3": 3,
+    "rgba8": 4,
+    "bgra8": 4,
+    "32FC1": 4,
+}
 SEGMENTATION = (IMAGE_BACKGROUND, IMAGE_GRIPPER, IMAGE_CABLE)  # the pixel values vision_node reads
 QUEUE_DEPTH = 100  # the checker's subscriptions: no message lost while it is busy (sync needs every one)
 # The topics a robot driver publishes (those with a driver's part in dlo_common.topics, the command aside): the
@@ -282,8 +291,11 @@ def typical_period(rec: Recording, clock: str = "stamp") -> float:
     period), or of any consecutive states when fewer than 3 such steps exist (a broken step counter)."""
     pairs = list(zip(rec.states, rec.states[1:]))
     steps = [(a, b) for a, b in pairs if b.episode == a.episode and b.step == a.step + 1]
-    dt = [getattr(b, clock) - getattr(a, clock) for a, b in (steps if len(steps) >= 3 else pairs)
-          if getattr(b, clock) > getattr(a, clock)]
+    dt = [
+        getattr(b, clock) - getattr(a, clock)
+        for a, b in (steps if len(steps) >= 3 else pairs)
+        if getattr(b, clock) > getattr(a, clock)
+    ]
     return float(np.median(dt)) if dt else 1.0 / CONTROL_RATE
 
 
@@ -311,9 +323,11 @@ def cloud_layout_problem(msg) -> str | None:
     fields = [(f.name, int(f.offset), int(f.datatype), int(f.count)) for f in msg.fields]
     want = [(name, 4 * i, FLOAT32, 1) for i, name in enumerate(FIELD_NAMES)]
     if fields != want or msg.is_bigendian:
-        return (f"fields {[f[0] for f in fields]} (offset, datatype, count {[f[1:] for f in fields]})"
-                f"{', big endian' if msg.is_bigendian else ''}; tactile_node reads {list(FIELD_NAMES)} as "
-                f"little-endian FLOAT32 at offsets 0, 4, 8, 12, point_step {POINT_STEP}")
+        return (
+            f"fields {[f[0] for f in fields]} (offset, datatype, count {[f[1:] for f in fields]})"
+            f"{', big endian' if msg.is_bigendian else ''}; tactile_node reads {list(FIELD_NAMES)} as "
+            f"little-endian FLOAT32 at offsets 0, 4, 8, 12, point_step {POINT_STEP}"
+        )
     if len(msg.data) < int(msg.width) * int(msg.height) * POINT_STEP:
         return f"{len(msg.data)} bytes for {int(msg.width) * int(msg.height)} points of {POINT_STEP} bytes"
     try:
@@ -336,8 +350,12 @@ def check_rate(rec: Recording, s: Settings) -> Result:
     window = phase_window(rec, "idle")
     idle = [x for x in rec.states if window and window[0] <= x.wall <= window[1]]
     if len(idle) < 3:
-        return Result("rate", "FAIL", f"{len(idle)} states in {s.duration:g} s of holding still "
-                                      f"(expected about {s.rate * s.duration:.0f}): is the driver real-time?")
+        return Result(
+            "rate",
+            "FAIL",
+            f"{len(idle)} states in {s.duration:g} s of holding still "
+            f"(expected about {s.rate * s.duration:.0f}): is the driver real-time?",
+        )
     # the period between consecutive steps of one episode, over the whole check (robust to a burst of
     # queued states at the start and to the extra state an episode reset adds); a new episode's state 0 comes
     # when the previous episode ended (the sim publishes it right after the final state), off the driver's tick:
@@ -345,8 +363,9 @@ def check_rate(rec: Recording, s: Settings) -> Result:
     steps = [(a, b) for a, b in zip(rec.states, rec.states[1:]) if b.episode == a.episode and b.step == a.step + 1]
     ticked = [(a, b) for a, b in steps if a.step > 0]
     gaps = [b.wall - a.wall for a, b in (ticked if len(ticked) >= 3 else steps)]
-    stamp_gaps = [b.stamp - a.stamp for a, b in zip(rec.states, rec.states[1:])
-                  if b.episode == a.episode and b.step == a.step + 1]
+    stamp_gaps = [
+        b.stamp - a.stamp for a, b in zip(rec.states, rec.states[1:]) if b.episode == a.episode and b.step == a.step + 1
+    ]
     if len(gaps) < 3:
         return Result("rate", "FAIL", f"{len(gaps)} consecutive steps in {len(rec.states)} states")
     rate = 1.0 / max(float(np.median(gaps)), 1e-9)
@@ -355,9 +374,11 @@ def check_rate(rec: Recording, s: Settings) -> Result:
     else:  # the stamps are judged by 'stamps', not here
         by_stamps = "no rate by stamps: they do not strictly increase, see 'stamps'"
     ok = abs(rate - s.rate) <= RATE_TOLERANCE * s.rate
-    return Result("rate", "PASS" if ok else "FAIL",
-                  f"{rate:.2f} Hz ({by_stamps}; median of {len(gaps)} steps), "
-                  f"expected {s.rate:g} Hz +-{RATE_TOLERANCE:.0%}")
+    return Result(
+        "rate",
+        "PASS" if ok else "FAIL",
+        f"{rate:.2f} Hz ({by_stamps}; median of {len(gaps)} steps), expected {s.rate:g} Hz +-{RATE_TOLERANCE:.0%}",
+    )
 
 
 def check_stamps(rec: Recording, s: Settings) -> Result:
@@ -380,30 +401,52 @@ def check_stamps(rec: Recording, s: Settings) -> Result:
             first_bad = first_bad or f"episode {a.episode} step {a.step} -> episode {b.episode} step {b.step}"
     n = len(rec.states)
     if back or jumps or bad_episode:
-        return Result("stamps", "FAIL", f"{back} non-increasing stamp(s), {jumps} step jump(s), {bad_episode} bad "
-                                        f"episode change(s) in {n} states; first: {first_bad}")
+        return Result(
+            "stamps",
+            "FAIL",
+            f"{back} non-increasing stamp(s), {jumps} step jump(s), {bad_episode} bad "
+            f"episode change(s) in {n} states; first: {first_bad}",
+        )
     if rec.reset == "started" and not episodes:
-        return Result("stamps", "FAIL", f"{n} states, none of a new episode after /dlo/sim/reset said it started one "
-                                        "(publish the new episode's step 0 state)")
+        return Result(
+            "stamps",
+            "FAIL",
+            f"{n} states, none of a new episode after /dlo/sim/reset said it started one "
+            "(publish the new episode's step 0 state)",
+        )
     if rec.reset not in (None, "started"):
         return Result("stamps", "FAIL", f"/dlo/sim/reset: {rec.reset}")
-    note = "" if episodes else " (no new episode seen: the driver serves no /dlo/sim/reset, so stamps across an " \
-                               "episode start were not judged)"
-    return Result("stamps", "PASS", f"{n} states: stamps strictly increasing, step +1 each "
-                                    f"({episodes} new episode(s) from step 0){note}")
+    note = (
+        ""
+        if episodes
+        else " (no new episode seen: the driver serves no /dlo/sim/reset, so stamps across an episode start were not judged)"
+    )
+    return Result(
+        "stamps", "PASS", f"{n} states: stamps strictly increasing, step +1 each ({episodes} new episode(s) from step 0){note}"
+    )
 
 
 def check_camera(rec: Recording, s: Settings) -> Result:
     if not rec.infos:
-        return Result("camera", "FAIL", f"no camera_info ({len(rec.images)} images): publish it latched "
-                                        "(transient local) in the image's frame")
+        return Result(
+            "camera",
+            "FAIL",
+            f"no camera_info ({len(rec.images)} images): publish it latched (transient local) in the image's frame",
+        )
     info = rec.infos[-1]
     k = np.asarray(info.k, dtype=float).reshape(-1)
     problems = []
     if info.width <= 0 or info.height <= 0:
         problems.append(f"camera_info size {info.width}x{info.height}")
-    if k.size != 9 or not np.all(np.isfinite(k)) or k[0] <= 0 or k[4] <= 0 or not 0 < k[2] < info.width \
-            or not 0 < k[5] < info.height or abs(k[8] - 1.0) > 1e-9:
+    if (
+        k.size != 9
+        or not np.all(np.isfinite(k))
+        or k[0] <= 0
+        or k[4] <= 0
+        or not 0 < k[2] < info.width
+        or not 0 < k[5] < info.height
+        or abs(k[8] - 1.0) > 1e-9
+    ):
         problems.append(f"K {k.round(2).tolist()} is not a pinhole matrix with fx, fy > 0 and the centre in the image")
     if not info.frame_id:
         problems.append("camera_info has no frame_id")
@@ -415,8 +458,10 @@ def check_camera(rec: Recording, s: Settings) -> Result:
     values = sorted({int(v) for im in rec.images for v in im.values})
     odd = [v for v in values if v not in SEGMENTATION]
     if odd:
-        problems.append(f"pixel values {odd[:5]}{' ...' if len(odd) > 5 else ''}: a segmented image has only "
-                        f"{IMAGE_BACKGROUND} (background), {IMAGE_GRIPPER} (gripper), {IMAGE_CABLE} (cable)")
+        problems.append(
+            f"pixel values {odd[:5]}{' ...' if len(odd) > 5 else ''}: a segmented image has only "
+            f"{IMAGE_BACKGROUND} (background), {IMAGE_GRIPPER} (gripper), {IMAGE_CABLE} (cable)"
+        )
     elif rec.images and not encodings and IMAGE_CABLE not in values:
         problems.append(f"no cable ({IMAGE_CABLE}) in any of {len(rec.images)} images: vision_node never sees it")
     for im in rec.images:
@@ -428,14 +473,19 @@ def check_camera(rec: Recording, s: Settings) -> Result:
             break
         bpp = ENCODING_BYTES.get(im.encoding, 1)
         if im.step < im.width * bpp or im.size != im.step * im.height:
-            problems.append(f"image data {im.size} bytes for {im.height} rows of step {im.step} "
-                            f"({im.encoding}, width {im.width})")
+            problems.append(
+                f"image data {im.size} bytes for {im.height} rows of step {im.step} ({im.encoding}, width {im.width})"
+            )
             break
     if problems:
         return Result("camera", "FAIL", "; ".join(problems))
-    return Result("camera", "PASS", f"{len(rec.images)} mono8 segmented images for {len(rec.states)} states, "
-                                    f"{info.width}x{info.height} "
-                                    f"in '{info.frame_id}', fx {k[0]:.1f} fy {k[4]:.1f} px")
+    return Result(
+        "camera",
+        "PASS",
+        f"{len(rec.images)} mono8 segmented images for {len(rec.states)} states, "
+        f"{info.width}x{info.height} "
+        f"in '{info.frame_id}', fx {k[0]:.1f} fy {k[4]:.1f} px",
+    )
 
 
 def check_obey(rec: Recording, s: Settings) -> Result:
@@ -447,8 +497,9 @@ def check_obey(rec: Recording, s: Settings) -> Result:
             dt = [(a, b, getattr(b, clock) - getattr(a, clock)) for a, b in steps_in(rec, phase.name)]
             pairs = [(a, b, t) for a, b, t in dt if 0.5 * period <= t <= 2 * period]
             if len(pairs) < 2:
-                problems.append(f"{phase.name}: {len(pairs)} usable step(s) (states missing, or not half to twice "
-                                "a period apart)")
+                problems.append(
+                    f"{phase.name}: {len(pairs)} usable step(s) (states missing, or not half to twice a period apart)"
+                )
                 continue
             v = np.median([[(b.x - a.x) / t, (b.y - a.y) / t] for a, b, t in pairs], axis=0)
             want = np.asarray(phase.command[:2])
@@ -507,24 +558,36 @@ def check_stale(rec: Recording, s: Settings) -> Result:
         return Result("stale", "FAIL", "the silent phase did not run")
     t0, end = rec.last_command_wall, window[1]
     period = 1.0 / s.rate
-    before = [(a, b) for a, b in zip(rec.states, rec.states[1:]) if a.episode == b.episode and b.step == a.step + 1
-              and window[0] - 0.4 <= b.wall <= t0 + 0.5 * period]
+    before = [
+        (a, b)
+        for a, b in zip(rec.states, rec.states[1:])
+        if a.episode == b.episode and b.step == a.step + 1 and window[0] - 0.4 <= b.wall <= t0 + 0.5 * period
+    ]
     if not any(moved(a, b) > STILL for a, b in before):
-        return Result("stale", "FAIL", "the gripper did not move under the last command before the silence "
-                                       "(cannot see it stop)")
+        return Result("stale", "FAIL", "the gripper did not move under the last command before the silence (cannot see it stop)")
     after = [(a, b) for a, b in zip(rec.states, rec.states[1:]) if t0 < b.wall <= end]
     limit = s.command_timeout + 2 * max(period, typical_period(rec)) + PIPELINE_SLACK
     late = [b for a, b in after if b.wall > t0 + limit]
     if len(late) < 2:
-        return Result("stale", "FAIL", f"{len(late)} states between {limit:.2f} s and {end - t0:.2f} s after the last "
-                                       "command: a real-time driver keeps publishing its state")
+        return Result(
+            "stale",
+            "FAIL",
+            f"{len(late)} states between {limit:.2f} s and {end - t0:.2f} s after the last "
+            "command: a real-time driver keeps publishing its state",
+        )
     moving = [b.wall for a, b in after if moved(a, b) > STILL and b.episode == a.episode]  # not a reset's jump
     stop = (max(moving) - t0) if moving else 0.0
     if stop > limit:
-        return Result("stale", "FAIL", f"still moving {stop:.2f} s after the last command "
-                                       f"(command_timeout {s.command_timeout:g} s, allowed {limit:.2f} s)")
-    return Result("stale", "PASS", f"stopped {stop:.2f} s after the last command (command_timeout "
-                                   f"{s.command_timeout:g} s, allowed {limit:.2f} s)")
+        return Result(
+            "stale",
+            "FAIL",
+            f"still moving {stop:.2f} s after the last command (command_timeout {s.command_timeout:g} s, allowed {limit:.2f} s)",
+        )
+    return Result(
+        "stale",
+        "PASS",
+        f"stopped {stop:.2f} s after the last command (command_timeout {s.command_timeout:g} s, allowed {limit:.2f} s)",
+    )
 
 
 def check_workspace(rec: Recording, s: Settings) -> Result:
@@ -534,32 +597,45 @@ def check_workspace(rec: Recording, s: Settings) -> Result:
     worst = max(states, key=lambda x: max(abs(x.x), abs(x.y)))
     reach = max(abs(worst.x), abs(worst.y))
     if reach > s.workspace + WORKSPACE_SLACK:
-        return Result("workspace", "FAIL", f"gripper at x = {worst.x:.3f} m, y = {worst.y:.3f} m (step {worst.step}), "
-                                           f"outside |x|, |y| <= {s.workspace:g} m")
+        return Result(
+            "workspace",
+            "FAIL",
+            f"gripper at x = {worst.x:.3f} m, y = {worst.y:.3f} m (step {worst.step}), outside |x|, |y| <= {s.workspace:g} m",
+        )
     window = phase_window(rec, "corner")
     corner = [x for x in states if window and window[0] <= x.wall <= window[1]]
     where = ""
     if corner:
         last = corner[-1]
         at = max(last.x, last.y) >= s.workspace - 0.002
-        where = (f"; driven to the corner it stopped at the boundary (x = {last.x:.3f}, y = {last.y:.3f} m)" if at else
-                 f"; driven to the corner it ended at x = {last.x:.3f}, y = {last.y:.3f} m, short of the boundary")
-    return Result("workspace", "PASS", f"all {len(states)} states inside |x|, |y| <= {s.workspace:g} m "
-                                       f"(largest {reach:.3f} m){where}")
+        where = (
+            f"; driven to the corner it stopped at the boundary (x = {last.x:.3f}, y = {last.y:.3f} m)"
+            if at
+            else f"; driven to the corner it ended at x = {last.x:.3f}, y = {last.y:.3f} m, short of the boundary"
+        )
+    return Result(
+        "workspace", "PASS", f"all {len(states)} states inside |x|, |y| <= {s.workspace:g} m (largest {reach:.3f} m){where}"
+    )
 
 
 def check_touch(rec: Recording, s: Settings) -> Result:
     bad = [c for c in rec.clouds if c.problem]
     if bad:
-        return Result("touch", "FAIL", f"{len(bad)} of {len(rec.clouds)} particle clouds unreadable for tactile_node: "
-                                       f"{bad[0].problem}")
+        return Result(
+            "touch", "FAIL", f"{len(bad)} of {len(rec.clouds)} particle clouds unreadable for tactile_node: {bad[0].problem}"
+        )
     if rec.clouds:
-        return Result("touch", "PASS", f"{len(rec.clouds)} particle clouds in the layout tactile_node reads "
-                                       f"({', '.join(FIELD_NAMES)}; 'held' flags the touched points)")
+        return Result(
+            "touch",
+            "PASS",
+            f"{len(rec.clouds)} particle clouds in the layout tactile_node reads "
+            f"({', '.join(FIELD_NAMES)}; 'held' flags the touched points)",
+        )
     if rec.tactile_stamps:
         return Result("touch", "PASS", f"{len(rec.tactile_stamps)} tactile poses")
-    return Result("touch", "FAIL", "no tactile source: neither /dlo/rope/particles (contact points flagged 'held') "
-                                   "nor /dlo/tactile/pose")
+    return Result(
+        "touch", "FAIL", "no tactile source: neither /dlo/rope/particles (contact points flagged 'held') nor /dlo/tactile/pose"
+    )
 
 
 def check_sync(rec: Recording, s: Settings) -> Result:
@@ -567,15 +643,20 @@ def check_sync(rec: Recording, s: Settings) -> Result:
     states = judged_states(rec)
     if not states:
         return Result("sync", "FAIL", "no state received before the end of the check")
-    inputs = [("image", [im.stamp_ns for im in rec.images]), ("particle cloud", [c.stamp_ns for c in rec.clouds]),
-              ("tactile pose", rec.tactile_stamps)]
-    walls = {"image": [im.wall for im in rec.images], "particle cloud": [c.wall for c in rec.clouds],
-             "tactile pose": rec.tactile_walls}
+    inputs = [
+        ("image", [im.stamp_ns for im in rec.images]),
+        ("particle cloud", [c.stamp_ns for c in rec.clouds]),
+        ("tactile pose", rec.tactile_stamps),
+    ]
+    walls = {
+        "image": [im.wall for im in rec.images],
+        "particle cloud": [c.wall for c in rec.clouds],
+        "tactile pose": rec.tactile_walls,
+    }
     present = [(name, stamps) for name, stamps in inputs if stamps]
     absent = [("image", "camera")] if not rec.images else []  # an input never published is another rule's
     absent += [("tactile source", "touch")] if not rec.clouds and not rec.tactile_stamps else []
-    note = (f" (no {' and no '.join(n for n, _ in absent)} to match: see {', '.join(r for _, r in absent)})"
-            if absent else "")
+    note = f" (no {' and no '.join(n for n, _ in absent)} to match: see {', '.join(r for _, r in absent)})" if absent else ""
     failing = {}  # (unmatched, judged, first unmatched state, nearby stamps) -> input names: alike in one phrase
     for name, stamps in present:
         have, start = set(stamps), min(stamps)
@@ -589,20 +670,30 @@ def check_sync(rec: Recording, s: Settings) -> Result:
     for (count, judged, first_ns, step, near), names in failing.items():
         off = min(near, key=lambda t: abs(t - first_ns)) - first_ns
         what = " and ".join(names)
-        problems.append(f"{count} of {judged} states have no {' and no '.join(names)} with their exact stamp; "
-                        f"first: step {step} at {format_stamp(first_ns)} s, {what} stamps "
-                        f"{', '.join(format_stamp(t) for t in near)} nearby (the nearest {abs(off) / 1e3:g} us "
-                        f"{'later' if off > 0 else 'earlier'})")
+        problems.append(
+            f"{count} of {judged} states have no {' and no '.join(names)} with their exact stamp; "
+            f"first: step {step} at {format_stamp(first_ns)} s, {what} stamps "
+            f"{', '.join(format_stamp(t) for t in near)} nearby (the nearest {abs(off) / 1e3:g} us "
+            f"{'later' if off > 0 else 'earlier'})"
+        )
     problems += [p for name, stamps in present if (p := step_away(name, stamps, walls[name], states, rec))]
     if problems:
-        return Result("sync", "FAIL", "; ".join(problems) + ": stamp every message of a step with its state's "
-                                      "stamp (tactile_node, vision_node and policy_node match a step's inputs by exact "
-                                      "stamp and never run a step without all of them)" + note)
+        return Result(
+            "sync",
+            "FAIL",
+            "; ".join(problems) + ": stamp every message of a step with its state's "
+            "stamp (tactile_node, vision_node and policy_node match a step's inputs by exact "
+            "stamp and never run a step without all of them)" + note,
+        )
     names = " and ".join(f"a{'n' if name[0] in 'aeiou' else ''} {name}" for name, _ in present)
     if not present:
         return Result("sync", "PASS", f"{len(states)} states, nothing else to match{note}")
-    return Result("sync", "PASS", f"{len(states)} states, each with {names} of its exact stamp (the perception "
-                                  f"and policy nodes match a step by stamp){note}")
+    return Result(
+        "sync",
+        "PASS",
+        f"{len(states)} states, each with {names} of its exact stamp (the perception "
+        f"and policy nodes match a step by stamp){note}",
+    )
 
 
 def step_away(name: str, stamps: list, walls: list, states: list, rec: Recording) -> str | None:
@@ -621,13 +712,24 @@ def step_away(name: str, stamps: list, walls: list, states: list, rec: Recording
     if len(away) <= STEP_AWAY_SHARE * len(offsets):
         return None
     median = float(np.median(away))
-    return (f"{len(away)} of {len(offsets)} states get the {name} carrying their stamp a step away: it arrives "
-            f"{abs(median) * 1e3:.0f} ms {'after' if median > 0 else 'before'} the state (median; the control "
-            f"period is {period * 1e3:.0f} ms), so it was measured in another step")
+    return (
+        f"{len(away)} of {len(offsets)} states get the {name} carrying their stamp a step away: it arrives "
+        f"{abs(median) * 1e3:.0f} ms {'after' if median > 0 else 'before'} the state (median; the control "
+        f"period is {period * 1e3:.0f} ms), so it was measured in another step"
+    )
 
 
-CHECKS = {"rate": check_rate, "stamps": check_stamps, "sync": check_sync, "camera": check_camera, "obey": check_obey,
-          "invalid": check_invalid, "stale": check_stale, "workspace": check_workspace, "touch": check_touch}
+CHECKS = {
+    "rate": check_rate,
+    "stamps": check_stamps,
+    "sync": check_sync,
+    "camera": check_camera,
+    "obey": check_obey,
+    "invalid": check_invalid,
+    "stale": check_stale,
+    "workspace": check_workspace,
+    "touch": check_touch,
+}
 
 
 def evaluate(rec: Recording, s: Settings) -> list[Result]:
@@ -653,8 +755,10 @@ def check_alone(node, topic: str) -> None:
         infos = [i for i in node.get_publishers_info_by_topic(topic) if i.node_name != node.get_name()]
         others = [f"{i.node_namespace.rstrip('/')}/{i.node_name}" for i in infos]
         if not any("_UNKNOWN_" in name for name in others) or time.monotonic() > named_by:
-            raise CheckError(f"another node commands the driver ({', '.join(others) or 'unknown'} publishes {topic}): "
-                             "stop it (the policy) before the check")
+            raise CheckError(
+                f"another node commands the driver ({', '.join(others) or 'unknown'} publishes {topic}): "
+                "stop it (the policy) before the check"
+            )
         rclpy.spin_once(node, timeout_sec=0.05)
 
 
@@ -681,9 +785,16 @@ def record(s: Settings, namespace: str, timeout: float, log=print) -> Recording 
             return int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)
 
         def on_state(msg):
-            sample = StateSample(time.monotonic(), msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec,
-                                 int(msg.episode), int(msg.step), float(msg.x), float(msg.y), float(msg.closure),
-                                 stamp_ns(msg))
+            sample = StateSample(
+                time.monotonic(),
+                msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec,
+                int(msg.episode),
+                int(msg.step),
+                float(msg.x),
+                float(msg.y),
+                float(msg.closure),
+                stamp_ns(msg),
+            )
             rec.states.append(sample)
             i = current["index"]
             if i < 0 or i >= len(phases) or phases[i].command is None:
@@ -700,24 +811,39 @@ def record(s: Settings, namespace: str, timeout: float, log=print) -> Recording 
             if msg.encoding == "mono8":  # the pixel values vision_node will see (row padding left out)
                 data = np.frombuffer(bytes(msg.data), np.uint8)
                 if msg.step >= msg.width and data.size == msg.height * msg.step:
-                    data = data.reshape(msg.height, msg.step)[:, :msg.width]
+                    data = data.reshape(msg.height, msg.step)[:, : msg.width]
                 values = tuple(int(v) for v in np.unique(data))
-            rec.images.append(ImageSample(int(msg.width), int(msg.height), msg.encoding, int(msg.step), len(msg.data),
-                                          msg.header.frame_id, stamp_ns(msg), values, time.monotonic()))
+            rec.images.append(
+                ImageSample(
+                    int(msg.width),
+                    int(msg.height),
+                    msg.encoding,
+                    int(msg.step),
+                    len(msg.data),
+                    msg.header.frame_id,
+                    stamp_ns(msg),
+                    values,
+                    time.monotonic(),
+                )
+            )
 
         def on_info(msg):
             rec.infos.append(InfoSample(int(msg.width), int(msg.height), tuple(msg.k), msg.header.frame_id))
 
         latched = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
         handlers = {
-            "gripper": on_state, "image": on_image, "camera_info": on_info,
-            "particles": lambda m: rec.clouds.append(CloudSample(stamp_ns(m), [f.name for f in m.fields],
-                                                                 cloud_layout_problem(m), time.monotonic())),
+            "gripper": on_state,
+            "image": on_image,
+            "camera_info": on_info,
+            "particles": lambda m: rec.clouds.append(
+                CloudSample(stamp_ns(m), [f.name for f in m.fields], cloud_layout_problem(m), time.monotonic())
+            ),
             "tactile": lambda m: (rec.tactile_stamps.append(stamp_ns(m)), rec.tactile_walls.append(time.monotonic())),
         }
         for t in DRIVER_TOPICS:  # what a driver may publish, each with its recorder (one per driver topic)
-            node.create_subscription(message_class(t.type), prefix + t.name, handlers[t.key],
-                                     latched if t.rate == "latched" else QUEUE_DEPTH)
+            node.create_subscription(
+                message_class(t.type), prefix + t.name, handlers[t.key], latched if t.rate == "latched" else QUEUE_DEPTH
+            )
 
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline and (not rec.states or pub.get_subscription_count() == 0):
@@ -726,8 +852,10 @@ def record(s: Settings, namespace: str, timeout: float, log=print) -> Recording 
             return None
         check_alone(node, pub.topic_name)
         state_topic = prefix + topic_record("gripper").name
-        log(f"driver found: {len(node.get_publishers_info_by_topic(state_topic))} publisher(s) of "
-            f"{state_topic}; checking for about {sum(p.duration for p in phases):.0f} s")
+        log(
+            f"driver found: {len(node.get_publishers_info_by_topic(state_topic))} publisher(s) of "
+            f"{state_topic}; checking for about {sum(p.duration for p in phases):.0f} s"
+        )
         rec.states.clear()
         silent_from = None
         ResetEpisode = message_class(SERVICE_RESET.type)
@@ -779,30 +907,51 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(
         prog="dlo-driver-check",
         description="Check the driver (or sim node in real_time mode) running on this ROS domain against the "
-                    "topic contract, rule by rule: " + ", ".join(RULES) + ". It sends commands to "
-                    "/dlo/gripper/cmd (the gripper moves about 0.6 m): nothing else may command the driver meanwhile.",
+        "topic contract, rule by rule: " + ", ".join(RULES) + ". It sends commands to "
+        "/dlo/gripper/cmd (the gripper moves about 0.6 m): nothing else may command the driver meanwhile.",
         epilog="Try it on the simulator first: 'ros2run dlo_sim sim_node --ros-args -p mode:=real_time &' then "
-               "'dlo-driver-check' (9/9; docs/WRITE_YOUR_DRIVER.md). Exit status: 0 every rule passed, 1 a rule "
-               "failed, no driver answered or another node commands the driver, 2 bad usage, 130 interrupted.")
+        "'dlo-driver-check' (9/9; docs/WRITE_YOUR_DRIVER.md). Exit status: 0 every rule passed, 1 a rule "
+        "failed, no driver answered or another node commands the driver, 2 bad usage, 130 interrupted.",
+    )
     parser.add_argument("--namespace", default="", help="topics under /NS/dlo/... (as launch_graph.sh --namespace)")
     parser.add_argument("--timeout", type=float, default=10.0, help="s to wait for the driver's first state (10)")
     parser.add_argument("--duration", type=float, default=2.0, help="s of holding still for rate/camera/touch (2)")
     parser.add_argument("--rate", type=float, default=CONTROL_RATE, help=f"expected control rate [Hz] ({CONTROL_RATE:g})")
-    parser.add_argument("--command-timeout", type=float, default=0.5,
-                        help="the driver's command_timeout [s]: a stale command must stop the gripper (0.5)")
+    parser.add_argument(
+        "--command-timeout",
+        type=float,
+        default=0.5,
+        help="the driver's command_timeout [s]: a stale command must stop the gripper (0.5)",
+    )
     parser.add_argument("--speed", type=float, default=0.1, help="speed of the test motions [m/s] (0.1)")
-    parser.add_argument("--workspace", type=float, default=WORKSPACE_HALF_WIDTH,
-                        help=f"half width of the square workspace [m] ({WORKSPACE_HALF_WIDTH:g})")
-    parser.add_argument("--skip", action="append", default=[], choices=RULES, metavar="RULE",
-                        help=f"do not judge this rule (repeatable): one of {', '.join(RULES)}")
+    parser.add_argument(
+        "--workspace",
+        type=float,
+        default=WORKSPACE_HALF_WIDTH,
+        help=f"half width of the square workspace [m] ({WORKSPACE_HALF_WIDTH:g})",
+    )
+    parser.add_argument(
+        "--skip",
+        action="append",
+        default=[],
+        choices=RULES,
+        metavar="RULE",
+        help=f"do not judge this rule (repeatable): one of {', '.join(RULES)}",
+    )
     args = parser.parse_args(argv)
     for name in ("timeout", "duration", "rate", "command_timeout", "speed", "workspace"):
         if not getattr(args, name) > 0:
             parser.error(f"--{name.replace('_', '-')} must be > 0, got {getattr(args, name)}")
     if args.speed > MAX_SPEED:
         parser.error(f"--speed must be <= {MAX_SPEED:g} m/s (the command limit)")
-    settings = Settings(rate=args.rate, command_timeout=args.command_timeout, workspace=args.workspace,
-                        duration=args.duration, speed=args.speed, skip=tuple(args.skip))
+    settings = Settings(
+        rate=args.rate,
+        command_timeout=args.command_timeout,
+        workspace=args.workspace,
+        duration=args.duration,
+        speed=args.speed,
+        skip=tuple(args.skip),
+    )
     try:
         rec = record(settings, args.namespace, args.timeout)
     except CheckError as error:
@@ -813,9 +962,12 @@ def main(argv=None) -> int:
         return 130
     if rec is None:
         topic = ("/" + args.namespace.strip("/") if args.namespace.strip("/") else "") + topic_record("gripper").name
-        print(f"dlo-driver-check: no driver: nothing published {topic} within {args.timeout:g} s on "
-              f"ROS_DOMAIN_ID={os.environ.get('ROS_DOMAIN_ID') or '0'} (is the driver running, on this domain "
-              "and namespace, in real_time mode?)", file=sys.stderr)
+        print(
+            f"dlo-driver-check: no driver: nothing published {topic} within {args.timeout:g} s on "
+            f"ROS_DOMAIN_ID={os.environ.get('ROS_DOMAIN_ID') or '0'} (is the driver running, on this domain "
+            "and namespace, in real_time mode?)",
+            file=sys.stderr,
+        )
         return 1
     results = evaluate(rec, settings)
     print(format_results(results))

@@ -45,10 +45,6 @@ import time
 
 import numpy as np
 from builtin_interfaces.msg import Time
-from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, QoSProfile
-from sensor_msgs.msg import CameraInfo, Image, PointCloud2
-
 from dlo_common.node_util import declare_parameters
 from dlo_common.params import Param
 from dlo_msgs.msg import GripperCommand, GripperState
@@ -56,9 +52,22 @@ from dlo_msgs.srv import ResetEpisode
 from dlo_perception.camera import CAMERA_FRAME, TopCamera, camera_info
 from dlo_perception.cloud import particle_cloud
 from dlo_sim.command import CommandError, RejectionLog, command_mismatch, command_to_action
-from dlo_sim.config import (DT, FINGER_RADIUS, FIXED_END, GRIPPER_HEIGHT, GRIPPER_START_BEHIND, MAX_DISPLACEMENT,
-                            REST_SPACING, SUBSTEPS_PER_ACTION, WORKSPACE_HALF_WIDTH, SimConfig)
+from dlo_sim.config import (
+    DT,
+    FINGER_RADIUS,
+    FIXED_END,
+    GRIPPER_HEIGHT,
+    GRIPPER_START_BEHIND,
+    MAX_DISPLACEMENT,
+    REST_SPACING,
+    SUBSTEPS_PER_ACTION,
+    WORKSPACE_HALF_WIDTH,
+    SimConfig,
+)
 from dlo_sim.grip import carried_fraction, stall_firm_grip
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile
+from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 
 MODES = ("real_time", "step_locked")
 CONTROL_RATE = 1.0 / (DT * SUBSTEPS_PER_ACTION)  # Hz: one command per 0.08 s, like the sim
@@ -69,11 +78,19 @@ SUBSTEP = MAX_DISPLACEMENT / SimConfig().substeps  # m, the sim's largest grippe
 REPUBLISH_PERIOD = 0.25  # s, step_locked: republish an unanswered state this often
 
 PARAMETERS = (
-    Param("mode", "real_time", "real_time: a timer at 'rate' moves the gripper with the latest command; "
-                               "step_locked: one answered state = one step", choices=MODES),
+    Param(
+        "mode",
+        "real_time",
+        "real_time: a timer at 'rate' moves the gripper with the latest command; step_locked: one answered state = one step",
+        choices=MODES,
+    ),
     Param("rate", CONTROL_RATE, "control rate [Hz]: one state per 1/rate s", above=0.0),
-    Param("command_timeout", 0.5, "a command older than this [s] stops the gripper and holds the closure "
-                                  "(real_time), or is rejected as stale", above=0.0),
+    Param(
+        "command_timeout",
+        0.5,
+        "a command older than this [s] stops the gripper and holds the closure (real_time), or is rejected as stale",
+        above=0.0,
+    ),
     Param("steps", 0, "control steps before the driver exits (0 = run until stopped)", at_least=0),
     Param("cable_length", 0.2, "length of the mock cable [m]", at_least=0.05, at_most=0.5),
     Param("amplitude", 0.02, "lateral amplitude of the mock cable's S-curve [m]", at_least=0.0, at_most=0.1),
@@ -119,7 +136,7 @@ def kinematic_move(gripper, cable: np.ndarray, vx: float, vy: float, closure: fl
 
 def draw_cable(points: np.ndarray, camera: TopCamera) -> np.ndarray:
     """Top-view segmentation image (255 = cable) of the points, like a segmented camera frame."""
-    v, u = np.mgrid[0:camera.height, 0:camera.width]
+    v, u = np.mgrid[0 : camera.height, 0 : camera.width]
     world = camera.pixel_to_world(np.stack([u + 0.5, v + 0.5], axis=-1), points[0, 2])
     near = np.min(np.linalg.norm(world[:, :, None, :] - points[None, None, :, :2], axis=-1), axis=2)
     return np.where(near <= CABLE_RADIUS, 255, 0).astype(np.uint8)
@@ -158,8 +175,10 @@ class MockDriver(Node):
         if self.mode == "real_time":
             self.create_timer(self.period, self.on_tick)
         self.create_timer(0.05, self.on_watchdog)
-        self.get_logger().info(f"{self.mode} driver at {p['rate']:g} Hz, command_timeout {self.timeout:g} s, "
-                               f"workspace |x|, |y| <= {WORKSPACE_HALF_WIDTH} m")
+        self.get_logger().info(
+            f"{self.mode} driver at {p['rate']:g} Hz, command_timeout {self.timeout:g} s, "
+            f"workspace |x|, |y| <= {WORKSPACE_HALF_WIDTH} m"
+        )
         if self.mode == "step_locked":
             self.publish_state()
 
@@ -189,7 +208,7 @@ class MockDriver(Node):
         if self.drawn_cable is not self.cable:
             self.cable_image, self.drawn_cable = draw_cable(self.cable, self.camera), self.cable
         image = self.cable_image.copy()
-        v, u = np.mgrid[0:self.camera.height, 0:self.camera.width]
+        v, u = np.mgrid[0 : self.camera.height, 0 : self.camera.width]
         world = self.camera.pixel_to_world(np.stack([u + 0.5, v + 0.5], axis=-1), GRIPPER_HEIGHT)
         image[np.linalg.norm(world - self.gripper, axis=-1) <= FINGER_RADIUS] = 128
         contact = touching(self.cable, self.gripper)
@@ -204,9 +223,16 @@ class MockDriver(Node):
 
     # ------------------------------------------------------------------ commands
     def on_command(self, msg: GripperCommand):
-        mismatch = command_mismatch(self.mode, self.episode, self.step, int(msg.episode), int(msg.step),
-                                    period=self.period, command_timeout=self.timeout,
-                                    previous_final=self.previous_final)
+        mismatch = command_mismatch(
+            self.mode,
+            self.episode,
+            self.step,
+            int(msg.episode),
+            int(msg.step),
+            period=self.period,
+            command_timeout=self.timeout,
+            previous_final=self.previous_final,
+        )
         if mismatch is not None:
             cause, text = mismatch
             if cause != "previous episode":  # an answer to the previous episode's final state is expected
@@ -238,8 +264,9 @@ class MockDriver(Node):
             dt = min(now - self.last_tick, 2 * self.period)  # the measured time since the last state
             if self.command is None or now - self.command[3] > self.timeout:
                 if self.command is not None and not self.timed_out:
-                    self.get_logger().warning(f"command timed out (older than {self.timeout:g} s): the gripper "
-                                              "stops and holds its closure")
+                    self.get_logger().warning(
+                        f"command timed out (older than {self.timeout:g} s): the gripper stops and holds its closure"
+                    )
                     self.timed_out = True
                 self.move(0.0, 0.0, self.closure, dt)
             else:
@@ -291,8 +318,9 @@ class MockDriver(Node):
         (x, y, z), closure, pixels, points, contact = self.read_sensors()
         stamp = self.state_stamp()
         cloud = particle_cloud(points, contact)
-        image = Image(height=pixels.shape[0], width=pixels.shape[1], encoding="mono8", step=pixels.shape[1],
-                      data=pixels.tobytes())
+        image = Image(
+            height=pixels.shape[0], width=pixels.shape[1], encoding="mono8", step=pixels.shape[1], data=pixels.tobytes()
+        )
         state = GripperState(x=x, y=y, z=z, closure=closure, episode=self.episode, step=self.step)
         for msg in (cloud, image, state):
             msg.header.stamp, msg.header.frame_id = stamp, "world"

@@ -10,7 +10,6 @@ from __future__ import annotations
 import sys
 
 import numpy as np
-
 from dlo_driver_kit import mock_driver_node
 from dlo_driver_kit.mock_driver_node import MockDriver
 
@@ -117,6 +116,7 @@ class _Altered:
 def restamp(stamp):
     def alter(msg):
         msg.header.stamp = stamp()
+
     return alter
 
 
@@ -129,6 +129,7 @@ def one_step_late():
         if previous:
             msg.header.stamp = previous.pop()
         previous.append(stamp)
+
     return alter
 
 
@@ -141,6 +142,7 @@ def through_float(msg):
 def shifted(offset_ns: int):
     def alter(msg):
         msg.header.stamp = ns_stamp(msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec + offset_ns)
+
     return alter
 
 
@@ -152,20 +154,20 @@ def ns_stamp(nanoseconds: int):
 
 
 def to_rgb8(image):
-    pixels = np.frombuffer(bytes(image.data), np.uint8).reshape(image.height, image.step)[:, :image.width]
+    pixels = np.frombuffer(bytes(image.data), np.uint8).reshape(image.height, image.step)[:, : image.width]
     image.data = np.repeat(pixels, 3, axis=1).tobytes()
     image.encoding, image.step = "rgb8", 3 * image.width
 
 
 def to_float64(cloud):
-    from sensor_msgs.msg import PointField
-
     from dlo_perception.cloud import unpack_particles
+    from sensor_msgs.msg import PointField
 
     positions, held = unpack_particles(cloud)
     points = np.concatenate([positions, held[:, None]], axis=1).astype("<f8")
-    cloud.fields = [PointField(name=f.name, offset=8 * i, datatype=PointField.FLOAT64, count=1)
-                    for i, f in enumerate(cloud.fields)]
+    cloud.fields = [
+        PointField(name=f.name, offset=8 * i, datatype=PointField.FLOAT64, count=1) for i, f in enumerate(cloud.fields)
+    ]
     cloud.point_step, cloud.row_step, cloud.data = 32, 32 * len(points), points.tobytes()
 
 

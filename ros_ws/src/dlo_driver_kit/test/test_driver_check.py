@@ -19,18 +19,34 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # --import-mode=importlib
 
-from dlo_driver_kit_broken_driver import FAULTS  # noqa: E402
-
-from dlo_driver_kit.driver_check import (RULES, CloudSample, ImageSample, InfoSample, Recording,  # noqa: E402
-                                         Settings, StateSample, check_stale, check_workspace, cloud_layout_problem,
-                                         evaluate, schedule)
 from dlo_common.testing import ROS2RUN, Procs, reserved_domain  # noqa: E402
+from dlo_driver_kit.driver_check import (  # noqa: E402
+    RULES,
+    CloudSample,
+    ImageSample,
+    InfoSample,
+    Recording,
+    Settings,
+    StateSample,
+    check_stale,
+    check_workspace,
+    cloud_layout_problem,
+    evaluate,
+    schedule,
+)
+from dlo_driver_kit_broken_driver import FAULTS  # noqa: E402
 from dlo_sim.task import TASK_RULES  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 CHECK = [sys.executable, "-m", "dlo_driver_kit.driver_check"]
-TOPICS = ("/dlo/gripper/state", "/dlo/gripper/cmd", "/dlo/camera/image", "/dlo/camera/camera_info",
-          "/dlo/rope/particles", "/dlo/sim/reset")
+TOPICS = (
+    "/dlo/gripper/state",
+    "/dlo/gripper/cmd",
+    "/dlo/camera/image",
+    "/dlo/camera/camera_info",
+    "/dlo/rope/particles",
+    "/dlo/sim/reset",
+)
 
 
 def verdicts(output: str) -> dict[str, str]:
@@ -83,8 +99,9 @@ def test_sim_node_in_real_time_passes_every_rule(procs, ros_env, task_rules):
     """Our own simulator passes under every task-rules setting: under authors_code the check's sideways moves end
     an episode every step (the cable leaves the authors' narrow held set), and each phase is judged on its steps
     in every episode (driver_check.acting)."""
-    sim = procs("sim", [str(ROS2RUN), "dlo_sim", "sim_node", "--ros-args", "-p", "mode:=real_time",
-                        "-p", f"task_rules:={task_rules}"])
+    sim = procs(
+        "sim", [str(ROS2RUN), "dlo_sim", "sim_node", "--ros-args", "-p", "mode:=real_time", "-p", f"task_rules:={task_rules}"]
+    )
     sim.wait_line("real_time simulation", timeout=180)
     result = run_check_timed(ros_env, "--timeout", "60")
     assert result.returncode == 0, result.stdout + result.stderr + sim.output()[-3000:]
@@ -103,14 +120,22 @@ def check_broken_drivers(ros_env, faults: list[str]) -> dict[str, subprocess.Com
     results = {}
     with contextlib.ExitStack() as domains, Procs(ros_env) as start:
         envs = {fault: dict(ros_env, ROS_DOMAIN_ID=str(domains.enter_context(reserved_domain()))) for fault in faults}
-        drivers = {fault: start(fault, [sys.executable, str(HERE / "dlo_driver_kit_broken_driver.py"), fault],
-                                env=envs[fault])
-                   for fault in faults}
+        drivers = {
+            fault: start(fault, [sys.executable, str(HERE / "dlo_driver_kit_broken_driver.py"), fault], env=envs[fault])
+            for fault in faults
+        }
         for driver in drivers.values():
             driver.wait_line("real_time driver at", timeout=60)
-        checks = {fault: subprocess.Popen([*CHECK, "--timeout", "20", "--duration", "1"], env=envs[fault],
-                                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-                  for fault in faults}
+        checks = {
+            fault: subprocess.Popen(
+                [*CHECK, "--timeout", "20", "--duration", "1"],
+                env=envs[fault],
+                stdout=subprocess.PIPE,
+                stderr=subprocess.PIPE,
+                text=True,
+            )
+            for fault in faults
+        }
         for fault, check in checks.items():
             out, err = check.communicate(timeout=120)
             results[fault] = subprocess.CompletedProcess(check.args, check.returncode, out, err)
@@ -127,7 +152,7 @@ def broken_checks(ros_env) -> dict[str, subprocess.CompletedProcess]:
     faults = sorted(FAULTS)
     results = {}
     for first in range(0, len(faults), BATCH):
-        results.update(check_broken_drivers(ros_env, faults[first:first + BATCH]))
+        results.update(check_broken_drivers(ros_env, faults[first : first + BATCH]))
     for fault in faults:
         if failed_rules(results[fault]) != {FAULTS[fault]}:
             print(f"{fault}: failed {sorted(failed_rules(results[fault]))} in its batch; checked again alone")
@@ -200,8 +225,7 @@ def test_mock_driver_reset_service_starts_the_next_episode_at_the_start_pose(pro
 
     driver = procs("mock", [str(ROS2RUN), "dlo_driver_kit", "mock_driver_node"])
     driver.wait_line("real_time driver at", timeout=60)
-    client = subprocess.run([sys.executable, "-c", RESET_CLIENT], env=ros_env, capture_output=True, text=True,
-                            timeout=120)
+    client = subprocess.run([sys.executable, "-c", RESET_CLIENT], env=ros_env, capture_output=True, text=True, timeout=120)
     assert client.returncode == 0, client.stdout + client.stderr
     result = json.loads(client.stdout.strip().splitlines()[-1])
     start = FIXED_END[0] - GRIPPER_START_BEHIND
@@ -220,8 +244,9 @@ def test_no_driver_is_one_clear_line_and_bad_usage_exits_2(ros_env):
     assert bad.returncode == 2 and "invalid choice" in bad.stderr
     bad = run_check(ros_env, "--speed", "1.0")
     assert bad.returncode == 2 and "--speed must be <= 0.25" in bad.stderr
-    helped = subprocess.run([str(ROS2RUN), "dlo_driver_kit", "dlo-driver-check", "--help"], env=ros_env,
-                            capture_output=True, text=True, timeout=60)
+    helped = subprocess.run(
+        [str(ROS2RUN), "dlo_driver_kit", "dlo-driver-check", "--help"], env=ros_env, capture_output=True, text=True, timeout=60
+    )
     assert helped.returncode == 0 and "--command-timeout" in helped.stdout and "Exit status" in helped.stdout
 
 
@@ -310,11 +335,10 @@ def test_the_workspace_has_one_millimetre_of_slack(beyond, status):
 
 
 def test_analyze_of_a_driver_bag_says_it_has_no_task_state(tmp_path, capsys):
-    from rclpy.serialization import serialize_message
-
-    from dlo_msgs.msg import GripperState
     from dlo_bag import analysis
     from dlo_bag.bag import BagWriter
+    from dlo_msgs.msg import GripperState
+    from rclpy.serialization import serialize_message
 
     bag = tmp_path / "driver_bag"
     with BagWriter(bag) as writer:  # what the recorder writes next to a driver: no /dlo/task/state
@@ -358,8 +382,9 @@ def test_a_reset_during_the_silence_is_not_motion():
             x.x -= 0.05
             if new_episode:
                 x.episode, x.step = 1, x.step - first_step
-        rec.answered = {((1, k - first_step) if new_episode and k >= first_step else (e, k)): p
-                        for (e, k), p in rec.answered.items()}
+        rec.answered = {
+            ((1, k - first_step) if new_episode and k >= first_step else (e, k)): p for (e, k), p in rec.answered.items()
+        }
         return rec
 
     assert check_stale(with_jump(True), s).status == "PASS"
@@ -438,8 +463,7 @@ def test_a_state_stamped_by_its_own_clock_fails_only_sync_and_names_the_stamps()
     reason = results["sync"].reason
     n = len(complete_recording(Settings()).states)
     assert f"{n} of {n} states have no image and no particle cloud with their exact stamp" in reason
-    assert "first: step 0 at 0.0000004 s, image and particle cloud stamps 0, 0.08 nearby (the nearest 0.4 us earlier)" \
-        in reason
+    assert "first: step 0 at 0.0000004 s, image and particle cloud stamps 0, 0.08 nearby (the nearest 0.4 us earlier)" in reason
     assert "match a step's inputs by exact stamp" in reason
 
 
@@ -471,8 +495,9 @@ def test_an_input_carrying_another_steps_stamp_fails_only_sync():
     results = results_of(rec)
     assert {rule for rule, r in results.items() if r.status == "FAIL"} == {"sync"}, results
     n = len(rec.states)
-    assert (f"{n} of {n} states get the particle cloud carrying their stamp a step away: it arrives 80 ms after "
-            "the state") in results["sync"].reason
+    assert (
+        f"{n} of {n} states get the particle cloud carrying their stamp a step away: it arrives 80 ms after the state"
+    ) in results["sync"].reason
     hiccups = complete_recording(s)
     for k, (im, cloud, x) in enumerate(zip(hiccups.images, hiccups.clouds, hiccups.states)):
         im.wall, cloud.wall = x.wall, x.wall + (0.07 if k % 10 == 0 else 0.0)  # one in ten delivered late
@@ -487,11 +512,14 @@ def test_frozen_stamps_fail_only_stamps_and_no_rate_by_stamps_is_made_up():
     assert "first: stamp 0 s after 0 s" in results["stamps"].reason
 
 
-@pytest.mark.parametrize("encoding, values, expected", [
-    ("rgb8", (), "encoding rgb8: vision_node reads mono8 segmentation images only"),
-    ("mono8", (0, 1), "pixel values [1]: a segmented image has only 0 (background), 128 (gripper), 255 (cable)"),
-    ("mono8", (0, 128), "no cable (255) in any of"),
-])
+@pytest.mark.parametrize(
+    "encoding, values, expected",
+    [
+        ("rgb8", (), "encoding rgb8: vision_node reads mono8 segmentation images only"),
+        ("mono8", (0, 1), "pixel values [1]: a segmented image has only 0 (background), 128 (gripper), 255 (cable)"),
+        ("mono8", (0, 128), "no cable (255) in any of"),
+    ],
+)
 def test_the_camera_rule_wants_what_vision_node_reads(encoding, values, expected):
     rec = complete_recording(Settings())
     for image in rec.images:
@@ -504,9 +532,8 @@ def test_the_camera_rule_wants_what_vision_node_reads(encoding, values, expected
 
 
 def test_the_touch_rule_wants_the_cloud_layout_tactile_node_reads():
-    from sensor_msgs.msg import PointField
-
     from dlo_perception.cloud import particle_cloud
+    from sensor_msgs.msg import PointField
 
     points, held = [[0.0, 0.0, 0.1], [0.004, 0.0, 0.1]], [False, True]
     assert cloud_layout_problem(particle_cloud(points, held)) is None
@@ -516,8 +543,11 @@ def test_the_touch_rule_wants_the_cloud_layout_tactile_node_reads():
     integer.fields[3] = PointField(name="held", offset=12, datatype=PointField.INT32, count=1)
     short = particle_cloud(points, held)
     short.data = short.data[:20]
-    for cloud, expected in [(reordered, "fields ['x', 'y', 'held', 'z']"), (integer, "(12, 5, 1)"),
-                            (short, "20 bytes for 2 points of 16 bytes")]:
+    for cloud, expected in [
+        (reordered, "fields ['x', 'y', 'held', 'z']"),
+        (integer, "(12, 5, 1)"),
+        (short, "20 bytes for 2 points of 16 bytes"),
+    ]:
         assert expected in cloud_layout_problem(cloud)
     rec = complete_recording(Settings())
     rec.clouds[3].problem = cloud_layout_problem(integer)
@@ -547,6 +577,7 @@ def run_main(monkeypatch, capsys, recording, *args):
         if isinstance(recording, BaseException):
             raise recording
         return recording
+
     monkeypatch.setattr(driver_check, "record", record)
     rc = driver_check.main(list(args))
     out = capsys.readouterr()

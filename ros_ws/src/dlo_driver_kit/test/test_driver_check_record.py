@@ -14,15 +14,14 @@ import math
 import numpy as np
 import pytest
 import rclpy
-from rclpy.qos import DurabilityPolicy
-from rclpy.signals import SignalHandlerOptions
-from sensor_msgs.msg import CameraInfo, Image
-
 from dlo_driver_kit import driver_check
 from dlo_driver_kit.driver_check import RULES, CheckError, Settings, evaluate, schedule
 from dlo_msgs.msg import GripperState, TactilePose
 from dlo_msgs.srv import ResetEpisode
 from dlo_perception.cloud import particle_cloud
+from rclpy.qos import DurabilityPolicy
+from rclpy.signals import SignalHandlerOptions
+from sensor_msgs.msg import CameraInfo, Image
 
 PERIOD = 0.08
 
@@ -54,8 +53,7 @@ class FakeRos:
     ``others``: [(from, to, name)]: another node publishes the command topic from..to (fake seconds after start);
     ``state_topic`` etc. follow ``prefix``; ``padding``: bytes of row padding (value 7) in each image."""
 
-    def __init__(self, prefix="", driver=True, reset="ok", others=(), padding=0, listens_after=0.0,
-                 image_size_ok=True):
+    def __init__(self, prefix="", driver=True, reset="ok", others=(), padding=0, listens_after=0.0, image_size_ok=True):
         self.t0 = self.now = 1000.0
         self.prefix, self.driver, self.reset_mode, self.others = prefix, driver, reset, list(others)
         self.padding, self.listens_after, self.image_size_ok = padding, listens_after, image_size_ok
@@ -101,8 +99,7 @@ class FakeRos:
     def on_command(self, cmd):
         self.commands.append((self.now, cmd))
         values = (cmd.vx, cmd.vy, cmd.closure)
-        if all(math.isfinite(v) for v in values) and abs(cmd.vx) <= 0.25 and abs(cmd.vy) <= 0.25 \
-                and 0 <= cmd.closure <= 1:
+        if all(math.isfinite(v) for v in values) and abs(cmd.vx) <= 0.25 and abs(cmd.vy) <= 0.25 and 0 <= cmd.closure <= 1:
             self.vx, self.vy, self.closure = cmd.vx, cmd.vy, cmd.closure
             self.last_command = self.now
         else:
@@ -126,8 +123,13 @@ class FakeRos:
         pixels[:, :64:2] = 255
         pixels[0, :4] = 128
         pixels[:, 64:] = 7  # row padding: not part of the image
-        image = Image(width=64, height=48, encoding="mono8", step=step,
-                      data=pixels.tobytes() if self.image_size_ok else pixels.tobytes()[:-1])
+        image = Image(
+            width=64,
+            height=48,
+            encoding="mono8",
+            step=step,
+            data=pixels.tobytes() if self.image_size_ok else pixels.tobytes()[:-1],
+        )
         cloud = particle_cloud([[self.x, 0.0, 0.1], [self.x + 0.004, 0.0, 0.1]], [False, True])
         touch = TactilePose(angle=0.1, y=0.0, contact=True, contact_count=1)
         state = GripperState(x=self.x, y=self.y, closure=self.closure, episode=self.episode, step=self.step)
@@ -226,8 +228,10 @@ def fake_ros(monkeypatch):
 
         class Clock:
             monotonic = staticmethod(ros.monotonic)
+
         monkeypatch.setattr(driver_check, "time", Clock)
         return ros
+
     return make
 
 
@@ -244,8 +248,9 @@ def test_a_good_driver_is_answered_step_by_step_through_the_schedule_and_passes_
     phases = schedule(s)
     assert ros.init_calls == [([], SignalHandlerOptions.NO)]  # Ctrl-C is a KeyboardInterrupt (exit 130)
     assert ros.destroyed == 1 and ros.shutdowns == 1
-    assert lines == [f"driver found: 1 publisher(s) of /dlo/gripper/state; checking for about "
-                     f"{sum(p.duration for p in phases):.0f} s"]
+    assert lines == [
+        f"driver found: 1 publisher(s) of /dlo/gripper/state; checking for about {sum(p.duration for p in phases):.0f} s"
+    ]
     results = {r.rule: r for r in evaluate(rec, s)}
     assert {rule: r.status for rule, r in results.items()} == dict.fromkeys(RULES, "PASS"), results
     assert "stopped at the boundary" in results["workspace"].reason
@@ -261,7 +266,8 @@ def test_a_good_driver_is_answered_step_by_step_through_the_schedule_and_passes_
     start, end = rec.phases[0][1], rec.phases[-1][2]
     sent = [(t, m) for t, m in ros.states_sent if t > start]
     assert [(x.wall, x.episode, x.step, x.x, x.y, x.closure) for x in rec.states] == [
-        (t, m.episode, m.step, m.x, m.y, m.closure) for t, m in sent]
+        (t, m.episode, m.step, m.x, m.y, m.closure) for t, m in sent
+    ]
     assert [x.stamp_ns for x in rec.states] == [m.header.stamp.sec * 10**9 + m.header.stamp.nanosec for _, m in sent]
     assert all(x.stamp == pytest.approx(x.stamp_ns * 1e-9, abs=1e-9) for x in rec.states)
     assert rec.states[-1].wall > end  # it listens 0.2 s more after the schedule...
@@ -273,7 +279,11 @@ def test_a_good_driver_is_answered_step_by_step_through_the_schedule_and_passes_
         assert phase.command is not None, phase.name  # never during the silence
         state = next(m for ts, m in ros.states_sent if ts == t)
         assert (cmd.episode, cmd.step, cmd.header.stamp, cmd.header.frame_id) == (
-            state.episode, state.step, state.header.stamp, state.header.frame_id)
+            state.episode,
+            state.step,
+            state.header.stamp,
+            state.header.frame_id,
+        )
         got, want = (cmd.vx, cmd.vy, cmd.closure), tuple(float(v) for v in phase.command)
         assert all(a == b or (math.isnan(a) and math.isnan(b)) for a, b in zip(got, want)), (phase.name, got)
         answered[(cmd.episode, cmd.step)] = phase.name
@@ -289,21 +299,34 @@ def test_a_good_driver_is_answered_step_by_step_through_the_schedule_and_passes_
     # what else the driver published
     assert len(rec.images) == len(rec.clouds) == len(rec.tactile_stamps) == len(rec.tactile_walls) >= len(rec.states)
     assert [(i.width, i.height, i.k, i.frame_id) for i in rec.infos] == [
-        (64, 48, (80.0, 0.0, 32.0, 0.0, 80.0, 24.0, 0.0, 0.0, 1.0), "cam")]
+        (64, 48, (80.0, 0.0, 32.0, 0.0, 80.0, 24.0, 0.0, 0.0, 1.0), "cam")
+    ]
     image = rec.images[-1]
     assert (image.width, image.height, image.encoding, image.step, image.size, image.frame_id, image.values) == (
-        64, 48, "mono8", 64, 64 * 48, "cam", (0, 128, 255))
+        64,
+        48,
+        "mono8",
+        64,
+        64 * 48,
+        "cam",
+        (0, 128, 255),
+    )
     assert image.stamp_ns == rec.states[-1].stamp_ns and image.wall == rec.states[-1].wall
     cloud = rec.clouds[-1]
     assert (cloud.stamp_ns, cloud.fields, cloud.problem, cloud.wall) == (
-        rec.states[-1].stamp_ns, ["x", "y", "z", "held"], None, rec.states[-1].wall)
+        rec.states[-1].stamp_ns,
+        ["x", "y", "z", "held"],
+        None,
+        rec.states[-1].wall,
+    )
     assert rec.tactile_stamps[-1] == rec.states[-1].stamp_ns and rec.tactile_walls[-1] == rec.states[-1].wall
     # camera_info is subscribed latched (it is published once), the rest with a deep queue
     qos = ros.node.qos
     assert qos["/dlo/camera/camera_info"].durability == DurabilityPolicy.TRANSIENT_LOCAL
     assert qos["/dlo/camera/camera_info"].depth == 1
     assert {t: q for t, q in qos.items() if t != "/dlo/camera/camera_info"} == dict.fromkeys(
-        ["/dlo/rope/particles", "/dlo/gripper/state", "/dlo/camera/image", "/dlo/tactile/pose"], 100)
+        ["/dlo/rope/particles", "/dlo/gripper/state", "/dlo/camera/image", "/dlo/tactile/pose"], 100
+    )
 
 
 def test_the_pixel_values_leave_the_row_padding_out(fake_ros):
@@ -319,9 +342,16 @@ def test_a_namespace_prefixes_every_topic_and_the_service(fake_ros):
         ros = fake_ros(prefix="/robot1")
         rec, lines = run_record(ros, namespace=namespace)
         assert ros.command_topic == "/robot1/dlo/gripper/cmd"
-        assert set(ros.node.qos) == {f"/robot1{t}" for t in ("/dlo/rope/particles", "/dlo/gripper/state",
-                                                             "/dlo/camera/image", "/dlo/camera/camera_info",
-                                                             "/dlo/tactile/pose")}
+        assert set(ros.node.qos) == {
+            f"/robot1{t}"
+            for t in (
+                "/dlo/rope/particles",
+                "/dlo/gripper/state",
+                "/dlo/camera/image",
+                "/dlo/camera/camera_info",
+                "/dlo/tactile/pose",
+            )
+        }
         assert "of /robot1/dlo/gripper/state;" in lines[0] and rec.reset == "started"
     ros = fake_ros()
     rec, _ = run_record(ros, namespace="/")
@@ -340,8 +370,13 @@ def test_no_driver_gives_none_after_the_timeout_and_a_driver_not_yet_listening_i
 
 
 def test_the_reset_service_outcomes(fake_ros):
-    for mode, expected in (("refused", "refused (busy)"), ("refused quietly", "refused (no reason given)"),
-                           ("none", "refused (no reason given)"), ("silent", "no answer within 5 s"), (None, None)):
+    for mode, expected in (
+        ("refused", "refused (busy)"),
+        ("refused quietly", "refused (no reason given)"),
+        ("none", "refused (no reason given)"),
+        ("silent", "no answer within 5 s"),
+        (None, None),
+    ):
         ros = fake_ros(reset=mode)
         rec, _ = run_record(ros)
         assert rec.reset == expected, mode
@@ -358,8 +393,11 @@ def test_the_reset_service_outcomes(fake_ros):
 
 def test_the_check_refuses_while_another_node_commands_the_driver(fake_ros):
     ros = fake_ros(others=[(0.0, 1e9, "fake_policy")])
-    with pytest.raises(CheckError, match=r"^another node commands the driver \(/fake_policy publishes "
-                                         r"/dlo/gripper/cmd\): stop it \(the policy\) before the check$"):
+    with pytest.raises(
+        CheckError,
+        match=r"^another node commands the driver \(/fake_policy publishes "
+        r"/dlo/gripper/cmd\): stop it \(the policy\) before the check$",
+    ):
         run_record(ros)
     assert ros.commands == [] and ros.destroyed == 1 and ros.shutdowns == 1
     # a policy that starts mid-check is found after the phase it joined in

@@ -12,13 +12,32 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # --import-mode=importlib
 
+from dlo_driver_kit.driver_check import (  # noqa: E402
+    CONTROL_RATE,
+    MAX_SPEED,
+    REACT_PERIODS,
+    ImageSample,
+    InfoSample,
+    Recording,
+    Settings,
+    StateSample,
+    check_camera,
+    check_invalid,
+    check_obey,
+    check_rate,
+    check_stale,
+    check_stamps,
+    check_workspace,
+    cloud_layout_problem,
+    finite,
+    judged_states,
+    motion_clock,
+    moved,
+    schedule,
+    steps_in,
+    typical_period,
+)
 from test_driver_check import complete_recording, results_of  # noqa: E402
-
-from dlo_driver_kit.driver_check import (CONTROL_RATE, MAX_SPEED, REACT_PERIODS, InfoSample, ImageSample,  # noqa: E402
-                                         Recording, Settings, StateSample, check_camera, check_invalid, check_obey,
-                                         check_rate, check_stale, check_stamps, check_workspace,
-                                         cloud_layout_problem, finite, judged_states, motion_clock, moved, schedule,
-                                         steps_in, typical_period)
 
 
 def states(walls, stamps=None, steps=None, episodes=None):
@@ -101,14 +120,17 @@ def test_motion_is_timed_by_stamps_when_at_least_half_the_steps_have_a_plausible
     walls = [0.25 * k for k in range(10)]
     stamps = [100.0, 100.25, 100.5, 100.75, 101.0, 101.0, 101.0, 101.0, 101.0, 101.0]
     assert motion_clock(Recording(states=states(walls, stamps, steps=[0, 1, 2, 3, 4, 6, 8, 10, 12, 14]))) == "stamp"
-    assert motion_clock(Recording(states=states(walls, stamps, episodes=[0, 0, 0, 0, 0, 1, 2, 3, 4, 5],
-                                                steps=[0, 1, 2, 3, 4, 5, 6, 7, 8, 9]))) == "stamp"
+    assert (
+        motion_clock(
+            Recording(states=states(walls, stamps, episodes=[0, 0, 0, 0, 0, 1, 2, 3, 4, 5], steps=[0, 1, 2, 3, 4, 5, 6, 7, 8, 9]))
+        )
+        == "stamp"
+    )
 
 
 def test_steps_in_takes_consecutive_steps_whose_answer_and_the_one_before_came_from_the_phase():
     rec = Recording(states=states([0.08 * k for k in range(8)], steps=[0, 1, 2, 3, 4, 6, 7, 8]))
-    rec.answered = {(0, 0): "a", (0, 1): "a", (0, 2): "a", (0, 3): "b", (0, 4): "b", (0, 6): "b", (0, 7): "b",
-                    (0, 8): "b"}
+    rec.answered = {(0, 0): "a", (0, 1): "a", (0, 2): "a", (0, 3): "b", (0, 4): "b", (0, 6): "b", (0, 7): "b", (0, 8): "b"}
     pairs = lambda names: [(a.step, b.step) for a, b in steps_in(rec, names)]  # noqa: E731
     # (0, 1): a new episode's first step runs under the answer to its state 0 alone (a driver acts only on commands
     # of its current episode)
@@ -169,8 +191,9 @@ def test_rate_counts_the_states_of_the_idle_window_edges_included():
     rec = idle_recording([0.0, 0.08, 0.16, 0.24], (0.0, 0.16))
     assert check_rate(rec, s).status == "PASS"  # three states in the window, two of them on its edges
     few = check_rate(idle_recording([0.0, 0.08, 0.16, 0.24, 0.32], (0.05, 0.1)), s)
-    assert few.status == "FAIL" and few.reason == ("1 states in 2 s of holding still (expected about 25): is the "
-                                                   "driver real-time?")
+    assert few.status == "FAIL" and few.reason == (
+        "1 states in 2 s of holding still (expected about 25): is the driver real-time?"
+    )
     none = check_rate(Recording(states=states([0.0, 0.08, 0.16, 0.24])), s)  # the idle phase never ran
     assert none.status == "FAIL" and none.reason.startswith("0 states in 2 s")
     two = check_rate(idle_recording([0.0, 0.08, 0.16, 0.24], (0.0, 0.1)), s)
@@ -210,8 +233,7 @@ def test_rate_leaves_out_the_steps_from_a_new_episodes_state_0_that_came_off_the
 
 
 def test_the_rate_tolerance_is_twenty_percent_either_way_and_stamps_give_their_own_rate():
-    for period, rate, status in ((0.0625, 20.0, "PASS"), (0.125, 10.0, "PASS"), (0.2, 12.5, "FAIL"),
-                                 (0.05, 12.5, "FAIL")):
+    for period, rate, status in ((0.0625, 20.0, "PASS"), (0.125, 10.0, "PASS"), (0.2, 12.5, "FAIL"), (0.05, 12.5, "FAIL")):
         walls = [period * k for k in range(6)]
         result = check_rate(idle_recording(walls, (0.0, 10.0)), Settings(rate=rate))
         assert result.status == status, (period, rate, result)
@@ -221,8 +243,10 @@ def test_the_rate_tolerance_is_twenty_percent_either_way_and_stamps_give_their_o
     stamps[3] = stamps[2]  # one repeated stamp: no rate by stamps (that is for 'stamps' to judge)
     result = check_rate(idle_recording([0.08 * k for k in range(6)], (0.0, 10.0), stamps=stamps), Settings())
     # (median of the 4 steps from step 1 on: the step from state 0 is left out, it may come off the tick)
-    assert "12.50 Hz (no rate by stamps: they do not strictly increase, see 'stamps'; median of 4 steps)" \
-        in result.reason and result.status == "PASS"
+    assert (
+        "12.50 Hz (no rate by stamps: they do not strictly increase, see 'stamps'; median of 4 steps)" in result.reason
+        and result.status == "PASS"
+    )
 
 
 # ------------------------------------------------------------------------------------------------ stamps
@@ -231,20 +255,26 @@ def test_stamps_rule_counts_each_kind_of_fault_and_names_the_first():
     assert check_stamps(Recording(states=states([0.0])), s).reason == "only 1 state(s) received"
     assert check_stamps(Recording(), s).status == "FAIL"
     two = check_stamps(Recording(states=states([0.0, 0.08])), s)
-    assert two.status == "PASS" and two.reason.startswith("2 states: stamps strictly increasing, step +1 each "
-                                                           "(0 new episode(s) from step 0) (no new episode seen")
+    assert two.status == "PASS" and two.reason.startswith(
+        "2 states: stamps strictly increasing, step +1 each (0 new episode(s) from step 0) (no new episode seen"
+    )
     back = check_stamps(Recording(states=states([0, 1, 2, 3], stamps=[1.0, 2.0, 1.5, 3.0])), s)
-    assert back.reason == ("1 non-increasing stamp(s), 0 step jump(s), 0 bad episode change(s) in 4 states; first: "
-                           "stamp 1.5 s after 2 s")
+    assert back.reason == (
+        "1 non-increasing stamp(s), 0 step jump(s), 0 bad episode change(s) in 4 states; first: stamp 1.5 s after 2 s"
+    )
     jump = check_stamps(Recording(states=states([0, 1, 2, 3], steps=[0, 1, 3, 4])), s)
-    assert jump.reason == ("0 non-increasing stamp(s), 1 step jump(s), 0 bad episode change(s) in 4 states; first: "
-                           "step 1 -> 3 in episode 0")
+    assert jump.reason == (
+        "0 non-increasing stamp(s), 1 step jump(s), 0 bad episode change(s) in 4 states; first: step 1 -> 3 in episode 0"
+    )
     both = check_stamps(Recording(states=states([0, 1, 2, 3], stamps=[0, 1, 1, 2], steps=[0, 1, 3, 5])), s)
-    assert both.reason == ("1 non-increasing stamp(s), 2 step jump(s), 0 bad episode change(s) in 4 states; first: "
-                           "stamp 1 s after 1 s")
+    assert both.reason == (
+        "1 non-increasing stamp(s), 2 step jump(s), 0 bad episode change(s) in 4 states; first: stamp 1 s after 1 s"
+    )
     mid_episode = check_stamps(Recording(states=states([0, 1, 2, 3], steps=[0, 1, 5, 6], episodes=[0, 0, 1, 1])), s)
-    assert mid_episode.reason == ("0 non-increasing stamp(s), 0 step jump(s), 1 bad episode change(s) in 4 states; "
-                                  "first: episode 0 step 1 -> episode 1 step 5")
+    assert mid_episode.reason == (
+        "0 non-increasing stamp(s), 0 step jump(s), 1 bad episode change(s) in 4 states; "
+        "first: episode 0 step 1 -> episode 1 step 5"
+    )
     backwards = check_stamps(Recording(states=states([0, 1, 2, 3], steps=[0, 1, 0, 1], episodes=[1, 1, 0, 0])), s)
     assert backwards.reason.startswith("0 non-increasing stamp(s), 0 step jump(s), 1 bad episode change(s)")
     new = check_stamps(Recording(states=states([0, 1, 2, 3, 4], steps=[0, 1, 0, 1, 2], episodes=[0, 0, 1, 1, 1])), s)
@@ -264,21 +294,24 @@ def camera_result(info=None, images=None):
 K = (213.3, 0.0, 64.0, 0.0, 213.3, 64.0, 0.0, 0.0, 1.0)
 
 
-@pytest.mark.parametrize("width, height, k, problem", [
-    (0, 128, K, "camera_info size 0x128"),
-    (128, 0, K, "camera_info size 128x0"),
-    (128, 128, K[:4], "K [213.3, 0.0, 64.0, 0.0] is not a pinhole matrix"),
-    (128, 128, (math.nan,) + K[1:], "is not a pinhole matrix"),
-    (128, 128, (0.0,) + K[1:], "is not a pinhole matrix"),
-    (128, 128, K[:4] + (0.0,) + K[5:], "is not a pinhole matrix"),
-    (128, 128, K[:2] + (0.0,) + K[3:], "is not a pinhole matrix"),
-    (128, 128, K[:2] + (128.0,) + K[3:], "is not a pinhole matrix"),
-    (128, 128, K[:5] + (0.0,) + K[6:], "is not a pinhole matrix"),
-    (128, 128, K[:5] + (128.0,) + K[6:], "is not a pinhole matrix"),
-    (128, 128, K[:8] + (2.0,), "is not a pinhole matrix"),
-    (128, 128, K[:8] + (0.5,), "is not a pinhole matrix"),
-    (128, 128, K[:8] + (1.0 + 1.5e-9,), "is not a pinhole matrix"),  # K[8] is 1 (to 1e-9)
-])
+@pytest.mark.parametrize(
+    "width, height, k, problem",
+    [
+        (0, 128, K, "camera_info size 0x128"),
+        (128, 0, K, "camera_info size 128x0"),
+        (128, 128, K[:4], "K [213.3, 0.0, 64.0, 0.0] is not a pinhole matrix"),
+        (128, 128, (math.nan,) + K[1:], "is not a pinhole matrix"),
+        (128, 128, (0.0,) + K[1:], "is not a pinhole matrix"),
+        (128, 128, K[:4] + (0.0,) + K[5:], "is not a pinhole matrix"),
+        (128, 128, K[:2] + (0.0,) + K[3:], "is not a pinhole matrix"),
+        (128, 128, K[:2] + (128.0,) + K[3:], "is not a pinhole matrix"),
+        (128, 128, K[:5] + (0.0,) + K[6:], "is not a pinhole matrix"),
+        (128, 128, K[:5] + (128.0,) + K[6:], "is not a pinhole matrix"),
+        (128, 128, K[:8] + (2.0,), "is not a pinhole matrix"),
+        (128, 128, K[:8] + (0.5,), "is not a pinhole matrix"),
+        (128, 128, K[:8] + (1.0 + 1.5e-9,), "is not a pinhole matrix"),  # K[8] is 1 (to 1e-9)
+    ],
+)
 def test_camera_info_needs_a_size_and_a_pinhole_k_with_the_centre_in_the_image(width, height, k, problem):
     result = camera_result(InfoSample(width, height, k, "top_camera_optical"))
     assert result.status == "FAIL" and problem in result.reason, result
@@ -292,15 +325,22 @@ def test_the_smallest_camera_passes_and_camera_info_needs_a_frame():
     assert result.status == "FAIL" and "camera_info has no frame_id" in result.reason
 
 
-@pytest.mark.parametrize("change, problem", [
-    (dict(width=64, height=64, size=64 * 64, step=64), "image 64x64 but camera_info 128x128"),
-    (dict(frame_id="elsewhere"), "image frame 'elsewhere' but camera_info frame 'top_camera_optical'"),
-    (dict(encoding="rgb8", step=128, size=128 * 128, values=()), "image data 16384 bytes for 128 rows of step 128 "
-                                                                  "(rgb8, width 128)"),
-    (dict(encoding="yuv9", step=100, size=100 * 128, values=()), "image data 12800 bytes for 128 rows of step 100 "
-                                                                 "(yuv9, width 128)"),
-    (dict(size=128 * 127), "image data 16256 bytes for 128 rows of step 128 (mono8, width 128)"),
-])
+@pytest.mark.parametrize(
+    "change, problem",
+    [
+        (dict(width=64, height=64, size=64 * 64, step=64), "image 64x64 but camera_info 128x128"),
+        (dict(frame_id="elsewhere"), "image frame 'elsewhere' but camera_info frame 'top_camera_optical'"),
+        (
+            dict(encoding="rgb8", step=128, size=128 * 128, values=()),
+            "image data 16384 bytes for 128 rows of step 128 (rgb8, width 128)",
+        ),
+        (
+            dict(encoding="yuv9", step=100, size=100 * 128, values=()),
+            "image data 12800 bytes for 128 rows of step 100 (yuv9, width 128)",
+        ),
+        (dict(size=128 * 127), "image data 16256 bytes for 128 rows of step 128 (mono8, width 128)"),
+    ],
+)
 def test_images_must_match_camera_info_and_hold_height_times_step_bytes(change, problem):
     rec = complete_recording(Settings())
     for image in rec.images:
@@ -335,8 +375,14 @@ def driven(spec, lag=0):
 
 
 def obey_spec(v=0.1, **phases):
-    spec = {"idle": (4, (0.0, 0.0, 0.0), P), "close": (5, (0.0, 0.0, 1.0), P), "open": (5, (0.0, 0.0, 0.0), P),
-            "+x": (6, (v, 0.0, 0.0), P), "+y": (6, (0.0, v, 0.0), P), "-y": (6, (0.0, -v, 0.0), P)}
+    spec = {
+        "idle": (4, (0.0, 0.0, 0.0), P),
+        "close": (5, (0.0, 0.0, 1.0), P),
+        "open": (5, (0.0, 0.0, 0.0), P),
+        "+x": (6, (v, 0.0, 0.0), P),
+        "+y": (6, (0.0, v, 0.0), P),
+        "-y": (6, (0.0, -v, 0.0), P),
+    }
     spec.update(phases)
     return [(name, *value) for name, value in spec.items()]
 
@@ -345,8 +391,10 @@ def test_obey_measures_each_move_and_the_closure():
     s = Settings(rate=16.0)
     ok = check_obey(driven(obey_spec()), s)
     assert ok.status == "PASS", ok
-    assert ok.reason == ("closure 1.00, closure 0.00, +x 0.100 m/s at 0 deg, +y 0.100 m/s at 0 deg, -y 0.100 m/s at "
-                         "0 deg (commanded 0.1 m/s; closure 1, 0)")
+    assert ok.reason == (
+        "closure 1.00, closure 0.00, +x 0.100 m/s at 0 deg, +y 0.100 m/s at 0 deg, -y 0.100 m/s at "
+        "0 deg (commanded 0.1 m/s; closure 1, 0)"
+    )
     still = check_obey(driven(obey_spec(**{"+x": (6, (0.0, 0.0, 0.0), P)})), s)
     assert still.status == "FAIL" and still.reason == "+x 0.000 m/s at 180 deg (commanded 0.1 m/s)"
     for speed, status in ((0.119, "PASS"), (0.121, "FAIL"), (0.081, "PASS"), (0.079, "FAIL")):
@@ -391,8 +439,12 @@ def test_obey_uses_the_steps_half_to_twice_a_period_long_and_wants_two_of_them()
 
 
 def invalid_spec(**phases):
-    spec = {"idle": (4, (0.0, 0.0, 0.5), P), "nan": (5, (0.0, 0.0, 0.5), P), "speed": (5, (0.0, 0.0, 0.5), P),
-            "closure": (5, (0.0, 0.0, 0.5), P)}
+    spec = {
+        "idle": (4, (0.0, 0.0, 0.5), P),
+        "nan": (5, (0.0, 0.0, 0.5), P),
+        "speed": (5, (0.0, 0.0, 0.5), P),
+        "closure": (5, (0.0, 0.0, 0.5), P),
+    }
     spec.update(phases)
     return [(name, *value) for name, value in spec.items()]
 
@@ -402,7 +454,8 @@ def test_invalid_commands_must_leave_the_gripper_where_it_was():
     held = check_invalid(driven(invalid_spec()), s)
     assert held.status == "PASS" and held.reason == (
         "gripper held (largest step, closure change): nan 0.00 mm/step, closure +0.000, speed 0.00 mm/step, "
-        "closure +0.000, closure 0.00 mm/step, closure +0.000")
+        "closure +0.000, closure 0.00 mm/step, closure +0.000"
+    )
     for per_step, status in ((0.0004, "PASS"), (0.0006, "FAIL")):
         result = check_invalid(driven(invalid_spec(speed=(5, (per_step / P, 0.0, 0.5), P))), s)
         assert result.status == status, (per_step, result)
@@ -438,7 +491,8 @@ def test_a_state_made_non_finite_by_an_invalid_command_fails_even_outside_the_ju
             hit.closure = math.nan
             result = check_invalid(rec, s)
             assert result.status == "FAIL" and result.reason == (
-                "nan: state became non-finite (x = {}, closure = nan)".format(hit.x)), (lag, after, result)
+                "nan: state became non-finite (x = {}, closure = nan)".format(hit.x)
+            ), (lag, after, result)
     # and after the phase's last command: the state that shows it (two periods late at most)
     for late, status in ((1, "FAIL"), (REACT_PERIODS + 1, "FAIL"), (REACT_PERIODS + 2, "PASS")):
         rec = driven(led_in())
@@ -482,7 +536,7 @@ def test_an_invalid_command_must_not_move_the_gripper_nor_change_its_closure_at_
     # ignored (the last valid command goes on until the command timeout, 8 periods), not rejected
     ignored = [(name, *rest) for name, *rest in led_in()]
     at = ignored.index(("nan", 10, (0.0, 0.0, 0.0), P))
-    ignored[at:at + 1] = [("nan", 7, (-0.1, -0.1, 0.0), P), ("nan", 3, (0.0, 0.0, 0.0), P)]
+    ignored[at : at + 1] = [("nan", 7, (-0.1, -0.1, 0.0), P), ("nan", 3, (0.0, 0.0, 0.0), P)]
     result = check_invalid(driven(ignored), s)
     assert result.status == "FAIL" and result.reason.startswith("nan 8.84 mm/step, closure +0.000: not rejected")
     # closure 1.5 clamped to 1 (the gripper closes once, then holds): the closure it had was 0
@@ -490,7 +544,8 @@ def test_an_invalid_command_must_not_move_the_gripper_nor_change_its_closure_at_
     for lag in (0, 2):  # also by a driver that acts on the command at once (its closure jump is in no judged step)
         result = check_invalid(driven(clamped, lag=lag), s)
         assert result.status == "FAIL" and result.reason == (
-            "closure 0.00 mm/step, closure +1.000: not rejected (commanded (0.0, 0.0, 1.5))"), (lag, result)
+            "closure 0.00 mm/step, closure +1.000: not rejected (commanded (0.0, 0.0, 1.5))"
+        ), (lag, result)
 
 
 def test_the_closure_kept_is_the_one_the_gripper_had_in_the_states_episode():
@@ -508,8 +563,15 @@ def test_the_closure_kept_is_the_one_the_gripper_had_in_the_states_episode():
             answered[(x.episode, x.step)] = name
     rec.answered = answered
     # episode 1 from its state 0 on: its commands are all of the phase (none of episode 0 acts in it)
-    assert [(a.episode, a.step) for a, b in steps_in(rec, "nan", react=2)] == [(0, 12), (0, 13), (1, 0), (1, 1), (1, 2),
-                                                                              (1, 3), (1, 4)]
+    assert [(a.episode, a.step) for a, b in steps_in(rec, "nan", react=2)] == [
+        (0, 12),
+        (0, 13),
+        (1, 0),
+        (1, 1),
+        (1, 2),
+        (1, 3),
+        (1, 4),
+    ]
     result = check_invalid(rec, s)
     assert result.status == "PASS" and "nan 0.00 mm/step, closure +0.000" in result.reason, result
     for x in rec.states:
@@ -536,12 +598,14 @@ def silent_recording(stop_after, publish_until=2.5, period=P, before_from=0.0, t
 def test_stale_wants_the_gripper_stopped_within_the_command_timeout_plus_two_periods():
     s = Settings(rate=16.0)  # limit: 0.5 + 2 x 0.0625 + 0.1 = 0.725 s
     ok = check_stale(silent_recording(0.3), s)
-    assert ok.status == "PASS" and ok.reason == ("stopped 0.25 s after the last command (command_timeout 0.5 s, "
-                                                 "allowed 0.72 s)"), ok
+    assert ok.status == "PASS" and ok.reason == (
+        "stopped 0.25 s after the last command (command_timeout 0.5 s, allowed 0.72 s)"
+    ), ok
     assert check_stale(silent_recording(0.70), s).status == "PASS"
     late = check_stale(silent_recording(0.76), s)
-    assert late.status == "FAIL" and late.reason == ("still moving 0.75 s after the last command (command_timeout "
-                                                     "0.5 s, allowed 0.72 s)")
+    assert late.status == "FAIL" and late.reason == (
+        "still moving 0.75 s after the last command (command_timeout 0.5 s, allowed 0.72 s)"
+    )
     assert "stopped 0.00 s after" in check_stale(silent_recording(-0.01), s).reason
     slow = silent_recording(0.76, period=0.125)  # a driver slower than --rate: two of its own periods allowed
     result = check_stale(slow, s)
@@ -563,8 +627,9 @@ def test_stale_needs_motion_before_the_silence_and_states_after_the_allowed_stop
     # the last command's own answer, half a period after it, still counts as moving under it
     assert check_stale(silent_recording(0.03, before_from=1.0), s).status == "PASS"
     gone = check_stale(silent_recording(0.3, publish_until=1.7), s)
-    assert gone.status == "FAIL" and gone.reason == ("0 states between 0.72 s and 1.50 s after the last command: a "
-                                                     "real-time driver keeps publishing its state")
+    assert gone.status == "FAIL" and gone.reason == (
+        "0 states between 0.72 s and 1.50 s after the last command: a real-time driver keeps publishing its state"
+    )
     one = check_stale(silent_recording(0.3, publish_until=1.8), s)
     assert one.status == "FAIL" and one.reason.startswith("1 states between")
     assert check_stale(silent_recording(0.3, publish_until=1.9), s).status == "PASS"
@@ -579,37 +644,42 @@ def test_stale_needs_motion_before_the_silence_and_states_after_the_allowed_stop
 # ------------------------------------------------------------------------------------------------ workspace, touch
 def test_workspace_reports_where_the_corner_drive_ended():
     s = Settings()
-    rec = Recording(states=[StateSample(k, k, 0, k, x, y, 0.0) for k, (x, y) in
-                            enumerate([(0.1, 0.0), (math.nan, 0.0), (0.2, 0.25), (0.2985, 0.29)])],
-                    phases=[("corner", 1.5, 3.5)])
+    rec = Recording(
+        states=[
+            StateSample(k, k, 0, k, x, y, 0.0)
+            for k, (x, y) in enumerate([(0.1, 0.0), (math.nan, 0.0), (0.2, 0.25), (0.2985, 0.29)])
+        ],
+        phases=[("corner", 1.5, 3.5)],
+    )
     result = check_workspace(rec, s)
     assert result.status == "PASS" and result.reason == (
         "all 3 states inside |x|, |y| <= 0.3 m (largest 0.298 m); driven to the corner it stopped at the boundary "
-        "(x = 0.298, y = 0.290 m)")
+        "(x = 0.298, y = 0.290 m)"
+    )
     rec.states[-1].x, rec.states[-1].y = 0.25, 0.2985
     assert "stopped at the boundary" in check_workspace(rec, s).reason
     rec.states[-1].x = rec.states[-1].y = 0.2975
     assert check_workspace(rec, s).reason.endswith(
-        "; driven to the corner it ended at x = 0.297, y = 0.297 m, short of the boundary")
+        "; driven to the corner it ended at x = 0.297, y = 0.297 m, short of the boundary"
+    )
     rec.phases = []
     assert check_workspace(rec, s).reason == "all 3 states inside |x|, |y| <= 0.3 m (largest 0.297 m)"
     rec.phases = [("corner", 3.0, 3.0)]  # only the last state is in the corner window (its edges included)
     assert "ended at x = 0.297, y = 0.297 m" in check_workspace(rec, s).reason
     rec.phases = [("corner", 2.0, 2.0)]
     assert "ended at x = 0.200, y = 0.250 m" in check_workspace(rec, s).reason
-    assert check_workspace(Recording(states=[StateSample(0, 0, 0, 0, math.nan, 0.0, 0.0)]), s).reason == \
-        "no finite gripper state"
+    assert check_workspace(Recording(states=[StateSample(0, 0, 0, 0, math.nan, 0.0, 0.0)]), s).reason == "no finite gripper state"
     outside = Recording(states=[StateSample(0, 0, 0, 7, 0.0, -0.4, 0.0)])
-    assert check_workspace(outside, s).reason == ("gripper at x = 0.000 m, y = -0.400 m (step 7), outside |x|, |y| <= "
-                                                  "0.3 m")
+    assert check_workspace(outside, s).reason == ("gripper at x = 0.000 m, y = -0.400 m (step 7), outside |x|, |y| <= 0.3 m")
 
 
 def test_touch_wants_a_readable_cloud_or_a_tactile_pose():
     from dlo_driver_kit.driver_check import CloudSample, check_touch
 
     s = Settings()
-    assert check_touch(Recording(), s).reason == ("no tactile source: neither /dlo/rope/particles (contact points "
-                                                  "flagged 'held') nor /dlo/tactile/pose")
+    assert check_touch(Recording(), s).reason == (
+        "no tactile source: neither /dlo/rope/particles (contact points flagged 'held') nor /dlo/tactile/pose"
+    )
     assert check_touch(Recording(), s).status == "FAIL"
     poses = check_touch(Recording(tactile_stamps=[1, 2, 3]), s)
     assert poses.status == "PASS" and poses.reason == "3 tactile poses"
@@ -628,21 +698,47 @@ def test_main_passes_the_settings_on_and_refuses_nonpositive_values(monkeypatch,
     def record(settings, namespace, timeout):
         seen.append((settings, namespace, timeout))
         return None
+
     monkeypatch.setattr(driver_check, "record", record)
     monkeypatch.delenv("ROS_DOMAIN_ID", raising=False)
     assert driver_check.main([]) == 1
     assert seen[-1] == (Settings(), "", 10.0)
-    assert "no driver: nothing published /dlo/gripper/state within 10 s on ROS_DOMAIN_ID=0 (is the driver running" \
+    assert (
+        "no driver: nothing published /dlo/gripper/state within 10 s on ROS_DOMAIN_ID=0 (is the driver running"
         in capsys.readouterr().err
+    )
     monkeypatch.setenv("ROS_DOMAIN_ID", "42")
-    args = ["--namespace", "/r2/", "--timeout", "3", "--duration", "1.5", "--rate", "20", "--command-timeout", "0.7",
-            "--speed", "0.25", "--workspace", "0.2", "--skip", "rate", "--skip", "touch"]
+    args = [
+        "--namespace",
+        "/r2/",
+        "--timeout",
+        "3",
+        "--duration",
+        "1.5",
+        "--rate",
+        "20",
+        "--command-timeout",
+        "0.7",
+        "--speed",
+        "0.25",
+        "--workspace",
+        "0.2",
+        "--skip",
+        "rate",
+        "--skip",
+        "touch",
+    ]
     assert driver_check.main(args) == 1
-    assert seen[-1] == (Settings(rate=20.0, command_timeout=0.7, workspace=0.2, duration=1.5, speed=0.25,
-                                 skip=("rate", "touch")), "/r2/", 3.0)
-    assert capsys.readouterr().err == ("dlo-driver-check: no driver: nothing published /r2/dlo/gripper/state within "
-                                       "3 s on ROS_DOMAIN_ID=42 (is the driver running, on this domain and namespace, "
-                                       "in real_time mode?)\n")
+    assert seen[-1] == (
+        Settings(rate=20.0, command_timeout=0.7, workspace=0.2, duration=1.5, speed=0.25, skip=("rate", "touch")),
+        "/r2/",
+        3.0,
+    )
+    assert capsys.readouterr().err == (
+        "dlo-driver-check: no driver: nothing published /r2/dlo/gripper/state within "
+        "3 s on ROS_DOMAIN_ID=42 (is the driver running, on this domain and namespace, "
+        "in real_time mode?)\n"
+    )
     for option in ("--timeout", "--duration", "--rate", "--command-timeout", "--speed", "--workspace"):
         with pytest.raises(SystemExit) as exit_:
             driver_check.main([option, "0"])
@@ -662,6 +758,7 @@ def test_a_check_that_cannot_run_is_one_line_and_exit_1(monkeypatch, capsys):
 
     def record(settings, namespace, timeout):
         raise driver_check.CheckError("another node commands the driver")
+
     monkeypatch.setattr(driver_check, "record", record)
     assert driver_check.main([]) == 1
     out = capsys.readouterr()
@@ -678,8 +775,9 @@ def test_sync_without_states_or_inputs():
     rec.images, rec.clouds = [], []
     result = results_of(rec)["sync"]
     n = len(judged_states(rec))
-    assert result.status == "PASS" and result.reason == (f"{n} states, nothing else to match (no image and no tactile "
-                                                         "source to match: see camera, touch)")
+    assert result.status == "PASS" and result.reason == (
+        f"{n} states, nothing else to match (no image and no tactile source to match: see camera, touch)"
+    )
 
 
 def test_sync_names_the_nearest_stamp_later_or_earlier():
@@ -705,8 +803,12 @@ def arrivals(offset_of):
 def test_an_input_a_step_away_is_more_than_half_a_period_off_and_more_than_a_quarter_of_them():
     assert results_of(arrivals(lambda k: 0.039))["sync"].status == "PASS"
     early = results_of(arrivals(lambda k: -0.041))["sync"]
-    assert early.status == "FAIL" and "get the image carrying their stamp a step away: it arrives 41 ms before the " \
-                                      "state (median; the control period is 80 ms)" in early.reason, early
+    assert (
+        early.status == "FAIL"
+        and "get the image carrying their stamp a step away: it arrives 41 ms before the "
+        "state (median; the control period is 80 ms)"
+        in early.reason
+    ), early
     assert results_of(arrivals(lambda k: None))["sync"].status == "PASS"  # arrival unknown: not judged
     n = len(complete_recording(Settings()).states)
     quarter = n // 4
@@ -798,8 +900,9 @@ def test_obey_speed_edge_is_exact_and_a_small_commanded_speed_is_judged_alike():
     assert result.status == "PASS" and "+y 0.120 m/s at 0 deg" in result.reason, result
     for small in (1.2e-6, 5e-7, 1e-9):  # below 1 um/s the angle was once computed against a floor (76 deg at 5e-7)
         result = check_obey(driven(obey_spec(v=small)), Settings(rate=16.0, speed=small))
-        assert result.status == "PASS" and "+x 0.000 m/s at 0 deg, +y 0.000 m/s at 0 deg, -y 0.000 m/s at 0 deg" in \
-            result.reason, (small, result)
+        assert (
+            result.status == "PASS" and "+x 0.000 m/s at 0 deg, +y 0.000 m/s at 0 deg, -y 0.000 m/s at 0 deg" in result.reason
+        ), (small, result)
 
 
 def test_obey_closure_edge_and_workspace_edges_are_exact():
@@ -821,8 +924,10 @@ def test_sync_reason_lists_only_what_is_absent_and_the_nearest_stamps_of_a_late_
     rec = complete_recording(Settings())
     n = len(judged_states(rec))
     reason = results_of(rec)["sync"].reason
-    assert reason == (f"{n} states, each with an image and a particle cloud of its exact stamp (the perception and "
-                      "policy nodes match a step by stamp)")
+    assert reason == (
+        f"{n} states, each with an image and a particle cloud of its exact stamp (the perception and "
+        "policy nodes match a step by stamp)"
+    )
     rec.clouds = []
     assert results_of(rec)["sync"].reason.endswith(" (no tactile source to match: see touch)")
     rec = complete_recording(Settings())
@@ -832,6 +937,7 @@ def test_sync_reason_lists_only_what_is_absent_and_the_nearest_stamps_of_a_late_
     before, after = rec.clouds[9].stamp_ns, rec.clouds[10].stamp_ns
     assert before < missing < after
     from dlo_perception.sync import format_stamp
+
     assert f"particle cloud stamps {format_stamp(before)}, {format_stamp(after)} nearby" in reason, reason
 
 
@@ -848,6 +954,7 @@ def test_step_away_edges_are_exact():
             else:
                 image.wall = state.wall + (offset if away is None or k < away else 0.0)
         return check_sync(rec, s)
+
     assert late_by(0.03125).status == "PASS"  # half a period off is still the state's own step
     assert late_by(0.0625).status == "FAIL"
     assert late_by(0.0625, count=40, away=10).status == "PASS"  # a quarter of them may be a step away
@@ -861,19 +968,23 @@ def test_help_describes_every_option_and_the_exit_status(capsys):
         driver_check.main(["--help"])
     assert exit_.value.code == 0
     text = " ".join(capsys.readouterr().out.split())
-    for phrase in ("usage: dlo-driver-check", "Check the driver (or sim node in real_time mode) running on this ROS "
-                   "domain against the topic contract, rule by rule: rate, stamps, sync, camera, obey, invalid, stale, "
-                   "workspace, touch.", "nothing else may command the driver meanwhile",
-                   "--namespace NAMESPACE topics under /NS/dlo/... (as launch_graph.sh --namespace)",
-                   "--timeout TIMEOUT s to wait for the driver's first state (10)",
-                   "--duration DURATION s of holding still for rate/camera/touch (2)",
-                   "--rate RATE expected control rate [Hz] (12.5)",
-                   "--command-timeout COMMAND_TIMEOUT the driver's command_timeout [s]: a stale command must stop the "
-                   "gripper (0.5)", "--speed SPEED speed of the test motions [m/s] (0.1)",
-                   "--workspace WORKSPACE half width of the square workspace [m] (0.3)",
-                   "--skip RULE do not judge this rule (repeatable): one of rate, stamps,",
-                   "Exit status: 0 every rule passed, 1 a rule failed, no driver answered or another node commands "
-                   "the driver, 2 bad usage, 130 interrupted."):
+    for phrase in (
+        "usage: dlo-driver-check",
+        "Check the driver (or sim node in real_time mode) running on this ROS "
+        "domain against the topic contract, rule by rule: rate, stamps, sync, camera, obey, invalid, stale, "
+        "workspace, touch.",
+        "nothing else may command the driver meanwhile",
+        "--namespace NAMESPACE topics under /NS/dlo/... (as launch_graph.sh --namespace)",
+        "--timeout TIMEOUT s to wait for the driver's first state (10)",
+        "--duration DURATION s of holding still for rate/camera/touch (2)",
+        "--rate RATE expected control rate [Hz] (12.5)",
+        "--command-timeout COMMAND_TIMEOUT the driver's command_timeout [s]: a stale command must stop the gripper (0.5)",
+        "--speed SPEED speed of the test motions [m/s] (0.1)",
+        "--workspace WORKSPACE half width of the square workspace [m] (0.3)",
+        "--skip RULE do not judge this rule (repeatable): one of rate, stamps,",
+        "Exit status: 0 every rule passed, 1 a rule failed, no driver answered or another node commands "
+        "the driver, 2 bad usage, 130 interrupted.",
+    ):
         assert phrase in text, phrase
 
 

@@ -14,10 +14,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
+from dlo_driver_kit.mock_driver_node import CONTROL_RATE, kinematic_move, mock_cable, touching
 from dlo_sim.command import MAX_SPEED
 from dlo_sim.config import WORKSPACE_HALF_WIDTH
-from dlo_driver_kit.mock_driver_node import CONTROL_RATE, kinematic_move, mock_cable, touching
 
 PERIOD = 1.0 / CONTROL_RATE
 CABLE = mock_cable(0.2, 0.02)

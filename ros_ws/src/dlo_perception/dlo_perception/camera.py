@@ -32,8 +32,9 @@ class TopCamera:
     yaw: float = 0.0
 
     @classmethod
-    def covering_workspace(cls, resolution: int = 128, camera_height: float = 1.0,
-                           half_width: float = WORKSPACE_HALF_WIDTH) -> "TopCamera":
+    def covering_workspace(
+        cls, resolution: int = 128, camera_height: float = 1.0, half_width: float = WORKSPACE_HALF_WIDTH
+    ) -> "TopCamera":
         """A square camera centred over the workspace whose view spans ``2 * half_width`` m at the table."""
         if resolution < 8:
             raise ValueError(f"camera resolution must be >= 8 pixels, got {resolution}")
@@ -47,8 +48,15 @@ class TopCamera:
     def from_camera_info(cls, width: int, height: int, k, position) -> "TopCamera":
         """From a CameraInfo K (row-major 3x3, 9 numbers) and the camera's world position."""
         k = np.asarray(k, dtype=float).reshape(3, 3)
-        return cls(int(width), int(height), float(k[0, 0]), float(k[1, 1]), float(k[0, 2]),
-                   float(k[1, 2]), tuple(float(p) for p in position))
+        return cls(
+            int(width),
+            int(height),
+            float(k[0, 0]),
+            float(k[1, 1]),
+            float(k[0, 2]),
+            float(k[1, 2]),
+            tuple(float(p) for p in position),
+        )
 
     @property
     def k_matrix(self) -> np.ndarray:

@@ -29,8 +29,15 @@ def particle_cloud(positions, held):
     """A sensor_msgs/PointCloud2 of the particles in this layout (header left to the caller)."""
     from sensor_msgs.msg import PointCloud2, PointField  # message types only, no rclpy
 
-    cloud = PointCloud2(height=1, width=len(positions), is_bigendian=False, point_step=POINT_STEP,
-                        row_step=POINT_STEP * len(positions), is_dense=True, data=pack_particles(positions, held))
+    cloud = PointCloud2(
+        height=1,
+        width=len(positions),
+        is_bigendian=False,
+        point_step=POINT_STEP,
+        row_step=POINT_STEP * len(positions),
+        is_dense=True,
+        data=pack_particles(positions, held),
+    )
     cloud.fields = [PointField(name=n, offset=4 * i, datatype=FLOAT32, count=1) for i, n in enumerate(FIELD_NAMES)]
     return cloud
 

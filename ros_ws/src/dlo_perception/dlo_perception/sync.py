@@ -66,9 +66,15 @@ class StampSync:
             near = self.nearby(key, stamp_ns)
             if not near:
                 node, other = PUBLISHERS.get(key, (None, None))
-                parts.append(f"{name}: nothing received yet " + (
-                    f"(is {node} running? it publishes only steps whose {other} and gripper state share one stamp: "
-                    "see its log)" if node else "(is its publisher running?)"))
+                parts.append(
+                    f"{name}: nothing received yet "
+                    + (
+                        f"(is {node} running? it publishes only steps whose {other} and gripper state share one stamp: "
+                        "see its log)"
+                        if node
+                        else "(is its publisher running?)"
+                    )
+                )
                 continue
             parts.append(f"{name} has stamps {', '.join(format_stamp(s) for s in near)} nearby")
             off = min(near, key=lambda s: abs(s - stamp_ns)) - stamp_ns
@@ -77,8 +83,10 @@ class StampSync:
         text = "; ".join(parts)
         if near_miss is not None:
             name, off = near_miss
-            text += (f" (the {name}'s nearest stamp is {abs(off) / 1000:g} us {'later' if off > 0 else 'earlier'}: "
-                     "every input of a step must carry the state's exact stamp)")
+            text += (
+                f" (the {name}'s nearest stamp is {abs(off) / 1000:g} us {'later' if off > 0 else 'earlier'}: "
+                "every input of a step must carry the state's exact stamp)"
+            )
         return text
 
 
@@ -112,8 +120,9 @@ class IncompleteSteps:
             del self.first_seen[stamp]
             missing = sync.missing(stamp)
             if missing and len(missing) < len(sync.keys):
-                self.held.append((stamp, prefer is None or prefer not in missing,
-                                  incomplete_line(sync, stamp, missing, self.timeout)))
+                self.held.append(
+                    (stamp, prefer is None or prefer not in missing, incomplete_line(sync, stamp, missing, self.timeout))
+                )
 
     def report(self, now: float) -> str | None:
         """The line for the latest incomplete step (a preferred one if any), once per ``interval``."""
@@ -142,8 +151,7 @@ class IncompleteSteps:
 
 def incomplete_line(sync: StampSync, stamp_ns: int, missing, timeout: float) -> str:
     """``step at t=1.28 s: no tactile input after 1.0 s; tactile has stamps ... nearby; gripper state at 1.28``."""
-    return (f"step at t={stamp_ns / 1e9:.2f} s: no {', '.join(missing)} input after {timeout} s; "
-            + sync.stamps_seen(stamp_ns))
+    return f"step at t={stamp_ns / 1e9:.2f} s: no {', '.join(missing)} input after {timeout} s; " + sync.stamps_seen(stamp_ns)
 
 
 def format_stamp(stamp_ns: int) -> str:

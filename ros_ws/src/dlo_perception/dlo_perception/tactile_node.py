@@ -11,28 +11,32 @@ from __future__ import annotations
 import time
 
 import numpy as np
+from dlo_common.node_util import declare_parameters
+from dlo_common.params import Param
+from dlo_common.topics import topic
+from dlo_msgs.msg import GripperState, TactilePose
 from rclpy.node import Node
 from sensor_msgs.msg import PointCloud2
 
-from dlo_msgs.msg import GripperState, TactilePose
 from dlo_perception.cloud import unpack_particles
 from dlo_perception.sync import IncompleteSteps, StampSync, stamp_to_ns
 from dlo_perception.tactile import TACTILE_NOISE, noise_label, noise_setting, noise_sigma, tactile_pose
-from dlo_common.node_util import declare_parameters
-from dlo_common.topics import topic
-from dlo_common.params import Param
 
 INPUT_TIMEOUT = 1.0  # s, a step's particles and state not matched by stamp after this long are reported
 OLD_NOISE_NAMES = ("noise", "sigma_theta", "sigma_y")  # renamed tactile_noise; accepted until the next release
 PARAMETERS = (
-    Param("tactile_noise", "none",
-          "noise std of theta_T and y_T at an open gripper (scaled by 1 - closure): none, "
-          f"partial ({list(TACTILE_NOISE['partial'])}), full ({list(TACTILE_NOISE['full'])}) or a pair "
-          "[sigma_theta [rad], sigma_y [m]] such as [0.1,0.001]",
-          check=noise_setting, types="string or double_array", accepts="none | partial | full | [sigma_theta,sigma_y]"),
+    Param(
+        "tactile_noise",
+        "none",
+        "noise std of theta_T and y_T at an open gripper (scaled by 1 - closure): none, "
+        f"partial ({list(TACTILE_NOISE['partial'])}), full ({list(TACTILE_NOISE['full'])}) or a pair "
+        "[sigma_theta [rad], sigma_y [m]] such as [0.1,0.001]",
+        check=noise_setting,
+        types="string or double_array",
+        accepts="none | partial | full | [sigma_theta,sigma_y]",
+    ),
     Param("seed", 0, "seed of the noise generator", at_least=0),
-    Param("noise", "none", "old name: tactile_noise", choices=(*sorted(TACTILE_NOISE), "custom"),
-          renamed_to="tactile_noise"),
+    Param("noise", "none", "old name: tactile_noise", choices=(*sorted(TACTILE_NOISE), "custom"), renamed_to="tactile_noise"),
     Param("sigma_theta", 0.0, "old name: tactile_noise", at_least=0.0, renamed_to="tactile_noise"),
     Param("sigma_y", 0.0, "old name: tactile_noise", at_least=0.0, renamed_to="tactile_noise"),
 )
@@ -62,8 +66,7 @@ class TactileNode(Node):
         self.incomplete = IncompleteSteps(INPUT_TIMEOUT)  # a step whose inputs never share one stamp: reported
         self.last = (None, None)  # (stamp_ns, TactilePose): a republished step gets the same reading
         self.publisher = self.create_publisher(TactilePose, topic("tactile").name, 10)
-        self.create_subscription(PointCloud2, topic("particles").name,
-                                 lambda m: self.on_input("particles", m), 10)
+        self.create_subscription(PointCloud2, topic("particles").name, lambda m: self.on_input("particles", m), 10)
         self.create_subscription(GripperState, topic("gripper").name, lambda m: self.on_input("gripper", m), 10)
 
     def on_input(self, key, msg):
@@ -77,10 +80,12 @@ class TactileNode(Node):
             return
         cloud, gripper = matched
         positions, held = unpack_particles(cloud)
-        pose = tactile_pose(positions[None], held[None], np.array([[gripper.x, gripper.y]]),
-                            np.array([gripper.closure]), self.sigma, self.rng)
-        out = TactilePose(angle=float(pose.angle[0]), y=float(pose.y[0]), contact=bool(pose.contact[0]),
-                          contact_count=int(pose.count[0]))
+        pose = tactile_pose(
+            positions[None], held[None], np.array([[gripper.x, gripper.y]]), np.array([gripper.closure]), self.sigma, self.rng
+        )
+        out = TactilePose(
+            angle=float(pose.angle[0]), y=float(pose.y[0]), contact=bool(pose.contact[0]), contact_count=int(pose.count[0])
+        )
         out.header.stamp = cloud.header.stamp
         out.header.frame_id = "gripper"  # angle and offset are in the gripper frame (docs/ARCHITECTURE.md#world)
         self.last = (stamp, out)

@@ -36,9 +36,8 @@ Fewer than two held particles (no contact, as the tactile reading): not visible,
 from dataclasses import dataclass
 
 import numpy as np
-
-from dlo_common import taichi_runtime  # before taichi: no "[Taichi] version" banner on stdout (see there)
 import taichi as ti
+from dlo_common import taichi_runtime  # before taichi: no "[Taichi] version" banner on stdout (see there)
 
 from dlo_perception.camera import TopCamera
 from dlo_perception.vision_source import DEFAULT_VISION_SOURCE, VISION_SOURCES, check_vision_source  # noqa: F401
@@ -96,8 +95,13 @@ def _patch_pixel(images: ti.template(), e, row, column) -> ti.i32:
 
 
 @ti.kernel
-def _track_strands(images: ti.types.ndarray(dtype=ti.u8, ndim=3), gripper_uv: ti.types.ndarray(dtype=ti.f64, ndim=2),
-                   pose: ti.types.ndarray(dtype=ti.f64, ndim=2), metres_per_pixel: ti.f64, serial: ti.template()):
+def _track_strands(
+    images: ti.types.ndarray(dtype=ti.u8, ndim=3),
+    gripper_uv: ti.types.ndarray(dtype=ti.f64, ndim=2),
+    pose: ti.types.ndarray(dtype=ti.f64, ndim=2),
+    metres_per_pixel: ti.f64,
+    serial: ti.template(),
+):
     """O_V of every image into ``pose`` (N, 4): visible (1/0), confidence, angle [rad], y [m].
 
     Per image, in a patch of rows centre +- ``half_rows`` and columns from the gripper's rightwards:
@@ -142,8 +146,7 @@ def _track_strands(images: ti.types.ndarray(dtype=ti.u8, ndim=3), gripper_uv: ti
                 best = ti.f64(0.0)
                 for r in range(-half_rows, half_rows + 1):
                     pos = r + row_shift
-                    if (_patch_pixel(images, e, centre_row + r, column) == IMAGE_CABLE
-                            and gate_lo - 1.0 <= pos <= gate_hi + 1.0):
+                    if _patch_pixel(images, e, centre_row + r, column) == IMAGE_CABLE and gate_lo - 1.0 <= pos <= gate_hi + 1.0:
                         if nearest > half_rows or ti.abs(pos - predicted) < best:
                             nearest = r
                             best = ti.abs(pos - predicted)
@@ -197,8 +200,7 @@ def _track_strands(images: ti.types.ndarray(dtype=ti.u8, ndim=3), gripper_uv: ti
         pose[e, 0] = 1.0 if visible else 0.0
         pose[e, 1] = ti.min(ti.max(dx / confidence_length, 0.0), 1.0) if visible else 0.0
         pose[e, 2] = ti.atan2(-row_slope, 1.0) if visible else 0.0
-        pose[e, 3] = ti.min(ti.max(-first_centroid * metres_per_pixel, -search_half_width),
-                            search_half_width) if visible else 0.0
+        pose[e, 3] = ti.min(ti.max(-first_centroid * metres_per_pixel, -search_half_width), search_half_width) if visible else 0.0
 
 
 def visual_pose_ground_truth(positions, num_particles, gripper_xy) -> VisualPose:
@@ -297,5 +299,9 @@ def visual_pose_particles(positions, held, num_particles, gripper_xy) -> VisualP
     fitted = walk < right[:, None]
     walk = np.clip(walk, 0, p_max - 1)
     slope = line_slope(x[rows[:, None], walk], y[rows[:, None], walk], fitted)
-    return VisualPose(visible, np.where(extends, np.minimum(dx / CONFIDENCE_LENGTH, 1.0), 0.0),
-                      np.where(extends, np.arctan(slope), 0.0), np.where(visible, y_out, 0.0))
+    return VisualPose(
+        visible,
+        np.where(extends, np.minimum(dx / CONFIDENCE_LENGTH, 1.0), 0.0),
+        np.where(extends, np.arctan(slope), 0.0),
+        np.where(visible, y_out, 0.0),
+    )

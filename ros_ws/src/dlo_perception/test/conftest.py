@@ -1,8 +1,8 @@
 """Fixtures of the perception tests that run a node in-process."""
+
 import os
 
 import pytest
-
 from dlo_common.testing import reserved_domain
 
 

@@ -8,9 +8,7 @@
   cloud: about one error a second, each naming the particle cloud's and the state's stamps.
 """
 
-
 import pytest
-
 from dlo_common.testing import LogLines
 from dlo_perception.sync import NEAR_MISS_NS, IncompleteSteps, StampSync, format_stamp
 
@@ -45,17 +43,24 @@ def test_a_state_stamped_apart_from_its_cloud_is_named_once_a_second_with_both_s
     assert 2 <= len(lines) <= 3  # 3.2 s of steps: a line a second, not one per step (40)
     assert all(b[0] - a[0] >= 1.0 for a, b in zip(lines, lines[1:]))
     first = lines[0][1]
-    assert first.startswith("step at t=1.28 s: no particles input after 1.0 s; particle cloud has stamps 1.28, 1.36 "
-                            "nearby; gripper state at 1.2800004 (the particle cloud's nearest stamp is 0.4 us "
-                            "earlier: every input of a step must carry the state's exact stamp)"), first
+    assert first.startswith(
+        "step at t=1.28 s: no particles input after 1.0 s; particle cloud has stamps 1.28, 1.36 "
+        "nearby; gripper state at 1.2800004 (the particle cloud's nearest stamp is 0.4 us "
+        "earlier: every input of a step must carry the state's exact stamp)"
+    ), first
     assert "12 other incomplete steps since the last report" in lines[1][1]  # the states of a second, not stamps
 
 
 def test_a_missing_input_and_complete_steps():
-    lines = run(StampSync(("gripper", "tactile", "vision")), IncompleteSteps(timeout=1.0),
-                {"gripper": 0, "vision": 0, "tactile": None})
-    assert lines and "no tactile input after 1.0 s; gripper state at 1.28; tactile: nothing received yet (is " \
-                     "tactile_node running?" in lines[0][1] and "vision at 1.28" in lines[0][1]
+    lines = run(
+        StampSync(("gripper", "tactile", "vision")), IncompleteSteps(timeout=1.0), {"gripper": 0, "vision": 0, "tactile": None}
+    )
+    assert (
+        lines
+        and "no tactile input after 1.0 s; gripper state at 1.28; tactile: nothing received yet (is tactile_node running?"
+        in lines[0][1]
+        and "vision at 1.28" in lines[0][1]
+    )
     assert run(StampSync(("gripper", "tactile")), IncompleteSteps(timeout=1.0), {"gripper": 0, "tactile": 0}) == []
 
 
@@ -72,8 +77,9 @@ def test_a_step_is_reported_only_after_the_timeout_and_the_state_first():
     assert report.check(sync, 5.0) is None  # reported once
     sync.add("particles", 2_000_000_000, None)  # a cloud whose state never comes
     report.seen(2_000_000_000, 5.0)
-    assert report.check(sync, 6.5, prefer="gripper").startswith("step at t=2.00 s: no gripper input after 1.0 s; "
-                                                                 "particle cloud at 2; gripper state has stamps")
+    assert report.check(sync, 6.5, prefer="gripper").startswith(
+        "step at t=2.00 s: no gripper input after 1.0 s; particle cloud at 2; gripper state has stamps"
+    )
 
 
 def test_an_unknown_input_is_a_key_error_and_changes_nothing():
@@ -124,8 +130,9 @@ def seen_line(offsets, keys=("gripper", "tactile", "vision")):
 
 def test_the_nearest_stamp_decides_a_near_miss_earlier_or_later_and_the_closest_input_is_named():
     later = seen_line({"gripper": [0], "tactile": [-STEP_NS + 400, 400]}, ("gripper", "tactile"))
-    assert later.endswith("(the tactile's nearest stamp is 0.4 us later: every input of a step must carry the "
-                          "state's exact stamp)"), later
+    assert later.endswith(
+        "(the tactile's nearest stamp is 0.4 us later: every input of a step must carry the state's exact stamp)"
+    ), later
     both = seen_line({"gripper": [0], "tactile": [-400], "vision": [100]})
     assert "(the vision's nearest stamp is 0.1 us later" in both, both  # the closer of two near misses
     tie = seen_line({"gripper": [0], "tactile": [400], "vision": [-400]})
@@ -183,7 +190,6 @@ rclpy = pytest.importorskip("rclpy")
 
 def test_tactile_node_reports_a_state_stamped_apart_from_its_cloud(context, monkeypatch):
     import numpy as np
-
     from dlo_msgs.msg import GripperState
     from dlo_perception import tactile_node as module
     from dlo_perception.cloud import particle_cloud
@@ -210,5 +216,6 @@ def test_tactile_node_reports_a_state_stamped_apart_from_its_cloud(context, monk
         node.destroy_node()
     assert published == []  # no step ever matched
     assert 3 <= len(log.of("error")) <= 4, log.of("error")  # once a second, not 50 times
-    assert log.of("error")[0].startswith("step at t=1.00 s: no particles input after 1.0 s; particle cloud has stamps 1, "
-                                    "1.08 nearby; gripper state at 1.0000004"), log.of("error")[0]
+    assert log.of("error")[0].startswith(
+        "step at t=1.00 s: no particles input after 1.0 s; particle cloud has stamps 1, 1.08 nearby; gripper state at 1.0000004"
+    ), log.of("error")[0]

@@ -9,9 +9,17 @@ import warnings
 
 import numpy as np
 import pytest
-
-from dlo_perception.tactile import (NOISE_FORMS, TACTILE_NOISE, Y_LIMIT, noise_label, noise_parameter_value,
-                                    noise_setting, noise_sigma, tactile_pose, wrap_line_angle)
+from dlo_perception.tactile import (
+    NOISE_FORMS,
+    TACTILE_NOISE,
+    Y_LIMIT,
+    noise_label,
+    noise_parameter_value,
+    noise_setting,
+    noise_sigma,
+    tactile_pose,
+    wrap_line_angle,
+)
 
 
 def line_particles(angle, offset, gripper=(0.05, -0.02), count=5, spacing=0.0043):
@@ -78,8 +86,9 @@ def test_y_stays_within_its_limit_with_noise_and_for_lines_along_the_finger():
     along = tactile_pose(line(np.pi / 2, 0.0) + [0.004, 0.0], np.ones(5, bool), G, 1.0)  # parallel to the finger
     assert abs(along.angle) == pytest.approx(np.pi / 2) and abs(along.y) == Y_LIMIT
     near_edge = np.stack([line(0.0, 0.028)] * 200)
-    noisy = tactile_pose(near_edge, np.ones((200, 5), bool), np.tile(G, (200, 1)), np.zeros(200), sigma=(0.0, 0.05),
-                         rng=np.random.default_rng(5))
+    noisy = tactile_pose(
+        near_edge, np.ones((200, 5), bool), np.tile(G, (200, 1)), np.zeros(200), sigma=(0.0, 0.05), rng=np.random.default_rng(5)
+    )
     assert np.all(np.abs(noisy.y) <= Y_LIMIT) and np.any(noisy.y == Y_LIMIT) and np.any(noisy.y < 0.0)
 
 
@@ -108,8 +117,9 @@ def test_no_contact_needs_no_invalid_arithmetic():
 def test_noise_scales_with_one_minus_closure(closure):
     n = 20000
     points = np.broadcast_to(line_particles(0.0, 0.0, (0.0, 0.0)), (n, 5, 2))
-    pose = tactile_pose(points, np.ones((n, 5), bool), np.zeros((n, 2)), np.full(n, closure),
-                        sigma="full", rng=np.random.default_rng(1))
+    pose = tactile_pose(
+        points, np.ones((n, 5), bool), np.zeros((n, 2)), np.full(n, closure), sigma="full", rng=np.random.default_rng(1)
+    )
     sigma_theta, sigma_y = TACTILE_NOISE["full"]
     assert np.std(pose.y) == pytest.approx((1 - closure) * sigma_y, rel=0.05, abs=1e-12)
     # The angle is wrapped to (-pi/2, pi/2]; at sigma 0.5 the wrap hardly changes the spread.
@@ -180,15 +190,36 @@ def test_noise_settings_in_every_form():
     a sequence or as text; the pair as floats, the preset as its name."""
     for preset in TACTILE_NOISE:
         assert noise_setting(preset) == preset
-    for value in ((0.1, 0.001), [0.1, 0.001], ["0.1", "0.001"], np.array([0.1, 0.001]), "0.1,0.001", "[0.1, 0.001]",
-                  "(0.1,0.001)", " 0.1 ,0.001 "):
+    for value in (
+        (0.1, 0.001),
+        [0.1, 0.001],
+        ["0.1", "0.001"],
+        np.array([0.1, 0.001]),
+        "0.1,0.001",
+        "[0.1, 0.001]",
+        "(0.1,0.001)",
+        " 0.1 ,0.001 ",
+    ):
         got = noise_setting(value)
         assert got == (0.1, 0.001) and type(got) is tuple and all(type(s) is float for s in got), value
     assert noise_setting([0, 1]) == (0.0, 1.0) and noise_sigma("0,0") == (0.0, 0.0)
-    for bad, shown in [("loud", "'loud'"), ("custom", "'custom'"), ("", "''"), ("0.1", "'0.1'"), ([0.1], "[0.1]"),
-                       ((0.1, 0.2, 0.3), "[0.1, 0.2, 0.3]"), ("-0.1,0", "'-0.1,0'"), ((0.0, -1e-9), "[0.0, -1e-09]"),
-                       ((float("nan"), 0.0), "[nan, 0.0]"), ((0.0, float("inf")), "[0.0, inf]"),
-                       ((True, 0.0), "[True, 0.0]"), (None, "None"), (3, "3"), ("a,b", "'a,b'"), ("[0.1", "'[0.1'")]:
+    for bad, shown in [
+        ("loud", "'loud'"),
+        ("custom", "'custom'"),
+        ("", "''"),
+        ("0.1", "'0.1'"),
+        ([0.1], "[0.1]"),
+        ((0.1, 0.2, 0.3), "[0.1, 0.2, 0.3]"),
+        ("-0.1,0", "'-0.1,0'"),
+        ((0.0, -1e-9), "[0.0, -1e-09]"),
+        ((float("nan"), 0.0), "[nan, 0.0]"),
+        ((0.0, float("inf")), "[0.0, inf]"),
+        ((True, 0.0), "[True, 0.0]"),
+        (None, "None"),
+        (3, "3"),
+        ("a,b", "'a,b'"),
+        ("[0.1", "'[0.1'"),
+    ]:
         with pytest.raises(ValueError) as error:
             noise_setting(bad)
         assert str(error.value) == f"expected {NOISE_FORMS}, got {shown}", bad

@@ -7,17 +7,14 @@ Its noise parameter ``tactile_noise`` takes a preset or a pair in each ROS form;
 ``sigma_theta`` and ``sigma_y`` still work, with one notice.
 """
 
-
 import numpy as np
 import pytest
 
 rclpy = pytest.importorskip("rclpy")
-from dlo_msgs.msg import GripperState  # noqa: E402
-from rclpy.parameter import Parameter  # noqa: E402
-
 from dlo_common.params import ParameterError  # noqa: E402
-
+from dlo_msgs.msg import GripperState  # noqa: E402
 from dlo_perception import tactile_node as tactile_node_module  # noqa: E402
+from rclpy.parameter import Parameter  # noqa: E402
 
 DECLARE = tactile_node_module.declare_parameters  # the original: every node gets only its own overrides
 from dlo_perception.cloud import particle_cloud  # noqa: E402
@@ -34,11 +31,9 @@ def make_node(context, monkeypatch):
     nodes = []
 
     def make(**parameters):
-        monkeypatch.setattr(tactile_node_module, "declare_parameters",
-                            lambda n, specs: {**DECLARE(n, specs), **parameters})
+        monkeypatch.setattr(tactile_node_module, "declare_parameters", lambda n, specs: {**DECLARE(n, specs), **parameters})
         init = rclpy.node.Node.__init__
-        monkeypatch.setattr(rclpy.node.Node, "__init__",
-                            lambda self, *a, **k: init(self, *a, **{"context": context, **k}))
+        monkeypatch.setattr(rclpy.node.Node, "__init__", lambda self, *a, **k: init(self, *a, **{"context": context, **k}))
         node = tactile_node_module.TactileNode()
         monkeypatch.setattr(rclpy.node.Node, "__init__", init)
         node.real_publisher = node.publisher
@@ -59,8 +54,11 @@ def node_with(context, monkeypatch):
     def make(**overrides):
         init = rclpy.node.Node.__init__
         given = [Parameter(name, value=value) for name, value in overrides.items()]
-        monkeypatch.setattr(rclpy.node.Node, "__init__", lambda self, *a, **k: init(
-            self, *a, **{"context": context, "parameter_overrides": given, **k}))
+        monkeypatch.setattr(
+            rclpy.node.Node,
+            "__init__",
+            lambda self, *a, **k: init(self, *a, **{"context": context, "parameter_overrides": given, **k}),
+        )
         try:
             node = tactile_node_module.TactileNode()
         finally:
@@ -73,8 +71,9 @@ def node_with(context, monkeypatch):
         node.destroy_node()
 
 
-POSITIONS = np.array([[-0.25, 0.0, 0.1], [0.0, -0.001, 0.085], [0.004, 0.0005, 0.085], [0.008, 0.002, 0.085],
-                      [0.05, 0.01, 0.02]], np.float32)
+POSITIONS = np.array(
+    [[-0.25, 0.0, 0.1], [0.0, -0.001, 0.085], [0.004, 0.0005, 0.085], [0.008, 0.002, 0.085], [0.05, 0.01, 0.02]], np.float32
+)
 HELD = np.array([False, True, True, True, False])
 
 
@@ -111,8 +110,11 @@ def test_a_republished_step_gets_the_same_noisy_reading(make_node):
 
 
 def test_the_noise_generator_follows_the_seed(make_node):
-    a, b, c = (make_node(tactile_noise="full", seed=3), make_node(tactile_noise="full", seed=3),
-               make_node(tactile_noise="full", seed=4))
+    a, b, c = (
+        make_node(tactile_noise="full", seed=3),
+        make_node(tactile_noise="full", seed=3),
+        make_node(tactile_noise="full", seed=4),
+    )
     for node in (a, b, c):
         feed(node, 1)
     assert reading(a.publisher[0]) == reading(b.publisher[0]) != reading(c.publisher[0])
@@ -139,8 +141,7 @@ def test_topics_and_parameter_defaults(make_node):
     node = make_node()
     assert node.real_publisher.topic_name == "/dlo/tactile/pose"
     assert sorted(s.topic_name for s in node.subscriptions) == ["/dlo/gripper/state", "/dlo/rope/particles"]
-    assert {name: node.get_parameter(name).value for name in ("tactile_noise", "seed")} == {
-        "tactile_noise": "none", "seed": 0}
+    assert {name: node.get_parameter(name).value for name in ("tactile_noise", "seed")} == {"tactile_noise": "none", "seed": 0}
     assert not any(node.has_parameter(name) for name in ("noise", "sigma_theta", "sigma_y"))  # old names: not declared
     assert node.sigma == (0.0, 0.0)
     custom = make_node(noise="custom")  # custom without sigmas: no noise
@@ -150,7 +151,6 @@ def test_topics_and_parameter_defaults(make_node):
     seeded = make_node(tactile_noise="full", seed=0)
     feed(seeded, 1)
     assert reading(default_seed.publisher[0]) == reading(seeded.publisher[0])
-
 
 
 @pytest.mark.parametrize("value", [[0.1, 0.001], "0.1,0.001", "[0.1,0.001]", [0.1, 1e-3]])
@@ -164,9 +164,12 @@ def test_a_pair_in_each_ros_form(node_with, value, capfd):
 def test_the_old_names_give_the_old_noise_and_one_notice(node_with, capfd):
     assert node_with(tactile_noise="partial").sigma == (0.25, 0.001)
     assert "now 'tactile_noise'" not in capfd.readouterr().err
-    for old, sigma in [({"noise": "full"}, (0.5, 0.002)), ({"noise": "custom", "sigma_y": 0.001}, (0.0, 0.001)),
-                       ({"noise": "custom", "sigma_theta": 0.2, "sigma_y": 0.0}, (0.2, 0.0)),
-                       ({"sigma_y": 0.001}, (0.0, 0.0))]:  # the sigmas without noise:=custom did nothing, as before
+    for old, sigma in [
+        ({"noise": "full"}, (0.5, 0.002)),
+        ({"noise": "custom", "sigma_y": 0.001}, (0.0, 0.001)),
+        ({"noise": "custom", "sigma_theta": 0.2, "sigma_y": 0.0}, (0.2, 0.0)),
+        ({"sigma_y": 0.001}, (0.0, 0.0)),
+    ]:  # the sigmas without noise:=custom did nothing, as before
         node = node_with(**old)
         assert node.sigma == sigma, old
         assert not node.has_parameter("noise")
@@ -175,15 +178,20 @@ def test_the_old_names_give_the_old_noise_and_one_notice(node_with, capfd):
         assert notices[0].startswith("[WARN]") and all(f"'{name}'" in notices[0] for name in old), notices
 
 
-@pytest.mark.parametrize("overrides,message", [
-    ({"tactile_noise": "loud"}, "parameter 'tactile_noise': expected none, partial, full or a pair"),
-    ({"tactile_noise": [0.1, -0.001]}, "parameter 'tactile_noise': expected none, partial, full or a pair"),
-    ({"tactile_noise": "custom"}, "parameter 'tactile_noise': expected none, partial, full or a pair"),
-    ({"noise": "loud"}, "parameter 'noise': expected one of ('full', 'none', 'partial', 'custom'), got 'loud'"),
-    ({"sigma_theta": -1.0}, "parameter 'sigma_theta': must be >= 0, got -1.0"),
-    ({"tactile_noise": "full", "noise": "full"},
-     "parameter 'noise' is the old name of 'tactile_noise': set only 'tactile_noise'"),
-])
+@pytest.mark.parametrize(
+    "overrides,message",
+    [
+        ({"tactile_noise": "loud"}, "parameter 'tactile_noise': expected none, partial, full or a pair"),
+        ({"tactile_noise": [0.1, -0.001]}, "parameter 'tactile_noise': expected none, partial, full or a pair"),
+        ({"tactile_noise": "custom"}, "parameter 'tactile_noise': expected none, partial, full or a pair"),
+        ({"noise": "loud"}, "parameter 'noise': expected one of ('full', 'none', 'partial', 'custom'), got 'loud'"),
+        ({"sigma_theta": -1.0}, "parameter 'sigma_theta': must be >= 0, got -1.0"),
+        (
+            {"tactile_noise": "full", "noise": "full"},
+            "parameter 'noise' is the old name of 'tactile_noise': set only 'tactile_noise'",
+        ),
+    ],
+)
 def test_bad_noise_parameters_are_refused(node_with, overrides, message):
     with pytest.raises(ParameterError) as error:
         node_with(**overrides)

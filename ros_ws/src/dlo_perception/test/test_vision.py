@@ -6,10 +6,17 @@ walked, where following stops, what is padding, and the line fit."""
 
 import numpy as np
 import pytest
-
 from dlo_perception.camera import TopCamera
-from dlo_perception.vision import (CONFIDENCE_LENGTH, ENTRY_BAND, OCCLUSION_RADIUS, SEARCH_HALF_WIDTH, TRACK_LENGTH,
-                                   line_slope, visual_pose, visual_pose_ground_truth)
+from dlo_perception.vision import (
+    CONFIDENCE_LENGTH,
+    ENTRY_BAND,
+    OCCLUSION_RADIUS,
+    SEARCH_HALF_WIDTH,
+    TRACK_LENGTH,
+    line_slope,
+    visual_pose,
+    visual_pose_ground_truth,
+)
 
 CAMERA = TopCamera.covering_workspace(128)
 PLANE_Z = 0.1  # m, gripper height; the synthetic cable lies in this plane too
@@ -27,7 +34,7 @@ def segment_distance(points, a, b):
 
 def draw(polylines, gripper_xy, camera=CAMERA, plane_z=PLANE_Z):
     """uint8 (H, W) image: cable polylines (list of (K, 2) arrays [m]) 255, gripper capsule 128 on top."""
-    v, u = np.mgrid[0:camera.height, 0:camera.width]
+    v, u = np.mgrid[0 : camera.height, 0 : camera.width]
     world = camera.pixel_to_world(np.stack([u + 0.5, v + 0.5], axis=-1), plane_z)
     image = np.zeros((camera.height, camera.width), np.uint8)
     for line in polylines:
@@ -60,13 +67,10 @@ SCENES = {
     "tilted_up": ([held_then_bent(0.4)], (True, 1.0, 0.4, 0.0165 * np.tan(0.4))),
     "tilted_down": ([held_then_bent(-0.6, 0.004)], (True, 1.0, -0.6, 0.004 - 0.0165 * np.tan(0.6))),
     # Crossing strands right of the gripper: keep following the held strand, no jump onto the other.
-    "crossing_steep": ([held_then_bent(0.0), polyline(GRIPPER + [0.01, -0.05], np.pi / 3, 0.12)],
-                       (True, 1.0, 0.0, 0.0)),
-    "crossing_back": ([held_then_bent(0.0), polyline(GRIPPER + [0.05, -0.05], np.pi / 2 + 0.3, 0.12)],
-                      (True, 1.0, 0.0, 0.0)),
+    "crossing_steep": ([held_then_bent(0.0), polyline(GRIPPER + [0.01, -0.05], np.pi / 3, 0.12)], (True, 1.0, 0.0, 0.0)),
+    "crossing_back": ([held_then_bent(0.0), polyline(GRIPPER + [0.05, -0.05], np.pi / 2 + 0.3, 0.12)], (True, 1.0, 0.0, 0.0)),
     # Another part of the cable farther from the gripper in y: the nearer strand wins.
-    "parallel_far_part": ([held_then_bent(0.0), polyline(GRIPPER + [-0.1, 0.025], 0.0, 0.3)],
-                          (True, 1.0, 0.0, 0.0)),
+    "parallel_far_part": ([held_then_bent(0.0), polyline(GRIPPER + [-0.1, 0.025], 0.0, 0.3)], (True, 1.0, 0.0, 0.0)),
     # The cable ends under the gripper: hidden by it.
     "occluded_by_gripper": ([polyline(GRIPPER - [0.27, 0.0], 0.0, 0.275)], (False, 0.0, 0.0, 0.0)),
     "cable_far_away": ([polyline(GRIPPER + [0.03, 0.13], 0.0, 0.2)], (False, 0.0, 0.0, 0.0)),
@@ -144,7 +148,7 @@ def truth(*cables, pad=0, gripper=(0.0, 0.0)):
     size = max(len(c) for c in cables) + pad
     positions = np.full((len(cables), size, 3), 0.0)
     for e, cable in enumerate(cables):
-        positions[e, :len(cable), :2] = cable
+        positions[e, : len(cable), :2] = cable
     return visual_pose_ground_truth(positions, [len(c) for c in cables], np.tile(gripper, (len(cables), 1)))
 
 
@@ -153,7 +157,7 @@ def run(start, step, count):
 
 
 def test_the_entry_is_the_candidate_nearest_the_gripper_in_y():
-    upper = run((X_O + 0.002, 0.004), (0.004, 0.0), 4)   # |dy| = 0.004
+    upper = run((X_O + 0.002, 0.004), (0.004, 0.0), 4)  # |dy| = 0.004
     lower = run((X_O + 0.001, -0.010), (0.004, 0.0), 4)  # dy = -0.010: smaller signed, farther
     pose = truth(np.vstack([lower, upper]))
     assert pose.visible[0] and pose.y[0] == pytest.approx(0.004)
@@ -169,8 +173,12 @@ def test_entry_band_and_search_width_edges_are_inclusive():
     gx = next(g for g in np.arange(0.0, 0.01, 0.0001) if (g + X_O + ENTRY_BAND) - (g + X_O) == ENTRY_BAND)
     far_edge = truth(np.array([[gx + X_O + ENTRY_BAND, 0.0]]), gripper=(gx, 0.0))
     assert far_edge.visible[0] and far_edge.confidence[0] == pytest.approx(ENTRY_BAND / CONFIDENCE_LENGTH)
-    for outside in ([X_O - 1e-6, 0.0], [X_O + ENTRY_BAND + 1e-6, 0.0], [X_O + 0.001, SEARCH_HALF_WIDTH + 1e-6],
-                    [X_O + 0.001, -0.05]):
+    for outside in (
+        [X_O - 1e-6, 0.0],
+        [X_O + ENTRY_BAND + 1e-6, 0.0],
+        [X_O + 0.001, SEARCH_HALF_WIDTH + 1e-6],
+        [X_O + 0.001, -0.05],
+    ):
         pose = truth(np.array([outside]))
         assert not pose.visible[0] and (pose.confidence[0], pose.angle[0], pose.y[0]) == (0.0, 0.0, 0.0), outside
 
@@ -221,8 +229,16 @@ def test_at_most_eleven_particles_are_followed():
 
 
 def test_following_stops_at_the_first_step_left_and_beyond_the_track():
-    zigzag = np.array([[X_O + 0.001, 0.0], [X_O + 0.004, 0.001], [X_O + 0.007, 0.002],  # right, slope 1/3
-                       [X_O + 0.005, 0.010], [X_O + 0.012, 0.020], [X_O + 0.016, 0.030]])  # left, then right again
+    zigzag = np.array(
+        [
+            [X_O + 0.001, 0.0],
+            [X_O + 0.004, 0.001],
+            [X_O + 0.007, 0.002],  # right, slope 1/3
+            [X_O + 0.005, 0.010],
+            [X_O + 0.012, 0.020],
+            [X_O + 0.016, 0.030],
+        ]
+    )  # left, then right again
     long = run((X_O + 0.002, 0.0), (0.0043, 0.0043), 14)  # 45 deg: leaves the track after 10 steps
     pose = truth(zigzag, long)
     assert pose.confidence[0] == pytest.approx(0.007 / CONFIDENCE_LENGTH)
@@ -256,8 +272,7 @@ def test_rows_of_a_batch_are_independent():
     both = truth(a, b)
     for e, cable in enumerate((a, b)):
         alone = truth(cable, pad=len(b) - len(cable) if e == 0 else 0)
-        assert (both.confidence[e], both.angle[e], both.y[e]) == pytest.approx(
-            (alone.confidence[0], alone.angle[0], alone.y[0]))
+        assert (both.confidence[e], both.angle[e], both.y[e]) == pytest.approx((alone.confidence[0], alone.angle[0], alone.y[0]))
     assert both.confidence == pytest.approx([0.007 / CONFIDENCE_LENGTH, 0.012 / CONFIDENCE_LENGTH])
     assert both.angle == pytest.approx([np.arctan(0.5), -np.pi / 4])
 

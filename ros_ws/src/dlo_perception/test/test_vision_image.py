@@ -13,10 +13,18 @@ pixels pushing the start, the patch's edges, the image's borders, gaps, strands 
 
 import numpy as np
 import pytest
-
 from dlo_perception.camera import TopCamera
-from dlo_perception.vision import (CABLE_RADIUS, CONFIDENCE_LENGTH, GRIPPER_MARGIN_PIXELS, IMAGE_CABLE,
-                                   IMAGE_GRIPPER, OCCLUSION_RADIUS, SEARCH_HALF_WIDTH, TRACK_LENGTH, visual_pose)
+from dlo_perception.vision import (
+    CABLE_RADIUS,
+    CONFIDENCE_LENGTH,
+    GRIPPER_MARGIN_PIXELS,
+    IMAGE_CABLE,
+    IMAGE_GRIPPER,
+    OCCLUSION_RADIUS,
+    SEARCH_HALF_WIDTH,
+    TRACK_LENGTH,
+    visual_pose,
+)
 
 H = W = 96
 CAMERA = TopCamera(W, H, 250.0, 250.0, 48.0, 48.0, (0.0, 0.0, 1.25))
@@ -45,12 +53,12 @@ class Scene:
         """Cable in rows top..bottom (inclusive) of each column; top/bottom: a row or a function of the column."""
         for column in columns:
             t, b = (top(column) if callable(top) else top), (bottom(column) if callable(bottom) else bottom)
-            self.image[max(t, 0):b + 1, column] = IMAGE_CABLE
+            self.image[max(t, 0) : b + 1, column] = IMAGE_CABLE
         return self
 
     def gripper(self, columns, top, bottom):
         """The drawn finger, on top of the cable."""
-        self.image[top:bottom + 1, columns.start:columns.stop] = IMAGE_GRIPPER
+        self.image[top : bottom + 1, columns.start : columns.stop] = IMAGE_GRIPPER
         return self
 
     @property
@@ -77,8 +85,9 @@ def expected(scene, followed):
 def assert_pose(pose, index, want, name=""):
     visible, confidence, angle, y = want
     got = (bool(pose.visible[index]), pose.confidence[index], pose.angle[index], pose.y[index])
-    assert got == (visible, pytest.approx(confidence, abs=1e-9), pytest.approx(angle, abs=1e-9),
-                   pytest.approx(y, abs=1e-12)), name
+    assert got == (visible, pytest.approx(confidence, abs=1e-9), pytest.approx(angle, abs=1e-9), pytest.approx(y, abs=1e-12)), (
+        name
+    )
 
 
 def held(scene, top=48, bottom=51, columns=range(10, 44)):
@@ -104,14 +113,23 @@ def scenes():
         s.cable([column], top, bottom)
     add("rising", s, rising)
     # a strand one pixel thin at 45 degrees: its pixels touch only diagonally (the gate's +-1 row)
-    add("thin_rising", Scene().cable(range(30, 61), lambda c: 94 - c, lambda c: 94 - c),
-        [(c, 94 - c, 94 - c) for c in range(44, 44 + TRACK_COLUMNS)])
-    add("thin_falling", Scene().cable(range(30, 61), lambda c: c + 6, lambda c: c + 6),
-        [(c, c + 6, c + 6) for c in range(44, 44 + TRACK_COLUMNS)])
+    add(
+        "thin_rising",
+        Scene().cable(range(30, 61), lambda c: 94 - c, lambda c: 94 - c),
+        [(c, 94 - c, 94 - c) for c in range(44, 44 + TRACK_COLUMNS)],
+    )
+    add(
+        "thin_falling",
+        Scene().cable(range(30, 61), lambda c: c + 6, lambda c: c + 6),
+        [(c, c + 6, c + 6) for c in range(44, 44 + TRACK_COLUMNS)],
+    )
     # two pixels thin, rising two rows per column: each column's top pixel touches the next one's bottom
     steep_thin = lambda c: 138 - 2 * c  # noqa: E731  (rows 50..51 in column 44)
-    add("thin_steep_rising", Scene().cable(range(44, 53), steep_thin, lambda c: steep_thin(c) + 1),
-        [(c, steep_thin(c), steep_thin(c) + 1) for c in range(44, 53)])
+    add(
+        "thin_steep_rising",
+        Scene().cable(range(44, 53), steep_thin, lambda c: steep_thin(c) + 1),
+        [(c, steep_thin(c), steep_thin(c) + 1) for c in range(44, 53)],
+    )
     # at most TRACK_COLUMNS columns: a kink in the 11th counts, farther ones do not
     s = held(Scene(), columns=range(10, 54)).cable(range(54, 70), lambda c: c - 5, lambda c: c - 2)
     add("kink_in_the_last_column", s, flat(range(44, 54)) + [(54, 49, 52)])
@@ -175,8 +193,7 @@ def scenes():
     # the strand forks: the branch nearer the prediction is followed, on a strand rising one row per
     # column (a branch leaves downwards) as on one falling below the gripper's row (a branch leaves upwards)
     up = lambda c: 92 - c  # noqa: E731  (rows 48..51 in column 44, one higher per column)
-    s = held(Scene()).cable(range(44, 60), up, lambda c: up(c) + 3).cable(range(47, 60), lambda c: c + 3,
-                                                                          lambda c: c + 6)
+    s = held(Scene()).cable(range(44, 60), up, lambda c: up(c) + 3).cable(range(47, 60), lambda c: c + 3, lambda c: c + 6)
     add("fork_rising", s, [(c, up(c), up(c) + 3) for c in range(44, 55)])
     down = lambda c: c + 9  # noqa: E731  (rows 53..56 in column 44, one lower per column)
     s = held(Scene(), 53, 56).cable(range(44, 60), down, lambda c: down(c) + 3)
@@ -215,8 +232,9 @@ def test_pose_of_the_followed_pixels(batch, index):
 def test_the_expectations_themselves():
     """A few of the scenes' numbers by hand, so that `expected` is not the only word."""
     by_name = {name: expected(scene, followed) for name, scene, followed in SCENES}
-    assert by_name["rising"] == pytest.approx((True, (4.625 * MPP - CABLE_RADIUS) / CONFIDENCE_LENGTH,
-                                                np.arctan(0.5), 1.75 * MPP))
+    assert by_name["rising"] == pytest.approx(
+        (True, (4.625 * MPP - CABLE_RADIUS) / CONFIDENCE_LENGTH, np.arctan(0.5), 1.75 * MPP)
+    )
     assert by_name["thin_rising"][2] == pytest.approx(np.pi / 4) and by_name["thin_falling"][2] == pytest.approx(-np.pi / 4)
     assert by_name["stub"] == (True, 0.0, 0.0, 0.75 * MPP)
     assert by_name["two_columns"][2] == pytest.approx(np.pi / 4)

@@ -1,6 +1,7 @@
 """vision_node in-process (no graph): what it publishes for a step's image and gripper state, what it says when it
 cannot (no camera_info yet, not mono8, a state stamped apart from its image), and its queues (`queue_depth`), which
 keep what a replay faster than the node or its subscribers sends."""
+
 import sys
 from pathlib import Path
 
@@ -17,14 +18,16 @@ STEP_NS = 80_000_000
 
 
 def vision_node(context, monkeypatch, **parameters):
-    from rclpy.parameter import Parameter
-
     from dlo_perception import vision_node as module
+    from rclpy.parameter import Parameter
 
     init = rclpy.node.Node.__init__
     overrides = [Parameter(name, value=value) for name, value in parameters.items()]
-    monkeypatch.setattr(rclpy.node.Node, "__init__", lambda self, *a, **k: init(
-        self, *a, **{"context": context, "parameter_overrides": overrides, **k}))
+    monkeypatch.setattr(
+        rclpy.node.Node,
+        "__init__",
+        lambda self, *a, **k: init(self, *a, **{"context": context, "parameter_overrides": overrides, **k}),
+    )
     try:
         return module.VisionNode()
     finally:
@@ -32,8 +35,7 @@ def vision_node(context, monkeypatch, **parameters):
 
 
 @pytest.mark.parametrize("depth", [None, 1000])
-def test_queue_depth_is_the_depth_of_the_image_and_state_subscriptions_and_the_pose_publisher(context, monkeypatch,
-                                                                                               depth):
+def test_queue_depth_is_the_depth_of_the_image_and_state_subscriptions_and_the_pose_publisher(context, monkeypatch, depth):
     node = vision_node(context, monkeypatch, **({} if depth is None else {"queue_depth": depth}))
     try:
         depths = {s.topic_name: s.qos_profile.depth for s in node.subscriptions}
@@ -83,8 +85,7 @@ def step_messages(pixels, sec, nanosec, *, encoding="mono8", padding=0, stamp_of
     image = Image(height=height, width=width, encoding=encoding, step=width + padding, data=rows.tobytes())
     image.header.stamp.sec, image.header.stamp.nanosec = sec, nanosec
     state = GripperState(x=float(GRIPPER[0]), y=float(GRIPPER[1]), z=PLANE_Z, closure=0.7)
-    state.header.stamp.sec, state.header.stamp.nanosec = divmod(sec * 1_000_000_000 + nanosec + stamp_offset_ns,
-                                                                1_000_000_000)
+    state.header.stamp.sec, state.header.stamp.nanosec = divmod(sec * 1_000_000_000 + nanosec + stamp_offset_ns, 1_000_000_000)
     return image, state
 
 
@@ -111,7 +112,11 @@ def test_the_pose_is_the_image_s_reading_with_its_stamp_in_the_gripper_frame(con
     [pose] = sent
     assert (pose.header.stamp.sec, pose.header.stamp.nanosec, pose.header.frame_id) == (3, 240_000_000, "gripper")
     assert (pose.visible, pose.confidence, pose.angle, pose.y) == (
-        bool(want.visible[0]), float(want.confidence[0]), float(want.angle[0]), float(want.y[0]))
+        bool(want.visible[0]),
+        float(want.confidence[0]),
+        float(want.angle[0]),
+        float(want.y[0]),
+    )
 
 
 def test_without_camera_info_or_with_a_colour_image_no_pose_and_a_line_says_why(context, monkeypatch):
@@ -160,8 +165,7 @@ def test_a_state_stamped_apart_from_its_image_is_reported_once_a_second(context,
         monkeypatch.setattr(node.publisher, "publish", sent.append)
         node.on_camera_info(camera_info(module.DEFAULT_CAMERA))
         for k in range(50):  # 4 s of steps
-            image, state = step_messages(pixels, *divmod(1_000_000_400 + k * STEP_NS, 1_000_000_000),
-                                         stamp_offset_ns=-400)
+            image, state = step_messages(pixels, *divmod(1_000_000_400 + k * STEP_NS, 1_000_000_000), stamp_offset_ns=-400)
             node.on_input("image", image)
             node.on_input("gripper", state)
             clock[0] += 0.08
@@ -170,5 +174,7 @@ def test_a_state_stamped_apart_from_its_image_is_reported_once_a_second(context,
     assert sent == []
     errors = log.of("error")
     assert len(errors) == len(log.lines) and 3 <= len(errors) <= 4, log.lines  # once a second, not 50 times
-    assert errors[0].startswith("step at t=1.00 s: no image input after 1.0 s; image has stamps 1.0000004, 1.0800004 "
-                                "nearby; gripper state at 1 (the image's nearest stamp is 0.4 us later"), errors[0]
+    assert errors[0].startswith(
+        "step at t=1.00 s: no image input after 1.0 s; image has stamps 1.0000004, 1.0800004 "
+        "nearby; gripper state at 1 (the image's nearest stamp is 0.4 us later"
+    ), errors[0]

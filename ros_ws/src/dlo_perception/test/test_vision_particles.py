@@ -4,9 +4,16 @@ cables: every entry, every branch."""
 
 import numpy as np
 import pytest
-
-from dlo_perception.vision import (BACKTRACK, CONFIDENCE_LENGTH, OCCLUSION_RADIUS, VISION_SOURCES, WALK_STEPS,
-                                   check_vision_source, line_slope, visual_pose_particles)
+from dlo_perception.vision import (
+    BACKTRACK,
+    CONFIDENCE_LENGTH,
+    OCCLUSION_RADIUS,
+    VISION_SOURCES,
+    WALK_STEPS,
+    check_vision_source,
+    line_slope,
+    visual_pose_particles,
+)
 
 P = 60
 

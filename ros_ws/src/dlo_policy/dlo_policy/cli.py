@@ -1,4 +1,5 @@
 """Command-line helpers shared by the dlo_policy console scripts (light: no torch, no simulator)."""
+
 from __future__ import annotations
 
 import argparse

@@ -6,6 +6,7 @@ file shaped like `config/sac_default.yaml` and applies `key=value` overrides suc
 `sac.batch_size=256` or `env_options.tactile_noise=partial`. Unknown keys and values of the
 wrong type raise `ConfigError` naming the key.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -55,8 +56,11 @@ class SACConfig:
     cutoff_as_terminal: bool = False
 
     def __post_init__(self) -> None:
-        _require(len(self.hidden_sizes) >= 1 and all(h > 0 for h in self.hidden_sizes),
-                 "sac.hidden_sizes", "a non-empty list of positive ints")
+        _require(
+            len(self.hidden_sizes) >= 1 and all(h > 0 for h in self.hidden_sizes),
+            "sac.hidden_sizes",
+            "a non-empty list of positive ints",
+        )
         for name in ("actor_lr", "critic_lr", "alpha_lr", "initial_alpha", "reward_scale"):
             _require(getattr(self, name) > 0, f"sac.{name}", "> 0")
         _require(all(0 <= b < 1 for b in self.alpha_betas), "sac.alpha_betas", "two values in [0, 1)")
@@ -66,8 +70,11 @@ class SACConfig:
             _require(getattr(self, name) >= 1, f"sac.{name}", ">= 1")
         _require(self.learning_starts >= 0, "sac.learning_starts", ">= 0")
         _require(self.log_std_min < self.log_std_max, "sac.log_std_min", "< sac.log_std_max")
-        _require(self.observation_scaling in OBSERVATION_SCALINGS, "sac.observation_scaling",
-                 f"one of {', '.join(OBSERVATION_SCALINGS)}")
+        _require(
+            self.observation_scaling in OBSERVATION_SCALINGS,
+            "sac.observation_scaling",
+            f"one of {', '.join(OBSERVATION_SCALINGS)}",
+        )
 
     @classmethod
     def upgrade(cls, data: dict[str, Any]) -> dict[str, Any]:
@@ -103,12 +110,13 @@ class TrainConfig:
         for name in ("total_steps", "eval_every", "eval_episodes", "checkpoint_every", "test_episodes"):
             _require(getattr(self, name) >= 1, f"train.{name}", ">= 1")
         _require(self.num_threads >= 0, "train.num_threads", ">= 0")
-        _require(self.device in ("auto", "cpu", "cuda") or self.device.startswith("cuda:"), "train.device",
-                 "auto, cpu or cuda")
+        _require(self.device in ("auto", "cpu", "cuda") or self.device.startswith("cuda:"), "train.device", "auto, cpu or cuda")
         _require(self.sim_arch in ("cpu", "cuda"), "train.sim_arch", "cpu or cuda")
-        _require(self.test_seed >= 0 and self.test_seed + self.test_episodes <= self.eval_seed,
-                 "train.test_seed", "in [0, train.eval_seed - train.test_episodes] (held-out test seeds lie "
-                                    "below every evaluation seed)")
+        _require(
+            self.test_seed >= 0 and self.test_seed + self.test_episodes <= self.eval_seed,
+            "train.test_seed",
+            "in [0, train.eval_seed - train.test_episodes] (held-out test seeds lie below every evaluation seed)",
+        )
         if self.eval_without:
             check_modalities("+".join(self.eval_without), "train.eval_without")
 
@@ -116,6 +124,7 @@ class TrainConfig:
 def check_modalities(modalities: str, key: str = "modalities") -> tuple[str, ...]:
     """The modalities of `modalities` ('All', 'T+K', ...) in observation order, or a ConfigError."""
     from .observation import parse_modalities  # noqa: PLC0415 (it imports the perception stack: only when needed)
+
     try:
         return parse_modalities(modalities)
     except ValueError as error:
@@ -138,8 +147,7 @@ class RunConfig:
         _require(self.seed >= 0, "seed", ">= 0")
         present = check_modalities(self.modalities)
         for removed in self.train.eval_without:
-            _require(removed in present, "train.eval_without",
-                     f"modalities that the run observes ({self.modalities})")
+            _require(removed in present, "train.eval_without", f"modalities that the run observes ({self.modalities})")
 
     @property
     def name(self) -> str:
@@ -158,6 +166,7 @@ def env_module(config: RunConfig) -> Any:
     """The run's env module (`config.env_module`), imported: it provides make_env(modalities, seed, **options),
     make_vec_env(num_envs, modalities, seed, **options) and optionally check_options(options)."""
     import importlib  # noqa: PLC0415 (the env module imports the simulator: only when asked)
+
     return importlib.import_module(config.env_module)
 
 
@@ -208,8 +217,9 @@ def _yaml(text: str, what: str) -> Any:
         raise ConfigError(f"{what}: not valid YAML{where}: {found.problem}") from None
 
 
-def load_config(path: Optional[str | Path] = None, overrides: typing.Sequence[str] = (),
-                values: Optional[typing.Mapping[str, Any]] = None) -> RunConfig:
+def load_config(
+    path: Optional[str | Path] = None, overrides: typing.Sequence[str] = (), values: Optional[typing.Mapping[str, Any]] = None
+) -> RunConfig:
     """Defaults, then the YAML file (if any), then `key=value` overrides (values parsed as YAML),
     then `values` (dotted key -> Python value)."""
     data: dict[str, Any] = {}
@@ -257,8 +267,9 @@ def _build(cls: type, data: Any, prefix: str) -> Any:
     known = {f.name for f in dataclasses.fields(cls)}
     unknown = sorted(set(data) - known)
     if unknown:
-        raise ConfigError(f"unknown key(s) {', '.join(prefix + k for k in unknown)}; "
-                          f"known: {', '.join(prefix + k for k in sorted(known))}")
+        raise ConfigError(
+            f"unknown key(s) {', '.join(prefix + k for k in unknown)}; known: {', '.join(prefix + k for k in sorted(known))}"
+        )
     kwargs = {name: _coerce(value, hints[name], prefix + name) for name, value in data.items()}
     try:
         return cls(**kwargs)

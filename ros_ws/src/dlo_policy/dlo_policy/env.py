@@ -64,25 +64,39 @@ import dataclasses
 
 import gymnasium
 import numpy as np
-from gymnasium.vector import AutoresetMode, VectorEnv
-
 from dlo_perception.camera import TopCamera
 from dlo_perception.tactile import noise_sigma
 from dlo_perception.vision_source import DEFAULT_VISION_SOURCE, check_vision_source
+from dlo_sim import task
+from dlo_sim.config import MAX_CONTACT_RADIUS, START_POSES, SimConfig
+from dlo_sim.episode import TaskSim
+from dlo_sim.grip import CARRY_LAWS
+from gymnasium.vector import AutoresetMode, VectorEnv
+
 from dlo_policy import perturbations as perturbation_families
 from dlo_policy.modalities import VISION_PLANE_Z, by_name  # noqa: F401 (VISION_PLANE_Z: its old home)
 from dlo_policy.observation import build_observation, observation_bounds, parse_modalities
-from dlo_sim import task
-from dlo_sim.episode import TaskSim
-from dlo_sim.config import MAX_CONTACT_RADIUS, START_POSES, SimConfig
-from dlo_sim.grip import CARRY_LAWS
+
 
 def check_options(options) -> None:
     """Raise ValueError with a one-line reason for an unknown option or a bad value (module
     docstring), before any simulator is built: what dlo-train checks its ``env_options`` with."""
-    known = ("without", "tactile_noise", "horizon", "end_particles", "camera_resolution", "sim_config", "task_rules",
-             "single_particle_grip", "physics_seed", "vision_source", "carry_law", "contact_radius", "start_pose",
-             "perturbations")
+    known = (
+        "without",
+        "tactile_noise",
+        "horizon",
+        "end_particles",
+        "camera_resolution",
+        "sim_config",
+        "task_rules",
+        "single_particle_grip",
+        "physics_seed",
+        "vision_source",
+        "carry_law",
+        "contact_radius",
+        "start_pose",
+        "perturbations",
+    )
     unknown = sorted(set(options) - set(known))
     if unknown:
         raise ValueError(f"unknown option(s) {', '.join(unknown)}; known: {', '.join(known)}")
@@ -121,15 +135,37 @@ def check_options(options) -> None:
 class CableFollowingVecEnv(VectorEnv):
     """N cable-following environments in one batched simulator (gymnasium 1.x VectorEnv)."""
 
-    def __init__(self, num_envs, modalities="All", seed=0, without=(), tactile_noise="none",
-                 horizon=task.HORIZON, end_particles=task.END_PARTICLES, camera_resolution=128,
-                 sim_config=None, autoreset=True, task_rules=task.DEFAULT_TASK_RULES, single_particle_grip=False,
-                 physics_seed=-1, vision_source=DEFAULT_VISION_SOURCE, carry_law=None, contact_radius=None,
-                 start_pose=None, perturbations=None):
-        check_options({"single_particle_grip": single_particle_grip, "physics_seed": physics_seed,
-                       "vision_source": vision_source, **({} if carry_law is None else {"carry_law": carry_law}),
-                       **({} if contact_radius is None else {"contact_radius": contact_radius}),
-                       **({} if start_pose is None else {"start_pose": start_pose})})
+    def __init__(
+        self,
+        num_envs,
+        modalities="All",
+        seed=0,
+        without=(),
+        tactile_noise="none",
+        horizon=task.HORIZON,
+        end_particles=task.END_PARTICLES,
+        camera_resolution=128,
+        sim_config=None,
+        autoreset=True,
+        task_rules=task.DEFAULT_TASK_RULES,
+        single_particle_grip=False,
+        physics_seed=-1,
+        vision_source=DEFAULT_VISION_SOURCE,
+        carry_law=None,
+        contact_radius=None,
+        start_pose=None,
+        perturbations=None,
+    ):
+        check_options(
+            {
+                "single_particle_grip": single_particle_grip,
+                "physics_seed": physics_seed,
+                "vision_source": vision_source,
+                **({} if carry_law is None else {"carry_law": carry_law}),
+                **({} if contact_radius is None else {"contact_radius": contact_radius}),
+                **({} if start_pose is None else {"start_pose": start_pose}),
+            }
+        )
         if start_pose is not None:
             sim_config = dataclasses.replace(sim_config or SimConfig(), start_pose=start_pose)
         if carry_law is not None:
@@ -144,7 +180,8 @@ class CableFollowingVecEnv(VectorEnv):
         self.perturbations = perturbation_families.parse(perturbations)  # {family: magnitude}, those that are on
         sim_config = perturbation_families.sim_config(self.perturbations, sim_config)
         rendering, self.vision_camera = perturbation_families.cameras(
-            self.perturbations, TopCamera.covering_workspace(int(camera_resolution)))
+            self.perturbations, TopCamera.covering_workspace(int(camera_resolution))
+        )
         self.num_envs = int(num_envs)
         self.modalities = parse_modalities(modalities)
         self.without = parse_modalities(without) if without else ()
@@ -156,10 +193,15 @@ class CableFollowingVecEnv(VectorEnv):
         self.single_action_space = gymnasium.spaces.Box(-1.0, 1.0, (3,), dtype=np.float32)
         self.observation_space = gymnasium.vector.utils.batch_space(self.single_observation_space, self.num_envs)
         self.action_space = gymnasium.vector.utils.batch_space(self.single_action_space, self.num_envs)
-        self.task = TaskSim(self.num_envs, horizon=horizon, end_particles=end_particles, config=sim_config,
-                            camera=rendering,
-                            render=vision_source == "image" and any(by_name(m).renders for m in self._observed()),
-                            task_rules=task_rules)
+        self.task = TaskSim(
+            self.num_envs,
+            horizon=horizon,
+            end_particles=end_particles,
+            config=sim_config,
+            camera=rendering,
+            render=vision_source == "image" and any(by_name(m).renders for m in self._observed()),
+            task_rules=task_rules,
+        )
         self.sim, self.tracker = self.task.sim, self.task.tracker
         self.default_seed = int(seed)
         self.next_seed = None  # next unused episode seed; None until the first reset
@@ -182,8 +224,7 @@ class CableFollowingVecEnv(VectorEnv):
         if self.perturber.observes:
             observation = self.perturber.observe(observation)
         self.last_observation = observation
-        return observation, {"n_held": state["n_held"], "mean_held_index": state["p_i"],
-                             "episode_seed": self.episode_seed.copy()}
+        return observation, {"n_held": state["n_held"], "mean_held_index": state["p_i"], "episode_seed": self.episode_seed.copy()}
 
     def step(self, actions):
         """Advance every env by one control step (8 x 0.01 s); finished envs auto-reset in the same step."""
@@ -199,8 +240,7 @@ class CableFollowingVecEnv(VectorEnv):
         if done.any():
             info.update(self._episode_end_info(done, unstable))
             if self.autoreset:
-                info["final_obs"] = np.array([observation[i] if done[i] else None for i in range(self.num_envs)],
-                                             dtype=object)
+                info["final_obs"] = np.array([observation[i] if done[i] else None for i in range(self.num_envs)], dtype=object)
                 info["_final_obs"] = done.copy()
                 self._start_episodes(np.flatnonzero(done))
                 fresh, _ = self._observe()
@@ -240,8 +280,7 @@ class CableFollowingVecEnv(VectorEnv):
         values = {
             "outcome": np.array([task.OUTCOME_NAMES[int(c)] for c in self.tracker.outcome], dtype=object),
             "outcome_code": self.tracker.outcome.copy(),
-            "outcome_authors": np.array([task.OUTCOME_NAMES[int(c)] for c in self.tracker.outcome_authors],
-                                        dtype=object),
+            "outcome_authors": np.array([task.OUTCOME_NAMES[int(c)] for c in self.tracker.outcome_authors], dtype=object),
             "time_at_end": self.tracker.time_at_end.copy(),
             "how_far": self.tracker.how_far(),
             "episode_return": self.tracker.episode_return.copy(),

@@ -13,6 +13,7 @@ baseline of `dlo_policy.scripted` through the same protocol on the All-modalitie
 (`--task-rules` picks the task variant, default the env's; `--stop-before-end N` makes the oracle
 stop once it holds particle n_c - 1 - N). Both outcome rules are reported in the table and the JSON.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -25,7 +26,6 @@ from typing import Any, Callable, Optional, Sequence
 
 import numpy as np
 import torch
-
 from dlo_common.console import Progress, console_main
 from dlo_sim.task import DEFAULT_TASK_RULES, TASK_RULES
 
@@ -80,8 +80,14 @@ def blanked_columns(modalities: str, without: Sequence[str]) -> list[int]:
     return columns
 
 
-def evaluate_agent(agent: SAC, vec_env: Any, first_seed: int, episodes: int,
-                   blank: Sequence[int] = (), progress: Optional[Callable[[int], Any]] = None) -> EvalResult:
+def evaluate_agent(
+    agent: SAC,
+    vec_env: Any,
+    first_seed: int,
+    episodes: int,
+    blank: Sequence[int] = (),
+    progress: Optional[Callable[[int], Any]] = None,
+) -> EvalResult:
     """One deterministic episode per seed first_seed .. first_seed + episodes - 1.
 
     Runs `vec_env.num_envs` episodes at a time: `reset(seed=s)` starts env i on seed s + i (the
@@ -115,16 +121,20 @@ def evaluate_agent(agent: SAC, vec_env: Any, first_seed: int, episodes: int,
         rewards += returns[:wanted].tolist()
         ends += batch_ends[:wanted]
     fractions = {**_fractions(ends, "outcome", ""), **_fractions(ends, "outcome_authors", AUTHORS_SUFFIX)}
-    return EvalResult(episodes=episodes, **fractions, episode_reward=float(np.mean(rewards)),
-                      time_at_end=_mean_of(ends, "time_at_end"), how_far=_mean_of(ends, "how_far"))
+    return EvalResult(
+        episodes=episodes,
+        **fractions,
+        episode_reward=float(np.mean(rewards)),
+        time_at_end=_mean_of(ends, "time_at_end"),
+        how_far=_mean_of(ends, "how_far"),
+    )
 
 
 def _fractions(ends: list[dict[str, Any]], key: str, suffix: str) -> dict[str, float]:
     """Fraction of episodes per outcome name under info `key` (NaN if an episode lacks it)."""
     outcomes = [end.get(key) for end in ends]
     known = all(o is not None for o in outcomes)
-    return {name + suffix: (float(np.mean([o == name for o in outcomes])) if known else math.nan)
-            for name in OUTCOMES}
+    return {name + suffix: (float(np.mean([o == name for o in outcomes])) if known else math.nan) for name in OUTCOMES}
 
 
 def _episode_end_info(infos: dict[str, Any], i: int) -> dict[str, Any]:
@@ -211,40 +221,53 @@ def load_run_config(checkpoint: Path) -> RunConfig:
 def format_table(result: EvalResult) -> str:
     """Outcome fractions under both rules, then the metrics, as fixed-width text."""
     lines = [f"{'outcome':<20} {'paper rule':>10} {'authors rule':>12}", "-" * 44]
-    lines += [f"{name:<20} {getattr(result, name):>10.1%} {getattr(result, name + AUTHORS_SUFFIX):>12.1%}"
-              for name in OUTCOMES]
-    lines += ["-" * 44, f"{'episodes':<20} {result.episodes:>10d}",
-              f"{'episode reward':<20} {result.episode_reward:>10.3f}",
-              f"{'time at end':<20} {result.time_at_end:>10.2f}",
-              f"{'how far':<20} {result.how_far:>10.2f}"]
+    lines += [f"{name:<20} {getattr(result, name):>10.1%} {getattr(result, name + AUTHORS_SUFFIX):>12.1%}" for name in OUTCOMES]
+    lines += [
+        "-" * 44,
+        f"{'episodes':<20} {result.episodes:>10d}",
+        f"{'episode reward':<20} {result.episode_reward:>10.3f}",
+        f"{'time at end':<20} {result.time_at_end:>10.2f}",
+        f"{'how far':<20} {result.how_far:>10.2f}",
+    ]
     return "\n".join(lines)
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = OneLineErrorParser(
-        prog="dlo-evaluate", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = OneLineErrorParser(prog="dlo-evaluate", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     what = parser.add_mutually_exclusive_group(required=True)
     what.add_argument("--checkpoint", type=Path, help="checkpoint.pt or policy.pt of a dlo-train run directory")
-    what.add_argument("--policy", choices=SCRIPTED_POLICIES,
-                      help="a scripted baseline instead of a checkpoint: oracle (ground truth), tactile_reactive "
-                           "(observations only, after She et al. 2021) or random (seeded with --seed)")
-    parser.add_argument("--task-rules", choices=TASK_RULES,
-                        help=f"with --policy: the task variant (default {DEFAULT_TASK_RULES}); a checkpoint is "
-                             "evaluated under the rules of its run's config.yaml")
-    parser.add_argument("--stop-before-end", type=int, metavar="N",
-                        help="with --policy oracle: stop once the largest held index reaches n_c - 1 - N "
-                             "(default 2; 9 = at particle n_c - 10)")
+    what.add_argument(
+        "--policy",
+        choices=SCRIPTED_POLICIES,
+        help="a scripted baseline instead of a checkpoint: oracle (ground truth), tactile_reactive "
+        "(observations only, after She et al. 2021) or random (seeded with --seed)",
+    )
+    parser.add_argument(
+        "--task-rules",
+        choices=TASK_RULES,
+        help=f"with --policy: the task variant (default {DEFAULT_TASK_RULES}); a checkpoint is "
+        "evaluated under the rules of its run's config.yaml",
+    )
+    parser.add_argument(
+        "--stop-before-end",
+        type=int,
+        metavar="N",
+        help="with --policy oracle: stop once the largest held index reaches n_c - 1 - N (default 2; 9 = at particle n_c - 10)",
+    )
     parser.add_argument("--episodes", type=int, default=100, help="number of episodes (default 100)")
     parser.add_argument("--seed", type=int, default=0, help="first episode seed (default 0)")
     parser.add_argument("--json", type=Path, help="also write the results to this JSON file")
-    parser.add_argument("--without", choices=names(), action="append", default=[],
-                        help="blank this modality's observations (repeatable)")
+    parser.add_argument(
+        "--without", choices=names(), action="append", default=[], help="blank this modality's observations (repeatable)"
+    )
     parser.add_argument("--num-envs", type=int, default=10, help="environments stepped together (default 10)")
     parser.add_argument("--threads", type=int, default=0, help="torch threads (default: all cores)")
     shown = parser.add_mutually_exclusive_group()
-    shown.add_argument("--progress", action="store_true",
-                       help="show the progress (stderr) even when stderr is not a terminal: a plain line every "
-                            "tenth of the episodes")
+    shown.add_argument(
+        "--progress",
+        action="store_true",
+        help="show the progress (stderr) even when stderr is not a terminal: a plain line every tenth of the episodes",
+    )
     shown.add_argument("--quiet", action="store_true", help="no progress bar")
     return parser
 
@@ -273,9 +296,19 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     vec_env = make_vec_env_for(config, min(args.num_envs, args.episodes), seed=args.seed)
     result = _run(agent, vec_env, args, blank)
     title = f"{config.name}, seeds {args.seed}..{args.seed + args.episodes - 1}"
-    _report(result, args, title, {"checkpoint": str(args.checkpoint), "policy": "sac", "seed": args.seed,
-                                  "without": args.without, "modalities": config.modalities,
-                                  "env_steps": agent.num_env_steps})
+    _report(
+        result,
+        args,
+        title,
+        {
+            "checkpoint": str(args.checkpoint),
+            "policy": "sac",
+            "seed": args.seed,
+            "without": args.without,
+            "modalities": config.modalities,
+            "env_steps": agent.num_env_steps,
+        },
+    )
     return 0
 
 
@@ -301,12 +334,15 @@ def _evaluate_scripted(args: argparse.Namespace) -> int:
     policy = scripted_policy(args.policy, seed=args.seed, stop_before_end=args.stop_before_end)
     vec_env = make_scripted_vec_env(min(args.num_envs, args.episodes), seed=args.seed, task_rules=rules)
     result = _run(ScriptedAgent(policy, vec_env), _ResetsPolicy(vec_env, policy), args, blank)
-    name = args.policy + (f" (stops {args.stop_before_end} before the end)" if args.stop_before_end is not None
-                          else "")
-    title = (f"scripted {name} on {SCRIPTED_MODALITIES}, task rules {rules}, "
-             f"seeds {args.seed}..{args.seed + args.episodes - 1}")
-    details = {"policy": args.policy, "seed": args.seed, "without": args.without, "modalities": SCRIPTED_MODALITIES,
-               "task_rules": rules}
+    name = args.policy + (f" (stops {args.stop_before_end} before the end)" if args.stop_before_end is not None else "")
+    title = f"scripted {name} on {SCRIPTED_MODALITIES}, task rules {rules}, seeds {args.seed}..{args.seed + args.episodes - 1}"
+    details = {
+        "policy": args.policy,
+        "seed": args.seed,
+        "without": args.without,
+        "modalities": SCRIPTED_MODALITIES,
+        "task_rules": rules,
+    }
     if args.stop_before_end is not None:
         details["stop_before_end"] = args.stop_before_end
     _report(result, args, title, details)

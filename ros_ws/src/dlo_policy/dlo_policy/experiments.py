@@ -48,6 +48,7 @@ update, the run's network, `--threads` threads) and one evaluation of the config
 most expensive observation; per run  t = steps x t_step + evaluations x tested input sets x t_eval
 (+ the held-out test), and the runs are packed onto `--jobs` workers longest first.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -71,17 +72,23 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterator, Optional, Sequence
 
-from tqdm import tqdm
-
 from dlo_common.console import EXIT_INTERRUPTED, console_main
+from tqdm import tqdm
 
 from . import rundir
 from .cli import check_override_keys
 from .config import ConfigError, RunConfig, check_env_options, make_env
 from .grid import GROUPS, RunSpec, experiment_grid, run_config
 from .rundir import CHECKPOINT_FILE, DONE_FILE, EVAL_FILE, LOG_FILE, run_status
-from .train import (Trainer, TrainingInterrupted, available_cores, checkpoint_every_given,
-                    default_checkpoint_every, run_trainer, set_threads)
+from .train import (
+    Trainer,
+    TrainingInterrupted,
+    available_cores,
+    checkpoint_every_given,
+    default_checkpoint_every,
+    run_trainer,
+    set_threads,
+)
 
 STOP_WAIT = 300.0  # s an interrupted grid waits for its runs to reach the end of an episode and checkpoint
 
@@ -159,14 +166,21 @@ class GridProgress:
     def __init__(self, total: int, enabled: bool):
         self.total, self.finished, self.failed, self.retried, self.running = total, 0, 0, 0, 0
         # a terminal gets a live bar; a log file a line per change of the counts, else every 60 s
-        self.bar = tqdm(total=total, desc="runs", unit="run", disable=not enabled, file=sys.stderr,
-                        dynamic_ncols=True, mininterval=1.0 if sys.stderr.isatty() else 60.0, smoothing=0.0,
-                        postfix=self.counts())
+        self.bar = tqdm(
+            total=total,
+            desc="runs",
+            unit="run",
+            disable=not enabled,
+            file=sys.stderr,
+            dynamic_ncols=True,
+            mininterval=1.0 if sys.stderr.isatty() else 60.0,
+            smoothing=0.0,
+            postfix=self.counts(),
+        )
         self.shown = self.counts()
 
     def counts(self) -> str:
-        return (f"done={self.finished - self.failed} running={self.running} failed={self.failed} "
-                f"retried={self.retried}")
+        return f"done={self.finished - self.failed} running={self.running} failed={self.failed} retried={self.retried}"
 
     def refresh(self, running: Optional[int] = None) -> None:
         """Show the counts now if they changed; else only the clock moves (at tqdm's pace)."""
@@ -234,8 +248,9 @@ def _die_with_the_driver() -> None:
 def run_local(tasks: list[Task], jobs: int, progress: GridProgress) -> None:
     """Each task in a fresh spawned process, `jobs` at a time; sets each task's error."""
     context = multiprocessing.get_context("spawn")
-    pool = concurrent.futures.ProcessPoolExecutor(max_workers=jobs, mp_context=context, max_tasks_per_child=1,
-                                                  initializer=_die_with_the_driver)
+    pool = concurrent.futures.ProcessPoolExecutor(
+        max_workers=jobs, mp_context=context, max_tasks_per_child=1, initializer=_die_with_the_driver
+    )
     try:
         futures = {pool.submit(_run_local_task, task.config, str(task.run_dir)): task for task in tasks}
         for task in tasks:
@@ -247,8 +262,10 @@ def run_local(tasks: list[Task], jobs: int, progress: GridProgress) -> None:
             try:
                 task.error = future.result()[1]
             except concurrent.futures.process.BrokenProcessPool:
-                task.error = ("its process died (killed, out of memory?) and took the process pool down: "
-                              "run the command again to continue (finished runs are skipped, partial ones resume)")
+                task.error = (
+                    "its process died (killed, out of memory?) and took the process pool down: "
+                    "run the command again to continue (finished runs are skipped, partial ones resume)"
+                )
             remaining -= 1
             progress.running = min(jobs, remaining)
             progress.done(task)
@@ -304,8 +321,10 @@ def import_ray() -> Any:
     try:
         import ray  # noqa: PLC0415 (optional dependency)
     except ImportError:
-        raise SystemExit("dlo-experiments: --ray-address needs Ray, which is not installed: pip install ray "
-                         "(or leave out --ray-address to run local processes)") from None
+        raise SystemExit(
+            "dlo-experiments: --ray-address needs Ray, which is not installed: pip install ray "
+            "(or leave out --ray-address to run local processes)"
+        ) from None
     return ray
 
 
@@ -367,8 +386,10 @@ def connect_ray(address: str) -> Any:
         try:
             socket.create_connection((host.strip("[]"), int(port)), timeout=10).close()
         except OSError as error:
-            raise GridError(f"--ray-address {address}: no Ray head answers there "
-                            f"({error.strerror or type(error).__name__}); start one with ray start --head") from None
+            raise GridError(
+                f"--ray-address {address}: no Ray head answers there "
+                f"({error.strerror or type(error).__name__}); start one with ray start --head"
+            ) from None
     try:
         ray.init(address=address, log_to_driver=False, logging_level=logging.WARNING)
     except (ConnectionError, RuntimeError, ValueError) as error:
@@ -385,12 +406,13 @@ def check_capacity(ray: Any, threads: int, gpus: float = 0.0) -> None:
         most_cpus = max((node.get("CPU", 0) for node in nodes), default=0)
         most_gpus = max((node.get("GPU", 0) for node in nodes), default=0)
         wanted = f"{threads} CPUs" + (f" and {gpus:g} GPU(s)" if gpus else "")
-        raise GridError(f"no node of the Ray cluster has {wanted} for a run (at most {most_cpus:g} CPUs, "
-                        f"{most_gpus:g} GPUs per node): lower --threads / --gpus-per-run, or add bigger nodes")
+        raise GridError(
+            f"no node of the Ray cluster has {wanted} for a run (at most {most_cpus:g} CPUs, "
+            f"{most_gpus:g} GPUs per node): lower --threads / --gpus-per-run, or add bigger nodes"
+        )
 
 
-def run_ray(ray: Any, tasks: list[Task], threads: int, retries: int, progress: GridProgress,
-            gpus: float = 0.0) -> None:
+def run_ray(ray: Any, tasks: list[Task], threads: int, retries: int, progress: GridProgress, gpus: float = 0.0) -> None:
     """Each task as a Ray task reserving `threads` CPUs (and `gpus` GPUs) on the connected cluster;
     its files come back to the driver. A task whose worker or node is lost is submitted again, at
     most `retries` times."""
@@ -426,8 +448,10 @@ def run_ray(ray: Any, tasks: list[Task], threads: int, retries: int, progress: G
                         progress.done(task)
                     else:
                         progress.retried += 1
-                        progress.log(f"[retry] {task.run_dir}: attempt {task.attempts} lost ({reason}); "
-                                     f"starting attempt {task.attempts + 1}")
+                        progress.log(
+                            f"[retry] {task.run_dir}: attempt {task.attempts} lost ({reason}); "
+                            f"starting attempt {task.attempts + 1}"
+                        )
                         submit(task)
                     continue
                 if "started" in message:
@@ -452,8 +476,9 @@ def report(tasks: Sequence[Task]) -> list[str]:
         lines.append(f"retried {len(retried)} run(s) after a lost worker or node:")
         for task in retried:
             outcome = "failed" if task.failed else f"finished on node {(task.node or '?')[:12]}"
-            lines.append(f"  {task.run_dir}: lost {len(task.lost)}x ({'; '.join(task.lost)}), "
-                         f"{outcome} at attempt {task.attempts}")
+            lines.append(
+                f"  {task.run_dir}: lost {len(task.lost)}x ({'; '.join(task.lost)}), {outcome} at attempt {task.attempts}"
+            )
     return lines
 
 
@@ -487,9 +512,15 @@ def calibrate(config: RunConfig, steps: int = CALIBRATION_STEPS) -> Calibration:
     set_threads(config.train.num_threads)
     env = make_env(config)
     sac_config = dataclasses.replace(config.sac, learning_starts=config.sac.batch_size)
-    agent = SAC(env.observation_space.shape[0], env.action_space.low, env.action_space.high, sac_config,
-                seed=config.seed, observation_low=env.observation_space.low,
-                observation_high=env.observation_space.high)
+    agent = SAC(
+        env.observation_space.shape[0],
+        env.action_space.low,
+        env.action_space.high,
+        sac_config,
+        seed=config.seed,
+        observation_low=env.observation_space.low,
+        observation_high=env.observation_space.high,
+    )
     agent.learn(env, sac_config.learning_starts + 5)  # fill a batch; first updates warm up
     start = time.perf_counter()
     agent.learn(env, agent.num_env_steps + steps)
@@ -521,23 +552,31 @@ def makespan(durations: Sequence[float], jobs: int) -> float:
     return max(loads)
 
 
-def estimate(specs: Sequence[RunSpec], configs: Sequence[RunConfig], statuses: Sequence[str], out: Path,
-             jobs: int, resume_partial: bool = True) -> str:
+def estimate(
+    specs: Sequence[RunSpec],
+    configs: Sequence[RunConfig],
+    statuses: Sequence[str],
+    out: Path,
+    jobs: int,
+    resume_partial: bool = True,
+) -> str:
     """One paragraph: calibration and the estimated wall time of the runs still to do."""
     todo = [(spec, config) for spec, config, status in zip(specs, configs, statuses) if status != "done"]
     if not todo:
         return "estimate: nothing to run"
     # the most expensive observation: vision (rendering) if any run uses it, then the most inputs
-    probe = max((config for _, config in todo),
-                key=lambda c: ("V" in c.modalities or c.modalities == "All", len(c.modalities)))
+    probe = max((config for _, config in todo), key=lambda c: ("V" in c.modalities or c.modalities == "All", len(c.modalities)))
     calibration = calibrate(probe)
-    durations = [calibration.run_seconds(config, done_steps(spec.directory(out)) if resume_partial else 0)
-                 for spec, config in todo]
+    durations = [
+        calibration.run_seconds(config, done_steps(spec.directory(out)) if resume_partial else 0) for spec, config in todo
+    ]
     wall = makespan(durations, jobs)
-    return (f"estimate: {len(todo)} runs, {sum(durations) / 3600:.1f} run-hours, wall ~{_duration(wall)} on "
-            f"{jobs} job(s) (calibrated now on {probe.modalities}: {1000 * calibration.step_s:.0f} ms per step "
-            f"with its update, {calibration.eval_s:.1f} s per evaluation of {probe.train.eval_episodes} episodes; "
-            f"other load on this machine is included)")
+    return (
+        f"estimate: {len(todo)} runs, {sum(durations) / 3600:.1f} run-hours, wall ~{_duration(wall)} on "
+        f"{jobs} job(s) (calibrated now on {probe.modalities}: {1000 * calibration.step_s:.0f} ms per step "
+        f"with its update, {calibration.eval_s:.1f} s per evaluation of {probe.train.eval_episodes} episodes; "
+        f"other load on this machine is included)"
+    )
 
 
 def _duration(seconds: float) -> str:
@@ -570,40 +609,66 @@ def collect_results(runs: Path, results: Path) -> list[Path]:
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
-        prog="dlo-experiments", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter,
-                                     epilog="Overrides (key=value) apply to every run, e.g. train.eval_every=500.")
+        prog="dlo-experiments",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog="Overrides (key=value) apply to every run, e.g. train.eval_every=500.",
+    )
     parser.add_argument("--out", type=Path, required=True, help="results directory (one subdirectory per run)")
-    parser.add_argument("--groups", default="single,pairs,ablation,sensitivity",
-                        help=f"comma-separated subset of {','.join(GROUPS)} (default: all)")
-    parser.add_argument("--labels", help="only these configuration labels (comma-separated), e.g. All,V,T,K; a run "
-                        "directory's name works too")
+    parser.add_argument(
+        "--groups",
+        default="single,pairs,ablation,sensitivity",
+        help=f"comma-separated subset of {','.join(GROUPS)} (default: all)",
+    )
+    parser.add_argument(
+        "--labels", help="only these configuration labels (comma-separated), e.g. All,V,T,K; a run directory's name works too"
+    )
     parser.add_argument("--seeds", type=int, default=3, help="seeds per configuration (default 3)")
     parser.add_argument("--first-seed", type=int, default=0, help="seeds are first-seed .. first-seed + seeds - 1")
     parser.add_argument("--steps", type=int, help="env steps per run (default: the config's, 50000)")
     parser.add_argument("--config", type=Path, help="YAML config for every run")
     parser.add_argument("--threads", type=int, default=1, help="torch threads (and Ray CPUs) per run (default 1)")
-    parser.add_argument("--jobs", type=int,
-                        help="parallel local runs (default: cores // threads); with --dry-run: the number of "
-                             "workers the estimate is for (default: as many local runs, or 1 with --ray-address)")
-    parser.add_argument("--ray-address",
-                        help="run on this Ray cluster instead: HOST:PORT of its head (`ray start --head` prints it), "
-                             "or auto on one of its nodes")
-    parser.add_argument("--gpus-per-run", type=float, default=0.0,
-                        help="Ray: GPUs each run reserves (e.g. 1, or 0.25 to share one among 4 runs; default 0). "
-                             "Ray shows a task only the GPUs it reserved, so train.device=auto trains on the CPU "
-                             "without this")
-    parser.add_argument("--retries", type=int, default=2,
-                        help="Ray: times a run whose worker or node was lost is started again (default 2)")
-    parser.add_argument("--resume", action="store_true",
-                        help="continue a grid in --out: finished runs (done.json) are skipped, partial local ones "
-                             "resume from their checkpoint (this is also what happens without the flag)")
+    parser.add_argument(
+        "--jobs",
+        type=int,
+        help="parallel local runs (default: cores // threads); with --dry-run: the number of "
+        "workers the estimate is for (default: as many local runs, or 1 with --ray-address)",
+    )
+    parser.add_argument(
+        "--ray-address",
+        help="run on this Ray cluster instead: HOST:PORT of its head (`ray start --head` prints it), or auto on one of its nodes",
+    )
+    parser.add_argument(
+        "--gpus-per-run",
+        type=float,
+        default=0.0,
+        help="Ray: GPUs each run reserves (e.g. 1, or 0.25 to share one among 4 runs; default 0). "
+        "Ray shows a task only the GPUs it reserved, so train.device=auto trains on the CPU "
+        "without this",
+    )
+    parser.add_argument(
+        "--retries", type=int, default=2, help="Ray: times a run whose worker or node was lost is started again (default 2)"
+    )
+    parser.add_argument(
+        "--resume",
+        action="store_true",
+        help="continue a grid in --out: finished runs (done.json) are skipped, partial local ones "
+        "resume from their checkpoint (this is also what happens without the flag)",
+    )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar over the runs")
-    parser.add_argument("--dry-run", action="store_true",
-                        help="list the runs and their status, estimate the wall time (short calibration), run nothing")
-    parser.add_argument("--collect", type=Path, metavar="RESULTS",
-                        help="train nothing: copy the small files of every finished run under --out (config.yaml, "
-                             "eval.csv, done.json, best.json, test*.json) into RESULTS, same layout, and print the "
-                             "run directories added or updated")
+    parser.add_argument(
+        "--dry-run",
+        action="store_true",
+        help="list the runs and their status, estimate the wall time (short calibration), run nothing",
+    )
+    parser.add_argument(
+        "--collect",
+        type=Path,
+        metavar="RESULTS",
+        help="train nothing: copy the small files of every finished run under --out (config.yaml, "
+        "eval.csv, done.json, best.json, test*.json) into RESULTS, same layout, and print the "
+        "run directories added or updated",
+    )
     parser.add_argument("overrides", nargs="*", metavar="key=value", help="config overrides for every run")
     return parser
 
@@ -635,8 +700,10 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     cores = available_cores()
     jobs = args.jobs or max(1, cores // args.threads)
     if not args.ray_address and not args.dry_run and jobs * args.threads > cores:
-        print(f"dlo-experiments: {jobs} jobs x {args.threads} threads > {cores} cores; "
-              f"using {max(1, cores // args.threads)} jobs", file=sys.stderr)
+        print(
+            f"dlo-experiments: {jobs} jobs x {args.threads} threads > {cores} cores; using {max(1, cores // args.threads)} jobs",
+            file=sys.stderr,
+        )
         jobs = max(1, cores // args.threads)
     try:
         groups = [g.strip() for g in args.groups.split(",") if g.strip()]
@@ -658,8 +725,11 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     for spec, status in zip(specs, statuses):
         note = restarts if status == "partial" else ""
         print(f"{status:8s} {spec.directory(args.out)}  ({', '.join(spec.groups)}){note}")
-    tasks = [Task(spec.directory(args.out), config.to_dict())
-             for spec, config, status in zip(specs, configs, statuses) if status != "done"]
+    tasks = [
+        Task(spec.directory(args.out), config.to_dict())
+        for spec, config, status in zip(specs, configs, statuses)
+        if status != "done"
+    ]
     print(f"{len(specs)} runs, {len(specs) - len(tasks)} done, {len(tasks)} to run", flush=True)
     if args.dry_run:
         workers = args.jobs or (1 if args.ray_address else jobs)
@@ -689,8 +759,11 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         if progress is not None:
             progress.close()
         finished = sum(task.error is None and run_status(task.run_dir) == "done" for task in tasks)
-        print(f"dlo-experiments: interrupted; {finished} of {len(tasks)} run(s) finished: run the same command "
-              "again to continue (a stopped run resumes from its checkpoint)", file=sys.stderr)
+        print(
+            f"dlo-experiments: interrupted; {finished} of {len(tasks)} run(s) finished: run the same command "
+            "again to continue (a stopped run resumes from its checkpoint)",
+            file=sys.stderr,
+        )
         return EXIT_INTERRUPTED
     progress.close()
     lines = report(tasks)
@@ -712,8 +785,9 @@ def wanted_labels(labels: str, specs, groups: str) -> set[str]:
         if not label:
             continue
         if label not in by_name:
-            raise ValueError(f"--labels: {label!r} is not a configuration of the groups {groups} "
-                             f"(their labels: {', '.join(known)})")
+            raise ValueError(
+                f"--labels: {label!r} is not a configuration of the groups {groups} (their labels: {', '.join(known)})"
+            )
         wanted.add(by_name[label])
     return wanted
 

@@ -2,6 +2,7 @@
 evaluations, seed), their directories under the grid's output (OUT/<label>/seed<k>) and their
 configs. No torch and no Ray: dlo-experiments runs the grid, dlo-report names its figures' groups.
 """
+
 from __future__ import annotations
 
 import re
@@ -43,8 +44,9 @@ def experiment_grid(groups: Sequence[str], seeds: Sequence[int]) -> list[RunSpec
     configs: dict[str, dict[str, Any]] = {}
 
     def add(group: str, label: str, modalities: str, env_options=(), eval_without=()) -> None:
-        entry = configs.setdefault(label, {"modalities": modalities, "env_options": tuple(env_options),
-                                           "eval_without": (), "groups": ()})
+        entry = configs.setdefault(
+            label, {"modalities": modalities, "env_options": tuple(env_options), "eval_without": (), "groups": ()}
+        )
         entry["eval_without"] = tuple(sorted(set(entry["eval_without"]) | set(eval_without)))
         entry["groups"] += (group,)
 
@@ -62,20 +64,28 @@ def experiment_grid(groups: Sequence[str], seeds: Sequence[int]) -> list[RunSpec
         for modalities, no_tactile in SENSITIVITY_PAIRS:
             add("sensitivity", modalities, modalities)  # tactile noise "none" (the env's default)
             for noise in TACTILE_NOISE_LEVELS:
-                add("sensitivity", sensitivity_label(modalities, noise), modalities,
-                    env_options=(("tactile_noise", noise),))
+                add("sensitivity", sensitivity_label(modalities, noise), modalities, env_options=(("tactile_noise", noise),))
             add("sensitivity", no_tactile, no_tactile)
     # seed-major: every configuration's first seed before any second one, so a grid that is
     # stopped part-way leaves the same number of finished seeds per configuration (+- 1)
-    return [RunSpec(label, c["modalities"], seed, c["env_options"], c["eval_without"], c["groups"])
-            for seed in seeds for label, c in configs.items()]
+    return [
+        RunSpec(label, c["modalities"], seed, c["env_options"], c["eval_without"], c["groups"])
+        for seed in seeds
+        for label, c in configs.items()
+    ]
 
 
-def run_config(spec: RunSpec, config_path: Optional[Path], overrides: Sequence[str], steps: Optional[int],
-               threads: int) -> RunConfig:
-    values: dict[str, Any] = {"modalities": spec.modalities, "seed": spec.seed, "label": spec.label,
-                              "train.eval_without": list(spec.eval_without), "train.num_threads": threads,
-                              "train.progress": False}
+def run_config(
+    spec: RunSpec, config_path: Optional[Path], overrides: Sequence[str], steps: Optional[int], threads: int
+) -> RunConfig:
+    values: dict[str, Any] = {
+        "modalities": spec.modalities,
+        "seed": spec.seed,
+        "label": spec.label,
+        "train.eval_without": list(spec.eval_without),
+        "train.num_threads": threads,
+        "train.progress": False,
+    }
     values.update({f"env_options.{key}": value for key, value in spec.env_options})
     if steps is not None:
         values["train.total_steps"] = steps

@@ -29,7 +29,6 @@ from dataclasses import dataclass
 from typing import Any, Callable
 
 import numpy as np
-
 from dlo_common.topics import topic as topic_record
 from dlo_perception.camera import WORKSPACE_HALF_WIDTH
 from dlo_perception.tactile import Y_LIMIT, TactilePose, tactile_pose
@@ -94,30 +93,55 @@ def _observe_visual(env):
 
 MODALITIES = (
     Modality(
-        "K", "kinematic", ("x_G", "y_G", "c_G"),
+        "K",
+        "kinematic",
+        ("x_G", "y_G", "c_G"),
         (_symmetric(WORKSPACE_HALF_WIDTH), _symmetric(WORKSPACE_HALF_WIDTH), (0.0, 1.0)),
         observe=lambda env: env.task.state.gripper[:, [0, 1, 3]],
         columns=lambda kinematic: np.asarray(kinematic, dtype=np.float32).reshape(-1, 3),
         topic="/dlo/gripper/state",
-        from_message=lambda msg: np.array([[msg.x, msg.y, msg.closure]])),
+        from_message=lambda msg: np.array([[msg.x, msg.y, msg.closure]]),
+    ),
     Modality(
-        "T", "tactile", ("theta_T", "y_T"), (_symmetric(HALF_PI), _symmetric(Y_LIMIT)),
-        observe=lambda env: tactile_pose(env.task.state.positions, env.task.held_task, env.task.state.gripper[:, :2],
-                                         env.task.state.gripper[:, 3], sigma=env.tactile_sigma, rng=env.noise_rng),
+        "T",
+        "tactile",
+        ("theta_T", "y_T"),
+        (_symmetric(HALF_PI), _symmetric(Y_LIMIT)),
+        observe=lambda env: tactile_pose(
+            env.task.state.positions,
+            env.task.held_task,
+            env.task.state.gripper[:, :2],
+            env.task.state.gripper[:, 3],
+            sigma=env.tactile_sigma,
+            rng=env.noise_rng,
+        ),
         columns=lambda tactile: np.stack([np.asarray(tactile.angle), np.asarray(tactile.y)], axis=-1).reshape(-1, 2),
         topic="/dlo/tactile/pose",
-        from_message=lambda msg: TactilePose(np.array([msg.angle]), np.array([msg.y]), np.array([msg.contact]),
-                                             np.array([msg.contact_count]))),
+        from_message=lambda msg: TactilePose(
+            np.array([msg.angle]), np.array([msg.y]), np.array([msg.contact]), np.array([msg.contact_count])
+        ),
+    ),
     Modality(
-        "V", "visual", ("v_V", "q_V", "theta_V", "y_V"),
+        "V",
+        "visual",
+        ("v_V", "q_V", "theta_V", "y_V"),
         ((0.0, 1.0), (0.0, 1.0), _symmetric(HALF_PI), _symmetric(SEARCH_HALF_WIDTH)),
         observe=_observe_visual,
-        columns=lambda visual: np.stack([np.asarray(visual.visible, dtype=np.float32), np.asarray(visual.confidence),
-                                         np.asarray(visual.angle), np.asarray(visual.y)], axis=-1).reshape(-1, 4),
+        columns=lambda visual: np.stack(
+            [
+                np.asarray(visual.visible, dtype=np.float32),
+                np.asarray(visual.confidence),
+                np.asarray(visual.angle),
+                np.asarray(visual.y),
+            ],
+            axis=-1,
+        ).reshape(-1, 4),
         topic="/dlo/vision/pose",
-        from_message=lambda msg: VisualPose(np.array([msg.visible]), np.array([msg.confidence]), np.array([msg.angle]),
-                                            np.array([msg.y])),
-        renders=True),
+        from_message=lambda msg: VisualPose(
+            np.array([msg.visible]), np.array([msg.confidence]), np.array([msg.angle]), np.array([msg.y])
+        ),
+        renders=True,
+    ),
 )
 ALL = ("K", "T", "V")  # "All": the paper's K+T+V (module docstring); never "every modality known"
 ALL_NAME = "All"
@@ -140,7 +164,7 @@ assert len(set(names())) == len(MODALITIES) and set(ALL) <= set(names())
 
 
 def parse_modalities(modalities) -> tuple:
-    """"T+K", "All", ("V", "K"), ... -> the present modalities in the fixed order, e.g. ("K", "T")."""
+    """ "T+K", "All", ("V", "K"), ... -> the present modalities in the fixed order, e.g. ("K", "T")."""
     if isinstance(modalities, str):
         given = ALL if modalities.strip().lower() == ALL_NAME.lower() else modalities.split("+")
     else:
@@ -149,8 +173,7 @@ def parse_modalities(modalities) -> tuple:
     known = names()
     unknown = wanted - set(known)
     if unknown or not wanted:
-        raise ValueError(f"modalities must be a '+'-joined subset of {', '.join(known)} or '{ALL_NAME}', "
-                         f"got {modalities!r}")
+        raise ValueError(f"modalities must be a '+'-joined subset of {', '.join(known)} or '{ALL_NAME}', got {modalities!r}")
     return tuple(m for m in known if m in wanted)
 
 
@@ -159,5 +182,4 @@ def without_problem(text: str) -> str | None:
     by '+', exactly): None if fine, else the one-line reason."""
     if not text or all(part in names() for part in text.split("+")):
         return None
-    return (f"--without must be empty or modalities joined by '+' ({', '.join(names())}), e.g. T or T+V, "
-            f"got '{text}'")
+    return f"--without must be empty or modalities joined by '+' ({', '.join(names())}), e.g. T or T+V, got '{text}'"

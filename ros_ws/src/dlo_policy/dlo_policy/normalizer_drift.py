@@ -11,6 +11,7 @@ the run's hold-the-end rate over the evaluations of that window (eval.csv), so c
 set against drift. A JSON line per run comes last. Exit 2 with one line when a run directory lacks
 its checkpoint.pt, config.yaml or eval.csv or they cannot be read.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -21,7 +22,6 @@ from pathlib import Path
 from typing import Optional, Sequence
 
 import numpy as np
-
 from dlo_common.console import console_main
 
 from .cli import OneLineErrorParser
@@ -47,8 +47,10 @@ def drift(run: Path, every: int) -> dict:
         steps = int(state["counters"]["env_steps"])
         obs = state["replay"]["obs"][:steps].double().numpy()
     except (OSError, RuntimeError, ValueError, KeyError, TypeError, IndexError, pickle.UnpicklingError) as error:
-        raise DriftError(f"{run / CHECKPOINT_FILE}: not a full dlo-train checkpoint with its replay buffer "
-                         f"({type(error).__name__}: {str(error).splitlines()[0] if str(error) else ''})") from None
+        raise DriftError(
+            f"{run / CHECKPOINT_FILE}: not a full dlo-train checkpoint with its replay buffer "
+            f"({type(error).__name__}: {str(error).splitlines()[0] if str(error) else ''})"
+        ) from None
     try:
         labels = observation_labels(read_config(run).modalities)
     except (ConfigError, ValueError, OSError) as error:
@@ -56,21 +58,27 @@ def drift(run: Path, every: int) -> dict:
     rows = [r for r in read_eval_rows(run) if r.get("tested_without", "") == ""]
     windows = []
     for t in range(2 * every, steps + 1, every):
-        before, now = obs[:t - every], obs[:t]
+        before, now = obs[: t - every], obs[:t]
         std = now.std(0) + 1e-12
         shift = np.abs(now.mean(0) - before.mean(0)) / std
         i = int(np.argmax(shift))
         hold = [float(r["hold_the_end"]) for r in rows if t - every < int(r["step"]) <= t]
-        windows.append({"step": t, "shift": float(shift[i]), "dimension": labels[i],
-                        "hold_the_end": float(np.mean(hold)) if hold else float("nan")})
+        windows.append(
+            {
+                "step": t,
+                "shift": float(shift[i]),
+                "dimension": labels[i],
+                "hold_the_end": float(np.mean(hold)) if hold else float("nan"),
+            }
+        )
     return {"run": str(run), "steps": steps, "every": every, "windows": windows}
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = OneLineErrorParser(prog="dlo-normalizer-drift", description=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("runs", nargs="+", type=Path, metavar="RUN_DIR",
-                        help="dlo-train run directories with checkpoint.pt")
+    parser = OneLineErrorParser(
+        prog="dlo-normalizer-drift", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("runs", nargs="+", type=Path, metavar="RUN_DIR", help="dlo-train run directories with checkpoint.pt")
     parser.add_argument("--every", type=int, default=1000, help="window length [env steps] (default 1000)")
     return parser
 

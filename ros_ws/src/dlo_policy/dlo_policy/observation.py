@@ -18,8 +18,17 @@ import numpy as np
 from dlo_policy import modalities as registry
 from dlo_policy.modalities import ALL, parse_modalities
 
-__all__ = ["ALL", "MODALITY_LABELS", "MODALITY_ORDER", "MODALITY_SIZES", "build_observation", "observation_bounds",
-           "observation_labels", "observation_size", "parse_modalities"]
+__all__ = [
+    "ALL",
+    "MODALITY_LABELS",
+    "MODALITY_ORDER",
+    "MODALITY_SIZES",
+    "build_observation",
+    "observation_bounds",
+    "observation_labels",
+    "observation_size",
+    "parse_modalities",
+]
 
 # Views of the registry (dlo_policy.modalities) as of import, for the callers that index by name; the functions
 # below read the registry itself.
@@ -71,5 +80,10 @@ def build_observation(modalities, *readings, without=(), **named) -> np.ndarray:
     present = [registry.by_name(m) for m in present]
     parts = [None if m.name in ablated else m.columns(given.get(m.title)) for m in present]
     num_envs = next((len(part) for part in parts if part is not None), 1)
-    return np.concatenate([np.zeros((num_envs, m.size), np.float32) if part is None
-                           else part.astype(np.float32) for m, part in zip(present, parts)], axis=1)
+    return np.concatenate(
+        [
+            np.zeros((num_envs, m.size), np.float32) if part is None else part.astype(np.float32)
+            for m, part in zip(present, parts)
+        ],
+        axis=1,
+    )

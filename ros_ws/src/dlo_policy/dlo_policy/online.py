@@ -14,8 +14,8 @@ from pathlib import Path
 import numpy as np
 
 from dlo_policy.config import RunConfig, check_modalities, save_config
-from dlo_policy.sac import SAC
 from dlo_policy.rundir import CHECKPOINT_FILE, CONFIG_FILE, POLICY_FILE
+from dlo_policy.sac import SAC
 
 
 class OnlineLearner:
@@ -28,8 +28,14 @@ class OnlineLearner:
         if checkpoint.exists():
             self.agent = SAC.load(checkpoint)  # continue an earlier online run
         else:
-            self.agent = SAC(obs_dim, -np.ones(3, np.float32), np.ones(3, np.float32), config.sac, seed=config.seed,
-                             modalities=check_modalities(config.modalities))  # stored with its checkpoints
+            self.agent = SAC(
+                obs_dim,
+                -np.ones(3, np.float32),
+                np.ones(3, np.float32),
+                config.sac,
+                seed=config.seed,
+                modalities=check_modalities(config.modalities),
+            )  # stored with its checkpoints
             save_config(config, self.run_dir / CONFIG_FILE)
         self.checkpoint_every = int(checkpoint_every)
         self.previous = None  # (episode, step, observation, action) awaiting its successor
@@ -39,8 +45,7 @@ class OnlineLearner:
         agent = self.agent
         if self.previous is not None and self.previous[:2] == (episode, step - 1):
             _, _, previous_obs, previous_action = self.previous
-            agent.store(previous_obs, previous_action, reward, observation,
-                        agent.stored_terminal(dropped, done and not dropped))
+            agent.store(previous_obs, previous_action, reward, observation, agent.stored_terminal(dropped, done and not dropped))
             agent.num_env_steps += 1
             if agent.num_env_steps > agent.config.learning_starts:
                 agent.update()

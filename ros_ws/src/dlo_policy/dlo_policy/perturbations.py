@@ -120,42 +120,132 @@ def _physics(name, unit, perturbs, grid, sim_range, low, high=math.inf, integer=
 
 
 FAMILIES = (
-    Family("observation_delay", "control steps", OBSERVATION, "the whole observation, d steps (0.08 s each) late",
-           (1, 2, 3, 4, 6), high=50, integer=True),
+    Family(
+        "observation_delay",
+        "control steps",
+        OBSERVATION,
+        "the whole observation, d steps (0.08 s each) late",
+        (1, 2, 3, 4, 6),
+        high=50,
+        integer=True,
+    ),
     Family("tactile_angle_noise", "deg", OBSERVATION, "theta_T + N(0, sigma)", (2.0, 5.0, 10.0, 20.0, 40.0, 80.0)),
     Family("tactile_offset_noise", "mm", OBSERVATION, "y_T + N(0, sigma)", (0.5, 1.0, 2.0, 4.0, 8.0)),
-    Family("vision_angle_noise", "deg", OBSERVATION, "theta_V + N(0, sigma) on a visible detection",
-           (2.0, 5.0, 10.0, 20.0, 40.0, 80.0)),
-    Family("vision_offset_noise", "mm", OBSERVATION, "y_V + N(0, sigma) on a visible detection",
-           (1.0, 2.0, 4.0, 8.0, 16.0, 32.0)),
-    Family("vision_dropout", "probability", OBSERVATION, "a visible detection reported as not visible",
-           (0.1, 0.2, 0.4, 0.6, 0.8, 0.95), high=1.0),
-    Family("vision_false_visible", "probability", OBSERVATION,
-           "a missing detection reported as a visible, spurious strand", (0.01, 0.02, 0.05, 0.1, 0.2, 0.4), high=1.0),
+    Family(
+        "vision_angle_noise",
+        "deg",
+        OBSERVATION,
+        "theta_V + N(0, sigma) on a visible detection",
+        (2.0, 5.0, 10.0, 20.0, 40.0, 80.0),
+    ),
+    Family(
+        "vision_offset_noise", "mm", OBSERVATION, "y_V + N(0, sigma) on a visible detection", (1.0, 2.0, 4.0, 8.0, 16.0, 32.0)
+    ),
+    Family(
+        "vision_dropout",
+        "probability",
+        OBSERVATION,
+        "a visible detection reported as not visible",
+        (0.1, 0.2, 0.4, 0.6, 0.8, 0.95),
+        high=1.0,
+    ),
+    Family(
+        "vision_false_visible",
+        "probability",
+        OBSERVATION,
+        "a missing detection reported as a visible, spurious strand",
+        (0.01, 0.02, 0.05, 0.1, 0.2, 0.4),
+        high=1.0,
+    ),
     Family("gripper_position_noise", "mm", OBSERVATION, "x_G, y_G + N(0, sigma) each", (1.0, 2.0, 4.0, 8.0, 16.0)),
-    Family("gripper_position_bias", "mm", OBSERVATION,
-           "x_G, y_G as K reports them, offset by this length (direction drawn per episode)",
-           (1.0, 2.0, 5.0, 10.0, 20.0, 40.0)),
-    Family("action_delay", "control steps", ACTION, "the action, d steps (0.08 s each) late", (1, 2, 3, 4, 6),
-           high=50, integer=True),
-    Family("velocity_gain", "x commanded", ACTION, "the gripper's velocity (saturating at 0.25 m/s)",
-           (0.25, 0.5, 0.75, 1.25, 1.5, 2.0, 3.0), off=1.0, high=10.0),
-    Family("closure_lag", "s", ACTION, "the closure, a first-order lag of this time constant",
-           (0.04, 0.08, 0.16, 0.32, 0.64), high=60.0),
-    _physics("friction", "Coulomb coefficient", "table and finger friction, every episode",
-             (0.0, 0.02, 0.45, 0.6, 0.9, 1.2), "friction_range", 0.0),
-    _physics("stretch_stiffness", "paper's stiffness", "stretch stiffness (compliance ~ s^-4), every episode",
-             (0.25, 0.4, 0.6, 2.0, 4.0, 8.0), "stretch_range", 0.05, 20.0),
-    _physics("bending_stiffness", "paper's stiffness", "bending stiffness (compliance ~ b^-3), every episode",
-             (0.1, 0.2, 0.4, 3.5, 5.0, 8.0), "bending_range", 0.05, 40.0),
-    _physics("cable_length", "particles", "particle count (4.3 mm apart), every episode", (10, 15, 20, 25, 29),
-             "num_particles_range", 2, 60, integer=True),
-    _physics("particle_mass", "kg", "every particle's mass (nominal 0.5 kg), every episode",
-             (0.05, 0.125, 0.25, 1.0, 2.0, 5.0), "particle_mass_range", 0.001, 100.0),
-    Family("camera_offset", "mm", CAMERA, "the rendering camera moved along world +y; the vision assumes it is not",
-           (2.0, 5.0, 10.0, 20.0, 40.0), high=300.0),
-    Family("camera_yaw", "deg", CAMERA, "the rendering camera turned about its optical axis; the vision assumes not",
-           (1.0, 2.0, 5.0, 10.0, 20.0), high=90.0),
+    Family(
+        "gripper_position_bias",
+        "mm",
+        OBSERVATION,
+        "x_G, y_G as K reports them, offset by this length (direction drawn per episode)",
+        (1.0, 2.0, 5.0, 10.0, 20.0, 40.0),
+    ),
+    Family(
+        "action_delay", "control steps", ACTION, "the action, d steps (0.08 s each) late", (1, 2, 3, 4, 6), high=50, integer=True
+    ),
+    Family(
+        "velocity_gain",
+        "x commanded",
+        ACTION,
+        "the gripper's velocity (saturating at 0.25 m/s)",
+        (0.25, 0.5, 0.75, 1.25, 1.5, 2.0, 3.0),
+        off=1.0,
+        high=10.0,
+    ),
+    Family(
+        "closure_lag",
+        "s",
+        ACTION,
+        "the closure, a first-order lag of this time constant",
+        (0.04, 0.08, 0.16, 0.32, 0.64),
+        high=60.0,
+    ),
+    _physics(
+        "friction",
+        "Coulomb coefficient",
+        "table and finger friction, every episode",
+        (0.0, 0.02, 0.45, 0.6, 0.9, 1.2),
+        "friction_range",
+        0.0,
+    ),
+    _physics(
+        "stretch_stiffness",
+        "paper's stiffness",
+        "stretch stiffness (compliance ~ s^-4), every episode",
+        (0.25, 0.4, 0.6, 2.0, 4.0, 8.0),
+        "stretch_range",
+        0.05,
+        20.0,
+    ),
+    _physics(
+        "bending_stiffness",
+        "paper's stiffness",
+        "bending stiffness (compliance ~ b^-3), every episode",
+        (0.1, 0.2, 0.4, 3.5, 5.0, 8.0),
+        "bending_range",
+        0.05,
+        40.0,
+    ),
+    _physics(
+        "cable_length",
+        "particles",
+        "particle count (4.3 mm apart), every episode",
+        (10, 15, 20, 25, 29),
+        "num_particles_range",
+        2,
+        60,
+        integer=True,
+    ),
+    _physics(
+        "particle_mass",
+        "kg",
+        "every particle's mass (nominal 0.5 kg), every episode",
+        (0.05, 0.125, 0.25, 1.0, 2.0, 5.0),
+        "particle_mass_range",
+        0.001,
+        100.0,
+    ),
+    Family(
+        "camera_offset",
+        "mm",
+        CAMERA,
+        "the rendering camera moved along world +y; the vision assumes it is not",
+        (2.0, 5.0, 10.0, 20.0, 40.0),
+        high=300.0,
+    ),
+    Family(
+        "camera_yaw",
+        "deg",
+        CAMERA,
+        "the rendering camera turned about its optical axis; the vision assumes not",
+        (1.0, 2.0, 5.0, 10.0, 20.0),
+        high=90.0,
+    ),
 )
 _BY_NAME = {f.name: f for f in FAMILIES}
 assert len(_BY_NAME) == len(FAMILIES)
@@ -173,8 +263,11 @@ def family(name: str) -> Family:
         return _BY_NAME[name]
     except KeyError:
         closest = difflib.get_close_matches(name, list(_BY_NAME), n=1, cutoff=0.0)
-        raise ValueError(f"unknown perturbation {name!r}" + (f"; did you mean {closest[0]!r}?" if closest else "")
-                         + f" (known: {', '.join(_BY_NAME)})") from None
+        raise ValueError(
+            f"unknown perturbation {name!r}"
+            + (f"; did you mean {closest[0]!r}?" if closest else "")
+            + f" (known: {', '.join(_BY_NAME)})"
+        ) from None
 
 
 def parse(value) -> dict:
@@ -209,8 +302,10 @@ def parse(value) -> dict:
 
 def text(setting: Mapping) -> str:
     """A setting as :func:`parse` reads it back (``observation_delay=2,friction=0.6``; '' for none)."""
+
     def number(v):
         return ":".join(number(x) for x in v) if isinstance(v, tuple) else f"{v:g}"
+
     return ",".join(f"{name}={number(m)}" for name, m in parse(setting).items())
 
 
@@ -282,6 +377,7 @@ class Perturber:
         from dlo_perception.camera import WORKSPACE_HALF_WIDTH
         from dlo_perception.tactile import Y_LIMIT
         from dlo_perception.vision import SEARCH_HALF_WIDTH
+
         from dlo_policy.observation import observation_labels, parse_modalities
 
         self.setting = of_side(parse(setting), OBSERVATION, ACTION)
@@ -301,11 +397,13 @@ class Perturber:
         self.gain = float(s.get("velocity_gain", 1.0))
         lag = float(s.get("closure_lag", 0.0))
         self.closure_rate = 1.0 if lag == 0 else -math.expm1(-CONTROL_STEP / lag)
-        self.sigma = {"x_G": 0.001 * s.get("gripper_position_noise", 0.0),
-                      "theta_T": math.radians(s.get("tactile_angle_noise", 0.0)),
-                      "y_T": 0.001 * s.get("tactile_offset_noise", 0.0),
-                      "theta_V": math.radians(s.get("vision_angle_noise", 0.0)),
-                      "y_V": 0.001 * s.get("vision_offset_noise", 0.0)}
+        self.sigma = {
+            "x_G": 0.001 * s.get("gripper_position_noise", 0.0),
+            "theta_T": math.radians(s.get("tactile_angle_noise", 0.0)),
+            "y_T": 0.001 * s.get("tactile_offset_noise", 0.0),
+            "theta_V": math.radians(s.get("vision_angle_noise", 0.0)),
+            "y_V": 0.001 * s.get("vision_offset_noise", 0.0),
+        }
         self.bias_length = 0.001 * s.get("gripper_position_bias", 0.0)
         self.dropout = float(s.get("vision_dropout", 0.0))
         self.false_visible = float(s.get("vision_false_visible", 0.0))

@@ -31,23 +31,22 @@ import time
 from pathlib import Path
 
 import numpy as np
-from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, QoSProfile
-from std_msgs.msg import String
-
 from dlo_common.node_util import ParameterError, declare_parameters
 from dlo_common.params import Param
 from dlo_common.topics import message_class, topic
 from dlo_msgs.msg import GripperCommand
 from dlo_perception.cloud import unpack_particles
 from dlo_perception.sync import IncompleteSteps, StampSync, stamp_to_ns
+from dlo_sim.command import action_to_command
+from dlo_sim.task import recorded_task_rules
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile
+from std_msgs.msg import String
+
 from dlo_policy import perturbations
 from dlo_policy.modalities import ALL, ALL_NAME, by_name, names
 from dlo_policy.observation import build_observation, observation_size, parse_modalities
-from dlo_policy.rundir import CONFIG_FILE, read_trained_config
-from dlo_policy.rundir import SHIPPED_POLICY, shipped_policy_path  # noqa: F401 (SHIPPED_POLICY: re-exported)
-from dlo_sim.command import action_to_command
-from dlo_sim.task import recorded_task_rules
+from dlo_policy.rundir import CONFIG_FILE, SHIPPED_POLICY, read_trained_config, shipped_policy_path  # noqa: F401 (SHIPPED_POLICY: re-exported)
 
 POLICIES = ("sac", "tactile_reactive", "oracle", "random")
 
@@ -60,9 +59,11 @@ def node_perturbations(value) -> dict:
     setting = perturbations.parse(value)
     elsewhere = perturbations.of_side(setting, perturbations.PHYSICS, perturbations.CAMERA)
     if elsewhere:
-        raise ValueError(f"{', '.join(elsewhere)}: physics and camera perturbations belong to the simulator, not the "
-                         f"policy node (here: {', '.join(perturbations.names(perturbations.OBSERVATION))}, "
-                         f"{', '.join(perturbations.names(perturbations.ACTION))})")
+        raise ValueError(
+            f"{', '.join(elsewhere)}: physics and camera perturbations belong to the simulator, not the "
+            f"policy node (here: {', '.join(perturbations.names(perturbations.OBSERVATION))}, "
+            f"{', '.join(perturbations.names(perturbations.ACTION))})"
+        )
     return setting
 
 
@@ -71,16 +72,21 @@ PARAMETERS = (
     Param("checkpoint", "", "dlo-train policy.pt / checkpoint.pt (empty = the shipped All policy)"),
     Param("modalities", "All", "observation modalities for policy=random (sac uses its training config)"),
     Param("without", "", "test-time ablation: zero these modalities, e.g. 'T' or 'V'"),
-    Param("input_timeout", 1.0, "report an error when a step's inputs are incomplete after this long [s]",
-          above=0.0),
+    Param("input_timeout", 1.0, "report an error when a step's inputs are incomplete after this long [s]", above=0.0),
     Param("seed", 0, "seed of the random policy and of online training", at_least=0),
     Param("train", False, "learn online from the graph (policy sac): SAC from scratch or from train_out"),
     Param("train_out", "runs/online", "run directory of online training (config, checkpoint.pt, policy.pt)"),
     Param("checkpoint_every", 1000, "online training: control steps between checkpoints", at_least=1),
     Param("train_config", "", "online training: a dlo-train YAML config (SAC hyperparameters); empty = defaults"),
-    Param("perturbations", "", "observation and action perturbations (dlo_policy.perturbations), e.g. "
-          "'observation_delay=1,action_delay=1'; empty = none", check=node_perturbations, types="string",
-          accepts="name=value pairs of observation and action families joined by ','"),
+    Param(
+        "perturbations",
+        "",
+        "observation and action perturbations (dlo_policy.perturbations), e.g. "
+        "'observation_delay=1,action_delay=1'; empty = none",
+        check=node_perturbations,
+        types="string",
+        accepts="name=value pairs of observation and action families joined by ','",
+    ),
 )
 
 
@@ -90,8 +96,11 @@ def modalities_parameter(name: str, value: str) -> tuple:
         return parse_modalities(value)
     except ValueError:
         known = ", ".join(names())
-        takes = (f"'' (none) or the modalities to zero: {known} or several joined by '+', e.g. T or T+V"
-                 if name == "without" else f"{ALL_NAME} or a '+'-joined subset of {known}, e.g. V+K")
+        takes = (
+            f"'' (none) or the modalities to zero: {known} or several joined by '+', e.g. T or T+V"
+            if name == "without"
+            else f"{ALL_NAME} or a '+'-joined subset of {known}, e.g. V+K"
+        )
         raise ParameterError(f"parameter '{name}': expected {takes}, got {value!r}") from None
 
 
@@ -143,6 +152,7 @@ def load_policy(kind: str, checkpoint: str, modalities: str, seed: int):
             if new_episode:
                 controller.reset()
             return controller(obs, layout)
+
         return act, ALL
     if kind == "oracle":
         from dlo_policy.scripted import OracleFollow
@@ -162,8 +172,17 @@ def file_sha256(path) -> str:
     return digest.hexdigest()
 
 
-def policy_record(kind: str, checkpoint: str, modalities, without=(), *, seed: int = 0, train: bool = False,
-                  train_out: str = "", train_config: str = "") -> dict:
+def policy_record(
+    kind: str,
+    checkpoint: str,
+    modalities,
+    without=(),
+    *,
+    seed: int = 0,
+    train: bool = False,
+    train_out: str = "",
+    train_config: str = "",
+) -> dict:
     """What drives the graph, as ``/dlo/policy/info`` carries it (JSON): ``policy`` (its kind), ``checkpoint`` (the
     policy file's absolute path, None without one), ``sha256`` (of that file), ``shipped`` (the bundled All policy),
     ``modalities`` and ``without`` ('+'-joined), and from the run config beside the file (or, learning online, the
@@ -171,9 +190,18 @@ def policy_record(kind: str, checkpoint: str, modalities, without=(), *, seed: i
     vision_source, carry_law, contact_radius), ``trained_label``; None where nothing says (a scripted policy: the
     sim's own task rules are in its TaskState). A config that cannot be read leaves them None and says why in
     ``config_error``."""
-    record = {"policy": kind, "checkpoint": None, "sha256": None, "shipped": False,
-              "modalities": "+".join(modalities), "without": "+".join(without), "task_rules": None,
-              "single_particle_grip": None, "env_options": None, "trained_label": None}
+    record = {
+        "policy": kind,
+        "checkpoint": None,
+        "sha256": None,
+        "shipped": False,
+        "modalities": "+".join(modalities),
+        "without": "+".join(without),
+        "task_rules": None,
+        "single_particle_grip": None,
+        "env_options": None,
+        "trained_label": None,
+    }
     config = None
     try:
         if train:
@@ -192,8 +220,12 @@ def policy_record(kind: str, checkpoint: str, modalities, without=(), *, seed: i
         record["seed"] = seed
     if config is not None:
         options = dict(config.env_options)
-        record.update(task_rules=options.get("task_rules"), env_options=options, trained_label=config.name,
-                      single_particle_grip=bool(options.get("single_particle_grip", False)))
+        record.update(
+            task_rules=options.get("task_rules"),
+            env_options=options,
+            trained_label=config.name,
+            single_particle_grip=bool(options.get("single_particle_grip", False)),
+        )
     return record
 
 
@@ -214,8 +246,10 @@ class PolicyNode(Node):
             self.without = modalities_parameter("without", p["without"]) if p["without"] else ()
             ablated_absent = [m for m in self.without if m not in self.modalities]
             if ablated_absent:
-                raise ParameterError(f"parameter 'without': cannot ablate {'+'.join(ablated_absent)}: the policy "
-                                     f"observes only {'+'.join(self.modalities)}")
+                raise ParameterError(
+                    f"parameter 'without': cannot ablate {'+'.join(ablated_absent)}: the policy "
+                    f"observes only {'+'.join(self.modalities)}"
+                )
             self.observed = [by_name(m) for m in self.modalities if m not in self.without]
             self.observation({m.input_key: message_class(m.message_type)() for m in self.observed})  # it builds
             self.learner = self.make_learner(p) if p["train"] else None
@@ -237,10 +271,19 @@ class PolicyNode(Node):
         self.last = (None, None)  # (stamp_ns, GripperCommand): a republished step gets the same answer
         self.publisher = self.create_publisher(GripperCommand, topic("command").name, 10)
         # what drives the graph, once, latched: the recorder keeps it in the bag (dlo-analyze, video titles)
-        self.record = policy_record(p["policy"], p["checkpoint"], self.modalities, self.without, seed=p["seed"],
-                                    train=p["train"], train_out=p["train_out"], train_config=p["train_config"])
-        self.info_publisher = self.create_publisher(String, topic("policy_info").name,
-                                                    QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL))
+        self.record = policy_record(
+            p["policy"],
+            p["checkpoint"],
+            self.modalities,
+            self.without,
+            seed=p["seed"],
+            train=p["train"],
+            train_out=p["train_out"],
+            train_config=p["train_config"],
+        )
+        self.info_publisher = self.create_publisher(
+            String, topic("policy_info").name, QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        )
         if self.perturber.active:
             self.record["perturbations"] = perturbations.text(self.perturber.setting)
         self.info_publisher.publish(String(data=json.dumps(self.record, sort_keys=True)))
@@ -248,11 +291,12 @@ class PolicyNode(Node):
             t = topic(key)
             self.create_subscription(message_class(t.type), t.name, lambda m, key=key: self.on_input(key, m), 10)
         self.create_timer(0.25, self.check_missing_inputs)
-        self.get_logger().info(f"policy {p['policy']} on {'+'.join(self.modalities)}"
-                               + (f" without {'+'.join(self.without)}" if self.without else "")
-                               + f"; inputs {inputs}"
-                               + (f"; perturbations {perturbations.text(self.perturber.setting)}"
-                                  if self.perturber.active else ""))
+        self.get_logger().info(
+            f"policy {p['policy']} on {'+'.join(self.modalities)}"
+            + (f" without {'+'.join(self.without)}" if self.without else "")
+            + f"; inputs {inputs}"
+            + (f"; perturbations {perturbations.text(self.perturber.setting)}" if self.perturber.active else "")
+        )
 
     def on_input(self, key, msg):
         stamp = stamp_to_ns(msg.header.stamp)
@@ -274,10 +318,10 @@ class PolicyNode(Node):
             observation = self.perturber.observe(observation)
         if self.learner is not None:
             task = values["task"]
-            terminated = task.done and bool(recorded_task_rules(task.task_rules).dropped(
-                task.n_held, len(task.held_indices_authors)))
-            action = self.learner.act(observation[0], task.reward, task.done, terminated,
-                                      gripper.episode, gripper.step)
+            terminated = task.done and bool(
+                recorded_task_rules(task.task_rules).dropped(task.n_held, len(task.held_indices_authors))
+            )
+            action = self.learner.act(observation[0], task.reward, task.done, terminated, gripper.episode, gripper.step)
         else:
             self.truth.cloud, self.truth.gripper = values.get("particles"), gripper
             action = self.act(observation, gripper.step == 0, self.truth)[0]
@@ -307,8 +351,7 @@ class PolicyNode(Node):
         """Save the online run (run_node calls this once the node stops, before the middleware's teardown)."""
         if getattr(self, "learner", None) is not None:
             self.learner.save()
-            self.get_logger().info(f"online training: {self.learner.agent.num_env_steps} steps, saved to "
-                                   f"{self.learner.run_dir}")
+            self.get_logger().info(f"online training: {self.learner.agent.num_env_steps} steps, saved to {self.learner.run_dir}")
 
     def check_missing_inputs(self):
         """A step incomplete after ``input_timeout`` s: one error naming the missing input and the stamps

@@ -1,4 +1,5 @@
 """Preallocated replay buffer of transitions (torch, fp32, on the agent's device) with a saveable state."""
+
 from __future__ import annotations
 
 from typing import NamedTuple
@@ -32,8 +33,7 @@ class ReplayBuffer:
     def __len__(self) -> int:
         return self.size
 
-    def add(self, obs: np.ndarray, action: np.ndarray, reward: float, next_obs: np.ndarray,
-            terminated: bool) -> None:
+    def add(self, obs: np.ndarray, action: np.ndarray, reward: float, next_obs: np.ndarray, terminated: bool) -> None:
         i = self.position
         self.obs[i] = torch.as_tensor(obs, dtype=torch.float32)
         self.actions[i] = torch.as_tensor(action, dtype=torch.float32)
@@ -45,15 +45,20 @@ class ReplayBuffer:
 
     def sample(self, batch_size: int, generator: torch.Generator) -> Batch:
         idx = torch.randint(self.size, (batch_size,), generator=generator, device=generator.device)
-        return Batch(self.obs[idx], self.actions[idx], self.rewards[idx], self.next_obs[idx],
-                     self.terminated[idx])
+        return Batch(self.obs[idx], self.actions[idx], self.rewards[idx], self.next_obs[idx], self.terminated[idx])
 
     def state_dict(self) -> dict:
         """The stored transitions only (not the empty preallocated rows), on the CPU."""
         n = self.size
-        return {"capacity": self.capacity, "position": self.position, "size": n,
-                **{name: getattr(self, name)[:n].to("cpu", copy=True)
-                   for name in ("obs", "actions", "rewards", "next_obs", "terminated")}}
+        return {
+            "capacity": self.capacity,
+            "position": self.position,
+            "size": n,
+            **{
+                name: getattr(self, name)[:n].to("cpu", copy=True)
+                for name in ("obs", "actions", "rewards", "next_obs", "terminated")
+            },
+        }
 
     def load_state_dict(self, state: dict) -> None:
         if state["capacity"] != self.capacity:

@@ -67,6 +67,7 @@ another setting, NAME its name in the outputs):
 Exit status 2 with one line on stderr for bad input (missing directory, no runs, malformed
 NAME=DIR, the same label and seed twice).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -144,15 +145,20 @@ def build_comparison(specs: Sequence[str], out_dir: Path) -> Written:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = OneLineErrorParser(prog="dlo-report", description=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("results", type=Path, nargs="?", metavar="RESULTS",
-                        help="directory holding dlo-train run directories (anywhere below it)")
-    parser.add_argument("--out", type=Path, metavar="DIR",
-                        help="where to write (default RESULTS/report; required with --compare)")
-    parser.add_argument("--compare", nargs="+", metavar="NAME=DIR",
-                        help="compare results directories of the same configurations trained under different "
-                             "settings: writes compare.md and compare.png instead of the study's report")
+    parser = OneLineErrorParser(prog="dlo-report", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument(
+        "results", type=Path, nargs="?", metavar="RESULTS", help="directory holding dlo-train run directories (anywhere below it)"
+    )
+    parser.add_argument(
+        "--out", type=Path, metavar="DIR", help="where to write (default RESULTS/report; required with --compare)"
+    )
+    parser.add_argument(
+        "--compare",
+        nargs="+",
+        metavar="NAME=DIR",
+        help="compare results directories of the same configurations trained under different "
+        "settings: writes compare.md and compare.png instead of the study's report",
+    )
     return parser
 
 

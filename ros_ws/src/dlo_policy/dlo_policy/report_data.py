@@ -2,6 +2,7 @@
 and tested input set, and the statistics of the tables and figures (their definitions: the dlo-report
 help, `dlo_policy.report`). Reads runs through `dlo_policy.rundir`; no torch, no matplotlib.
 """
+
 from __future__ import annotations
 
 import json
@@ -33,9 +34,38 @@ SMOOTHING_TEXT = f"each seed smoothed by a trailing mean of {SMOOTHING_WINDOW} e
 # seed-independent config keys: seeds of one configuration may differ in these without a warning
 IGNORED_CONFIG_KEYS = ("seed", "train.num_threads", "train.progress", "train.total_steps", "train.eval_without")
 # two-sided 95% Student t quantiles t(0.975, df) for df = 1..30; the normal 1.96 beyond
-T_975 = (12.706, 4.303, 3.182, 2.776, 2.571, 2.447, 2.365, 2.306, 2.262, 2.228, 2.201, 2.179, 2.160, 2.145,
-         2.131, 2.120, 2.110, 2.101, 2.093, 2.086, 2.080, 2.074, 2.069, 2.064, 2.060, 2.056, 2.052, 2.048,
-         2.045, 2.042)
+T_975 = (
+    12.706,
+    4.303,
+    3.182,
+    2.776,
+    2.571,
+    2.447,
+    2.365,
+    2.306,
+    2.262,
+    2.228,
+    2.201,
+    2.179,
+    2.160,
+    2.145,
+    2.131,
+    2.120,
+    2.110,
+    2.101,
+    2.093,
+    2.086,
+    2.080,
+    2.074,
+    2.069,
+    2.064,
+    2.060,
+    2.056,
+    2.052,
+    2.048,
+    2.045,
+    2.042,
+)
 
 
 @dataclass
@@ -120,8 +150,7 @@ def read_run(config_path: Path, warnings: list[str]) -> Optional[RunDir]:
         warnings.append(f"{directory}: skipped, cannot be read ({str(error).splitlines()[0]})")
         return None
     finished = rundir.is_done(directory)
-    tests = {without: read_test_json(directory / rundir.test_file(without), warnings) if finished else None
-             for without in rows}
+    tests = {without: read_test_json(directory / rundir.test_file(without), warnings) if finished else None for without in rows}
     return RunDir(directory, config, finished, rows, tests)
 
 
@@ -151,11 +180,14 @@ def check_seeds(label: str, runs: Sequence[RunDir], warnings: list[str]) -> None
         by_seed.setdefault(run.config.seed, []).append(run.path)
     for seed, paths in by_seed.items():
         if len(paths) > 1:
-            raise ReportError(f"label {label!r} seed {seed} is in {len(paths)} run directories "
-                              f"({', '.join(map(str, paths))}): two settings mixed? compare them with --compare NAME=DIR")
+            raise ReportError(
+                f"label {label!r} seed {seed} is in {len(paths)} run directories "
+                f"({', '.join(map(str, paths))}): two settings mixed? compare them with --compare NAME=DIR"
+            )
     flats = [_flat(run.config.to_dict()) for run in runs]
-    differing = sorted(key for key in set().union(*flats) if key not in IGNORED_CONFIG_KEYS
-                       and len({repr(f.get(key)) for f in flats}) > 1)
+    differing = sorted(
+        key for key in set().union(*flats) if key not in IGNORED_CONFIG_KEYS and len({repr(f.get(key)) for f in flats}) > 1
+    )
     if differing:
         warnings.append(f"the seeds of {label!r} differ in {', '.join(differing)}")
 
@@ -179,10 +211,15 @@ def group_curves(runs: Sequence[RunDir], without: str) -> Optional[Curves]:
     if length == 0:
         return None
     steps = np.array([int(row["step"]) for row in runs[0].rows[without][:length]])
-    values = {column: np.array([[row[column] for row in run.rows[without][:length]] for run in runs])
-              for column in CURVE_COLUMNS}
-    return Curves(steps, values, tuple(run.config.seed for run in runs), tuple(run.finished for run in runs),
-                  tuple(run.tests.get(without) for run in runs), max(run.config.train.total_steps for run in runs))
+    values = {column: np.array([[row[column] for row in run.rows[without][:length]] for run in runs]) for column in CURVE_COLUMNS}
+    return Curves(
+        steps,
+        values,
+        tuple(run.config.seed for run in runs),
+        tuple(run.finished for run in runs),
+        tuple(run.tests.get(without) for run in runs),
+        max(run.config.train.total_steps for run in runs),
+    )
 
 
 def fresh_episodes(curves: Curves) -> bool:
@@ -206,8 +243,10 @@ def load_runs(results: Path, warnings: Optional[list[str]] = None) -> Runs:
             if curves is not None:
                 grouped.setdefault(label, {})[without] = curves
         if "" in grouped.get(label, {}) and not fresh_episodes(grouped[label][""]):
-            warnings.append(f"the evaluations of {label!r} repeat the same episodes (eval.csv without eval_seed, "
-                            "from before fresh evaluation episodes): its best mean is selected on them")
+            warnings.append(
+                f"the evaluations of {label!r} repeat the same episodes (eval.csv without eval_seed, "
+                "from before fresh evaluation episodes): its best mean is selected on them"
+            )
     return grouped
 
 
@@ -347,7 +386,20 @@ def summarize(name: str, curves: Curves) -> Summary:
     best_authors, best_authors_step = best_smoothed(curves, HOLD_AUTHORS)
     last = last_mean(curves, HOLD)
     last_authors = last_mean(curves, HOLD_AUTHORS)
-    return Summary(name, curves.seeds, curves.finished_seeds, int(curves.steps[-1]), curves.total_steps,
-                   best, best_step, best_authors, best_authors_step, last, level_ratio(last, best),
-                   held_out_test(curves), held_out_test(curves, authors=True), last_authors,
-                   level_ratio(last_authors, best_authors))
+    return Summary(
+        name,
+        curves.seeds,
+        curves.finished_seeds,
+        int(curves.steps[-1]),
+        curves.total_steps,
+        best,
+        best_step,
+        best_authors,
+        best_authors_step,
+        last,
+        level_ratio(last, best),
+        held_out_test(curves),
+        held_out_test(curves, authors=True),
+        last_authors,
+        level_ratio(last_authors, best_authors),
+    )

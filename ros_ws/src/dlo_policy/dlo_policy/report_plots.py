@@ -1,4 +1,5 @@
 """dlo-report's figures (matplotlib, Agg: files only) from the curves of `dlo_policy.report_data`."""
+
 from __future__ import annotations
 
 import math
@@ -16,24 +17,58 @@ from matplotlib.patches import Patch  # noqa: E402
 from matplotlib.ticker import FuncFormatter  # noqa: E402
 
 from .grid import SENSITIVITY_PAIRS, TACTILE_NOISE_LEVELS, sensitivity_label  # noqa: E402
-from .report_data import (FINAL_EVALUATIONS, HOLD, HOLD_AUTHORS, PAIRS, SINGLE, SMOOTHING_TEXT, Curves,  # noqa: E402
-                          Runs, final_values, mean_and_ci, ordered, smooth)
+from .report_data import (  # noqa: E402
+    FINAL_EVALUATIONS,
+    HOLD,
+    HOLD_AUTHORS,
+    PAIRS,
+    SINGLE,
+    SMOOTHING_TEXT,
+    Curves,
+    Runs,
+    final_values,
+    mean_and_ci,
+    ordered,
+    smooth,
+)
 from .rundir import AUTHORS_SUFFIX, OUTCOMES  # noqa: E402
 
-
 # metric column -> (axis title, y limits or None)
-METRICS = {"episode_reward": ("episode reward", None),
-           HOLD: ("hold the end, paper-text rule", (-0.02, 1.02)),
-           HOLD_AUTHORS: ("hold the end, authors' rule", (-0.02, 1.02)),
-           "time_at_end": ("time at end [control steps]", None),
-           "how_far": ("how far: particles from the end (0 = last)", None)}
+METRICS = {
+    "episode_reward": ("episode reward", None),
+    HOLD: ("hold the end, paper-text rule", (-0.02, 1.02)),
+    HOLD_AUTHORS: ("hold the end, authors' rule", (-0.02, 1.02)),
+    "time_at_end": ("time at end [control steps]", None),
+    "how_far": ("how far: particles from the end (0 = last)", None),
+}
 MIN_SEEDS_FOR_BAND = 3  # a 95% CI band over fewer seeds is too wide to draw (t = 12.7 for 2)
-OUTCOME_COLORS = {"hold_the_end": "tab:green", "stop_before": "tab:orange", "reach_end_but_drop": "tab:blue",
-                  "drop_before": "tab:red"}
-CONFIG_COLORS = {"T": "tab:blue", "K": "tab:orange", "V": "tab:green", "All": "black", "T+K": "tab:purple",
-                 "V+K": "tab:brown", "T+V": "tab:pink"}
-COMPARE_COLORS = ("tab:blue", "tab:orange", "tab:green", "tab:red", "tab:purple", "tab:brown", "tab:pink",
-                  "tab:gray", "tab:olive", "tab:cyan")
+OUTCOME_COLORS = {
+    "hold_the_end": "tab:green",
+    "stop_before": "tab:orange",
+    "reach_end_but_drop": "tab:blue",
+    "drop_before": "tab:red",
+}
+CONFIG_COLORS = {
+    "T": "tab:blue",
+    "K": "tab:orange",
+    "V": "tab:green",
+    "All": "black",
+    "T+K": "tab:purple",
+    "V+K": "tab:brown",
+    "T+V": "tab:pink",
+}
+COMPARE_COLORS = (
+    "tab:blue",
+    "tab:orange",
+    "tab:green",
+    "tab:red",
+    "tab:purple",
+    "tab:brown",
+    "tab:pink",
+    "tab:gray",
+    "tab:olive",
+    "tab:cyan",
+)
 OTHER_COLORS = ("tab:cyan", "tab:olive", "tab:gray", "tab:red", "tab:blue", "tab:orange", "tab:green")
 SEED_LINE = {"linewidth": 0.7, "alpha": 0.35}
 MEAN_LINEWIDTH = 2.2
@@ -49,9 +84,17 @@ def config_color(label: str, index: int = 0) -> str:
     return CONFIG_COLORS.get(label, OTHER_COLORS[index % len(OTHER_COLORS)])
 
 
-def draw_curve(ax, steps: np.ndarray, samples: np.ndarray, color: str, label: Optional[str] = None,
-               seed_lines: bool = True, linestyle: str = "-", linewidth: float = MEAN_LINEWIDTH,
-               band: bool = True) -> bool:
+def draw_curve(
+    ax,
+    steps: np.ndarray,
+    samples: np.ndarray,
+    color: str,
+    label: Optional[str] = None,
+    seed_lines: bool = True,
+    linestyle: str = "-",
+    linewidth: float = MEAN_LINEWIDTH,
+    band: bool = True,
+) -> bool:
     """Each seed smoothed (thin lines if seed_lines), their mean (bold), the 95% CI band if `band`
     and band_allowed(seeds). Returns whether a band was drawn; draws nothing for NaN data."""
     smoothed = smooth(samples)
@@ -102,39 +145,56 @@ def outcome_figure(runs: Runs, labels: Sequence[str]) -> Optional[Figure]:
         return None
     columns = min(len(present), 4)
     rows = math.ceil(len(present) / columns)
-    fig, axes = plt.subplots(rows, columns, figsize=(max(3.9 * columns, 7.5), 3.3 * rows + 1.2), sharey=True,
-                             squeeze=False, layout="constrained")
+    fig, axes = plt.subplots(
+        rows, columns, figsize=(max(3.9 * columns, 7.5), 3.3 * rows + 1.2), sharey=True, squeeze=False, layout="constrained"
+    )
     band_drawn, authors_drawn = False, False
     for ax, label in zip(axes.flat, present):
         curves = runs[label][""]
         for outcome in OUTCOMES:
             hold = outcome == HOLD
             width = MEAN_LINEWIDTH if hold else 1.4
-            band_drawn |= draw_curve(ax, curves.steps, curves.values[outcome], OUTCOME_COLORS[outcome],
-                                     seed_lines=hold, band=hold, linewidth=width)
+            band_drawn |= draw_curve(
+                ax, curves.steps, curves.values[outcome], OUTCOME_COLORS[outcome], seed_lines=hold, band=hold, linewidth=width
+            )
             authors = curves.values[outcome + AUTHORS_SUFFIX]
             if not np.isnan(authors).any():
                 authors_drawn = True
-                draw_curve(ax, curves.steps, authors, OUTCOME_COLORS[outcome], seed_lines=False, band=False,
-                           linestyle="--", linewidth=width)
+                draw_curve(
+                    ax,
+                    curves.steps,
+                    authors,
+                    OUTCOME_COLORS[outcome],
+                    seed_lines=False,
+                    band=False,
+                    linestyle="--",
+                    linewidth=width,
+                )
         ax.set_title(f"{label} ({seeds_text(curves)})")
         ax.set_ylim(-0.02, 1.02)
         _step_axis(ax)
-    for ax in axes.flat[len(present):]:
+    for ax in axes.flat[len(present) :]:
         ax.axis("off")
     for ax in axes[:, 0]:
         ax.set_ylabel("fraction of evaluation episodes")
-    handles = [Line2D([], [], color=OUTCOME_COLORS[o], linewidth=MEAN_LINEWIDTH, label=o.replace("_", " "))
-               for o in OUTCOMES]
+    handles = [Line2D([], [], color=OUTCOME_COLORS[o], linewidth=MEAN_LINEWIDTH, label=o.replace("_", " ")) for o in OUTCOMES]
     handles += [Line2D([], [], color="black", linewidth=1.4, label="paper-text rule (solid)")]
-    handles += [Line2D([], [], color="black", linewidth=1.4, linestyle="--",
-                       label="authors' rule (dashed)" if authors_drawn else "authors' rule: n/a in these eval.csv")]
+    handles += [
+        Line2D(
+            [],
+            [],
+            color="black",
+            linewidth=1.4,
+            linestyle="--",
+            label="authors' rule (dashed)" if authors_drawn else "authors' rule: n/a in these eval.csv",
+        )
+    ]
     if any(runs[label][""].seeds > 1 for label in present):
-        handles.append(Line2D([], [], color=OUTCOME_COLORS[HOLD], **SEED_LINE,
-                              label="one seed, hold the end (paper rule)"))
+        handles.append(Line2D([], [], color=OUTCOME_COLORS[HOLD], **SEED_LINE, label="one seed, hold the end (paper rule)"))
     if band_drawn:
-        handles.append(Patch(color=OUTCOME_COLORS[HOLD], alpha=BAND_ALPHA * 2,
-                             label=f"95% CI of the mean (>= {MIN_SEEDS_FOR_BAND} seeds)"))
+        handles.append(
+            Patch(color=OUTCOME_COLORS[HOLD], alpha=BAND_ALPHA * 2, label=f"95% CI of the mean (>= {MIN_SEEDS_FOR_BAND} seeds)")
+        )
     fig.legend(handles=handles, loc="outside lower center", ncol=4, fontsize=8, frameon=False)
     fig.suptitle(f"Outcomes over training: mean over seeds\n({SMOOTHING_TEXT})", fontsize=10)
     return fig
@@ -157,8 +217,9 @@ def metrics_figure(runs: Runs, labels: Sequence[str]) -> Optional[Figure]:
             band_drawn |= draw_curve(ax, curves.steps, curves.values[metric], config_color(label, i))
             drawn += 1
         if drawn == 0:
-            ax.text(0.5, 0.5, "n/a: no such column in these eval.csv", ha="center", va="center",
-                    transform=ax.transAxes, fontsize=9)
+            ax.text(
+                0.5, 0.5, "n/a: no such column in these eval.csv", ha="center", va="center", transform=ax.transAxes, fontsize=9
+            )
         counts = {runs[label][""].seeds for label in present}
         ax.set_title(f"{title}\n({_seed_counts(counts)})", fontsize=10)
         if limits:
@@ -166,11 +227,19 @@ def metrics_figure(runs: Runs, labels: Sequence[str]) -> Optional[Figure]:
         _step_axis(ax)
     legend_ax = axes.flat[-1]
     legend_ax.axis("off")
-    handles = [Line2D([], [], color=config_color(label, i), linewidth=MEAN_LINEWIDTH,
-                      label=f"{label} ({seeds_text(runs[label][''])})") for i, label in enumerate(present)]
+    handles = [
+        Line2D([], [], color=config_color(label, i), linewidth=MEAN_LINEWIDTH, label=f"{label} ({seeds_text(runs[label][''])})")
+        for i, label in enumerate(present)
+    ]
     seed_lines = any(runs[label][""].seeds > 1 for label in present)
-    legend_ax.legend(handles=handles + style_handles(band_drawn, seed_lines), loc="center", fontsize=9, frameon=False,
-                     title=f"{SMOOTHING_TEXT.capitalize()}", title_fontsize=9)
+    legend_ax.legend(
+        handles=handles + style_handles(band_drawn, seed_lines),
+        loc="center",
+        fontsize=9,
+        frameon=False,
+        title=f"{SMOOTHING_TEXT.capitalize()}",
+        title_fontsize=9,
+    )
     fig.suptitle(f"Evaluation metrics over training ({SMOOTHING_TEXT})", fontsize=11)
     return fig
 
@@ -186,18 +255,20 @@ def draw_bars(ax, names: Sequence[str], samples: Sequence[np.ndarray], colors: S
     """Bar = mean over seeds, dots = the seeds, error bar = 95% CI for >= 3 seeds only."""
     for i, (values, color) in enumerate(zip(samples, colors)):
         mean, ci = mean_and_ci(values)
-        ax.bar(i, mean, color=color, alpha=0.45, width=0.65,
-               yerr=ci if band_allowed(len(values)) else None, capsize=4)
+        ax.bar(i, mean, color=color, alpha=0.45, width=0.65, yerr=ci if band_allowed(len(values)) else None, capsize=4)
         jitter = np.linspace(-0.15, 0.15, len(values)) if len(values) > 1 else np.zeros(1)
         ax.plot(i + jitter, values, "o", color=color, markersize=3.5, markeredgecolor="black", markeredgewidth=0.4)
-    ax.set_xticks(range(len(names)), [f"{n}\n({len(s)} seed{'s' if len(s) != 1 else ''})"
-                                      for n, s in zip(names, samples)], fontsize=8)
+    ax.set_xticks(
+        range(len(names)), [f"{n}\n({len(s)} seed{'s' if len(s) != 1 else ''})" for n, s in zip(names, samples)], fontsize=8
+    )
     ax.set_ylabel(ylabel)
     ax.grid(axis="y", alpha=0.3, linewidth=0.5)
 
 
-BAR_NOTE = (f"dots: each seed's mean of its last {FINAL_EVALUATIONS} evaluations; bar: their mean;\n"
-            f"error bar: 95% CI of the mean (>= {MIN_SEEDS_FOR_BAND} seeds only)")
+BAR_NOTE = (
+    f"dots: each seed's mean of its last {FINAL_EVALUATIONS} evaluations; bar: their mean;\n"
+    f"error bar: 95% CI of the mean (>= {MIN_SEEDS_FOR_BAND} seeds only)"
+)
 
 
 def ablation_figure(runs: Runs) -> Optional[Figure]:
@@ -209,8 +280,13 @@ def ablation_figure(runs: Runs) -> Optional[Figure]:
         return None
     fig, axes = plt.subplots(1, 3, figsize=(14, 4.2), layout="constrained")
     names = ["All" if w == "" else f"All, tested\nwithout {w}" for w in tested]
-    draw_bars(axes[0], names, [final_values(all_runs[w], "episode_reward") for w in tested],
-              ["black", "tab:blue", "tab:red"][:len(tested)], "final episode reward")
+    draw_bars(
+        axes[0],
+        names,
+        [final_values(all_runs[w], "episode_reward") for w in tested],
+        ["black", "tab:blue", "tab:red"][: len(tested)],
+        "final episode reward",
+    )
     axes[0].set_title(BAR_NOTE, fontsize=8)
     band_drawn = False
     for ax, removed, trained_without in ((axes[1], "T", "V+K"), (axes[2], "V", "T+K")):
@@ -220,13 +296,16 @@ def ablation_figure(runs: Runs) -> Optional[Figure]:
         if "" in runs.get(trained_without, {}):
             entries.append((f"trained without {removed} ({trained_without})", runs[trained_without][""], "tab:red"))
         for name, curves, color in entries:
-            band_drawn |= draw_curve(ax, curves.steps, curves.values["episode_reward"], color,
-                                     label=f"{name} ({seeds_text(curves)})")
+            band_drawn |= draw_curve(
+                ax, curves.steps, curves.values["episode_reward"], color, label=f"{name} ({seeds_text(curves)})"
+            )
         ax.set_title(f"without {removed}", fontsize=10)
         ax.set_ylabel("episode reward")
         _step_axis(ax)
-        ax.legend(handles=ax.get_legend_handles_labels()[0]
-                  + style_handles(band_drawn, any(c.seeds > 1 for _, c, _ in entries)), fontsize=7)
+        ax.legend(
+            handles=ax.get_legend_handles_labels()[0] + style_handles(band_drawn, any(c.seeds > 1 for _, c, _ in entries)),
+            fontsize=7,
+        )
     fig.suptitle(f"Ablation: episode reward (curves: {SMOOTHING_TEXT})", fontsize=11)
     return fig
 
@@ -237,15 +316,19 @@ def sensitivity_figure(runs: Runs) -> Optional[Figure]:
         return None
     fig, axes = plt.subplots(1, len(SENSITIVITY_PAIRS), figsize=(12, 4.2), sharey=True, layout="constrained")
     for ax, (modalities, no_tactile) in zip(axes, SENSITIVITY_PAIRS):
-        entries = [("noise: none", modalities)] + [(f"noise: {n}", sensitivity_label(modalities, n))
-                                                   for n in TACTILE_NOISE_LEVELS]
+        entries = [("noise: none", modalities)] + [
+            (f"noise: {n}", sensitivity_label(modalities, n)) for n in TACTILE_NOISE_LEVELS
+        ]
         entries.append(("no tactile", no_tactile))
         entries = [(name, label) for name, label in entries if "" in runs.get(label, {})]
-        draw_bars(ax, [f"{name}\n{label}" for name, label in entries],
-                  [final_values(runs[label][""], "episode_reward") for _, label in entries],
-                  [f"C{i}" for i in range(len(entries))], "final episode reward")
-        ax.set_title(f"{modalities} ({'with K' if 'K' in modalities or modalities == 'All' else 'without K'})",
-                     fontsize=10)
+        draw_bars(
+            ax,
+            [f"{name}\n{label}" for name, label in entries],
+            [final_values(runs[label][""], "episode_reward") for _, label in entries],
+            [f"C{i}" for i in range(len(entries))],
+            "final episode reward",
+        )
+        ax.set_title(f"{modalities} ({'with K' if 'K' in modalities or modalities == 'All' else 'without K'})", fontsize=10)
     fig.suptitle(f"Tactile sensitivity: final episode reward\n{BAR_NOTE}", fontsize=10)
     return fig
 
@@ -260,8 +343,9 @@ def compare_figure(named: Sequence[tuple[str, Runs]]) -> Optional[Figure]:
         return None
     columns = min(len(labels), 4)
     rows = math.ceil(len(labels) / columns)
-    fig, axes = plt.subplots(rows, columns, figsize=(max(4.2 * columns, 7.5), 3.4 * rows + 1.0), sharey=True,
-                             squeeze=False, layout="constrained")
+    fig, axes = plt.subplots(
+        rows, columns, figsize=(max(4.2 * columns, 7.5), 3.4 * rows + 1.0), sharey=True, squeeze=False, layout="constrained"
+    )
     colors = {name: COMPARE_COLORS[i % len(COMPARE_COLORS)] for i, (name, _) in enumerate(named)}
     band_drawn = False
     for ax, label in zip(axes.flat, labels):
@@ -276,14 +360,19 @@ def compare_figure(named: Sequence[tuple[str, Runs]]) -> Optional[Figure]:
         ax.set_title(f"{label}\nseeds: {', '.join(counts)}", fontsize=9)
         ax.set_ylim(-0.02, 1.02)
         _step_axis(ax)
-    for ax in axes.flat[len(labels):]:
+    for ax in axes.flat[len(labels) :]:
         ax.axis("off")
     for ax in axes[:, 0]:
         ax.set_ylabel("hold the end (paper rule)")
     handles = [Line2D([], [], color=colors[name], linewidth=MEAN_LINEWIDTH, label=name) for name, _ in named]
     seed_lines = any(by_without[""].seeds > 1 for _, runs in named for by_without in runs.values() if "" in by_without)
-    fig.legend(handles=handles + style_handles(band_drawn, seed_lines), loc="outside lower center",
-               ncol=min(len(handles) + 3, 5), fontsize=8, frameon=False)
+    fig.legend(
+        handles=handles + style_handles(band_drawn, seed_lines),
+        loc="outside lower center",
+        ncol=min(len(handles) + 3, 5),
+        fontsize=8,
+        frameon=False,
+    )
     fig.suptitle(f"Hold the end per setting: mean over seeds\n({SMOOTHING_TEXT})", fontsize=10)
     return fig
 
@@ -299,11 +388,15 @@ def planned_figures(runs: Runs) -> list[tuple[str, Any, str]]:
     has_pairs = bool(figure_labels(runs, PAIRS))
     pairs = (*PAIRS, "All") if has_pairs else ()  # All is the pairs' reference only when pairs exist
     no_single, no_pairs = "no runs of T, K, V or All", "no runs of T+K, V+K or T+V"
-    return [("outcomes_single.png", lambda: outcome_figure(runs, SINGLE), no_single),
-            ("outcomes_pairs.png", lambda: outcome_figure(runs, pairs), no_pairs),
-            ("metrics_single.png", lambda: metrics_figure(runs, SINGLE), no_single),
-            ("metrics_pairs.png", lambda: metrics_figure(runs, pairs), no_pairs),
-            ("ablation.png", lambda: ablation_figure(runs),
-             "no All runs evaluated without T or V (dlo-experiments --groups ablation)"),
-            ("sensitivity.png", lambda: sensitivity_figure(runs),
-             "no tactile-noise runs (dlo-experiments --groups sensitivity)")]
+    return [
+        ("outcomes_single.png", lambda: outcome_figure(runs, SINGLE), no_single),
+        ("outcomes_pairs.png", lambda: outcome_figure(runs, pairs), no_pairs),
+        ("metrics_single.png", lambda: metrics_figure(runs, SINGLE), no_single),
+        ("metrics_pairs.png", lambda: metrics_figure(runs, pairs), no_pairs),
+        (
+            "ablation.png",
+            lambda: ablation_figure(runs),
+            "no All runs evaluated without T or V (dlo-experiments --groups ablation)",
+        ),
+        ("sensitivity.png", lambda: sensitivity_figure(runs), "no tactile-noise runs (dlo-experiments --groups sensitivity)"),
+    ]

@@ -1,12 +1,26 @@
 """dlo-report's tables: results.md and compare.md (Markdown) from the statistics of `dlo_policy.report_data`."""
+
 from __future__ import annotations
 
 import math
 from typing import Optional, Sequence
 
-from .report_data import (FINAL_EVALUATIONS, HOLD, HOLD_AUTHORS, HOLDS_LEVEL_RATIO, SMOOTHING_TEXT, TABLE_ORDER, Runs,
-                          Stat, Summary, best_smoothed, holds_level, ordered, summarize, test_episodes)
-
+from .report_data import (
+    FINAL_EVALUATIONS,
+    HOLD,
+    HOLD_AUTHORS,
+    HOLDS_LEVEL_RATIO,
+    SMOOTHING_TEXT,
+    TABLE_ORDER,
+    Runs,
+    Stat,
+    Summary,
+    best_smoothed,
+    holds_level,
+    ordered,
+    summarize,
+    test_episodes,
+)
 
 PAPER_HOLD_THE_END = {"T": 0.12, "K": 0.11, "V": 0.77, "All": 0.92, "T+K": 0.16, "V+K": 0.89, "T+V": 0.77}
 
@@ -47,22 +61,35 @@ def row_name(label: str, without: str) -> str:
     return label + (f", tested without {without}" if without else "")
 
 
-SUMMARY_HEADER = ("seeds (finished/total) × steps", "best smoothed mean hold the end, paper rule (at step)",
-                  "same, authors' rule", "last-5 mean, paper rule", "same, authors' rule", "last-5 / best, paper rule",
-                  "same, authors' rule", "held-out test, paper rule", "held-out test, authors' rule")
+SUMMARY_HEADER = (
+    "seeds (finished/total) × steps",
+    "best smoothed mean hold the end, paper rule (at step)",
+    "same, authors' rule",
+    "last-5 mean, paper rule",
+    "same, authors' rule",
+    "last-5 / best, paper rule",
+    "same, authors' rule",
+    "held-out test, paper rule",
+    "held-out test, authors' rule",
+)
 
 
 def summary_cells(summary: Summary) -> list[str]:
-    return [format_seeds(summary), format_best(summary.best, summary.best_step),
-            format_best(summary.best_authors, summary.best_authors_step), format_stat(summary.last),
-            format_stat(summary.last_authors), format_ratio(summary.ratio), format_ratio(summary.ratio_authors),
-            format_test(summary.test, summary.finished),
-            format_test(summary.test_authors, summary.finished)]
+    return [
+        format_seeds(summary),
+        format_best(summary.best, summary.best_step),
+        format_best(summary.best_authors, summary.best_authors_step),
+        format_stat(summary.last),
+        format_stat(summary.last_authors),
+        format_ratio(summary.ratio),
+        format_ratio(summary.ratio_authors),
+        format_test(summary.test, summary.finished),
+        format_test(summary.test_authors, summary.finished),
+    ]
 
 
 def markdown_table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> list[str]:
-    return ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)] + ["| " + " | ".join(row) + " |"
-                                                                            for row in rows]
+    return ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)] + ["| " + " | ".join(row) + " |" for row in rows]
 
 
 def definitions(runs_list: Sequence[Runs]) -> str:
@@ -72,40 +99,49 @@ def definitions(runs_list: Sequence[Runs]) -> str:
     episodes = sorted({int(e) for c in curves for e in c.values["episodes"].ravel() if not math.isnan(e)})
     episodes_text = "/".join(map(str, episodes)) if episodes else "`train.eval_episodes`"
     tests_text = "/".join(map(str, tests)) if tests else "`train.test_episodes`"
-    return "\n".join([
-        "Definitions. Every `train.eval_every` steps each seed's deterministic policy is evaluated on "
-        f"{episodes_text} fresh episodes (seeds never reused within or across runs; see the warnings otherwise). "
-        f"*Best smoothed mean*: {SMOOTHING_TEXT} (fewer at the start), averaged over seeds, maximised over the "
-        "evaluation steps (the step is shown): the paper's \"best mean\". "
-        "*± x%*: 95% confidence half-width of the mean over seeds (Student t, n - 1 degrees of freedom), "
-        "written for >= 2 seeds only; \"(1 seed)\" marks a single seed's value. "
-        "The best is a maximum over the evaluation steps of a noisy curve: it and its interval are biased upwards "
-        "(the more evaluations and the fewer seeds, the more); the last-5 mean is taken at a fixed step, unbiased. "
-        f"*Last-5 mean*: per seed the mean of its last {FINAL_EVALUATIONS} (unsmoothed) evaluations, averaged over "
-        f"seeds; *last-5 / best* (printed rounded down, under each rule against that rule's best) >= "
-        f"{HOLDS_LEVEL_RATIO}: training holds its level, else it sags. "
-        "*Seeds*: finished (done.json) / all seeds; unfinished seeds count up to the last step every seed has "
-        "reached (steps column; \"of N\": the configured length). "
-        f"*Held-out test*: each finished seed's best evaluation policy (highest hold the end, then reward) tested "
-        f"once on {tests_text} episodes whose seeds no evaluation used (test.json; test_without_X.json for the "
-        "tested-without rows), averaged over finished seeds.",
-        "",
-        "- *Paper-text rule*: the episode reaches the horizon holding any of the last 10 particles.",
-        "- *Authors' rule* (their code): on the last step their narrower held set is non-empty and its mean "
-        "particle index is within 5 of the last particle.",
-        "- *n/a*: not in the data (eval.csv written before the authors' rule existed, no finished seed with a "
-        "held-out test, or a best of 0)."])
+    return "\n".join(
+        [
+            "Definitions. Every `train.eval_every` steps each seed's deterministic policy is evaluated on "
+            f"{episodes_text} fresh episodes (seeds never reused within or across runs; see the warnings otherwise). "
+            f"*Best smoothed mean*: {SMOOTHING_TEXT} (fewer at the start), averaged over seeds, maximised over the "
+            'evaluation steps (the step is shown): the paper\'s "best mean". '
+            "*± x%*: 95% confidence half-width of the mean over seeds (Student t, n - 1 degrees of freedom), "
+            'written for >= 2 seeds only; "(1 seed)" marks a single seed\'s value. '
+            "The best is a maximum over the evaluation steps of a noisy curve: it and its interval are biased upwards "
+            "(the more evaluations and the fewer seeds, the more); the last-5 mean is taken at a fixed step, unbiased. "
+            f"*Last-5 mean*: per seed the mean of its last {FINAL_EVALUATIONS} (unsmoothed) evaluations, averaged over "
+            f"seeds; *last-5 / best* (printed rounded down, under each rule against that rule's best) >= "
+            f"{HOLDS_LEVEL_RATIO}: training holds its level, else it sags. "
+            "*Seeds*: finished (done.json) / all seeds; unfinished seeds count up to the last step every seed has "
+            'reached (steps column; "of N": the configured length). '
+            f"*Held-out test*: each finished seed's best evaluation policy (highest hold the end, then reward) tested "
+            f"once on {tests_text} episodes whose seeds no evaluation used (test.json; test_without_X.json for the "
+            "tested-without rows), averaged over finished seeds.",
+            "",
+            "- *Paper-text rule*: the episode reaches the horizon holding any of the last 10 particles.",
+            "- *Authors' rule* (their code): on the last step their narrower held set is non-empty and its mean "
+            "particle index is within 5 of the last particle.",
+            "- *n/a*: not in the data (eval.csv written before the authors' rule existed, no finished seed with a "
+            "held-out test, or a best of 0).",
+        ]
+    )
 
 
 UNSMOOTHED_NOTE = (
     "*Best unsmoothed mean*: the highest evaluation of the seed-averaged curve without smoothing. The paper's "
-    "footnote to its listed numbers (\"the results in figures are smoothed for better readability so listed "
-    "results might not be directly visible\") suggests they are this statistic, over its 10 seeds. A maximum "
-    "over many noisy evaluations: it lies above the smoothed best, the more so the fewer the seeds.")
+    'footnote to its listed numbers ("the results in figures are smoothed for better readability so listed '
+    'results might not be directly visible") suggests they are this statistic, over its 10 seeds. A maximum '
+    "over many noisy evaluations: it lies above the smoothed best, the more so the fewer the seeds."
+)
 
 
-UNSMOOTHED_HEADER = ("configuration", "seeds (finished/total) × steps",
-                     "best unsmoothed mean hold the end, paper rule (at step)", "same, authors' rule", "paper (listed)")
+UNSMOOTHED_HEADER = (
+    "configuration",
+    "seeds (finished/total) × steps",
+    "best unsmoothed mean hold the end, paper rule (at step)",
+    "same, authors' rule",
+    "paper (listed)",
+)
 
 
 def results_table(runs: Runs, warnings: Sequence[str] = ()) -> str:
@@ -118,8 +154,15 @@ def results_table(runs: Runs, warnings: Sequence[str] = ()) -> str:
         paper = PAPER_HOLD_THE_END.get(label) if not without else None
         paper_cell = "—" if paper is None else f"{paper:.0%}"
         rows.append([name, *summary_cells(summary), paper_cell])
-        unsmoothed_rows.append([name, format_seeds(summary), format_best(*best_smoothed(curves, HOLD, window=1)),
-                                format_best(*best_smoothed(curves, HOLD_AUTHORS, window=1)), paper_cell])
+        unsmoothed_rows.append(
+            [
+                name,
+                format_seeds(summary),
+                format_best(*best_smoothed(curves, HOLD, window=1)),
+                format_best(*best_smoothed(curves, HOLD_AUTHORS, window=1)),
+                paper_cell,
+            ]
+        )
     lines = markdown_table(["configuration", *SUMMARY_HEADER, "paper (best mean)"], rows)
     text = "\n".join(lines) + "\n\n" + definitions([runs]) + "\n- *paper*: best mean hold the end in the paper.\n"
     text += "\n" + "\n".join(markdown_table(UNSMOOTHED_HEADER, unsmoothed_rows)) + "\n\n" + UNSMOOTHED_NOTE + "\n"
@@ -139,12 +182,16 @@ def compare_table(named: Sequence[tuple[str, Runs]], warnings: Sequence[str] = (
     for label, without in keys:
         for name, runs in named:
             curves = runs.get(label, {}).get(without)
-            cells = (summary_cells(summarize(name, curves)) if curves is not None
-                     else ["no runs"] + [""] * (len(SUMMARY_HEADER) - 1))
+            cells = (
+                summary_cells(summarize(name, curves)) if curves is not None else ["no runs"] + [""] * (len(SUMMARY_HEADER) - 1)
+            )
             rows.append([row_name(label, without), name, *cells])
     text = "\n".join(markdown_table(["configuration", "setting", *SUMMARY_HEADER], rows))
-    text += ("\n\n" + definitions([runs for _, runs in named])
-             + "\n- *setting*: the NAME of a results directory given as --compare NAME=DIR.\n")
+    text += (
+        "\n\n"
+        + definitions([runs for _, runs in named])
+        + "\n- *setting*: the NAME of a results directory given as --compare NAME=DIR.\n"
+    )
     if warnings:
         text += "\nWarnings:\n" + "".join(f"- {w}\n" for w in warnings)
     return text

@@ -22,6 +22,7 @@ nominal itself where the baseline is already below. `significant`: the same with
 A progress bar over the episodes goes to stderr on a terminal (a plain line every tenth elsewhere; `--quiet`: none);
 stdout carries the tolerance table and, last, one JSON line (out, points run and read, tolerances).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -63,8 +64,10 @@ def sides(family: registry.Family, magnitudes: Sequence) -> dict:
     """The grid's magnitudes on each side of the nominal, nearest first: {"below": [...], "above": [...]}, only
     sides that have some (a physics family's nominal is its training range; magnitudes inside it are on neither)."""
     low, high = (family.off, family.off) if family.off is not None else family.training
-    found = {"below": sorted((m for m in magnitudes if m < low), reverse=True),
-             "above": sorted(m for m in magnitudes if m > high)}
+    found = {
+        "below": sorted((m for m in magnitudes if m < low), reverse=True),
+        "above": sorted(m for m in magnitudes if m > high),
+    }
     return {side: ms for side, ms in found.items() if ms}
 
 
@@ -110,8 +113,10 @@ def read_point(path: Path, settings: dict) -> Optional[dict]:
         raise ValueError(f"{path} cannot be read ({error}); remove it to evaluate it again") from None
     other = {key: point.get(key) for key in SETTINGS if point.get(key) != settings[key]}
     if other:
-        raise ValueError(f"{path} was made with other settings ({', '.join(f'{k} {v}' for k, v in other.items())}); "
-                         "use another --out or --name, or remove it")
+        raise ValueError(
+            f"{path} was made with other settings ({', '.join(f'{k} {v}' for k, v in other.items())}); "
+            "use another --out or --name, or remove it"
+        )
     return point
 
 
@@ -125,14 +130,14 @@ def write_json(path: Path, payload: Any) -> None:
 
 def summarise(points: dict, baseline: dict, families: dict, header: dict, threshold: float) -> dict:
     """robustness.json: the header, the baseline, and per family its points with intervals and its tolerance."""
+
     def with_intervals(point):
         n = point["episodes"]
         entry = {"hold_the_end": point["hold_the_end"], "hold_the_end_authors": point["authors_code"]["hold_the_end"]}
         for key in ("hold_the_end", "hold_the_end_authors"):
             entry[f"{key}_ci95"] = list(wilson(round(entry[key] * n), n))
         entry["outcomes"] = {k: point[k] for k in ("stop_before", "reach_end_but_drop", "drop_before")}
-        entry["outcomes_authors"] = {k: point["authors_code"][k] for k in ("stop_before", "reach_end_but_drop",
-                                                                           "drop_before")}
+        entry["outcomes_authors"] = {k: point["authors_code"][k] for k in ("stop_before", "reach_end_but_drop", "drop_before")}
         entry.update({k: point[k] for k in ("episode_reward", "time_at_end", "how_far")})
         return entry
 
@@ -148,9 +153,15 @@ def summarise(points: dict, baseline: dict, families: dict, header: dict, thresh
             tolerances[rule] = tolerance(f, base[key], values, threshold)
             significant[rule] = tolerance(f, base[key + "_ci95"][1], highs, threshold)
         result["families"][name] = {
-            "unit": f.unit, "side": f.side, "perturbs": f.perturbs, "nominal": f.off,
-            "training_range": list(f.training) if f.training else None, "points": rows,
-            "tolerance": tolerances, "tolerance_significant": significant}
+            "unit": f.unit,
+            "side": f.side,
+            "perturbs": f.perturbs,
+            "nominal": f.off,
+            "training_range": list(f.training) if f.training else None,
+            "points": rows,
+            "tolerance": tolerances,
+            "tolerance_significant": significant,
+        }
     return result
 
 
@@ -188,22 +199,32 @@ def plot(summary: dict, path: Path) -> None:
         points = sorted(entry["points"], key=lambda p: p["magnitude"])
         # the unperturbed run sits at the nominal: a point (0, 1 for a gain, a physics family's one training value)
         # or, for a physics family drawn from a range, a segment over that range
-        low, high = ((entry["nominal"], entry["nominal"]) if entry["nominal"] is not None
-                     else tuple(entry["training_range"]))
+        low, high = (entry["nominal"], entry["nominal"]) if entry["nominal"] is not None else tuple(entry["training_range"])
         for rule, key in (("paper", "hold_the_end"), ("authors", "hold_the_end_authors")):
             below = [p for p in points if p["magnitude"] < low]
             above = [p for p in points if p["magnitude"] > high]
             inside = [p for p in points if low <= p["magnitude"] <= high]
-            nominal = [{"magnitude": x, key: base[key], key + "_ci95": base[key + "_ci95"]}
-                       for x in sorted({low, high})]
+            nominal = [{"magnitude": x, key: base[key], key + "_ci95": base[key + "_ci95"]} for x in sorted({low, high})]
             for part in (below + nominal + above, inside):
                 if not part:
                     continue
                 x = [p["magnitude"] for p in part]
-                ax.plot(x, [p[key] for p in part], "-", color=colours[rule], lw=1.2,
-                        label=f"{rule} rule" if part is not inside else None)
-                ax.fill_between(x, [p[key + "_ci95"][0] for p in part], [p[key + "_ci95"][1] for p in part],
-                                color=colours[rule], alpha=0.15, lw=0)
+                ax.plot(
+                    x,
+                    [p[key] for p in part],
+                    "-",
+                    color=colours[rule],
+                    lw=1.2,
+                    label=f"{rule} rule" if part is not inside else None,
+                )
+                ax.fill_between(
+                    x,
+                    [p[key + "_ci95"][0] for p in part],
+                    [p[key + "_ci95"][1] for p in part],
+                    color=colours[rule],
+                    alpha=0.15,
+                    lw=0,
+                )
             ax.plot([p["magnitude"] for p in points], [p[key] for p in points], "o", ms=3, color=colours[rule])
             ax.plot([low], [base[key]], "s", ms=4, color=colours[rule], mfc="white")
         if entry["training_range"]:
@@ -222,7 +243,7 @@ def plot(summary: dict, path: Path) -> None:
         ax.set_xlabel(entry["unit"], fontsize=8)
         ax.tick_params(labelsize=7)
         ax.grid(alpha=0.3)
-    for ax in list(axes.flat)[len(names):]:
+    for ax in list(axes.flat)[len(names) :]:
         ax.axis("off")
     for ax in axes[:, 0]:
         ax.set_ylabel("hold the end", fontsize=8)
@@ -231,10 +252,14 @@ def plot(summary: dict, path: Path) -> None:
         for handle, label in zip(*ax.get_legend_handles_labels()):
             handles.setdefault(label, handle)
     fig.legend(list(handles.values()), list(handles), loc="upper right", fontsize=8, ncol=len(handles))
-    fig.suptitle(f"{summary['policy']}: hold the end under perturbation, one family at a time ({summary['episodes']} "
-                 f"episodes per point, seeds {summary['seed']}..{summary['seed'] + summary['episodes'] - 1}, 95% "
-                 f"intervals; open square: unperturbed; dashed: {summary['threshold']:.0%})", fontsize=10, x=0.01,
-                 ha="left")
+    fig.suptitle(
+        f"{summary['policy']}: hold the end under perturbation, one family at a time ({summary['episodes']} "
+        f"episodes per point, seeds {summary['seed']}..{summary['seed'] + summary['episodes'] - 1}, 95% "
+        f"intervals; open square: unperturbed; dashed: {summary['threshold']:.0%})",
+        fontsize=10,
+        x=0.01,
+        ha="left",
+    )
     fig.tight_layout(rect=(0, 0, 1, 1 - 0.45 / (2.9 * rows)))  # the title and the legend above the panels
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=110)
@@ -260,29 +285,53 @@ def parse_grid(items: Sequence[str]) -> dict:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = OneLineErrorParser(prog="dlo-robustness", description=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--checkpoint", type=Path,
-                        help="policy.pt / checkpoint.pt of a dlo-train run directory (default: the shipped policy)")
+    parser = OneLineErrorParser(prog="dlo-robustness", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument(
+        "--checkpoint", type=Path, help="policy.pt / checkpoint.pt of a dlo-train run directory (default: the shipped policy)"
+    )
     parser.add_argument("--name", help="the policy's directory under --out (default: shipped, or the run dir's name)")
-    parser.add_argument("--family", action="append", default=[], metavar="NAME",
-                        help="evaluate this family (repeatable; default: every family of the registry, "
-                             "python -m dlo_policy.perturbations lists them)")
-    parser.add_argument("--grid", action="append", default=[], metavar="NAME=M1,M2,...",
-                        help="the magnitudes of a family instead of its registry grid (repeatable)")
+    parser.add_argument(
+        "--family",
+        action="append",
+        default=[],
+        metavar="NAME",
+        help="evaluate this family (repeatable; default: every family of the registry, "
+        "python -m dlo_policy.perturbations lists them)",
+    )
+    parser.add_argument(
+        "--grid",
+        action="append",
+        default=[],
+        metavar="NAME=M1,M2,...",
+        help="the magnitudes of a family instead of its registry grid (repeatable)",
+    )
     parser.add_argument("--episodes", type=int, default=100, help="episodes per point (default 100)")
-    parser.add_argument("--seed", type=int, default=DEFAULT_SEED,
-                        help=f"first episode seed (default {DEFAULT_SEED}: held out from training, evaluation and "
-                             "the shipped policy's selection)")
+    parser.add_argument(
+        "--seed",
+        type=int,
+        default=DEFAULT_SEED,
+        help=f"first episode seed (default {DEFAULT_SEED}: held out from training, evaluation and "
+        "the shipped policy's selection)",
+    )
     parser.add_argument("--num-envs", type=int, default=10, help="environments stepped together (default 10)")
     parser.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
-    parser.add_argument("--threshold", type=float, default=THRESHOLD,
-                        help=f"hold the end below this is beyond the tolerance (default {THRESHOLD})")
-    parser.add_argument("--out", type=Path, default=Path("results/robustness"),
-                        help="parent of the policy's directory (default results/robustness)")
-    parser.add_argument("--quiet", action="store_true",
-                        help="no progress (by default a bar on a terminal, else a plain line every tenth of the "
-                             "episodes, on stderr)")
+    parser.add_argument(
+        "--threshold",
+        type=float,
+        default=THRESHOLD,
+        help=f"hold the end below this is beyond the tolerance (default {THRESHOLD})",
+    )
+    parser.add_argument(
+        "--out",
+        type=Path,
+        default=Path("results/robustness"),
+        help="parent of the policy's directory (default results/robustness)",
+    )
+    parser.add_argument(
+        "--quiet",
+        action="store_true",
+        help="no progress (by default a bar on a terminal, else a plain line every tenth of the episodes, on stderr)",
+    )
     return parser
 
 
@@ -327,8 +376,8 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
 
     import torch  # noqa: PLC0415
 
-    from .evaluate import evaluate_agent, load_run_config  # noqa: PLC0415
     from .config import make_env  # noqa: PLC0415
+    from .evaluate import evaluate_agent, load_run_config  # noqa: PLC0415
     from .sac import SAC, CheckpointError  # noqa: PLC0415
 
     try:
@@ -340,11 +389,14 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     torch.set_num_threads(args.threads)
     name = _policy_name(args, checkpoint, shipped)
     # the shipped policy by its place in the package (the installed copy's path is this machine's)
-    shown_checkpoint = (f"shipped: dlo_policy/{SHIPPED_POLICY}" if checkpoint.resolve() == shipped.resolve()
-                        else str(checkpoint))
+    shown_checkpoint = f"shipped: dlo_policy/{SHIPPED_POLICY}" if checkpoint.resolve() == shipped.resolve() else str(checkpoint)
     out = args.out / name
-    settings = {"checkpoint_sha256": file_sha256(checkpoint), "episodes": args.episodes, "seed": args.seed,
-                "num_envs": args.num_envs}
+    settings = {
+        "checkpoint_sha256": file_sha256(checkpoint),
+        "episodes": args.episodes,
+        "seed": args.seed,
+        "num_envs": args.num_envs,
+    }
     wanted = [(None, None)] + [(family, m) for family, grid in families.items() for m in grid]
     done = {}
     try:
@@ -358,8 +410,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     todo = [key for key in wanted if key not in done]
     with Progress(len(todo) * args.episodes, "dlo-robustness", "episode", enabled=not args.quiet) as bar:
         if done:
-            bar.write(f"dlo-robustness: {len(done)} of {len(wanted)} points read from {out / POINTS_DIR}; "
-                      f"{len(todo)} to run")
+            bar.write(f"dlo-robustness: {len(done)} of {len(wanted)} points read from {out / POINTS_DIR}; {len(todo)} to run")
         for family, m in todo:
             label = "baseline" if family is None else f"{family}={magnitude_text(m)}"
             bar.set_status(label)
@@ -371,13 +422,24 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
                 result = evaluate_agent(agent, vec_env, args.seed, args.episodes, progress=bar.update)
             finally:
                 vec_env.close()
-            point = {**result.to_json(), "family": family, "magnitude": m, **settings,
-                     "checkpoint": shown_checkpoint, "env_options": options}
+            point = {
+                **result.to_json(),
+                "family": family,
+                "magnitude": m,
+                **settings,
+                "checkpoint": shown_checkpoint,
+                "env_options": options,
+            }
             write_json(point_path(out, family, m), point)
             done[(family, m)] = point
-    header = {"policy": name, "checkpoint": shown_checkpoint, **settings, "modalities": config.modalities,
-              "env_options": dict(config.env_options),
-              "command": "dlo-robustness " + " ".join(sys.argv[1:] if argv is None else list(argv))}
+    header = {
+        "policy": name,
+        "checkpoint": shown_checkpoint,
+        **settings,
+        "modalities": config.modalities,
+        "env_options": dict(config.env_options),
+        "command": "dlo-robustness " + " ".join(sys.argv[1:] if argv is None else list(argv)),
+    }
     points = {key: value for key, value in done.items() if key[0] is not None}
     summary = summarise(points, done[(None, None)], families, header, args.threshold)
     write_json(out / SUMMARY_FILE, summary)
@@ -385,12 +447,25 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     print(f"{'family':<24} {'unit':<20} {'tolerance, paper rule':<32} tolerance, authors' rule")
     for family_name, entry in summary["families"].items():
         f = registry.family(family_name)
-        print(f"{family_name:<24} {f.unit:<20} {tolerance_text(f, entry['tolerance']['paper']):<32} "
-              f"{tolerance_text(f, entry['tolerance']['authors'])}")
-    print(json.dumps({"out": str(out), "points": len(wanted), "run": len(todo), "read": len(wanted) - len(todo),
-                      "baseline": {"paper": summary["baseline"]["hold_the_end"],
-                                   "authors": summary["baseline"]["hold_the_end_authors"]},
-                      "tolerance": {n: e["tolerance"] for n, e in summary["families"].items()}}))
+        print(
+            f"{family_name:<24} {f.unit:<20} {tolerance_text(f, entry['tolerance']['paper']):<32} "
+            f"{tolerance_text(f, entry['tolerance']['authors'])}"
+        )
+    print(
+        json.dumps(
+            {
+                "out": str(out),
+                "points": len(wanted),
+                "run": len(todo),
+                "read": len(wanted) - len(todo),
+                "baseline": {
+                    "paper": summary["baseline"]["hold_the_end"],
+                    "authors": summary["baseline"]["hold_the_end_authors"],
+                },
+                "tolerance": {n: e["tolerance"] for n, e in summary["families"].items()},
+            }
+        )
+    )
     return 0
 
 

@@ -16,6 +16,7 @@
 No torch and no Ray here: dlo-report, the dlo-experiments driver and the tools read runs through
 this module without loading the learner.
 """
+
 from __future__ import annotations
 
 import contextlib
@@ -26,8 +27,8 @@ import os
 from pathlib import Path
 from typing import Any, Optional
 
-from dlo_sim.config import SimConfig
 from dlo_perception.vision_source import DEFAULT_VISION_SOURCE
+from dlo_sim.config import SimConfig
 from dlo_sim.task import LEGACY_TASK_RULES, recorded_task_rules
 
 from .config import RunConfig, load_config, record_task_rules
@@ -64,13 +65,15 @@ def lock(run_dir: Path):
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
             holder = os.pread(fd, 32, 0).decode(errors="replace").strip() or "?"
-            raise RunInUse(f"{run_dir} is in use by another training (pid {holder}): wait for it to end or "
-                           f"stop it, then resume") from None
+            raise RunInUse(
+                f"{run_dir} is in use by another training (pid {holder}): wait for it to end or stop it, then resume"
+            ) from None
         os.ftruncate(fd, 0)
         os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
         yield
     finally:
         os.close(fd)  # releases the lock
+
 
 # a run's record, a few kB: what dlo-experiments --collect copies (and test*.json)
 RECORD_FILES = (CONFIG_FILE, EVAL_FILE, DONE_FILE, BEST_FILE)
@@ -80,9 +83,23 @@ RESULT_FILES = (CONFIG_FILE, EVAL_FILE, BEST_FILE, BEST_POLICY_FILE, POLICY_FILE
 OUTCOMES = ("hold_the_end", "stop_before", "reach_end_but_drop", "drop_before")  # paper-text rule (dlo_sim.task)
 AUTHORS_SUFFIX = "_authors"
 OUTCOMES_AUTHORS = tuple(name + AUTHORS_SUFFIX for name in OUTCOMES)  # authors'-code rule (dlo_sim.task)
-EVAL_COLUMNS = ("step", "tested_without", "episodes", "eval_seed", *OUTCOMES, *OUTCOMES_AUTHORS,
-                "episode_reward", "time_at_end", "how_far", "train_episodes", "wall_time_s",
-                "alpha", "entropy", "q_value", "saturated")
+EVAL_COLUMNS = (
+    "step",
+    "tested_without",
+    "episodes",
+    "eval_seed",
+    *OUTCOMES,
+    *OUTCOMES_AUTHORS,
+    "episode_reward",
+    "time_at_end",
+    "how_far",
+    "train_episodes",
+    "wall_time_s",
+    "alpha",
+    "entropy",
+    "q_value",
+    "saturated",
+)
 
 
 def test_file(without: str = "") -> str:
@@ -154,12 +171,14 @@ def trained_sim_settings(policy_file: Path) -> Optional[dict[str, Any]]:
     if not (run_dir / CONFIG_FILE).exists():
         return None
     options = read_trained_config(run_dir).env_options
-    return {"task_rules": recorded_task_rules(options.get("task_rules")).name,
-            "single_particle_grip": bool(options.get("single_particle_grip", False)),
-            "carry_law": options.get("carry_law", SimConfig.carry_law),
-            "contact_radius": float(options.get("contact_radius", SimConfig.contact_radius)),
-            "vision_source": options.get("vision_source", DEFAULT_VISION_SOURCE),
-            "start_pose": options.get("start_pose", SimConfig.start_pose)}
+    return {
+        "task_rules": recorded_task_rules(options.get("task_rules")).name,
+        "single_particle_grip": bool(options.get("single_particle_grip", False)),
+        "carry_law": options.get("carry_law", SimConfig.carry_law),
+        "contact_radius": float(options.get("contact_radius", SimConfig.contact_radius)),
+        "vision_source": options.get("vision_source", DEFAULT_VISION_SOURCE),
+        "start_pose": options.get("start_pose", SimConfig.start_pose),
+    }
 
 
 def read_eval_rows(run_dir: Path) -> list[dict[str, str]]:

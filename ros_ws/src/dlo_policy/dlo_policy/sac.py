@@ -15,6 +15,7 @@ Speed (docs/ARCHITECTURE.md#benchmarks): fp32, no critic weight gradients in the
 Device (`device`: "cpu", "cuda", "auto" = cuda if available): networks, replay buffer, sampling
 and normaliser live there; checkpoints are written with CPU tensors and load on either device.
 """
+
 from __future__ import annotations
 
 import contextlib
@@ -63,15 +64,16 @@ def _unreadable_reason(path: Path, error: Exception) -> str:
 
 
 def resolve_device(device: str | torch.device = "cpu") -> torch.device:
-    """"auto" -> cuda if available else cpu; "cuda" without a CUDA device -> ValueError (one line)."""
+    """ "auto" -> cuda if available else cpu; "cuda" without a CUDA device -> ValueError (one line)."""
     name = str(device)
     if name == "auto":
         return torch.device("cuda" if torch.cuda.is_available() else "cpu")
     if name not in ("cpu", "cuda") and not name.startswith("cuda:"):
         raise ValueError(f"device: expected auto, cpu or cuda, got {name!r}")
     if name.startswith("cuda") and not torch.cuda.is_available():
-        raise ValueError(f"device {name!r} asked for, but torch {torch.__version__} sees no CUDA device "
-                         "here (use device auto or cpu)")
+        raise ValueError(
+            f"device {name!r} asked for, but torch {torch.__version__} sees no CUDA device here (use device auto or cpu)"
+        )
     return torch.device(name)
 
 
@@ -79,8 +81,7 @@ def read_checkpoint(path: str | Path) -> dict[str, Any]:
     """The state dict of a `SAC.save` / `save_policy` file (weights_only: never unpickles code)."""
     path = Path(path)
     if not path.is_file():
-        raise CheckpointError(f"checkpoint {path} not found" if not path.exists()
-                              else f"checkpoint {path} is not a file")
+        raise CheckpointError(f"checkpoint {path} not found" if not path.exists() else f"checkpoint {path} is not a file")
     try:
         state = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as error:  # noqa: BLE001 (torch raises many types for foreign bytes: pickle, zip, EOF, ...)
@@ -90,6 +91,8 @@ def read_checkpoint(path: str | Path) -> dict[str, Any]:
     if state["format"] != CHECKPOINT_FORMAT:
         raise _not_a_policy_file(path, f"format {state['format']!r}, expected {CHECKPOINT_FORMAT!r}")
     return state
+
+
 LOG_SQRT_2PI = 0.5 * math.log(2 * math.pi)
 
 
@@ -186,8 +189,7 @@ class ObservationNormalizer:
         delta = batch.mean(0) - self.mean
         total = self.count + n
         self.mean += delta * n / total
-        self.var = (self.var * self.count + batch.var(0, unbiased=False) * n
-                    + delta.pow(2) * self.count * n / total) / total
+        self.var = (self.var * self.count + batch.var(0, unbiased=False) * n + delta.pow(2) * self.count * n / total) / total
         self.count = total
         self._applied = None
 
@@ -233,10 +235,18 @@ class StepResult(NamedTuple):
 class SAC:
     """The agent: networks, optimisers, temperature, replay buffer, counters and RNG state."""
 
-    def __init__(self, obs_dim: int, action_low: np.ndarray, action_high: np.ndarray,
-                 config: Optional[SACConfig] = None, seed: int = 0,
-                 observation_low: Optional[np.ndarray] = None, observation_high: Optional[np.ndarray] = None,
-                 device: str | torch.device = "cpu", modalities: Optional[Sequence[str]] = None):
+    def __init__(
+        self,
+        obs_dim: int,
+        action_low: np.ndarray,
+        action_high: np.ndarray,
+        config: Optional[SACConfig] = None,
+        seed: int = 0,
+        observation_low: Optional[np.ndarray] = None,
+        observation_high: Optional[np.ndarray] = None,
+        device: str | torch.device = "cpu",
+        modalities: Optional[Sequence[str]] = None,
+    ):
         self.config = config = config or SACConfig()
         # The observation's modalities, expanded ("K", "T", "V"): given, or noted from the first env the agent acts
         # on (`note_modalities`); saved with every checkpoint, None when unknown (a checkpoint from before).
@@ -255,10 +265,8 @@ class SAC:
         self.actor_optimizer = torch.optim.Adam(self.actor.parameters(), lr=config.actor_lr, fused=True)
         self.critic_optimizer = torch.optim.Adam(self.critic.parameters(), lr=config.critic_lr, fused=True)
 
-        self.target_entropy = (-float(self.act_dim) if config.target_entropy is None
-                               else config.target_entropy)
-        self.log_alpha = torch.tensor(math.log(config.initial_alpha), device=self.device,
-                                      requires_grad=config.autotune_alpha)
+        self.target_entropy = -float(self.act_dim) if config.target_entropy is None else config.target_entropy
+        self.log_alpha = torch.tensor(math.log(config.initial_alpha), device=self.device, requires_grad=config.autotune_alpha)
         self.alpha_optimizer = torch.optim.Adam([self.log_alpha], lr=config.alpha_lr, betas=config.alpha_betas)
 
         self.replay = ReplayBuffer(config.buffer_size, self.obs_dim, self.act_dim, self.device)
@@ -266,7 +274,8 @@ class SAC:
             if observation_low is None or observation_high is None:
                 raise ValueError("observation_scaling=bounds: pass observation_low and observation_high")
             self.normalizer: Optional[ObservationNormalizer] = ObservationNormalizer.from_bounds(
-                observation_low, observation_high)
+                observation_low, observation_high
+            )
         elif config.observation_scaling in ("running", "frozen"):
             self.normalizer = ObservationNormalizer(self.obs_dim)
         else:
@@ -317,8 +326,7 @@ class SAC:
             return (torch.rand(self.act_dim, generator=self.generator, device=self.device) * 2 - 1).cpu().numpy()
         return self.policy_action(obs, deterministic=False)
 
-    def store(self, obs: np.ndarray, action: np.ndarray, reward: float, next_obs: np.ndarray,
-              terminated: bool) -> None:
+    def store(self, obs: np.ndarray, action: np.ndarray, reward: float, next_obs: np.ndarray, terminated: bool) -> None:
         if self.normalizer is not None:
             self.normalizer.update(obs)
             if self.config.observation_scaling == "frozen" and self.num_env_steps + 1 >= self.config.learning_starts:
@@ -332,8 +340,9 @@ class SAC:
 
     # ---------------------------------------------------------------- learning
     @torch.no_grad()
-    def td_target(self, rewards: torch.Tensor, next_obs: torch.Tensor, terminated: torch.Tensor,
-                  alpha: torch.Tensor) -> torch.Tensor:
+    def td_target(
+        self, rewards: torch.Tensor, next_obs: torch.Tensor, terminated: torch.Tensor, alpha: torch.Tensor
+    ) -> torch.Tensor:
         """Soft Bellman target: s * r + gamma * (1 - done) * (min_j Q'_j(s', a') - alpha * log pi(a'|s'))."""
         next_actions, next_log_pi = self.actor.sample(next_obs, self.generator)
         next_q = torch.min(*self.critic_target(next_obs, next_actions)) - alpha * next_log_pi
@@ -373,8 +382,7 @@ class SAC:
 
         if self.num_updates % cfg.target_update_every == 0:
             with torch.no_grad():
-                torch._foreach_lerp_(list(self.critic_target.parameters()),
-                                     list(self.critic.parameters()), cfg.tau)
+                torch._foreach_lerp_(list(self.critic_target.parameters()), list(self.critic.parameters()), cfg.tau)
         return losses
 
     @torch.no_grad()
@@ -392,15 +400,18 @@ class SAC:
         actions, log_pi = self.actor.sample(obs, generator)
         q = torch.min(*self.critic(obs, actions))
         deterministic = self.actor.deterministic(obs)
-        return {"alpha": self.alpha, "entropy": float(-log_pi.mean()), "q_value": float(q.mean()),
-                "saturated": float((deterministic.abs() > 0.99).float().mean())}
+        return {
+            "alpha": self.alpha,
+            "entropy": float(-log_pi.mean()),
+            "q_value": float(q.mean()),
+            "saturated": float((deterministic.abs() > 0.99).float().mean()),
+        }
 
     def episode_seed(self, episode: int) -> int:
         """Seed of the run's `episode`-th training episode (reproducible across resumes)."""
         return int(np.random.SeedSequence([self.seed, episode]).generate_state(1)[0])
 
-    def learn(self, env: Any, total_steps: int,
-              callback: Optional[Callable[["SAC", StepResult], bool]] = None) -> "SAC":
+    def learn(self, env: Any, total_steps: int, callback: Optional[Callable[["SAC", StepResult], bool]] = None) -> "SAC":
         """Interact with a gymnasium env until `num_env_steps == total_steps`, one update per step.
 
         Continues from the current counters (after `load`, a fresh episode starts). Truncated
@@ -420,8 +431,10 @@ class SAC:
                 obs, _ = env.reset(seed=self.episode_seed(self.num_episodes))
             else:
                 obs = next_obs
-            if callback is not None and callback(self, StepResult(float(reward), bool(terminated),
-                                                                  bool(truncated), info, losses)) is False:
+            if (
+                callback is not None
+                and callback(self, StepResult(float(reward), bool(terminated), bool(truncated), info, losses)) is False
+            ):
                 break
         return self
 
@@ -443,10 +456,8 @@ class SAC:
             "critic_optimizer": self.critic_optimizer.state_dict(),
             "alpha_optimizer": self.alpha_optimizer.state_dict(),
             "normalizer": self.normalizer.state_dict() if self.normalizer is not None else None,
-            "counters": {"env_steps": self.num_env_steps, "updates": self.num_updates,
-                         "episodes": self.num_episodes},
-            "rng": {"agent": self.generator.get_state(), "agent_device": self.device.type,
-                    "torch": torch.get_rng_state()},
+            "counters": {"env_steps": self.num_env_steps, "updates": self.num_updates, "episodes": self.num_episodes},
+            "rng": {"agent": self.generator.get_state(), "agent_device": self.device.type, "torch": torch.get_rng_state()},
         }
         if include_replay:
             state["replay"] = self.replay.state_dict()
@@ -468,8 +479,7 @@ class SAC:
     def policy_state(self) -> dict[str, Any]:
         """Actor, normaliser and config only: what acting needs (small enough to ship)."""
         state = self.state_dict(include_replay=False)
-        for training_only in ("critic", "critic_target", "actor_optimizer", "critic_optimizer",
-                              "alpha_optimizer"):
+        for training_only in ("critic", "critic_target", "actor_optimizer", "critic_optimizer", "alpha_optimizer"):
             del state[training_only]
         return copy.deepcopy(state)
 
@@ -485,8 +495,9 @@ class SAC:
         config = SACConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in values.items()})
         if config.observation_scaling == "bounds":  # the map comes from the saved normaliser state
             config = dataclasses.replace(config, observation_scaling="frozen")
-        agent = cls(state["obs_dim"], state["action_low"].numpy(), state["action_high"].numpy(),
-                    config, seed=state["seed"], device=device)
+        agent = cls(
+            state["obs_dim"], state["action_low"].numpy(), state["action_high"].numpy(), config, seed=state["seed"], device=device
+        )
         agent.config = dataclasses.replace(agent.config, observation_scaling=values.get("observation_scaling", "running"))
         agent.modalities = tuple(state["modalities"]) if state.get("modalities") else None  # None: from before
         agent.load_state_dict(state)

@@ -15,10 +15,10 @@ Every policy is called as ``policy(observation, env) -> actions (N, 3)`` on a ba
 from __future__ import annotations
 
 import numpy as np
-
-from dlo_policy.observation import observation_labels
 from dlo_sim.config import FIXED_END
 from dlo_sim.task import held_statistics
+
+from dlo_policy.observation import observation_labels
 
 HOLD_FIRMLY = 1.0  # action a2 for c = 1
 MIN_REACH = 0.02  # m, x distance from the fixed end below which its direction is taken as +x
@@ -90,8 +90,17 @@ class TactileReactive:
     after ``min_steps`` control steps (at the start the cable hangs steeply from its fixed end).
     """
 
-    def __init__(self, gain_angle=0.5, gain_offset=40.0, slide_closure=0.7, gain_slip=0.5, release=0.05,
-                 stop_confidence=0.5, min_steps=10, speed=1.0):
+    def __init__(
+        self,
+        gain_angle=0.5,
+        gain_offset=40.0,
+        slide_closure=0.7,
+        gain_slip=0.5,
+        release=0.05,
+        stop_confidence=0.5,
+        min_steps=10,
+        speed=1.0,
+    ):
         self.gain_angle, self.gain_offset = gain_angle, gain_offset
         self.slide_closure, self.gain_slip, self.release = slide_closure, gain_slip, release
         self.stop_confidence, self.min_steps, self.speed = stop_confidence, min_steps, speed
@@ -126,8 +135,7 @@ class TactileReactive:
         slip = np.abs(theta_t - self.previous_angle)
         self.previous_angle = theta_t.copy()
         target = self.slide_closure + self.gain_slip * slip
-        self.closure = np.clip(np.where(target > self.closure, target, self.closure - self.release),
-                               self.slide_closure, 0.89)
+        self.closure = np.clip(np.where(target > self.closure, target, self.closure - self.release), self.slide_closure, 0.89)
         self.steps += 1
         end_seen = (value["v_V"] < 0.5) | (value["q_V"] < self.stop_confidence)
         self.stopped |= end_seen & (self.steps > self.min_steps)
@@ -137,8 +145,17 @@ class TactileReactive:
         return np.concatenate([move, grip[:, None]], axis=1).astype(np.float32)
 
 
-EPISODE_END_KEYS = ("outcome", "outcome_code", "outcome_authors", "time_at_end", "how_far", "episode_return", "episode_length",
-                    "episode_seed", "unstable")
+EPISODE_END_KEYS = (
+    "outcome",
+    "outcome_code",
+    "outcome_authors",
+    "time_at_end",
+    "how_far",
+    "episode_return",
+    "episode_length",
+    "episode_seed",
+    "unstable",
+)
 
 
 def run_episodes(env, policy, num_episodes, seed=0):

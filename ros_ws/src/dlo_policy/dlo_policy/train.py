@@ -58,6 +58,7 @@ columns (eval/..., eval_without_T/... for the ablation): both rules' outcome fra
 time at end, how far, and the learner health (alpha, entropy, q_value, saturated). Logging changes
 nothing in the run (no random draws); a resumed run appends to the same directory.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -76,15 +77,13 @@ from typing import TYPE_CHECKING, Any, Optional, Sequence
 
 import numpy as np
 import yaml
-
 from dlo_common import taichi_runtime
 from dlo_common.console import EXIT_INTERRUPTED, Progress, console_main
 from dlo_sim.task import DEFAULT_TASK_RULES, LEGACY_TASK_RULES, task_rules
 
 from . import rundir
 from .cli import check_override_keys
-from .config import (ConfigError, RunConfig, TrainConfig, check_env_options, load_config, make_env,
-                     record_task_rules, save_config)
+from .config import ConfigError, RunConfig, TrainConfig, check_env_options, load_config, make_env, record_task_rules, save_config
 from .rundir import BEST_POLICY_FILE, CHECKPOINT_FILE, CONFIG_FILE, EVAL_FILE, POLICY_FILE, TB_DIR, EvalLog
 
 if TYPE_CHECKING:
@@ -92,8 +91,13 @@ if TYPE_CHECKING:
 
 # torch and the learner are imported when first needed (a wrong key=value is answered before they load);
 # train.SAC, train.torch, ... still name them
-_LAZY = {"torch": ("torch", None), "SAC": (".sac", "SAC"), "StepResult": (".sac", "StepResult"),
-         "resolve_device": (".sac", "resolve_device"), "blanked_columns": (".evaluate", "blanked_columns")}
+_LAZY = {
+    "torch": ("torch", None),
+    "SAC": (".sac", "SAC"),
+    "StepResult": (".sac", "StepResult"),
+    "resolve_device": (".sac", "resolve_device"),
+    "blanked_columns": (".evaluate", "blanked_columns"),
+}
 
 
 def __getattr__(name: str) -> Any:
@@ -122,12 +126,22 @@ def source_commit() -> dict[str, Any]:
     git checkout): what a run records in done.json, so that a study does not drift with the code under it."""
     here = Path(__file__).resolve().parent
     try:
-        sha = subprocess.run(["git", "-C", str(here), "rev-parse", "HEAD"], capture_output=True, text=True,
-                             timeout=10, check=True).stdout.strip()
-        top = subprocess.run(["git", "-C", str(here), "rev-parse", "--show-toplevel"], capture_output=True,
-                             text=True, timeout=10, check=True).stdout.strip()
-        dirty = subprocess.run(["git", "-C", top, "status", "--porcelain", "--untracked-files=no", "--", "ros_ws/src"],
-                               capture_output=True, text=True, timeout=10, check=True).stdout.strip() != ""
+        sha = subprocess.run(
+            ["git", "-C", str(here), "rev-parse", "HEAD"], capture_output=True, text=True, timeout=10, check=True
+        ).stdout.strip()
+        top = subprocess.run(
+            ["git", "-C", str(here), "rev-parse", "--show-toplevel"], capture_output=True, text=True, timeout=10, check=True
+        ).stdout.strip()
+        dirty = (
+            subprocess.run(
+                ["git", "-C", top, "status", "--porcelain", "--untracked-files=no", "--", "ros_ws/src"],
+                capture_output=True,
+                text=True,
+                timeout=10,
+                check=True,
+            ).stdout.strip()
+            != ""
+        )
     except (OSError, subprocess.SubprocessError):
         return {"commit": "unknown", "dirty": None}
     return {"commit": sha, "dirty": dirty}
@@ -268,15 +282,20 @@ class Trainer:
                 self.write_best()  # rewind: evaluations after the checkpoint are re-run
         else:
             space = self.env.action_space
-            self.agent = SAC(self.env.observation_space.shape[0], space.low, space.high, config.sac,
-                             seed=config.seed, observation_low=self.env.observation_space.low,
-                             observation_high=self.env.observation_space.high, device=self.device)
+            self.agent = SAC(
+                self.env.observation_space.shape[0],
+                space.low,
+                space.high,
+                config.sac,
+                seed=config.seed,
+                observation_low=self.env.observation_space.low,
+                observation_high=self.env.observation_space.high,
+                device=self.device,
+            )
         self.log = EvalLog(out_dir, self.agent.num_env_steps if resume and self.agent.num_env_steps else None)
-        self.tested = [("", [])] + [(m, blanked_columns(config.modalities, [m]))
-                                    for m in config.train.eval_without]
+        self.tested = [("", [])] + [(m, blanked_columns(config.modalities, [m])) for m in config.train.eval_without]
         # the code each part of the run ran on (done.json "sources": one entry per start or resume)
-        self.sources = (self.sources if resume else []) + [
-            {**source_commit(), "from_step": self.agent.num_env_steps}]
+        self.sources = (self.sources if resume else []) + [{**source_commit(), "from_step": self.agent.num_env_steps}]
         self.started = time.perf_counter()
         self.last_eval: dict[str, float] = {}
         self.checkpoint_due = False
@@ -291,14 +310,20 @@ class Trainer:
     def evaluate(self) -> None:
         rows = []
         first_seed = eval_seeds(self.config, self.agent.num_env_steps // self.config.train.eval_every)
-        health = {key: round(value, 6) for key, value in
-                  self.agent.diagnostics(seed=self.agent.num_env_steps).items()}
+        health = {key: round(value, 6) for key, value in self.agent.diagnostics(seed=self.agent.num_env_steps).items()}
         for without, columns in self.tested:
             result = evaluate_agent(self.agent, self.eval_env, first_seed, self.config.train.eval_episodes, columns)
-            rows.append({"step": self.agent.num_env_steps, "tested_without": without, "eval_seed": first_seed,
-                         **result.to_dict(),
-                         "train_episodes": self.agent.num_episodes, "wall_time_s": round(self.wall_time(), 2),
-                         **health})
+            rows.append(
+                {
+                    "step": self.agent.num_env_steps,
+                    "tested_without": without,
+                    "eval_seed": first_seed,
+                    **result.to_dict(),
+                    "train_episodes": self.agent.num_episodes,
+                    "wall_time_s": round(self.wall_time(), 2),
+                    **health,
+                }
+            )
         self.log.append(rows)
         for row in rows:
             self.tb.evaluation(row)
@@ -369,16 +394,19 @@ class Trainer:
         # compiles a new simulator's kernels from the source files as they are then).
         env = self.eval_env
         results = {}
-        bar = Progress(cfg.test_episodes * len(self.tested), f"{self.config.name} held-out test", "episode",
-                       enabled=cfg.progress)
+        bar = Progress(cfg.test_episodes * len(self.tested), f"{self.config.name} held-out test", "episode", enabled=cfg.progress)
         try:
             for without, columns in self.tested:
                 bar.set_status(f"without {without}" if without else "all inputs")
-                result = evaluate_agent(best, env, cfg.test_seed, cfg.test_episodes, columns,
-                                        progress=bar.update).to_json()
-                payload = {**result, "checkpoint": BEST_POLICY_FILE, "seed": cfg.test_seed,
-                           "without": [without] if without else [], "modalities": self.config.modalities,
-                           "env_steps": best.num_env_steps}
+                result = evaluate_agent(best, env, cfg.test_seed, cfg.test_episodes, columns, progress=bar.update).to_json()
+                payload = {
+                    **result,
+                    "checkpoint": BEST_POLICY_FILE,
+                    "seed": cfg.test_seed,
+                    "without": [without] if without else [],
+                    "modalities": self.config.modalities,
+                    "env_steps": best.num_env_steps,
+                }
                 rundir.write_test(self.out_dir, without, payload)
                 results[without] = payload
         finally:
@@ -392,8 +420,7 @@ class Trainer:
         total = self.config.train.total_steps
         if self.agent.num_env_steps == 0 and not self.stop.requested:
             self.evaluate()
-        self.bar = Progress(total, self.config.name, "step", initial=self.agent.num_env_steps,
-                            enabled=self.config.train.progress)
+        self.bar = Progress(total, self.config.name, "step", initial=self.agent.num_env_steps, enabled=self.config.train.progress)
         try:
             if not self.stop.requested:
                 self.agent.learn(self.env, total, callback=self.on_step)
@@ -416,10 +443,18 @@ class Trainer:
             raise TrainingInterrupted(self.checkpoint_step)
         self.stop.immediate = True  # the held-out test: nothing more to save, a signal stops it at once
         test = self.test_best()  # closes the evaluation env
-        summary = {"env_steps": self.agent.num_env_steps, "updates": self.agent.num_updates,
-                   "episodes": self.agent.num_episodes, "wall_time_s": round(self.wall_time(), 2),
-                   "threads": self.threads, "last_eval": self.last_eval, "best_eval": self.best,
-                   "test": test, "source": self.sources[0], "sources": self.sources}
+        summary = {
+            "env_steps": self.agent.num_env_steps,
+            "updates": self.agent.num_updates,
+            "episodes": self.agent.num_episodes,
+            "wall_time_s": round(self.wall_time(), 2),
+            "threads": self.threads,
+            "last_eval": self.last_eval,
+            "best_eval": self.best,
+            "test": test,
+            "source": self.sources[0],
+            "sources": self.sources,
+        }
         rundir.write_done(self.out_dir, summary)
         return summary
 
@@ -428,8 +463,10 @@ def progress_status(row: dict[str, Any], recent_returns: Sequence[float], alpha:
     """What the progress display says of the last evaluation `row`: the mean return of the last training
     episodes, the evaluation's reward and its hold-the-end fraction under both outcome rules, the temperature."""
     mean_return = float(np.mean(recent_returns)) if len(recent_returns) else math.nan
-    return (f"train_return {mean_return:.2f}, eval_reward {row['episode_reward']:.2f}, hold_the_end "
-            f"{row['hold_the_end']:.0%} paper rule / {row['hold_the_end_authors']:.0%} authors' rule, alpha {alpha:.3f}")
+    return (
+        f"train_return {mean_return:.2f}, eval_reward {row['episode_reward']:.2f}, hold_the_end "
+        f"{row['hold_the_end']:.0%} paper rule / {row['hold_the_end_authors']:.0%} authors' rule, alpha {alpha:.3f}"
+    )
 
 
 class TensorBoardLog:
@@ -443,8 +480,7 @@ class TensorBoardLog:
         try:
             from torch.utils.tensorboard import SummaryWriter
         except ImportError as error:  # tensorboard is in scripts/requirements.txt; a bare install may lack it
-            print(f"dlo-train: warning: no TensorBoard event files ({error}); pip install tensorboard",
-                  file=sys.stderr)
+            print(f"dlo-train: warning: no TensorBoard event files ({error}); pip install tensorboard", file=sys.stderr)
             self.writer = None
         else:
             self.writer = SummaryWriter(str(directory))
@@ -511,8 +547,9 @@ def run_trainer(config: RunConfig, out_dir: Path, resume: bool, make: Optional[t
             trainer = (make or Trainer)(config, out_dir, resume, stop=stop)
             return trainer.run()
         except KeyboardInterrupt:
-            raise TrainingInterrupted(getattr(trainer, "checkpoint_step", None) if trainer is not None else
-                                      _checkpoint_step(out_dir)) from None
+            raise TrainingInterrupted(
+                getattr(trainer, "checkpoint_step", None) if trainer is not None else _checkpoint_step(out_dir)
+            ) from None
 
 
 def _checkpoint_step(out_dir: Path) -> Optional[int]:
@@ -526,21 +563,26 @@ def _checkpoint_step(out_dir: Path) -> Optional[int]:
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
-        prog="dlo-train", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter,
+        prog="dlo-train",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
         epilog="Overrides are key=value pairs on config keys (see config/sac_default.yaml), e.g.\n"
-               "  sac.batch_size=256 train.eval_every=500 env_options.tactile_noise=partial")
+        "  sac.batch_size=256 train.eval_every=500 env_options.tactile_noise=partial",
+    )
     parser.add_argument("--modalities", help="All, or a '+'-joined subset of K, T, V (e.g. V+K); default All")
     parser.add_argument("--seed", type=int, help="run seed (default 0)")
     parser.add_argument("--steps", type=int, help="total env steps (default 50000)")
     parser.add_argument("--out", type=Path, required=True, help="run directory")
-    parser.add_argument("--config", type=Path, help="YAML config (default: built-in defaults, "
-                                                    "see config/sac_default.yaml)")
+    parser.add_argument("--config", type=Path, help="YAML config (default: built-in defaults, see config/sac_default.yaml)")
     parser.add_argument("--label", help="experiment name used to group seeds in dlo-report")
-    parser.add_argument("--resume", action="store_true",
-                        help="continue the run in --out from its last checkpoint (its saved config; "
-                             "only --steps may change)")
-    parser.add_argument("--no-progress", action="store_true",
-                        help="no progress display (a bar on a terminal, else a line every tenth of the run)")
+    parser.add_argument(
+        "--resume",
+        action="store_true",
+        help="continue the run in --out from its last checkpoint (its saved config; only --steps may change)",
+    )
+    parser.add_argument(
+        "--no-progress", action="store_true", help="no progress display (a bar on a terminal, else a line every tenth of the run)"
+    )
     parser.add_argument("overrides", nargs="*", metavar="key=value", help="config overrides")
     return parser
 
@@ -554,8 +596,13 @@ def resolve_config(args: argparse.Namespace) -> RunConfig:
     else:
         check_override_keys(args.overrides)  # a typo answered at once, with the key it likely meant
         source = args.config
-    flags = {"modalities": args.modalities, "seed": args.seed, "train.total_steps": args.steps,
-             "label": args.label, "train.progress": False if args.no_progress else None}
+    flags = {
+        "modalities": args.modalities,
+        "seed": args.seed,
+        "train.total_steps": args.steps,
+        "label": args.label,
+        "train.progress": False if args.no_progress else None,
+    }
     config = load_config(source, args.overrides, {k: v for k, v in flags.items() if v is not None})
     if not args.resume and not checkpoint_every_given(args.config, args.overrides):
         config.train.checkpoint_every = default_checkpoint_every(config.train.total_steps)
@@ -567,8 +614,9 @@ def interrupted_line(stopped: TrainingInterrupted, out: Path) -> str:
     resume = f"resume with: dlo-train --out {shlex.quote(str(out))} --resume"
     if stopped.step is not None:
         return f"dlo-train: interrupted at step {stopped.step}; {resume}"
-    return (f"dlo-train: interrupted before its first checkpoint: nothing to resume; remove {shlex.quote(str(out))} "
-            "to start it again")
+    return (
+        f"dlo-train: interrupted before its first checkpoint: nothing to resume; remove {shlex.quote(str(out))} to start it again"
+    )
 
 
 @console_main("dlo-train")
@@ -580,9 +628,12 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         check_devices(config)
         steps, starts = config.train.total_steps, config.sac.learning_starts
         if steps <= starts:  # SAC.learn updates only after env step learning_starts
-            print(f"dlo-train: warning: train.total_steps {steps} <= sac.learning_starts {starts}: no gradient "
-                  f"update will happen (random actions only); pass e.g. sac.learning_starts={steps // 3} "
-                  f"or --steps above {starts}", file=sys.stderr)
+            print(
+                f"dlo-train: warning: train.total_steps {steps} <= sac.learning_starts {starts}: no gradient "
+                f"update will happen (random actions only); pass e.g. sac.learning_starts={steps // 3} "
+                f"or --steps above {starts}",
+                file=sys.stderr,
+            )
         summary = train(config, args.out, resume=args.resume)
     except (ConfigError, FileExistsError, FileNotFoundError, rundir.RunInUse) as error:
         print(f"dlo-train: error: {error}", file=sys.stderr)

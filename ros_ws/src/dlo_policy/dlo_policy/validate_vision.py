@@ -10,6 +10,7 @@ error distribution (median, 90th, 99th percentile of |error|, and the bias) of q
 and y_V [m]; a JSON line last. The defaults give 3,840 states (docs/RESULTS.md). In dlo_policy, not
 dlo_perception: it drives the gym environment with the scripted policies.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -18,7 +19,6 @@ import sys
 from typing import Optional, Sequence
 
 import numpy as np
-
 from dlo_common.console import console_main
 
 from .cli import OneLineErrorParser
@@ -61,10 +61,13 @@ def compare(image: dict, truth: dict) -> dict:
     """v_V agreement and, over the states where both see the cable, the error statistics per quantity
     (None where no state has both)."""
     both = image["visible"] & truth["visible"]
-    result = {"states": int(len(both)), "visible_agreement": float(np.mean(image["visible"] == truth["visible"])),
-              "visible_false_positive": float(np.mean(image["visible"] & ~truth["visible"])),
-              "visible_false_negative": float(np.mean(~image["visible"] & truth["visible"])),
-              "both_visible": int(both.sum())}
+    result = {
+        "states": int(len(both)),
+        "visible_agreement": float(np.mean(image["visible"] == truth["visible"])),
+        "visible_false_positive": float(np.mean(image["visible"] & ~truth["visible"])),
+        "visible_false_negative": float(np.mean(~image["visible"] & truth["visible"])),
+        "both_visible": int(both.sum()),
+    }
     for key in FIELDS[1:]:
         error = image[key][both] - truth[key][both]
         if not len(error):
@@ -76,8 +79,9 @@ def compare(image: dict, truth: dict) -> dict:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = OneLineErrorParser(prog="dlo-validate-vision", description=__doc__,
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = OneLineErrorParser(
+        prog="dlo-validate-vision", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     parser.add_argument("--num-envs", type=int, default=32, help="environments stepped together (default 32)")
     parser.add_argument("--rounds", type=int, default=2, help="batches of num-envs episodes (default 2)")
     parser.add_argument("--steps", type=int, default=60, help="control steps sampled per episode (default 60)")
@@ -92,9 +96,11 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         print("dlo-validate-vision: error: --num-envs, --rounds and --steps must be >= 1", file=sys.stderr)
         return 2
     result = compare(*collect_poses(args.num_envs, args.rounds, args.steps, args.seed))
-    print(f"states {result['states']}, v_V agreement {100 * result['visible_agreement']:.1f}% "
-          f"(image-only {100 * result['visible_false_positive']:.1f}%, truth-only "
-          f"{100 * result['visible_false_negative']:.1f}%), both visible {result['both_visible']}")
+    print(
+        f"states {result['states']}, v_V agreement {100 * result['visible_agreement']:.1f}% "
+        f"(image-only {100 * result['visible_false_positive']:.1f}%, truth-only "
+        f"{100 * result['visible_false_negative']:.1f}%), both visible {result['both_visible']}"
+    )
     print("| quantity | median abs error | 90th pct | 99th pct | mean error (bias) |")
     print("|---|---|---|---|---|")
     for key, unit in (("confidence", ""), ("angle", " rad"), ("y", " m")):

@@ -15,6 +15,7 @@ the node address of every node and of every driver that sets it too (then Ray's 
 on 127.0.0.1 only). `ray start` refuses worker nodes in that mode, so the nodes are started
 through the Python API here.
 """
+
 from __future__ import annotations
 
 import os
@@ -23,8 +24,8 @@ os.environ["RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER"] = "0"  # before Ray is imported:
 os.environ.setdefault("RAY_DISABLE_USAGE_STATS", "1")
 
 import argparse  # noqa: E402
-import json  # noqa: E402
 import inspect  # noqa: E402
+import json  # noqa: E402
 import signal  # noqa: E402
 import socket  # noqa: E402
 import sys  # noqa: E402
@@ -32,8 +33,12 @@ import threading  # noqa: E402
 
 LOOPBACK = "127.0.0.1"
 # a lost node is declared dead after ~2 s instead of ~30 s
-SYSTEM_CONFIG = {"health_check_initial_delay_ms": 1000, "health_check_period_ms": 500,
-                 "health_check_timeout_ms": 1000, "health_check_failure_threshold": 3}
+SYSTEM_CONFIG = {
+    "health_check_initial_delay_ms": 1000,
+    "health_check_period_ms": 500,
+    "health_check_timeout_ms": 1000,
+    "health_check_failure_threshold": 3,
+}
 
 
 def free_port() -> int:
@@ -43,9 +48,14 @@ def free_port() -> int:
 
 
 def node_args(num_cpus: int, temp_dir: str) -> dict:
-    return {"node_ip_address": LOOPBACK, "num_cpus": num_cpus, "include_dashboard": False,
-            "object_store_memory": 80 * 1024 * 1024, "temp_dir": temp_dir,
-            "runtime_env_agent_port": free_port()}  # given: the raylet does not wait for the agent to report it
+    return {
+        "node_ip_address": LOOPBACK,
+        "num_cpus": num_cpus,
+        "include_dashboard": False,
+        "object_store_memory": 80 * 1024 * 1024,
+        "temp_dir": temp_dir,
+        "runtime_env_agent_port": free_port(),
+    }  # given: the raylet does not wait for the agent to report it
 
 
 def patch_agent_port_wait() -> None:
@@ -54,8 +64,7 @@ def patch_agent_port_wait() -> None:
     that. With the `ray` package alone the agent runs minimal: it reports "-1" (no metrics, no
     HTTP) for all three ports, so the same "-1" is written before the raylet starts."""
     from ray._private import services  # noqa: PLC0415
-    from ray._raylet import (DASHBOARD_AGENT_LISTEN_PORT_NAME, METRICS_AGENT_PORT_NAME,  # noqa: PLC0415
-                             METRICS_EXPORT_PORT_NAME, persist_port)
+    from ray._raylet import DASHBOARD_AGENT_LISTEN_PORT_NAME, METRICS_AGENT_PORT_NAME, METRICS_EXPORT_PORT_NAME, persist_port  # noqa: PLC0415
 
     start_raylet = services.start_raylet
     signature = inspect.signature(start_raylet)
@@ -91,14 +100,19 @@ def main() -> int:
     patch_agent_port_wait()
 
     head_cpus = args.num_cpus if args.head_cpus is None else args.head_cpus
-    cluster = Cluster(initialize_head=True, head_node_args={**node_args(head_cpus, args.temp_dir),
-                                                            "_system_config": SYSTEM_CONFIG})
+    cluster = Cluster(
+        initialize_head=True, head_node_args={**node_args(head_cpus, args.temp_dir), "_system_config": SYSTEM_CONFIG}
+    )
     stop = threading.Event()
     try:
         workers = [cluster.add_node(**node_args(args.num_cpus, args.temp_dir)) for _ in range(args.workers)]
         cluster.wait_for_nodes()
-        print(json.dumps({"address": cluster.address, "head": describe(cluster.head_node),
-                          "workers": [describe(w) for w in workers]}), flush=True)
+        print(
+            json.dumps(
+                {"address": cluster.address, "head": describe(cluster.head_node), "workers": [describe(w) for w in workers]}
+            ),
+            flush=True,
+        )
         for sig in (signal.SIGTERM, signal.SIGINT):
             signal.signal(sig, lambda *_: stop.set())
         threading.Thread(target=lambda: (sys.stdin.read(), stop.set()), daemon=True).start()

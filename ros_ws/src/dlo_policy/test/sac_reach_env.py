@@ -6,13 +6,13 @@ interval terminates the episode ("drop_before"). Episode-end info mimics the rop
 `how_far`, `episode_return`. The observation has the rope env's modality blocks (K 3, T 2, V 4),
 each carrying the position error, so any modality subset can solve it.
 """
+
 from __future__ import annotations
 
-import gymnasium as gym
 import time
 
+import gymnasium as gym
 import numpy as np
-
 from dlo_policy.observation import MODALITY_SIZES, parse_modalities
 
 HORIZON = 20
@@ -61,8 +61,13 @@ class ReachEnv(gym.Env):
             outcome = "drop_before" if terminated else ("hold_the_end" if distance < NEAR else "stop_before")
             # the authors' rule is stricter: within half the distance
             strict = "drop_before" if terminated else ("hold_the_end" if distance < NEAR / 2 else "stop_before")
-            info = {"outcome": outcome, "outcome_authors": strict, "time_at_end": self.time_at_end, "how_far": 1.0 - distance,
-                    "episode_return": self.episode_return}
+            info = {
+                "outcome": outcome,
+                "outcome_authors": strict,
+                "time_at_end": self.time_at_end,
+                "how_far": 1.0 - distance,
+                "episode_return": self.episode_return,
+            }
         return self._obs(), reward, terminated, truncated, info
 
 

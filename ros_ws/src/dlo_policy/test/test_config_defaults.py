@@ -1,9 +1,9 @@
 """config/sac_default.yaml states the built-in defaults (dlo_policy.config), every key and every value: the file a
 user copies for `dlo-train --config` must train exactly what `dlo-train` without it trains."""
+
 from pathlib import Path
 
 import yaml
-
 from dlo_policy.config import load_config
 
 DEFAULTS_FILE = Path(__file__).resolve().parents[1] / "config" / "sac_default.yaml"
@@ -21,6 +21,7 @@ def flat(data, prefix=""):
 
 def test_the_defaults_file_names_every_key_with_the_built_in_value():
     from dataclasses import asdict
+
     built_in = flat(asdict(load_config(None, [])))
     written = flat(yaml.safe_load(DEFAULTS_FILE.read_text()))
     assert sorted(written) == sorted(built_in)  # every key, no other

@@ -4,12 +4,11 @@ import warnings
 
 import numpy as np
 import pytest
-from gymnasium.utils.env_checker import check_env
-
-from dlo_policy.env import make_env, make_vec_env
-from dlo_policy.observation import build_observation, observation_labels, parse_modalities
 from dlo_perception.tactile import TactilePose
 from dlo_perception.vision import VisualPose
+from dlo_policy.env import make_env, make_vec_env
+from dlo_policy.observation import build_observation, observation_labels, parse_modalities
+from gymnasium.utils.env_checker import check_env
 
 
 def test_single_env_passes_the_gymnasium_checker():
@@ -20,11 +19,18 @@ def test_single_env_passes_the_gymnasium_checker():
     assert env.observation_space.shape == (9,) and env.action_space.shape == (3,)
 
 
-@pytest.mark.parametrize("modalities, expected", [
-    ("T", ("theta_T", "y_T")), ("K", ("x_G", "y_G", "c_G")), ("V", ("v_V", "q_V", "theta_V", "y_V")),
-    ("T+K", ("x_G", "y_G", "c_G", "theta_T", "y_T")), ("V+K", ("x_G", "y_G", "c_G", "v_V", "q_V", "theta_V", "y_V")),
-    ("T+V", ("theta_T", "y_T", "v_V", "q_V", "theta_V", "y_V")),
-    ("All", ("x_G", "y_G", "c_G", "theta_T", "y_T", "v_V", "q_V", "theta_V", "y_V"))])
+@pytest.mark.parametrize(
+    "modalities, expected",
+    [
+        ("T", ("theta_T", "y_T")),
+        ("K", ("x_G", "y_G", "c_G")),
+        ("V", ("v_V", "q_V", "theta_V", "y_V")),
+        ("T+K", ("x_G", "y_G", "c_G", "theta_T", "y_T")),
+        ("V+K", ("x_G", "y_G", "c_G", "v_V", "q_V", "theta_V", "y_V")),
+        ("T+V", ("theta_T", "y_T", "v_V", "q_V", "theta_V", "y_V")),
+        ("All", ("x_G", "y_G", "c_G", "theta_T", "y_T", "v_V", "q_V", "theta_V", "y_V")),
+    ],
+)
 def test_modality_subsets_keep_the_fixed_order(modalities, expected):
     assert observation_labels(modalities) == expected
 
@@ -75,10 +81,13 @@ def test_vector_env_batches_autoresets_and_reports_episode_end():
     for _ in range(4):
         observation, reward, terminated, truncated, info = env.step(np.tile([0.5, 0.0, 0.4], (3, 1)))
     assert np.all(terminated | truncated) and reward.shape == (3,)
-    assert info["_outcome"].all() and set(info["outcome"]) <= {"hold_the_end", "stop_before",
-                                                               "reach_end_but_drop", "drop_before"}
+    assert info["_outcome"].all() and set(info["outcome"]) <= {"hold_the_end", "stop_before", "reach_end_but_drop", "drop_before"}
     assert info["_outcome_authors"].all() and set(info["outcome_authors"]) <= {
-        "hold_the_end", "stop_before", "reach_end_but_drop", "drop_before"}
+        "hold_the_end",
+        "stop_before",
+        "reach_end_but_drop",
+        "drop_before",
+    }
     for key in ("outcome_code", "time_at_end", "how_far", "episode_return"):
         assert info[key].shape == (3,)
     assert info["_final_obs"].all() and info["final_obs"][0].shape == (5,)
@@ -104,6 +113,7 @@ def test_single_particle_grip_option_reaches_the_simulator_and_a_bad_value_is_a_
     with a sim_config of one's own; anything but true or false is refused before a simulator is built."""
     from dlo_policy.config import ConfigError, check_env_options, load_config
     from dlo_sim import SimConfig
+
     assert make_env("K", seed=0).sim.config.single_particle_grip is False
     env = make_vec_env(1, "K", seed=0, sim_config=SimConfig(damping=3.0), single_particle_grip=True)
     assert env.sim.config == SimConfig(damping=3.0, single_particle_grip=True) and env.sim._k.single_particle_grip
@@ -121,14 +131,18 @@ def test_physics_seed_option_reaches_the_simulator_and_a_bad_value_is_a_one_line
     with a sim_config of one's own; anything else is refused before a simulator is built."""
     from dlo_policy.config import ConfigError, check_env_options, load_config
     from dlo_sim import SimConfig
+
     assert make_env("K", seed=0).sim.config.physics_seed == -1
     env = make_vec_env(1, "K", seed=0, sim_config=SimConfig(damping=3.0), physics_seed=3)
     assert env.sim.config == SimConfig(damping=3.0, physics_seed=3)
     for bad in ("x", -2, 1.5, True):
         with pytest.raises(ValueError, match="physics_seed: expected an integer >= 0"):
             make_env("K", physics_seed=bad)
-    with pytest.raises(ConfigError, match=r"^env_options: physics_seed: expected an integer >= 0 \(or -1: drawn per "
-                                          r"episode\), got -5$"):
+    with pytest.raises(
+        ConfigError,
+        match=r"^env_options: physics_seed: expected an integer >= 0 \(or -1: drawn per "
+        r"episode\), got -5$",
+    ):
         check_env_options(load_config(None, ["env_options.physics_seed=-5"]))
     check_env_options(load_config(None, ["env_options.physics_seed=0"]))
 
@@ -139,26 +153,40 @@ def test_fidelity_lever_options_reach_the_simulator_and_bad_values_are_one_line_
     refused with one line before a simulator is built."""
     from dlo_policy.config import ConfigError, check_env_options, load_config
     from dlo_sim import SimConfig
+
     plain = make_vec_env(1, "V", seed=0)
     assert (plain.sim.config.carry_law, plain.sim.config.contact_radius, plain.vision_source) == ("paper", 0.004, "image")
     assert plain.task.render
-    env = make_vec_env(1, "V", seed=0, sim_config=SimConfig(damping=3.0), carry_law="authors", contact_radius=0.005,
-                       vision_source="particles", start_pose="authors")
+    env = make_vec_env(
+        1,
+        "V",
+        seed=0,
+        sim_config=SimConfig(damping=3.0),
+        carry_law="authors",
+        contact_radius=0.005,
+        vision_source="particles",
+        start_pose="authors",
+    )
     assert env.sim.config == SimConfig(damping=3.0, carry_law="authors", contact_radius=0.005, start_pose="authors")
     assert not env.task.render and env.vision_source == "particles"
     observation, _ = env.reset(seed=0)
     assert observation.shape == (1, 4) and np.isfinite(observation).all()
-    for options, message in (({"carry_law": "flex"}, "carry_law: expected one of paper, authors, got 'flex'"),
-                             ({"contact_radius": 0.007}, r"contact_radius: expected a number in \(0, 0.006\] m"),
-                             ({"contact_radius": "0.005"}, r"contact_radius: expected a number in \(0, 0.006\] m"),
-                             ({"vision_source": "camera"}, "vision_source: expected one of image, particles"),
-                             ({"start_pose": "theirs"}, "start_pose: expected one of ours, authors, got 'theirs'")):
+    for options, message in (
+        ({"carry_law": "flex"}, "carry_law: expected one of paper, authors, got 'flex'"),
+        ({"contact_radius": 0.007}, r"contact_radius: expected a number in \(0, 0.006\] m"),
+        ({"contact_radius": "0.005"}, r"contact_radius: expected a number in \(0, 0.006\] m"),
+        ({"vision_source": "camera"}, "vision_source: expected one of image, particles"),
+        ({"start_pose": "theirs"}, "start_pose: expected one of ours, authors, got 'theirs'"),
+    ):
         with pytest.raises(ValueError, match=message):
             make_env("V", **options)
     with pytest.raises(ConfigError, match=r"^env_options: vision_source: expected one of image, particles, got 'x'$"):
         check_env_options(load_config(None, ["env_options.vision_source=x"]))
-    check_env_options(load_config(None, ["env_options.vision_source=particles", "env_options.carry_law=authors",
-                                         "env_options.contact_radius=0.005"]))
+    check_env_options(
+        load_config(
+            None, ["env_options.vision_source=particles", "env_options.carry_law=authors", "env_options.contact_radius=0.005"]
+        )
+    )
 
 
 def test_the_authors_start_pose_starts_8_mm_behind_and_2_25_mm_lower_and_the_image_is_read_at_that_height():
@@ -167,6 +195,7 @@ def test_the_authors_start_pose_starts_8_mm_behind_and_2_25_mm_lower_and_the_ima
     published gripper z."""
     from dlo_perception.vision import visual_pose
     from dlo_sim.config import FIXED_END, GRIPPER_HEIGHT
+
     env = make_vec_env(1, "V", seed=0, start_pose="authors")
     observation, _ = env.reset(seed=0)
     gripper = env.task.state.gripper[0]
@@ -180,9 +209,12 @@ def test_the_authors_start_pose_starts_8_mm_behind_and_2_25_mm_lower_and_the_ima
         state = env.task.state
         assert state.gripper[0, 2] == np.float32(GRIPPER_HEIGHT - 0.00225)  # it moves in that plane
         node = visual_pose(state.image, env.sim.camera, state.gripper[:, :2], float(state.gripper[0, 2]))
-        np.testing.assert_array_equal(observation[0], np.array([node.visible[0], node.confidence[0], node.angle[0],
-                                                                node.y[0]], np.float32))
+        np.testing.assert_array_equal(
+            observation[0], np.array([node.visible[0], node.confidence[0], node.angle[0], node.y[0]], np.float32)
+        )
         at_default = visual_pose(state.image, env.sim.camera, state.gripper[:, :2], GRIPPER_HEIGHT)
-        differs += not np.array_equal(observation[0], np.array([at_default.visible[0], at_default.confidence[0],
-                                                                at_default.angle[0], at_default.y[0]], np.float32))
+        differs += not np.array_equal(
+            observation[0],
+            np.array([at_default.visible[0], at_default.confidence[0], at_default.angle[0], at_default.y[0]], np.float32),
+        )
     assert differs >= 1  # the height matters: read at the default height, V would differ

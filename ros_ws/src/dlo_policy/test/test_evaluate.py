@@ -13,7 +13,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-
 from dlo_policy import evaluate
 from dlo_policy.config import RunConfig
 
@@ -55,10 +54,13 @@ class ScriptedVecEnv:
         reward = np.where(self.ended, 1000.0, self.episode.astype(float))
         info = {}
         if done.any() and self.infos:
-            info = {"outcome": np.array([OUTCOMES[e % 4] for e in self.episode], dtype=object),
-                    "outcome_authors": np.array([OUTCOMES[(e + 1) % 4] for e in self.episode], dtype=object),
-                    "time_at_end": self.episode.copy(), "how_far": 10.0 * self.episode,
-                    "n_held": np.full(self.num_envs, 3)}
+            info = {
+                "outcome": np.array([OUTCOMES[e % 4] for e in self.episode], dtype=object),
+                "outcome_authors": np.array([OUTCOMES[(e + 1) % 4] for e in self.episode], dtype=object),
+                "time_at_end": self.episode.copy(),
+                "how_far": 10.0 * self.episode,
+                "n_held": np.full(self.num_envs, 3),
+            }
             info.update({"_" + k: done.copy() for k in ("outcome", "outcome_authors", "time_at_end", "how_far")})
         self.ended |= done
         terminated = done & (self.episode % 2 == 0)
@@ -96,7 +98,7 @@ def test_batches_seeds_partial_batch_returns_and_outcomes():
     assert result.how_far == pytest.approx(10 * np.mean(seeds))
     assert agent.deterministic and all(d is True for d in agent.deterministic)
     # every batch runs until its wanted envs are done: the longest wanted episode of each batch
-    assert len(env.actions) == sum(max(2 + s % 3 for s in seeds[b:b + 3]) for b in (0, 3, 6))
+    assert len(env.actions) == sum(max(2 + s % 3 for s in seeds[b : b + 3]) for b in (0, 3, 6))
 
 
 def test_one_env_at_a_time_and_more_envs_than_episodes():
@@ -116,15 +118,24 @@ def test_an_env_without_episode_infos_gives_nan():
 
 
 def test_episode_end_info_reads_only_the_masked_entries():
-    infos = {"outcome": np.array(["drop_before", "hold_the_end"], dtype=object), "_outcome": np.array([False, True]),
-             "n_held": np.array([np.int64(3), np.int64(0)])}
+    infos = {
+        "outcome": np.array(["drop_before", "hold_the_end"], dtype=object),
+        "_outcome": np.array([False, True]),
+        "n_held": np.array([np.int64(3), np.int64(0)]),
+    }
     assert evaluate._episode_end_info(infos, 1) == {"outcome": "hold_the_end", "n_held": 0}
     assert evaluate._episode_end_info(infos, 0) == {"n_held": 3}
     assert type(evaluate._episode_end_info(infos, 0)["n_held"]) is int
-    assert evaluate._fractions([{"outcome": "stop_before"}, {}], "outcome", "")["stop_before"] != \
-        evaluate._fractions([{"outcome": "stop_before"}, {}], "outcome", "")["stop_before"]  # NaN: one is unknown
+    assert (
+        evaluate._fractions([{"outcome": "stop_before"}, {}], "outcome", "")["stop_before"]
+        != evaluate._fractions([{"outcome": "stop_before"}, {}], "outcome", "")["stop_before"]
+    )  # NaN: one is unknown
     assert evaluate._fractions([{"o": "stop_before"}, {"o": "drop_before"}], "o", "_x") == {
-        "hold_the_end_x": 0.0, "stop_before_x": 0.5, "reach_end_but_drop_x": 0.0, "drop_before_x": 0.5}
+        "hold_the_end_x": 0.0,
+        "stop_before_x": 0.5,
+        "reach_end_but_drop_x": 0.0,
+        "drop_before_x": 0.5,
+    }
     assert math.isnan(evaluate._mean_of([{"how_far": 2.0}, {}], "how_far"))
     assert evaluate._mean_of([{"how_far": 2.0}, {"how_far": 4.0}], "how_far") == 3.0
     assert math.isnan(evaluate._mean_of([], "how_far"))
@@ -158,8 +169,8 @@ def test_evaluate_agent_notes_the_modalities_of_the_env_and_refuses_other_ones()
     from dlo_policy.sac import SAC
 
     def agent(modalities):
-        return SAC(9, -np.ones(3, np.float32), np.ones(3, np.float32), SACConfig(hidden_sizes=(8, 8)),
-                   modalities=modalities)
+        return SAC(9, -np.ones(3, np.float32), np.ones(3, np.float32), SACConfig(hidden_sizes=(8, 8)), modalities=modalities)
+
     unknown = agent(None)  # a checkpoint from before modalities were saved: learns them from the env
     evaluate.evaluate_agent(unknown, NotingVecEnv(2), first_seed=0, episodes=2)
     assert unknown.modalities == ("K", "T", "V")
@@ -192,13 +203,13 @@ def test_evaluate_agent_blanks_only_the_given_columns():
     assert result.episodes == 3 and result.stop_before + result.hold_the_end == pytest.approx(1.0)
 
 
-@pytest.mark.parametrize("without, blank", [([], []), (["T"], [3, 4]), (["V"], [5, 6, 7, 8]),
-                                            (["K", "V"], [0, 1, 2, 5, 6, 7, 8])])
+@pytest.mark.parametrize(
+    "without, blank", [([], []), (["T"], [3, 4]), (["V"], [5, 6, 7, 8]), (["K", "V"], [0, 1, 2, 5, 6, 7, 8])]
+)
 def test_dlo_evaluate_without_blanks_exactly_that_modality(monkeypatch, tmp_path, capsys, without, blank):
     agent = RecordingAgent()
     monkeypatch.setattr(evaluate, "SAC", type("StubSAC", (), {"load": staticmethod(lambda path: agent)}))
-    monkeypatch.setattr(evaluate, "load_run_config",
-                        lambda path: RunConfig(modalities="All", env_module="sac_reach_env"))
+    monkeypatch.setattr(evaluate, "load_run_config", lambda path: RunConfig(modalities="All", env_module="sac_reach_env"))
     argv = ["--checkpoint", str(tmp_path / "policy.pt"), "--episodes", "4", "--num-envs", "2", "--threads", "1"]
     for modality in without:
         argv += ["--without", modality]
@@ -238,6 +249,7 @@ def cli(monkeypatch, tmp_path, argv, modalities="All"):
         env.close = lambda: setattr(env, "closed", True)
         built.append((env, num_envs, seed))
         return env
+
     stub = StubSAC()
     monkeypatch.setattr(evaluate, "SAC", stub)
     monkeypatch.setattr(evaluate, "load_run_config", lambda path: RunConfig(modalities=modalities))
@@ -260,13 +272,14 @@ def test_cli_one_episode_json_threads_and_the_env_it_builds(monkeypatch, tmp_pat
     previous = torch.get_num_threads()
     out = tmp_path / "eval.json"
     try:
-        rc, built = cli(monkeypatch, tmp_path, ["--episodes", "1", "--num-envs", "1", "--seed", "7", "--threads", "2",
-                                                "--json", str(out)])
+        rc, built = cli(
+            monkeypatch, tmp_path, ["--episodes", "1", "--num-envs", "1", "--seed", "7", "--threads", "2", "--json", str(out)]
+        )
         assert torch.get_num_threads() == 2  # the fixture set 1
     finally:
         torch.set_num_threads(previous)
     assert rc == 0
-    (env, num_envs, seed), = built
+    ((env, num_envs, seed),) = built
     assert (num_envs, seed, env.closed, env.resets) == (1, 7, True, [7])
     text = out.read_text()
     assert text.endswith("}\n") and text.startswith('{\n  "episodes": 1,')  # indented JSON, one final newline
@@ -284,6 +297,7 @@ def test_cli_errors_are_one_line_and_exit_2(monkeypatch, tmp_path, capsys):
 
     def missing(path):
         raise FileNotFoundError("config.yaml not found")
+
     monkeypatch.setattr(evaluate, "load_run_config", missing)
     assert evaluate.main(["--checkpoint", str(tmp_path / "policy.pt")]) == 2
     assert "config.yaml not found" in capsys.readouterr().err

@@ -3,7 +3,6 @@ forced (--progress) or stderr is a terminal, never with --quiet; stdout (the tab
 
 import numpy as np
 import pytest
-
 from dlo_policy import evaluate
 from dlo_policy.config import RunConfig
 
@@ -23,9 +22,12 @@ class EndingVecEnv:
     def step(self, actions):
         self.t += 1
         done = self.length == self.t
-        info = {"outcome": np.array(["hold_the_end"] * self.num_envs, dtype=object), "_outcome": done.copy(),
-                "outcome_authors": np.array(["hold_the_end"] * self.num_envs, dtype=object),
-                "_outcome_authors": done.copy()}
+        info = {
+            "outcome": np.array(["hold_the_end"] * self.num_envs, dtype=object),
+            "_outcome": done.copy(),
+            "outcome_authors": np.array(["hold_the_end"] * self.num_envs, dtype=object),
+            "_outcome_authors": done.copy(),
+        }
         return np.zeros((self.num_envs, 9), np.float32), np.ones(self.num_envs), done, np.zeros_like(done), info
 
     def close(self):

@@ -11,7 +11,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
 from dlo_policy import evaluate
 from dlo_policy.env import make_vec_env
 from dlo_policy.scripted import OracleFollow, TactileReactive, run_episodes
@@ -37,21 +36,23 @@ def one_line_error(capsys, argv) -> str:
 def test_help_names_both_ways_and_the_scripted_policies():
     result = executable("--help", timeout=120)
     assert result.returncode == 0, result.stderr
-    for word in ("--checkpoint", "--policy", "oracle", "tactile_reactive", "random", "--task-rules",
-                 "--stop-before-end"):
+    for word in ("--checkpoint", "--policy", "oracle", "tactile_reactive", "random", "--task-rules", "--stop-before-end"):
         assert word in result.stdout
 
 
-@pytest.mark.parametrize("argv, message", [
-    ([], "one of the arguments --checkpoint --policy is required"),
-    (["--policy", "oracle", "--checkpoint", "policy.pt"], "not allowed with argument"),
-    (["--policy", "sac"], "argument --policy: invalid choice: 'sac'"),
-    (["--checkpoint", "policy.pt", "--task-rules", "paper_text"], "--task-rules is for --policy"),
-    (["--policy", "tactile_reactive", "--stop-before-end", "9"], "--stop-before-end is for --policy oracle"),
-    (["--policy", "oracle", "--stop-before-end", "-1"], "--stop-before-end must be >= 0, got -1"),
-    (["--policy", "random", "--episodes", "0"], "--episodes and --num-envs must be >= 1"),
-    (["--policy", "oracle", "--task-rules", "mine"], "argument --task-rules: invalid choice: 'mine'"),
-])
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        ([], "one of the arguments --checkpoint --policy is required"),
+        (["--policy", "oracle", "--checkpoint", "policy.pt"], "not allowed with argument"),
+        (["--policy", "sac"], "argument --policy: invalid choice: 'sac'"),
+        (["--checkpoint", "policy.pt", "--task-rules", "paper_text"], "--task-rules is for --policy"),
+        (["--policy", "tactile_reactive", "--stop-before-end", "9"], "--stop-before-end is for --policy oracle"),
+        (["--policy", "oracle", "--stop-before-end", "-1"], "--stop-before-end must be >= 0, got -1"),
+        (["--policy", "random", "--episodes", "0"], "--episodes and --num-envs must be >= 1"),
+        (["--policy", "oracle", "--task-rules", "mine"], "argument --task-rules: invalid choice: 'mine'"),
+    ],
+)
 def test_options_that_do_not_fit_are_one_line_errors(capsys, argv, message):
     assert message in one_line_error(capsys, argv)
 
@@ -79,9 +80,12 @@ class KnownVecEnv:
     def step(self, actions):
         self.t += 1
         done = 1 + self.episode % 3 == self.t
-        info = {"outcome": np.array([OUTCOMES[e % 4] for e in self.episode], dtype=object),
-                "outcome_authors": np.array([OUTCOMES[(e + 1) % 4] for e in self.episode], dtype=object),
-                "time_at_end": np.zeros(self.num_envs), "how_far": np.zeros(self.num_envs)}
+        info = {
+            "outcome": np.array([OUTCOMES[e % 4] for e in self.episode], dtype=object),
+            "outcome_authors": np.array([OUTCOMES[(e + 1) % 4] for e in self.episode], dtype=object),
+            "time_at_end": np.zeros(self.num_envs),
+            "how_far": np.zeros(self.num_envs),
+        }
         info.update({"_" + key: done.copy() for key in list(info)})
         return np.zeros((self.num_envs, 9), np.float32), np.ones(self.num_envs), done, np.zeros_like(done), info
 
@@ -108,11 +112,30 @@ def test_every_batch_starts_the_policy_afresh_and_the_json_has_both_rules(monkey
     def make_env(num_envs, seed, task_rules):
         built.append((num_envs, seed, task_rules))
         return KnownVecEnv(num_envs)
+
     monkeypatch.setattr(evaluate, "scripted_policy", lambda name, seed, stop_before_end: policy)
     monkeypatch.setattr(evaluate, "make_scripted_vec_env", make_env)
     out = tmp_path / "eval.json"
-    assert evaluate.main(["--policy", "tactile_reactive", "--episodes", "5", "--num-envs", "2", "--seed", "3",
-                          "--task-rules", "paper_text", "--json", str(out), "--quiet"]) == 0
+    assert (
+        evaluate.main(
+            [
+                "--policy",
+                "tactile_reactive",
+                "--episodes",
+                "5",
+                "--num-envs",
+                "2",
+                "--seed",
+                "3",
+                "--task-rules",
+                "paper_text",
+                "--json",
+                str(out),
+                "--quiet",
+            ]
+        )
+        == 0
+    )
     assert built == [(2, 3, "paper_text")] and policy.resets == 3  # batches of seeds 3-4, 5-6, 7
     payload = json.loads(out.read_text())
     assert payload["episodes"] == 5 and payload["policy"] == "tactile_reactive"
@@ -131,13 +154,14 @@ def test_the_same_episodes_as_run_episodes_seed_by_seed(make_policy):
     reference = run_episodes(make_vec_env(2, modalities="All", seed=40), make_policy(), 4, seed=40)
     policy = make_policy()
     env = make_vec_env(2, modalities="All", seed=40)
-    result = evaluate.evaluate_agent(evaluate.ScriptedAgent(policy, env), evaluate._ResetsPolicy(env, policy),
-                                     first_seed=40, episodes=4)
+    result = evaluate.evaluate_agent(
+        evaluate.ScriptedAgent(policy, env), evaluate._ResetsPolicy(env, policy), first_seed=40, episodes=4
+    )
     assert [r["episode_seed"] for r in reference] == [40, 41, 42, 43]
     for rule, key in (("", "outcome"), (evaluate.AUTHORS_SUFFIX, "outcome_authors")):
         for name in evaluate.OUTCOMES:
             expected = np.mean([r[key] == name for r in reference])
-            assert getattr(result, name + rule) == pytest.approx(expected), (name + rule)
+            assert getattr(result, name + rule) == pytest.approx(expected), name + rule
     assert result.how_far == pytest.approx(np.mean([r["how_far"] for r in reference]))
     assert result.time_at_end == pytest.approx(np.mean([r["time_at_end"] for r in reference]))
     assert result.episode_reward == pytest.approx(np.mean([r["episode_return"] for r in reference]), abs=1e-4)
@@ -145,8 +169,22 @@ def test_the_same_episodes_as_run_episodes_seed_by_seed(make_policy):
 
 def test_a_tiny_real_run_of_the_executable(tmp_path):
     out = tmp_path / "oracle.json"
-    result = executable("--policy", "oracle", "--stop-before-end", "9", "--episodes", "2", "--num-envs", "2",
-                        "--seed", "5", "--threads", "1", "--json", str(out))
+    result = executable(
+        "--policy",
+        "oracle",
+        "--stop-before-end",
+        "9",
+        "--episodes",
+        "2",
+        "--num-envs",
+        "2",
+        "--seed",
+        "5",
+        "--threads",
+        "1",
+        "--json",
+        str(out),
+    )
     assert result.returncode == 0, result.stderr[-3000:]
     assert "scripted oracle (stops 9 before the end) on All, task rules authors_code, seeds 5..6" in result.stdout
     payload = json.loads(out.read_text())

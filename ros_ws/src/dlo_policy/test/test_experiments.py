@@ -1,4 +1,5 @@
 """dlo-experiments: the paper's grid, local parallel runs, skipping finished runs, Ray without Ray."""
+
 import contextlib
 import importlib.util
 import json
@@ -11,7 +12,6 @@ import time
 from pathlib import Path
 
 import pytest
-
 from dlo_common.testing import exited
 from dlo_policy import experiments
 from dlo_policy.config import load_config
@@ -19,15 +19,36 @@ from dlo_policy.rundir import CHECKPOINT_FILE, DONE_FILE, EVAL_COLUMNS, EVAL_FIL
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # --import-mode=importlib: helper modules (spawned runs too)
 
-TINY = ["env_module=sac_reach_env", "sac.hidden_sizes=[16,16]", "sac.batch_size=16", "sac.learning_starts=20",
-        "sac.buffer_size=500", "train.eval_every=50", "train.checkpoint_every=50", "train.eval_episodes=4"]
+TINY = [
+    "env_module=sac_reach_env",
+    "sac.hidden_sizes=[16,16]",
+    "sac.batch_size=16",
+    "sac.learning_starts=20",
+    "sac.buffer_size=500",
+    "train.eval_every=50",
+    "train.checkpoint_every=50",
+    "train.eval_episodes=4",
+]
 
 
 def test_grid_covers_the_papers_experiments_once_per_seed():
     specs = experiments.experiment_grid(experiments.GROUPS, seeds=[0, 1])
     labels = sorted({s.label for s in specs})
-    assert labels == sorted(["T", "K", "V", "All", "T+K", "V+K", "T+V", "All tactile-partial", "All tactile-full",
-                             "T+V tactile-partial", "T+V tactile-full"])
+    assert labels == sorted(
+        [
+            "T",
+            "K",
+            "V",
+            "All",
+            "T+K",
+            "V+K",
+            "T+V",
+            "All tactile-partial",
+            "All tactile-full",
+            "T+V tactile-partial",
+            "T+V tactile-full",
+        ]
+    )
     assert len(specs) == 2 * len(labels)
     by_label = {s.label: s for s in specs if s.seed == 0}
     assert by_label["All"].eval_without == ("T", "V")
@@ -47,8 +68,7 @@ def test_runner_skips_finished_runs_and_runs_the_rest_in_processes(tmp_path, cap
     finished = out / "K" / "seed0"
     finished.mkdir(parents=True)
     (finished / DONE_FILE).write_text("{}")
-    argv = ["--out", str(out), "--groups", "single", "--seeds", "1", "--steps", "60", "--jobs", "2",
-            "--threads", "1", *TINY]
+    argv = ["--out", str(out), "--groups", "single", "--seeds", "1", "--steps", "60", "--jobs", "2", "--threads", "1", *TINY]
     assert experiments.main(argv) == 0
     captured = capsys.readouterr()
     assert "4 runs, 1 done, 3 to run" in captured.out
@@ -96,8 +116,9 @@ def test_makespan_packs_longest_first_and_run_time_counts_evaluations():
     assert experiments.makespan([3, 3, 2, 2, 2], jobs=2) == 7
     assert experiments.makespan([5, 1], jobs=4) == 5
     cal = experiments.Calibration(step_s=0.1, eval_s=2.0)
-    config = load_config(None, ["train.total_steps=1000", "train.eval_every=200",
-                                            "train.eval_without=[T]", "train.test_episodes=100"])
+    config = load_config(
+        None, ["train.total_steps=1000", "train.eval_every=200", "train.eval_without=[T]", "train.test_episodes=100"]
+    )
     # 1000 steps + (5 evaluations + the one at step 0 + 10 test batches of 10) x 2 tested input sets
     assert cal.run_seconds(config) == pytest.approx(100 + (6 + 10) * 2 * 2.0)
     assert cal.run_seconds(config, done_steps=600) == pytest.approx(40 + (2 + 10) * 2 * 2.0)
@@ -106,11 +127,20 @@ def test_makespan_packs_longest_first_and_run_time_counts_evaluations():
 def test_the_estimate_counts_a_last_partial_batch_of_held_out_test_episodes():
     """Calibration.run_seconds: the held-out test of 15 episodes in batches of 10 is 2 evaluations, not 1."""
     cal = experiments.Calibration(step_s=0.0, eval_s=1.0)
-    config = load_config(None, ["train.total_steps=1000", "train.eval_every=500", "train.eval_episodes=10",
-                                "train.test_episodes=15"])
+    config = load_config(
+        None, ["train.total_steps=1000", "train.eval_every=500", "train.eval_episodes=10", "train.test_episodes=15"]
+    )
     assert cal.run_seconds(config) == pytest.approx(3 + 2)  # evaluations at 0, 500, 1000 + 2 test batches
-    config = load_config(None, ["train.total_steps=1000", "train.eval_every=500", "train.eval_episodes=10",
-                                "train.test_episodes=5", "train.eval_without=[T]"])
+    config = load_config(
+        None,
+        [
+            "train.total_steps=1000",
+            "train.eval_every=500",
+            "train.eval_episodes=10",
+            "train.test_episodes=5",
+            "train.eval_without=[T]",
+        ],
+    )
     assert cal.run_seconds(config) == pytest.approx((3 + 1) * 2)
 
 
@@ -128,8 +158,20 @@ def test_a_run_without_a_checkpoint_has_done_no_steps(tmp_path):
 
 
 def test_dry_run_estimates_from_a_measured_calibration(tmp_path, capsys):
-    argv = ["--out", str(tmp_path / "grid"), "--groups", "single", "--seeds", "2", "--steps", "400",
-            "--jobs", "2", "--dry-run", *TINY]
+    argv = [
+        "--out",
+        str(tmp_path / "grid"),
+        "--groups",
+        "single",
+        "--seeds",
+        "2",
+        "--steps",
+        "400",
+        "--jobs",
+        "2",
+        "--dry-run",
+        *TINY,
+    ]
     assert experiments.main(argv) == 0
     out = capsys.readouterr().out
     assert "8 runs, 0 done, 8 to run" in out and "estimate: 8 runs" in out and "ms per step" in out
@@ -137,8 +179,7 @@ def test_dry_run_estimates_from_a_measured_calibration(tmp_path, capsys):
 
 
 def test_bad_env_option_stops_the_grid_before_any_run(tmp_path, capsys):
-    argv = ["--out", str(tmp_path / "grid"), "--groups", "single", "--seeds", "1",
-            "env_options.tactile_noise=loud"]
+    argv = ["--out", str(tmp_path / "grid"), "--groups", "single", "--seeds", "1", "env_options.tactile_noise=loud"]
     assert experiments.main(argv) == 2
     assert "env_options: tactile_noise" in capsys.readouterr().err
     assert not (tmp_path / "grid").exists()
@@ -166,8 +207,17 @@ def make_run(run_dir: Path) -> None:
 def test_a_remote_run_sends_back_its_small_files_and_the_driver_writes_done_json_last(tmp_path, monkeypatch):
     make_run(tmp_path / "worker")
     files = experiments.result_files(tmp_path / "worker")
-    assert set(files) == {"config.yaml", "eval.csv", "best.json", "test.json", "test_without_T.json", "train.log",
-                          "policy.pt", "best_policy.pt", DONE_FILE}  # never the checkpoint (replay buffer)
+    assert set(files) == {
+        "config.yaml",
+        "eval.csv",
+        "best.json",
+        "test.json",
+        "test_without_T.json",
+        "train.log",
+        "policy.pt",
+        "best_policy.pt",
+        DONE_FILE,
+    }  # never the checkpoint (replay buffer)
     target = tmp_path / "out" / "All" / "seed0"
     target.mkdir(parents=True)
     (target / CHECKPOINT_FILE).write_bytes(b"an earlier local attempt")
@@ -211,6 +261,7 @@ class FakeRay:
             def remote(config, attempt):
                 fake.submitted.append((config["seed"], attempt))
                 return fake.generator(config["seed"], fake.plan[config["seed"]][attempt - 1], attempt)
+
         assert options == {"num_cpus": 1, "max_calls": 1, "max_retries": 0}
         return lambda function: Remote
 
@@ -247,16 +298,19 @@ def test_ray_runs_lost_with_their_node_are_retried_a_bounded_number_of_times(tmp
     lines = experiments.report(tasks)
     assert lines[0] == "grid: 3 run(s): 2 finished, 1 failed"
     assert lines[1] == "retried 2 run(s) after a lost worker or node:"
-    assert lines[2].startswith(f"  {tmp_path / 'seed1'}: lost 1x (NodeDiedError on node node11") and \
-        lines[2].endswith("finished on node node12000000 at attempt 2")
+    assert lines[2].startswith(f"  {tmp_path / 'seed1'}: lost 1x (NodeDiedError on node node11") and lines[2].endswith(
+        "finished on node node12000000 at attempt 2"
+    )
     assert lines[3].startswith(f"  {tmp_path / 'seed2'}: lost 3x") and lines[3].endswith("failed at attempt 3")
 
 
 def test_usage_mistakes_are_one_line_errors(tmp_path, capsys):
     base = ["--out", str(tmp_path / "grid"), "--groups", "single", "--labels", "T", "--seeds", "1", *TINY]
-    for extra, message in ((["--threads", "0"], "--threads must be at least 1"),
-                           (["--retries", "-1"], "--retries and --gpus-per-run at least 0"),
-                           (["--gpus-per-run", "1"], "--gpus-per-run is for --ray-address")):
+    for extra, message in (
+        (["--threads", "0"], "--threads must be at least 1"),
+        (["--retries", "-1"], "--retries and --gpus-per-run at least 0"),
+        (["--gpus-per-run", "1"], "--gpus-per-run is for --ray-address"),
+    ):
         assert experiments.main([*base, *extra]) == 2
         err = capsys.readouterr().err
         assert message in err and len(err.strip().splitlines()) == 1
@@ -269,8 +323,7 @@ def test_ray_address_where_no_cluster_answers_is_a_one_line_error(tmp_path, caps
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]  # closed again: nothing listens there
     base = ["--out", str(tmp_path / "grid"), "--groups", "single", "--labels", "T", "--seeds", "1", *TINY]
-    for address, message in ((f"127.0.0.1:{port}", "no Ray head answers there"),
-                             ("nonsense", "expected HOST:PORT")):
+    for address, message in ((f"127.0.0.1:{port}", "no Ray head answers there"), ("nonsense", "expected HOST:PORT")):
         assert experiments.main([*base, "--ray-address", address]) == 2
         err = capsys.readouterr().err
         assert message in err and len(err.strip().splitlines()) == 1
@@ -279,9 +332,32 @@ def test_ray_address_where_no_cluster_answers_is_a_one_line_error(tmp_path, caps
 
 def _start_grid(out, *extra):
     env = dict(os.environ, PYTHONPATH=f"{Path(__file__).resolve().parent}{os.pathsep}{os.environ.get('PYTHONPATH', '')}")
-    return subprocess.Popen([sys.executable, "-m", "dlo_policy.experiments", "--out", str(out), "--groups", "single",
-                             "--labels", "T", "--seeds", "1", "--steps", "1000000", "--jobs", "1", "--no-progress",
-                             *extra, *TINY], env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    return subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "dlo_policy.experiments",
+            "--out",
+            str(out),
+            "--groups",
+            "single",
+            "--labels",
+            "T",
+            "--seeds",
+            "1",
+            "--steps",
+            "1000000",
+            "--jobs",
+            "1",
+            "--no-progress",
+            *extra,
+            *TINY,
+        ],
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
 
 
 def _worker_pid(run_dir, grid, timeout=120):
@@ -330,8 +406,22 @@ def test_a_second_grid_on_the_same_runs_fails_that_run_in_one_line_and_leaves_th
     grid = _start_grid(out)
     try:
         worker = _worker_pid(out / "T" / "seed0", grid)
-        argv = ["--out", str(out), "--groups", "single", "--labels", "T", "--seeds", "1", "--steps", "1000000",
-                "--jobs", "1", "--no-progress", *TINY]
+        argv = [
+            "--out",
+            str(out),
+            "--groups",
+            "single",
+            "--labels",
+            "T",
+            "--seeds",
+            "1",
+            "--steps",
+            "1000000",
+            "--jobs",
+            "1",
+            "--no-progress",
+            *TINY,
+        ]
         assert experiments.main(argv) == 1
         captured = capsys.readouterr()
         assert f"is in use by another training (pid {worker})" in captured.out + captured.err
@@ -351,9 +441,19 @@ def test_a_partial_local_run_resumes_from_its_checkpoint_and_one_without_starts_
     from dlo_policy import train
     from dlo_policy.rundir import read_done
 
-    tiny = ["env_module=sac_reach_env", "sac.hidden_sizes=[32,32]", "sac.batch_size=32", "sac.learning_starts=50",
-            "sac.buffer_size=2000", "train.eval_every=100", "train.num_threads=1", "train.test_episodes=10",
-            "train.progress=false", "train.total_steps=300", "train.checkpoint_every=200"]
+    tiny = [
+        "env_module=sac_reach_env",
+        "sac.hidden_sizes=[32,32]",
+        "sac.batch_size=32",
+        "sac.learning_starts=50",
+        "sac.buffer_size=2000",
+        "train.eval_every=100",
+        "train.num_threads=1",
+        "train.test_episodes=10",
+        "train.progress=false",
+        "train.total_steps=300",
+        "train.checkpoint_every=200",
+    ]
     crashing = load_config(None, [*tiny, "env_options.crash_after=250"])
     partial = tmp_path / "partial"
     with pytest.raises(InterruptedError):
@@ -364,6 +464,7 @@ def test_a_partial_local_run_resumes_from_its_checkpoint_and_one_without_starts_
     def steps(run):
         with (run / EVAL_FILE).open(newline="") as f:
             return [int(row["step"]) for row in csv.DictReader(f)]
+
     assert [s["from_step"] for s in read_done(partial)["sources"]] == [0, 200]
     assert steps(partial) == [0, 100, 200, 300]
 
@@ -385,11 +486,31 @@ def test_ctrl_c_stops_the_grid_and_its_run_at_an_episode_end_with_a_checkpoint_t
     out = tmp_path / "grid"
     run = out / "T" / "seed0"
     env = dict(os.environ, PYTHONPATH=f"{Path(__file__).resolve().parent}{os.pathsep}{os.environ.get('PYTHONPATH', '')}")
-    grid_args = ["--out", str(out), "--groups", "single", "--labels", "T", "--seeds", "1", "--jobs", "1",
-                 "--no-progress", *TINY, "train.checkpoint_every=100000000", "train.test_episodes=4"]
-    grid = subprocess.Popen([sys.executable, "-m", "dlo_policy.experiments", *grid_args, "--steps", "1000000"], env=env,
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True,
-                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))  # as from a terminal
+    grid_args = [
+        "--out",
+        str(out),
+        "--groups",
+        "single",
+        "--labels",
+        "T",
+        "--seeds",
+        "1",
+        "--jobs",
+        "1",
+        "--no-progress",
+        *TINY,
+        "train.checkpoint_every=100000000",
+        "train.test_episodes=4",
+    ]
+    grid = subprocess.Popen(
+        [sys.executable, "-m", "dlo_policy.experiments", *grid_args, "--steps", "1000000"],
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        start_new_session=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    )  # as from a terminal
     worker = None
     try:
         worker = _worker_pid(run, grid)

@@ -1,5 +1,6 @@
 """dlo-experiments piece by piece, in-process and fast: no run trains, no process is spawned, no Ray
 cluster is started (stand-ins for the trainer, the process pool and Ray record what the driver does)."""
+
 import concurrent.futures
 import concurrent.futures.process
 import io
@@ -11,15 +12,22 @@ import sys
 from pathlib import Path
 
 import pytest
-
 from dlo_policy import experiments, rundir
 from dlo_policy.config import load_config
 from dlo_policy.rundir import CHECKPOINT_FILE, DONE_FILE, EVAL_FILE, LOCK_FILE, LOG_FILE
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # --import-mode=importlib: sac_reach_env
 
-TINY = ["env_module=sac_reach_env", "sac.hidden_sizes=[16,16]", "sac.batch_size=16", "sac.learning_starts=20",
-        "sac.buffer_size=500", "train.eval_every=50", "train.checkpoint_every=50", "train.eval_episodes=4"]
+TINY = [
+    "env_module=sac_reach_env",
+    "sac.hidden_sizes=[16,16]",
+    "sac.batch_size=16",
+    "sac.learning_starts=20",
+    "sac.buffer_size=500",
+    "train.eval_every=50",
+    "train.checkpoint_every=50",
+    "train.eval_episodes=4",
+]
 
 
 class Clock:
@@ -93,9 +101,11 @@ def test_run_one_resumes_only_from_a_checkpoint_and_writes_its_output_to_train_l
     (partial / EVAL_FILE).write_text("step\n0\n")
     (partial / CHECKPOINT_FILE).write_bytes(b"")
     experiments.run_one(config, str(partial))
-    assert StubTrainer.made == [(3, fresh, False, [LOCK_FILE, LOG_FILE]),
-                                (3, stopped, False, [LOCK_FILE, LOG_FILE]),
-                                (3, partial, True, [LOCK_FILE, CHECKPOINT_FILE, EVAL_FILE, LOG_FILE])]
+    assert StubTrainer.made == [
+        (3, fresh, False, [LOCK_FILE, LOG_FILE]),
+        (3, stopped, False, [LOCK_FILE, LOG_FILE]),
+        (3, partial, True, [LOCK_FILE, CHECKPOINT_FILE, EVAL_FILE, LOG_FILE]),
+    ]
     for run in (fresh, stopped, partial):
         assert (run / LOG_FILE).read_text() == "stdout\nstderr\n"
 
@@ -108,8 +118,13 @@ def write_done(run, summary):
 def test_stamp_done_adds_where_and_how_long_the_run_ran(tmp_path):
     write_done(tmp_path, {"env_steps": 60})
     experiments.stamp_done(tmp_path, "node7", 12.3456, 2)
-    assert rundir.read_done(tmp_path) == {"env_steps": 60, "node": "node7", "host": socket.gethostname(),
-                                          "duration_s": 12.35, "attempts": 2}
+    assert rundir.read_done(tmp_path) == {
+        "env_steps": 60,
+        "node": "node7",
+        "host": socket.gethostname(),
+        "duration_s": 12.35,
+        "attempts": 2,
+    }
 
 
 def test_a_local_task_stamps_its_run_and_returns_errors_as_text(tmp_path, monkeypatch):
@@ -119,13 +134,19 @@ def test_a_local_task_stamps_its_run_and_returns_errors_as_text(tmp_path, monkey
         if config["fail"] == "boom":
             raise RuntimeError("boom")
         write_done(Path(run_dir), {"env_steps": 5})
+
     monkeypatch.setattr(experiments, "run_one", run_one)
     monkeypatch.setattr(experiments, "time", Clock(100.0, 103.5, 0.0, 1.0, 0.0, 1.0))
     run = tmp_path / "run"
     run.mkdir()
     assert experiments._run_local_task({"fail": None}, str(run)) == (str(run), None)
-    assert rundir.read_done(run) == {"env_steps": 5, "node": "local", "host": socket.gethostname(),
-                                     "duration_s": 3.5, "attempts": 1}
+    assert rundir.read_done(run) == {
+        "env_steps": 5,
+        "node": "local",
+        "host": socket.gethostname(),
+        "duration_s": 3.5,
+        "attempts": 1,
+    }
     assert experiments._run_local_task({"fail": "in use"}, "x") == ("x", "x is in use by another training (pid 1)")
     path, error = experiments._run_local_task({"fail": "boom"}, "y")
     assert path == "y" and error.startswith("Traceback") and error.rstrip().endswith("RuntimeError: boom")
@@ -161,6 +182,7 @@ def test_a_worker_asks_the_kernel_for_sigterm_when_the_driver_dies(monkeypatch):
 
     def no_libc(name, **kwargs):
         raise OSError("no libc")
+
     monkeypatch.setattr(ctypes, "CDLL", no_libc)
     experiments._die_with_the_driver()  # elsewhere a no-op
     monkeypatch.setattr(ctypes, "CDLL", lambda name, **kwargs: object())  # no prctl
@@ -319,6 +341,7 @@ def test_a_ray_task_says_where_it_starts_then_sends_back_its_files(tmp_path, mon
         for name in ("config.yaml", LOG_FILE, CHECKPOINT_FILE):
             (Path(run_dir) / name).write_text(name)
         write_done(Path(run_dir), {"env_steps": 5})
+
     monkeypatch.setattr(experiments, "run_one", run_one)
     monkeypatch.setattr(experiments, "time", Clock(10.0, 14.25))
     messages = list(experiments._ray_task({"seed": 0}, 2))
@@ -327,8 +350,13 @@ def test_a_ray_task_says_where_it_starts_then_sends_back_its_files(tmp_path, mon
     assert set(messages[1]) == {"node", "error", "files"} and (messages[1]["node"], messages[1]["error"]) == (node, None)
     files = messages[1]["files"]
     assert set(files) == {"config.yaml", LOG_FILE, DONE_FILE}  # never the checkpoint
-    assert json.loads(files[DONE_FILE]) == {"env_steps": 5, "node": node, "host": socket.gethostname(),
-                                            "duration_s": 4.25, "attempts": 2}
+    assert json.loads(files[DONE_FILE]) == {
+        "env_steps": 5,
+        "node": node,
+        "host": socket.gethostname(),
+        "duration_s": 4.25,
+        "attempts": 2,
+    }
     assert seen[0].name.startswith("dlo-run-") and not seen[0].exists()  # a temporary directory, gone afterwards
     monkeypatch.setattr(experiments, "time", Clock(0.0, 1.0))
     failed = list(experiments._ray_task({"fail": True}, 1))[1]
@@ -354,12 +382,18 @@ def test_connect_ray_checks_the_head_answers_then_connects_quietly(monkeypatch):
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         closed = s.getsockname()[1]
-    with pytest.raises(experiments.GridError, match=f"^--ray-address 127.0.0.1:{closed}: no Ray head answers there "
-                                                    r"\(Connection refused\); start one with ray start --head$"):
+    with pytest.raises(
+        experiments.GridError,
+        match=f"^--ray-address 127.0.0.1:{closed}: no Ray head answers there "
+        r"\(Connection refused\); start one with ray start --head$",
+    ):
         experiments.connect_ray(f"127.0.0.1:{closed}")
     assert len(fake.inits) == 3
-    for error, why in ((ConnectionError("first line\nsecond line"), "first line"), (RuntimeError(""), "RuntimeError"),
-                       (ValueError("bad"), "bad")):
+    for error, why in (
+        (ConnectionError("first line\nsecond line"), "first line"),
+        (RuntimeError(""), "RuntimeError"),
+        (ValueError("bad"), "bad"),
+    ):
         fake.init_error = error
         with pytest.raises(experiments.GridError) as caught:
             experiments.connect_ray("auto")
@@ -372,12 +406,14 @@ def test_a_ray_head_that_never_answers_is_given_10_s(monkeypatch):
     def never(address, timeout=None):
         asked.append((address, timeout))
         raise TimeoutError("timed out")
+
     monkeypatch.setattr(experiments, "import_ray", lambda: FakeRayModule())
     monkeypatch.setattr(experiments.socket, "create_connection", never)
     with pytest.raises(experiments.GridError) as caught:
         experiments.connect_ray("[::1]:6379")
-    assert str(caught.value) == ("--ray-address [::1]:6379: no Ray head answers there (TimeoutError); start one with "
-                                 "ray start --head")
+    assert str(caught.value) == (
+        "--ray-address [::1]:6379: no Ray head answers there (TimeoutError); start one with ray start --head"
+    )
     assert asked == [(("::1", 6379), 10)]
 
 
@@ -388,8 +424,10 @@ def test_import_ray_only_when_asked_with_a_clear_exit_without_it(monkeypatch):
     monkeypatch.setitem(sys.modules, "ray", None)  # not installed
     with pytest.raises(SystemExit) as caught:
         experiments.import_ray()
-    assert str(caught.value) == ("dlo-experiments: --ray-address needs Ray, which is not installed: pip install ray "
-                                 "(or leave out --ray-address to run local processes)")
+    assert str(caught.value) == (
+        "dlo-experiments: --ray-address needs Ray, which is not installed: pip install ray "
+        "(or leave out --ray-address to run local processes)"
+    )
 
 
 def test_makespan_places_the_longest_runs_first_and_needs_one_worker():
@@ -399,16 +437,22 @@ def test_makespan_places_the_longest_runs_first_and_needs_one_worker():
 
 
 def test_check_capacity_wants_one_live_node_with_the_cpus_and_gpus_of_a_run():
-    fake = FakeRayModule([{"Alive": True, "Resources": {"CPU": 2.0}},
-                          {"Alive": True, "Resources": {"CPU": 4.0, "GPU": 1.0}},
-                          {"Alive": False, "Resources": {"CPU": 64.0, "GPU": 8.0}}])
+    fake = FakeRayModule(
+        [
+            {"Alive": True, "Resources": {"CPU": 2.0}},
+            {"Alive": True, "Resources": {"CPU": 4.0, "GPU": 1.0}},
+            {"Alive": False, "Resources": {"CPU": 64.0, "GPU": 8.0}},
+        ]
+    )
     experiments.check_capacity(fake, 2)
     experiments.check_capacity(fake, 4)
     experiments.check_capacity(fake, 4, 1.0)
     with pytest.raises(experiments.GridError) as caught:
         experiments.check_capacity(fake, 5)
-    assert str(caught.value) == ("no node of the Ray cluster has 5 CPUs for a run (at most 4 CPUs, 1 GPUs per node): "
-                                 "lower --threads / --gpus-per-run, or add bigger nodes")
+    assert str(caught.value) == (
+        "no node of the Ray cluster has 5 CPUs for a run (at most 4 CPUs, 1 GPUs per node): "
+        "lower --threads / --gpus-per-run, or add bigger nodes"
+    )
     with pytest.raises(experiments.GridError, match=r"has 2 CPUs and 1.5 GPU\(s\) for a run \(at most 4 CPUs, 1 GPUs"):
         experiments.check_capacity(fake, 2, 1.5)
     with pytest.raises(experiments.GridError, match=r"has 1 CPUs for a run \(at most 0 CPUs, 0 GPUs per node\)"):
@@ -444,6 +488,7 @@ class FakeRay:
             @staticmethod
             def remote(config, attempt):
                 return fake.generator(config["seed"], fake.plan[config["seed"]][attempt - 1], attempt)
+
         return lambda function: Remote
 
     def generator(self, seed, outcome, attempt):
@@ -482,6 +527,7 @@ def test_run_ray_reports_starts_retries_and_task_errors(tmp_path, capsys):
     def refresh(running=None):
         real_refresh(running)
         shown.append(progress.running)
+
     progress.refresh = refresh
     experiments.run_ray(fake, tasks, threads=2, retries=2, progress=progress, gpus=0.5)
     failed = tasks.pop()
@@ -498,8 +544,7 @@ def test_run_ray_reports_starts_retries_and_task_errors(tmp_path, capsys):
     out = capsys.readouterr().out
     assert f"[start] {tmp_path / 'seed0'} on node node01000000 (attempt 1)\n" in out
     assert f"[retry] {tmp_path / 'seed1'}: attempt 1 lost (NodeDiedError); starting attempt 2\n" in out
-    assert f"[retry] {tmp_path / 'seed1'}: attempt 2 lost (StopIteration on node node12000000); starting attempt 3\n" \
-        in out
+    assert f"[retry] {tmp_path / 'seed1'}: attempt 2 lost (StopIteration on node node12000000); starting attempt 3\n" in out
     assert f"{tmp_path / 'seed1'}: ok (node node13000000)\n" in out
     assert (tmp_path / "seed1" / DONE_FILE).exists() and not (tmp_path / "seed0").exists()
 
@@ -509,21 +554,24 @@ def test_run_ray_shuts_ray_down_even_when_interrupted():
 
     def interrupted(pending, num_returns, timeout):
         raise KeyboardInterrupt
+
     fake.wait = interrupted
     with pytest.raises(KeyboardInterrupt):
-        experiments.run_ray(fake, [experiments.Task(Path("r"), {"seed": 0})], 1, 0,
-                            experiments.GridProgress(1, enabled=False))
+        experiments.run_ray(fake, [experiments.Task(Path("r"), {"seed": 0})], 1, 0, experiments.GridProgress(1, enabled=False))
     assert fake.shutdowns == 1
 
 
 # ------------------------------------------------------------------ estimate
 def test_estimate_calibrates_on_the_most_expensive_configuration_and_skips_finished_runs(tmp_path, monkeypatch):
     probes = []
-    monkeypatch.setattr(experiments, "calibrate",
-                        lambda config: probes.append(config.modalities) or experiments.Calibration(1.0, 3.0))
+    monkeypatch.setattr(
+        experiments, "calibrate", lambda config: probes.append(config.modalities) or experiments.Calibration(1.0, 3.0)
+    )
     specs = [experiments.RunSpec(label, label, 0) for label in ("K", "T+K", "V", "T+V", "All")]
-    configs = [experiments.run_config(s, None, ["train.eval_every=100", "train.test_episodes=10",
-                                                "train.eval_episodes=10"], 1000, 1) for s in specs]
+    configs = [
+        experiments.run_config(s, None, ["train.eval_every=100", "train.test_episodes=10", "train.eval_episodes=10"], 1000, 1)
+        for s in specs
+    ]
     partial = specs[1].directory(tmp_path)
     partial.mkdir(parents=True)
     (partial / EVAL_FILE).write_text("step\n0\n600\n")
@@ -532,9 +580,11 @@ def test_estimate_calibrates_on_the_most_expensive_configuration_and_skips_finis
     text = experiments.estimate(specs, configs, statuses, tmp_path, jobs=2)
     assert probes == ["T+V"]  # vision renders: the dearest of the runs still to do (All is done)
     whole, rest = 1000 * 1.0 + (11 + 1) * 3.0, 400 * 1.0 + (4 + 1) * 3.0  # 1000 s + 36 s; 400 s + 15 s
-    assert text == (f"estimate: 4 runs, {(3 * whole + rest) / 3600:.1f} run-hours, wall ~{experiments._duration(2 * whole)}"
-                    " on 2 job(s) (calibrated now on T+V: 1000 ms per step with its update, 3.0 s per evaluation of 10 "
-                    "episodes; other load on this machine is included)")
+    assert text == (
+        f"estimate: 4 runs, {(3 * whole + rest) / 3600:.1f} run-hours, wall ~{experiments._duration(2 * whole)}"
+        " on 2 job(s) (calibrated now on T+V: 1000 ms per step with its update, 3.0 s per evaluation of 10 "
+        "episodes; other load on this machine is included)"
+    )
     again = experiments.estimate(specs, configs, statuses, tmp_path, jobs=1, resume_partial=False)
     assert f"~{experiments._duration(4 * whole)} on 1 job(s)" in again and experiments._duration(4 * whole) == "1.2 h"
     assert experiments.estimate(specs, configs, ["done"] * 5, tmp_path, jobs=1) == "estimate: nothing to run"
@@ -552,42 +602,80 @@ def test_help_describes_the_grid_and_every_option(capsys):
     assert out.startswith("usage: dlo-experiments ")
     assert "\n    single       T, K, V, All\n" in out  # the module docstring as laid out
     flat = " ".join(out.split())
-    for text in ("Overrides (key=value) apply to every run, e.g. train.eval_every=500.",
-                 "--out OUT results directory (one subdirectory per run)",
-                 "--groups GROUPS comma-separated subset of single,pairs,ablation,sensitivity (default: all)",
-                 "--labels LABELS only these configuration labels (comma-separated), e.g. All,V,T,K; "
-                 "a run directory's name works too",
-                 "--seeds SEEDS seeds per configuration (default 3)",
-                 "--first-seed FIRST_SEED seeds are first-seed .. first-seed + seeds - 1",
-                 "--steps STEPS env steps per run (default: the config's, 50000)",
-                 "--config CONFIG YAML config for every run",
-                 "--threads THREADS torch threads (and Ray CPUs) per run (default 1)",
-                 "--jobs JOBS parallel local runs (default: cores // threads); with --dry-run: the number of workers",
-                 "--ray-address RAY_ADDRESS run on this Ray cluster instead: HOST:PORT of its head",
-                 "--gpus-per-run GPUS_PER_RUN Ray: GPUs each run reserves",
-                 "--retries RETRIES Ray: times a run whose worker or node was lost is started again (default 2)",
-                 "--resume continue a grid in --out: finished runs (done.json) are skipped",
-                 "--no-progress no progress bar over the runs",
-                 "--dry-run list the runs and their status, estimate the wall time",
-                 "--collect RESULTS train nothing: copy the small files of every finished run",
-                 "key=value config overrides for every run"):
+    for text in (
+        "Overrides (key=value) apply to every run, e.g. train.eval_every=500.",
+        "--out OUT results directory (one subdirectory per run)",
+        "--groups GROUPS comma-separated subset of single,pairs,ablation,sensitivity (default: all)",
+        "--labels LABELS only these configuration labels (comma-separated), e.g. All,V,T,K; a run directory's name works too",
+        "--seeds SEEDS seeds per configuration (default 3)",
+        "--first-seed FIRST_SEED seeds are first-seed .. first-seed + seeds - 1",
+        "--steps STEPS env steps per run (default: the config's, 50000)",
+        "--config CONFIG YAML config for every run",
+        "--threads THREADS torch threads (and Ray CPUs) per run (default 1)",
+        "--jobs JOBS parallel local runs (default: cores // threads); with --dry-run: the number of workers",
+        "--ray-address RAY_ADDRESS run on this Ray cluster instead: HOST:PORT of its head",
+        "--gpus-per-run GPUS_PER_RUN Ray: GPUs each run reserves",
+        "--retries RETRIES Ray: times a run whose worker or node was lost is started again (default 2)",
+        "--resume continue a grid in --out: finished runs (done.json) are skipped",
+        "--no-progress no progress bar over the runs",
+        "--dry-run list the runs and their status, estimate the wall time",
+        "--collect RESULTS train nothing: copy the small files of every finished run",
+        "key=value config overrides for every run",
+    ):
         assert text in flat, text
 
 
 def test_the_defaults_are_the_documented_ones(tmp_path):
     args = experiments.build_parser().parse_args(["--out", str(tmp_path)])
     assert (args.out, args.groups, args.labels, args.seeds, args.first_seed, args.steps, args.config) == (
-        tmp_path, "single,pairs,ablation,sensitivity", None, 3, 0, None, None)
+        tmp_path,
+        "single,pairs,ablation,sensitivity",
+        None,
+        3,
+        0,
+        None,
+        None,
+    )
     assert (args.threads, args.jobs, args.ray_address, args.gpus_per_run, args.retries) == (1, None, None, 0.0, 2)
     assert (args.resume, args.no_progress, args.dry_run, args.collect, args.overrides) == (False, False, False, None, [])
     args = experiments.build_parser().parse_args(
-        ["--out", "o", "--seeds", "2", "--first-seed", "5", "--steps", "9", "--config", "c.yaml", "--threads", "2",
-         "--jobs", "3", "--gpus-per-run", "0.25", "--retries", "4", "--resume", "--no-progress", "--dry-run",
-         "--collect", "r", "a=1", "b=2"])
-    assert (args.seeds, args.first_seed, args.steps, args.config, args.threads, args.jobs) == (
-        2, 5, 9, Path("c.yaml"), 2, 3)
+        [
+            "--out",
+            "o",
+            "--seeds",
+            "2",
+            "--first-seed",
+            "5",
+            "--steps",
+            "9",
+            "--config",
+            "c.yaml",
+            "--threads",
+            "2",
+            "--jobs",
+            "3",
+            "--gpus-per-run",
+            "0.25",
+            "--retries",
+            "4",
+            "--resume",
+            "--no-progress",
+            "--dry-run",
+            "--collect",
+            "r",
+            "a=1",
+            "b=2",
+        ]
+    )
+    assert (args.seeds, args.first_seed, args.steps, args.config, args.threads, args.jobs) == (2, 5, 9, Path("c.yaml"), 2, 3)
     assert (args.gpus_per_run, args.retries, args.resume, args.no_progress, args.dry_run, args.collect) == (
-        0.25, 4, True, True, True, Path("r"))
+        0.25,
+        4,
+        True,
+        True,
+        True,
+        Path("r"),
+    )
     assert args.overrides == ["a=1", "b=2"]
     with pytest.raises(SystemExit):
         experiments.build_parser().parse_args([])  # --out is required
@@ -641,8 +729,20 @@ class Driver:
 
 
 def grid_args(out, *extra, overrides=()):
-    return ["--out", str(out), "--groups", "single", "--labels", "T,V", "--seeds", "1", "--no-progress", *extra,
-            *TINY, *overrides]
+    return [
+        "--out",
+        str(out),
+        "--groups",
+        "single",
+        "--labels",
+        "T,V",
+        "--seeds",
+        "1",
+        "--no-progress",
+        *extra,
+        *TINY,
+        *overrides,
+    ]
 
 
 def test_main_lists_the_runs_runs_the_rest_and_reports(tmp_path, monkeypatch, capsys):
@@ -651,19 +751,26 @@ def test_main_lists_the_runs_runs_the_rest_and_reports(tmp_path, monkeypatch, ca
     write_done(out / "T" / "seed0", {"env_steps": 1})
     assert experiments.main(grid_args(out, "--steps", "70", "--threads", "2", overrides=["sac.batch_size=8"])) == 0
     captured = capsys.readouterr()
-    assert captured.out.splitlines() == [f"done     {out / 'T' / 'seed0'}  (single)",
-                                         f"todo     {out / 'V' / 'seed0'}  (single)",
-                                         "2 runs, 1 done, 1 to run",
-                                         f"[1/1] {out / 'V' / 'seed0'}: ok",
-                                         "grid: 1 run(s): 1 finished, 0 failed"]
+    assert captured.out.splitlines() == [
+        f"done     {out / 'T' / 'seed0'}  (single)",
+        f"todo     {out / 'V' / 'seed0'}  (single)",
+        "2 runs, 1 done, 1 to run",
+        f"[1/1] {out / 'V' / 'seed0'}: ok",
+        "grid: 1 run(s): 1 finished, 0 failed",
+    ]
     assert captured.err == ""
     ((tasks, jobs),) = driver.local
     assert jobs == 2  # 4 cores // 2 threads
     (task,) = tasks
     assert task.run_dir == out / "V" / "seed0" and task.attempts == 0
     config = task.config
-    assert (config["modalities"], config["seed"], config["train"]["total_steps"], config["train"]["num_threads"],
-            config["sac"]["batch_size"]) == ("V", 0, 70, 2, 8)
+    assert (
+        config["modalities"],
+        config["seed"],
+        config["train"]["total_steps"],
+        config["train"]["num_threads"],
+        config["sac"]["batch_size"],
+    ) == ("V", 0, 70, 2, 8)
     assert driver.handlers == [(signal.SIGTERM, experiments._interrupt)]  # SIGTERM stops the runs like Ctrl-C
     with pytest.raises(KeyboardInterrupt, match="signal 15"):
         experiments._interrupt(15, None)
@@ -672,11 +779,32 @@ def test_main_lists_the_runs_runs_the_rest_and_reports(tmp_path, monkeypatch, ca
 def test_main_picks_seeds_labels_and_groups_as_asked(tmp_path, monkeypatch, capsys):
     driver = Driver(monkeypatch)
     out = tmp_path / "grid"
-    assert experiments.main(["--out", str(out), "--groups", " single , ,", "--labels", " K , , All ,", "--seeds", "2",
-                             "--first-seed", "4", "--no-progress", *TINY]) == 0
+    assert (
+        experiments.main(
+            [
+                "--out",
+                str(out),
+                "--groups",
+                " single , ,",
+                "--labels",
+                " K , , All ,",
+                "--seeds",
+                "2",
+                "--first-seed",
+                "4",
+                "--no-progress",
+                *TINY,
+            ]
+        )
+        == 0
+    )
     ((tasks, jobs),) = driver.local
-    assert [(t.run_dir.parent.name, t.run_dir.name) for t in tasks] == [("K", "seed4"), ("All", "seed4"),
-                                                                        ("K", "seed5"), ("All", "seed5")]
+    assert [(t.run_dir.parent.name, t.run_dir.name) for t in tasks] == [
+        ("K", "seed4"),
+        ("All", "seed4"),
+        ("K", "seed5"),
+        ("All", "seed5"),
+    ]
     assert jobs == 4
     assert "4 runs, 0 done, 4 to run" in capsys.readouterr().out
 
@@ -685,8 +813,23 @@ def test_a_label_is_also_its_directory_name(tmp_path, monkeypatch, capsys):
     """'All tactile-partial' runs in All_tactile-partial/: either spelling picks it (a user copies the directory)."""
     driver = Driver(monkeypatch)
     for k, spelling in enumerate(("All tactile-partial", "All_tactile-partial")):
-        assert experiments.main(["--out", str(tmp_path / f"grid{k}"), "--groups", "sensitivity", "--labels", spelling,
-                                 "--seeds", "1", "--no-progress", *TINY]) == 0
+        assert (
+            experiments.main(
+                [
+                    "--out",
+                    str(tmp_path / f"grid{k}"),
+                    "--groups",
+                    "sensitivity",
+                    "--labels",
+                    spelling,
+                    "--seeds",
+                    "1",
+                    "--no-progress",
+                    *TINY,
+                ]
+            )
+            == 0
+        )
         assert len(driver.local) == k + 1
         assert [t.run_dir.parent.name for t in driver.local[-1][0]] == ["All_tactile-partial"]
     capsys.readouterr()
@@ -694,10 +837,15 @@ def test_a_label_is_also_its_directory_name(tmp_path, monkeypatch, capsys):
 
 def test_a_label_not_in_the_groups_is_one_line_naming_the_choices(tmp_path, monkeypatch, capsys):
     driver = Driver(monkeypatch)
-    assert experiments.main(["--out", str(tmp_path / "grid"), "--groups", "single", "--labels", "All,T+K",
-                             "--seeds", "1", "--no-progress", *TINY]) == 2
-    assert capsys.readouterr().err == ("dlo-experiments: error: --labels: 'T+K' is not a configuration of the groups "
-                                       "single (their labels: T, K, V, All)\n")
+    assert (
+        experiments.main(
+            ["--out", str(tmp_path / "grid"), "--groups", "single", "--labels", "All,T+K", "--seeds", "1", "--no-progress", *TINY]
+        )
+        == 2
+    )
+    assert capsys.readouterr().err == (
+        "dlo-experiments: error: --labels: 'T+K' is not a configuration of the groups single (their labels: T, K, V, All)\n"
+    )
     assert driver.local == [] and not (tmp_path / "grid").exists()
 
 
@@ -759,7 +907,8 @@ def test_main_interrupted_exits_130_counting_the_finished_runs(tmp_path, monkeyp
     err = capsys.readouterr().err
     assert err.split("\n")[-2] == (  # on a line of its own: the progress bar was closed first
         "dlo-experiments: interrupted; 2 of 3 run(s) finished: run the same command again to continue (a stopped "
-        "run resumes from its checkpoint)")
+        "run resumes from its checkpoint)"
+    )
     assert "runs:" in err
 
 
@@ -782,19 +931,23 @@ def test_main_needs_ray_before_anything_when_asked_for_it(tmp_path, monkeypatch,
 
     def no_ray():
         raise SystemExit("dlo-experiments: --ray-address needs Ray, which is not installed")
+
     monkeypatch.setattr(experiments, "import_ray", no_ray)
     with pytest.raises(SystemExit, match="needs Ray"):
         experiments.main(grid_args(tmp_path / "grid", "--dry-run", "--ray-address", "auto"))
     assert capsys.readouterr().out == "" and driver.estimates == []
 
 
-@pytest.mark.parametrize("extra, message", [
-    (["--seeds", "0"], "--seeds must be at least 1"),
-    (["--jobs", "0"], "--jobs must be at least 1, --retries and --gpus-per-run at least 0"),
-    (["--gpus-per-run", "-0.5", "--ray-address", "auto"], "--jobs must be at least 1, --retries and --gpus-per-run"),
-    (["--groups", "singles"], "unknown group"),
-    (["sac.batch_size=many"], "sac.batch_size: expected an integer"),
-])
+@pytest.mark.parametrize(
+    "extra, message",
+    [
+        (["--seeds", "0"], "--seeds must be at least 1"),
+        (["--jobs", "0"], "--jobs must be at least 1, --retries and --gpus-per-run at least 0"),
+        (["--gpus-per-run", "-0.5", "--ray-address", "auto"], "--jobs must be at least 1, --retries and --gpus-per-run"),
+        (["--groups", "singles"], "unknown group"),
+        (["sac.batch_size=many"], "sac.batch_size: expected an integer"),
+    ],
+)
 def test_main_usage_mistakes_are_one_line_exit_2(extra, message, tmp_path, monkeypatch, capsys):
     driver = Driver(monkeypatch)
     overrides = [e for e in extra if "=" in e and not e.startswith("-")]
@@ -808,8 +961,12 @@ def test_main_usage_mistakes_are_one_line_exit_2(extra, message, tmp_path, monke
 def test_main_on_ray_connects_checks_capacity_and_runs_there(tmp_path, monkeypatch, capsys):
     driver = Driver(monkeypatch)
     out = tmp_path / "grid"
-    assert experiments.main(grid_args(out, "--ray-address", "head:6379", "--threads", "8", "--retries", "5",
-                                      "--gpus-per-run", "0.5")) == 0
+    assert (
+        experiments.main(
+            grid_args(out, "--ray-address", "head:6379", "--threads", "8", "--retries", "5", "--gpus-per-run", "0.5")
+        )
+        == 0
+    )
     assert driver.connected == ["head:6379"] and driver.local == []
     ((ray, tasks, threads, retries, gpus),) = driver.ray_runs
     assert (ray, len(tasks), threads, retries, gpus) == (driver.ray, 2, 8, 5, 0.5)  # no cap by local cores
@@ -851,8 +1008,9 @@ def test_calibrate_times_its_steps_and_one_evaluation(monkeypatch):
 
 def test_a_finished_run_has_only_its_held_out_test_left():
     cal = experiments.Calibration(step_s=0.5, eval_s=2.0)
-    config = load_config(None, ["train.total_steps=1000", "train.eval_every=200", "train.eval_episodes=10",
-                                "train.test_episodes=20"])
+    config = load_config(
+        None, ["train.total_steps=1000", "train.eval_every=200", "train.eval_episodes=10", "train.test_episodes=20"]
+    )
     assert cal.run_seconds(config, done_steps=1000) == pytest.approx(2 * 2.0)
     assert cal.run_seconds(config, done_steps=1200) == pytest.approx(2 * 2.0)
 
@@ -968,8 +1126,14 @@ def test_calibrate_times_steps_with_an_update_each_and_an_evaluation_after_warm_
     assert warm_updates > 0
     assert (steps - warm_steps, updates - warm_updates) == (30, 30)
     seed = config.train.eval_seed
-    assert events[2:] == [("close", "training env"), ("evaluate", "eval env", seed, 4), ("clock", steps, updates),
-                          ("evaluate", "eval env", seed, 4), ("clock", steps, updates), ("close", "eval env")]
+    assert events[2:] == [
+        ("close", "training env"),
+        ("evaluate", "eval env", seed, 4),
+        ("clock", steps, updates),
+        ("evaluate", "eval env", seed, 4),
+        ("clock", steps, updates),
+        ("close", "eval env"),
+    ]
 
 
 def test_main_accepts_one_job_and_no_retries(tmp_path, monkeypatch, capsys):
@@ -995,7 +1159,7 @@ def test_main_prints_its_report_after_the_finished_progress_bar(tmp_path, monkey
     log = stream.getvalue()
     report = "grid: 2 run(s): 2 finished, 0 failed\n"
     assert log.endswith(report), repr(log)
-    bar = log[:-len(report)]
+    bar = log[: -len(report)]
     # the bar's finished line, then a line break (tqdm pads a status shorter than the one before it, which depends
     # on the measured rate in runs/s, with spaces: rehearsal 95 saw '986.43run/s, ...] ' after '1066.85run/s, ...]')
     assert bar.endswith("\n") and bar[:-1].rstrip(" ").endswith("done=2 running=0 failed=0 retried=0]"), repr(log)
@@ -1010,8 +1174,7 @@ def test_collect_into_a_directory_inside_the_runs_skips_what_it_collected(tmp_pa
     for _ in range(2):
         assert experiments.main(["--out", str(runs), "--collect", str(results)]) == 0
     assert capsys.readouterr().out == f"{results / 'All' / 'seed0'}\n"
-    assert sorted(p.relative_to(results).as_posix() for p in results.rglob("*")) == [
-        "All", "All/seed0", f"All/seed0/{DONE_FILE}"]
+    assert sorted(p.relative_to(results).as_posix() for p in results.rglob("*")) == ["All", "All/seed0", f"All/seed0/{DONE_FILE}"]
     write_done(results, {"env_steps": 1})  # RESULTS itself holding a done.json is not a run of --out either
     assert experiments.main(["--out", str(runs), "--collect", str(results)]) == 0
     assert capsys.readouterr().out == ""

@@ -12,7 +12,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
 from dlo_common.topics import message_class, topic
 from dlo_policy import modalities
 from dlo_policy.config import SACConfig
@@ -53,16 +52,23 @@ def test_all_is_the_papers_k_t_v_not_every_modality_known(monkeypatch):
 def test_the_launchers_without_check_reads_the_registry():
     assert without_problem("") is None and without_problem("T+V") is None and without_problem("K") is None
     for bad in ("X", "T+", "t", " T"):
-        assert without_problem(bad) == (f"--without must be empty or modalities joined by '+' (K, T, V), e.g. T or "
-                                        f"T+V, got '{bad}'")
+        assert without_problem(bad) == (
+            f"--without must be empty or modalities joined by '+' (K, T, V), e.g. T or T+V, got '{bad}'"
+        )
 
 
 def grip_twice() -> Modality:
     """A modality made up for the test: the closure once more, from the gripper state."""
-    return Modality("G", "grip", ("c_G2",), ((0.0, 1.0),),
-                    observe=lambda env: env.task.state.gripper[:, 3:4],
-                    columns=lambda grip: np.asarray(grip, dtype=np.float32).reshape(-1, 1),
-                    topic="/dlo/gripper/state", from_message=lambda msg: np.array([[msg.closure]]))
+    return Modality(
+        "G",
+        "grip",
+        ("c_G2",),
+        ((0.0, 1.0),),
+        observe=lambda env: env.task.state.gripper[:, 3:4],
+        columns=lambda grip: np.asarray(grip, dtype=np.float32).reshape(-1, 1),
+        topic="/dlo/gripper/state",
+        from_message=lambda msg: np.array([[msg.closure]]),
+    )
 
 
 def test_a_new_modality_is_one_record(monkeypatch):
@@ -109,7 +115,6 @@ def test_a_checkpoint_from_before_loads_and_its_all_means_k_t_v(tmp_path, monkey
     config.yaml says "All", which is K+T+V, and the policy node reads it so."""
     pytest.importorskip("rclpy")
     import torch
-
     from dlo_policy import policy_node
     from dlo_policy.evaluate import load_run_config
 
@@ -130,8 +135,8 @@ def test_a_checkpoint_from_before_loads_and_its_all_means_k_t_v(tmp_path, monkey
 def test_a_record_is_checked_when_it_is_made():
     """Modality: one (low, high) per label, and its topic must be one of the registry's (dlo_common.topics)."""
     with pytest.raises(ValueError, match="modality G: one \\(low, high\\) per label"):
-        Modality("G", "grip", ("a", "b"), ((0.0, 1.0),), observe=None, columns=None, topic="/dlo/gripper/state",
-                 from_message=None)
+        Modality(
+            "G", "grip", ("a", "b"), ((0.0, 1.0),), observe=None, columns=None, topic="/dlo/gripper/state", from_message=None
+        )
     with pytest.raises(KeyError, match="no topic '/dlo/nosuch'"):
-        Modality("G", "grip", ("a",), ((0.0, 1.0),), observe=None, columns=None, topic="/dlo/nosuch",
-                 from_message=None)
+        Modality("G", "grip", ("a",), ((0.0, 1.0),), observe=None, columns=None, topic="/dlo/nosuch", from_message=None)

@@ -8,7 +8,6 @@ from pathlib import Path
 
 import pytest
 import torch
-
 from dlo_policy import normalizer_drift
 
 INSTALL_BIN = Path(__file__).resolve().parents[3] / "ros_ws" / "install" / "dlo_policy" / "lib" / "dlo_policy"
@@ -24,9 +23,8 @@ def make_run(path: Path, steps=40) -> Path:
     is in x_G, in the window where the jump happens."""
     path.mkdir(parents=True)
     obs = torch.zeros(100, 3)
-    obs[steps // 2:steps, 0] = 1.0
-    torch.save({"counters": {"env_steps": steps, "updates": 0, "episodes": 0}, "replay": {"obs": obs}},
-               path / "checkpoint.pt")
+    obs[steps // 2 : steps, 0] = 1.0
+    torch.save({"counters": {"env_steps": steps, "updates": 0, "episodes": 0}, "replay": {"obs": obs}}, path / "checkpoint.pt")
     (path / "config.yaml").write_text("modalities: K\n")
     (path / "eval.csv").write_text("step,tested_without,hold_the_end\n10,,0.0\n20,,0.5\n20,T,0.0\n30,,1.0\n40,,1.0\n")
     return path
@@ -48,13 +46,16 @@ def test_a_tiny_run_finds_the_jump_and_prints_json_last(tmp_path):
     assert shifts[20]["shift"] == 0.0 and shifts[20]["hold_the_end"] == 0.5  # the T-ablated row is not counted
 
 
-@pytest.mark.parametrize("case, message", [
-    ("missing", "checkpoint.pt not found"),
-    ("text", "not a full dlo-train checkpoint with its replay buffer"),
-    ("policy", "not a full dlo-train checkpoint with its replay buffer (KeyError"),
-    ("every", "--every must be >= 1, got 0"),
-    ("none", "the following arguments are required: RUN_DIR"),
-])
+@pytest.mark.parametrize(
+    "case, message",
+    [
+        ("missing", "checkpoint.pt not found"),
+        ("text", "not a full dlo-train checkpoint with its replay buffer"),
+        ("policy", "not a full dlo-train checkpoint with its replay buffer (KeyError"),
+        ("every", "--every must be >= 1, got 0"),
+        ("none", "the following arguments are required: RUN_DIR"),
+    ],
+)
 def test_bad_input_is_one_line_and_exit_2(tmp_path, capsys, case, message):
     run = make_run(tmp_path / "run")
     argv = [str(run)]

@@ -4,7 +4,6 @@ the ablated block without ever reading its input."""
 
 import numpy as np
 import pytest
-
 from dlo_perception.tactile import TactilePose
 from dlo_perception.vision import VisualPose
 from dlo_policy.observation import build_observation, observation_bounds, parse_modalities
@@ -36,8 +35,11 @@ def test_batched_observation_rows_keep_their_own_values():
     tactile = TactilePose(np.array([0.3, -0.1]), np.array([0.004, -0.002]), np.array([True, True]), np.array([3, 4]))
     visual = VisualPose(np.array([True, False]), np.array([0.5, 0.0]), np.array([-0.2, 0.0]), np.array([0.01, 0.0]))
     observation = build_observation("All", kinematic, tactile, visual)
-    np.testing.assert_allclose(observation, [[0.1, -0.2, 0.7, 0.3, 0.004, 1.0, 0.5, -0.2, 0.01],
-                                             [0.05, 0.02, 0.9, -0.1, -0.002, 0.0, 0.0, 0.0, 0.0]], rtol=1e-6)
+    np.testing.assert_allclose(
+        observation,
+        [[0.1, -0.2, 0.7, 0.3, 0.004, 1.0, 0.5, -0.2, 0.01], [0.05, 0.02, 0.9, -0.1, -0.002, 0.0, 0.0, 0.0, 0.0]],
+        rtol=1e-6,
+    )
 
 
 class Unreadable:
@@ -47,8 +49,16 @@ class Unreadable:
         raise AssertionError(f"the ablated input was read ({name})")
 
 
-@pytest.mark.parametrize("without, zero", [(("K",), [0, 1, 2]), (("T",), [3, 4]), (("V",), [5, 6, 7, 8]),
-                                           (("T", "V"), [3, 4, 5, 6, 7, 8]), ("V+K", [0, 1, 2, 5, 6, 7, 8])])
+@pytest.mark.parametrize(
+    "without, zero",
+    [
+        (("K",), [0, 1, 2]),
+        (("T",), [3, 4]),
+        (("V",), [5, 6, 7, 8]),
+        (("T", "V"), [3, 4, 5, 6, 7, 8]),
+        ("V+K", [0, 1, 2, 5, 6, 7, 8]),
+    ],
+)
 def test_ablation_zeroes_exactly_the_ablated_block_and_never_reads_it(without, zero):
     kinematic = np.array([[0.1, -0.2, 0.7], [0.05, 0.02, 0.9]])
     tactile = TactilePose(np.array([0.3, -0.1]), np.array([0.004, -0.002]), np.array([True, True]), np.array([3, 4]))

@@ -6,7 +6,6 @@ same directory continues the saved run."""
 import numpy as np
 import pytest
 import torch
-
 from dlo_policy.config import RunConfig, SACConfig
 from dlo_policy.online import OnlineLearner
 

@@ -7,7 +7,6 @@ import math
 
 import numpy as np
 import pytest
-
 from dlo_policy import perturbations as P
 from dlo_policy.env import make_vec_env
 
@@ -21,8 +20,9 @@ def actions():
     """A fixed open-loop sequence: along the cable with a sliding grip, then sideways and open (the cable leaves the
     camera's window), the same in every run."""
     rng = np.random.default_rng(0)
-    along = np.stack([rng.uniform(0.2, 1.0, (ALONG, N)), rng.uniform(-0.3, 0.3, (ALONG, N)),
-                      rng.uniform(0.1, 0.7, (ALONG, N))], -1)
+    along = np.stack(
+        [rng.uniform(0.2, 1.0, (ALONG, N)), rng.uniform(-0.3, 0.3, (ALONG, N)), rng.uniform(0.1, 0.7, (ALONG, N))], -1
+    )
     sideways = np.tile(np.array([0.2, 1.0, -1.0]), (SIDEWAYS, N, 1))
     return np.concatenate([along, sideways]).astype(np.float32)
 
@@ -54,11 +54,15 @@ def other_columns_equal(perturbed, plain, *changed):
 # ------------------------------------------------------------------------------------------------ registry
 def test_every_family_is_one_record_with_unit_side_grid_and_off_by_default():
     assert len(P.FAMILIES) == len(set(P.names())) >= 19
-    assert set(P.names(P.OBSERVATION)) >= {"observation_delay", "tactile_angle_noise", "vision_dropout",
-                                           "vision_false_visible", "gripper_position_bias"}
+    assert set(P.names(P.OBSERVATION)) >= {
+        "observation_delay",
+        "tactile_angle_noise",
+        "vision_dropout",
+        "vision_false_visible",
+        "gripper_position_bias",
+    }
     assert set(P.names(P.ACTION)) == {"action_delay", "velocity_gain", "closure_lag"}
-    assert set(P.names(P.PHYSICS)) == {"friction", "stretch_stiffness", "bending_stiffness", "cable_length",
-                                       "particle_mass"}
+    assert set(P.names(P.PHYSICS)) == {"friction", "stretch_stiffness", "bending_stiffness", "cable_length", "particle_mass"}
     assert set(P.names(P.CAMERA)) == {"camera_offset", "camera_yaw"}
     for f in P.FAMILIES:
         assert f.unit and f.perturbs and len(f.grid) >= 5
@@ -73,10 +77,16 @@ def test_settings_are_read_one_way_from_text_or_mapping_and_bad_ones_are_one_lin
     setting = P.parse("friction=0.2:0.5, observation_delay=2,velocity_gain=1")
     assert setting == {"observation_delay": 2, "friction": (0.2, 0.5)}  # registry order, off entries dropped
     assert P.parse(P.text(setting)) == setting == P.parse({"friction": [0.2, 0.5], "observation_delay": 2.0})
-    for bad, message in [("obs_delay=2", "did you mean 'observation_delay'"), ("observation_delay=1.5", "integer"),
-                         ("vision_dropout=2", r"in \[0, 1\]"), ("friction", "name=value"),
-                         ("friction=0.5:0.2", "low <= high"), ("closure_lag=-1", r"in \[0, 60\]"),
-                         ("action_delay=1,action_delay=2", "twice"), ("velocity_gain=nan", "expected")]:
+    for bad, message in [
+        ("obs_delay=2", "did you mean 'observation_delay'"),
+        ("observation_delay=1.5", "integer"),
+        ("vision_dropout=2", r"in \[0, 1\]"),
+        ("friction", "name=value"),
+        ("friction=0.5:0.2", "low <= high"),
+        ("closure_lag=-1", r"in \[0, 60\]"),
+        ("action_delay=1,action_delay=2", "twice"),
+        ("velocity_gain=nan", "expected"),
+    ]:
         with pytest.raises(ValueError, match=message) as error:
             P.parse(bad)
         assert "\n" not in str(error.value)
@@ -95,9 +105,14 @@ def test_observation_delay_shows_the_observation_of_d_steps_before(plain):
     np.testing.assert_array_equal(observations, expected)
 
 
-@pytest.mark.parametrize("name, magnitude, label, scale", [
-    ("tactile_angle_noise", 10.0, "theta_T", math.radians(1)), ("tactile_offset_noise", 2.0, "y_T", 0.001),
-    ("gripper_position_noise", 4.0, "x_G", 0.001)])
+@pytest.mark.parametrize(
+    "name, magnitude, label, scale",
+    [
+        ("tactile_angle_noise", 10.0, "theta_T", math.radians(1)),
+        ("tactile_offset_noise", 2.0, "y_T", 0.001),
+        ("gripper_position_noise", 4.0, "x_G", 0.001),
+    ],
+)
 def test_sensor_noise_is_gaussian_on_its_reading_only(plain, name, magnitude, label, scale):
     observations, _ = rollout({name: magnitude})
     changed = (label, "y_G") if label == "x_G" else (label,)
@@ -110,8 +125,10 @@ def test_sensor_noise_is_gaussian_on_its_reading_only(plain, name, magnitude, la
         assert 0.6 < added.std() / (magnitude * scale) < 1.4 and abs(added.mean()) < 0.5 * magnitude * scale
 
 
-@pytest.mark.parametrize("name, magnitude, label, scale", [
-    ("vision_angle_noise", 10.0, "theta_V", math.radians(1)), ("vision_offset_noise", 2.0, "y_V", 0.001)])
+@pytest.mark.parametrize(
+    "name, magnitude, label, scale",
+    [("vision_angle_noise", 10.0, "theta_V", math.radians(1)), ("vision_offset_noise", 2.0, "y_V", 0.001)],
+)
 def test_vision_noise_is_on_visible_detections_only(plain, name, magnitude, label, scale):
     observations, _ = rollout({name: magnitude})
     other_columns_equal(observations, plain, label)
@@ -194,22 +211,31 @@ def test_closure_lag_makes_the_closure_follow_the_command_as_a_first_order_lag(p
 
 # ------------------------------------------------------------------------------------------------ physics, camera
 def test_physics_families_fix_each_episode_beyond_the_training_ranges():
-    heavy = make_vec_env(N, seed=SEED, perturbations={"friction": 0.9, "stretch_stiffness": 3.0,
-                                                      "bending_stiffness": 5.0, "cable_length": 20,
-                                                      "particle_mass": 5.0})
-    light = make_vec_env(N, seed=SEED, perturbations="cable_length=20,particle_mass=0.05,friction=0.9,"
-                                                     "stretch_stiffness=3,bending_stiffness=5")
+    heavy = make_vec_env(
+        N,
+        seed=SEED,
+        perturbations={
+            "friction": 0.9,
+            "stretch_stiffness": 3.0,
+            "bending_stiffness": 5.0,
+            "cable_length": 20,
+            "particle_mass": 5.0,
+        },
+    )
+    light = make_vec_env(
+        N, seed=SEED, perturbations="cable_length=20,particle_mass=0.05,friction=0.9,stretch_stiffness=3,bending_stiffness=5"
+    )
     heavy.reset(seed=SEED)
     light.reset(seed=SEED)
     params = heavy.sim.params
-    for key, value in (("friction", 0.9), ("stretch", 3.0), ("bending", 5.0), ("num_particles", 20),
-                       ("particle_mass", 5.0)):
+    for key, value in (("friction", 0.9), ("stretch", 3.0), ("bending", 5.0), ("num_particles", 20), ("particle_mass", 5.0)):
         assert np.all(params[key] == np.float32(value)), key
     assert np.all(light.sim.params["particle_mass"] == np.float32(0.05))
 
     def length(env):  # along the cable: heavier particles against the same compliance stretch it more
         x = env.sim.positions()[:, :20]
         return np.linalg.norm(np.diff(x, axis=1), axis=2).sum(axis=1)
+
     assert np.all(length(heavy) > length(light))
     ranged = make_vec_env(8, seed=SEED, perturbations={"friction": [0.5, 0.7]})
     ranged.reset(seed=SEED)
@@ -236,8 +262,9 @@ def test_camera_families_move_the_camera_that_renders_not_the_one_the_vision_ass
         assert np.linalg.norm(centre - rendering.world_to_pixel(gripper)) < 0.75
         assert np.linalg.norm(centre - nominal.world_to_pixel(gripper)) > 3
     vision = visual_pose(state.image, nominal, state.gripper[:, :2], float(np.float32(0.1)))  # read as if nominal
-    np.testing.assert_array_equal(observation[:, 5:], np.stack([vision.visible, vision.confidence, vision.angle,
-                                                                 vision.y], -1).astype(np.float32))
+    np.testing.assert_array_equal(
+        observation[:, 5:], np.stack([vision.visible, vision.confidence, vision.angle, vision.y], -1).astype(np.float32)
+    )
 
 
 def test_top_camera_yaw_round_trips_and_turns_the_view():
@@ -254,8 +281,15 @@ def test_top_camera_yaw_round_trips_and_turns_the_view():
 
 # ------------------------------------------------------------------------------------------------ the Perturber
 def test_the_noise_depends_on_the_episode_seed_alone_not_on_the_batch_or_the_env_index():
-    setting = {"observation_delay": 1, "vision_angle_noise": 5.0, "gripper_position_noise": 2.0,
-               "vision_false_visible": 0.3, "action_delay": 1, "closure_lag": 0.1, "velocity_gain": 0.8}
+    setting = {
+        "observation_delay": 1,
+        "vision_angle_noise": 5.0,
+        "gripper_position_noise": 2.0,
+        "vision_false_visible": 0.3,
+        "action_delay": 1,
+        "closure_lag": 0.1,
+        "velocity_gain": 0.8,
+    }
     rng = np.random.default_rng(1)
     observations = rng.uniform(-0.01, 0.01, (12, 3, 9)).astype(np.float32)
     observations[..., 5] = rng.integers(0, 2, (12, 3))
@@ -267,8 +301,8 @@ def test_the_noise_depends_on_the_episode_seed_alone_not_on_the_batch_or_the_env
     for i, seed in ((2, 72), (0, 70)):
         alone.start([0], [seed])
         for t, (o, a) in enumerate(zip(observations, acts)):
-            np.testing.assert_array_equal(alone.observe(o[i:i + 1]), together[t][0][i:i + 1])
-            np.testing.assert_array_equal(alone.act(a[i:i + 1]), together[t][1][i:i + 1])
+            np.testing.assert_array_equal(alone.observe(o[i : i + 1]), together[t][0][i : i + 1])
+            np.testing.assert_array_equal(alone.act(a[i : i + 1]), together[t][1][i : i + 1])
     other = P.Perturber(setting, "All", num_envs=1)
     other.start([0], [73])
     assert not np.array_equal(other.observe(observations[0][:1]), together[0][0][:1])

@@ -21,7 +21,6 @@ rclpy = pytest.importorskip("rclpy")
 from dlo_common.params import as_params, check_value  # noqa: E402
 from dlo_common.testing import LogLines, reserved_domain  # noqa: E402
 from dlo_msgs.msg import GripperState, TactilePose, TaskState, VisualPose  # noqa: E402
-
 from dlo_policy import policy_node as policy_node_module  # noqa: E402
 
 DECLARE = policy_node_module.declare_parameters  # the original: every node gets only its own overrides
@@ -78,18 +77,16 @@ def make_node(context, monkeypatch):
 
     def make(act=None, learner=None, trained_on="All", **parameters):
         checked = {name: check_value(SPECS[name], value) for name, value in parameters.items()}  # range, choices
-        monkeypatch.setattr(policy_node_module, "declare_parameters",
-                            lambda n, specs: {**DECLARE(n, specs), **checked})
-        monkeypatch.setattr(policy_node_module, "load_policy",
-                            lambda kind, checkpoint, modalities, seed: (act, trained_on))
+        monkeypatch.setattr(policy_node_module, "declare_parameters", lambda n, specs: {**DECLARE(n, specs), **checked})
+        monkeypatch.setattr(policy_node_module, "load_policy", lambda kind, checkpoint, modalities, seed: (act, trained_on))
 
         def make_learner(p):
             assert learner is not None, "a learner was made without train:=true"
             return learner
+
         monkeypatch.setattr(policy_node_module.PolicyNode, "make_learner", staticmethod(make_learner))
         init = rclpy.node.Node.__init__
-        monkeypatch.setattr(rclpy.node.Node, "__init__",
-                            lambda self, *a, **k: init(self, *a, **{"context": context, **k}))
+        monkeypatch.setattr(rclpy.node.Node, "__init__", lambda self, *a, **k: init(self, *a, **{"context": context, **k}))
         try:
             node = policy_node_module.PolicyNode()
         finally:
@@ -112,22 +109,27 @@ def stamped(msg, step):
 
 def feed(node, step, episode=2, task=None):
     """Every input the node listens to, for one step (the gripper state last, as the sim does)."""
-    inputs = {"tactile": TactilePose(angle=T[0], y=T[1], contact=True, contact_count=4),
-              "vision": VisualPose(visible=V[0], confidence=V[1], angle=V[2], y=V[3]),
-              "task": task,
-              "gripper": GripperState(x=K[0], y=K[1], z=0.1, closure=K[2], episode=episode, step=step)}
+    inputs = {
+        "tactile": TactilePose(angle=T[0], y=T[1], contact=True, contact_count=4),
+        "vision": VisualPose(visible=V[0], confidence=V[1], angle=V[2], y=V[3]),
+        "task": task,
+        "gripper": GripperState(x=K[0], y=K[1], z=0.1, closure=K[2], episode=episode, step=step),
+    }
     for key in ("tactile", "vision", "task", "gripper"):
         if key in node.sync.keys:
             node.on_input(key, stamped(inputs[key], step))
 
 
-@pytest.mark.parametrize("without, inputs, zero", [
-    ("", ("gripper", "tactile", "vision"), []),
-    ("T", ("gripper", "vision"), [3, 4]),
-    ("V", ("gripper", "tactile"), [5, 6, 7, 8]),
-    ("K", ("gripper", "tactile", "vision"), [0, 1, 2]),
-    ("T+V", ("gripper",), [3, 4, 5, 6, 7, 8]),
-])
+@pytest.mark.parametrize(
+    "without, inputs, zero",
+    [
+        ("", ("gripper", "tactile", "vision"), []),
+        ("T", ("gripper", "vision"), [3, 4]),
+        ("V", ("gripper", "tactile"), [5, 6, 7, 8]),
+        ("K", ("gripper", "tactile", "vision"), [0, 1, 2]),
+        ("T+V", ("gripper",), [3, 4, 5, 6, 7, 8]),
+    ],
+)
 def test_without_blanks_the_modality_the_policy_sees(make_node, without, inputs, zero):
     policy = RecordingPolicy()
     node = make_node(act=policy, without=without)
@@ -163,8 +165,10 @@ def test_online_training_gets_a_terminal_flag_only_for_a_drop(make_node, n_held,
     assert node.sync.keys == ("gripper", "tactile", "task")
     feed(node, step=5, task=TaskState(episode=2, step=5, n_held=3, reward=0.25, done=False))
     feed(node, step=6, task=TaskState(episode=2, step=6, n_held=n_held, reward=-0.5, done=True))
-    assert learner.calls == [dict(reward=0.25, done=False, dropped=False, episode=2, step=5),
-                             dict(reward=-0.5, done=True, dropped=dropped, episode=2, step=6)]
+    assert learner.calls == [
+        dict(reward=0.25, done=False, dropped=False, episode=2, step=5),
+        dict(reward=-0.5, done=True, dropped=dropped, episode=2, step=6),
+    ]
     node.finish()  # saves the online run once (run_node calls it when the node stops)
     assert learner.saved == 1
 
@@ -172,11 +176,14 @@ def test_online_training_gets_a_terminal_flag_only_for_a_drop(make_node, n_held,
 def test_topics_timer_and_parameters(make_node):
     node = make_node(act=RecordingPolicy())
     assert node.real_publisher.topic_name == "/dlo/gripper/cmd"
-    assert sorted(s.topic_name for s in node.subscriptions) == ["/dlo/gripper/state", "/dlo/tactile/pose",
-                                                                "/dlo/vision/pose"]
+    assert sorted(s.topic_name for s in node.subscriptions) == ["/dlo/gripper/state", "/dlo/tactile/pose", "/dlo/vision/pose"]
     assert [t.timer_period_ns for t in node.timers] == [250_000_000]
     assert {n: node.get_parameter(n).value for n in ("input_timeout", "seed", "checkpoint_every", "without")} == {
-        "input_timeout": 1.0, "seed": 0, "checkpoint_every": 1000, "without": ""}
+        "input_timeout": 1.0,
+        "seed": 0,
+        "checkpoint_every": 1000,
+        "without": "",
+    }
     ablated = make_node(act=RecordingPolicy(), without="V")
     assert sorted(s.topic_name for s in ablated.subscriptions) == ["/dlo/gripper/state", "/dlo/tactile/pose"]
     oracle = make_node(act=RecordingPolicy(), policy="oracle", trained_on="K")
@@ -186,11 +193,14 @@ def test_topics_timer_and_parameters(make_node):
     assert sorted(s.topic_name for s in learner.subscriptions) == ["/dlo/gripper/state", "/dlo/task/state"]
 
 
-@pytest.mark.parametrize("parameters, message", [
-    (dict(policy="neural"), "parameter 'policy'"),
-    (dict(policy="random", train=True), "online training needs policy:=sac"),
-    (dict(without="V", trained_on="T+K"), "cannot ablate"),
-])
+@pytest.mark.parametrize(
+    "parameters, message",
+    [
+        (dict(policy="neural"), "parameter 'policy'"),
+        (dict(policy="random", train=True), "online training needs policy:=sac"),
+        (dict(without="V", trained_on="T+K"), "cannot ablate"),
+    ],
+)
 def test_bad_parameters_are_refused(make_node, parameters, message):
     from dlo_common.node_util import ParameterError
 
@@ -237,11 +247,13 @@ def test_incomplete_steps_are_reported_once_a_second_with_the_stamps_seen(make_n
     assert node.publisher == []
     assert 2 <= len(log.of("error")) <= 4, log.of("error")  # 50 incomplete steps, about one line a second
     first = log.of("error")[0]  # the latest incomplete step when it is due, e.g. the one at 1.44 s
-    found = re.match(r"step at t=(\S+) s: no tactile, vision input after 1.0 s; gripper state at (\S+)00004; tactile has "
-                     r"stamps (\S+), \S+ nearby; vision has stamps (\S+), \S+ nearby", first)
+    found = re.match(
+        r"step at t=(\S+) s: no tactile, vision input after 1.0 s; gripper state at (\S+)00004; tactile has "
+        r"stamps (\S+), \S+ nearby; vision has stamps (\S+), \S+ nearby",
+        first,
+    )
     assert found and found.group(1) == found.group(2) == found.group(3) == found.group(4), first
-    assert "(the tactile's nearest stamp is 0.4 us earlier: every input of a step must carry the state's exact stamp)" \
-        in first
+    assert "(the tactile's nearest stamp is 0.4 us earlier: every input of a step must carry the state's exact stamp)" in first
     assert "other incomplete steps since the last report" in log.of("error")[1]
 
 
@@ -267,6 +279,7 @@ def test_a_modality_that_cannot_read_its_message_stops_the_node_at_start(make_no
 
     def unreadable(msg):
         raise ValueError("tactile message has no field 'angle'")
+
     broken = dataclasses.replace(policy_node_module.by_name("T"), from_message=unreadable)
     real = policy_node_module.by_name
     monkeypatch.setattr(policy_node_module, "by_name", lambda name: broken if name == "T" else real(name))
@@ -288,9 +301,12 @@ class CountingPolicy(RecordingPolicy):
 def feed_moving(node, step, episode=3, seed=70):
     """One step whose gripper sits 1 mm further along x each step, with the task state carrying the episode's seed."""
     task = TaskState(episode=episode, step=step, seed=seed, n_held=3)
-    for key, msg in (("tactile", TactilePose(angle=T[0], y=T[1], contact=True, contact_count=4)),
-                     ("vision", VisualPose(visible=V[0], confidence=V[1], angle=V[2], y=V[3])), ("task", task),
-                     ("gripper", GripperState(x=0.001 * step, y=K[1], z=0.1, closure=K[2], episode=episode, step=step))):
+    for key, msg in (
+        ("tactile", TactilePose(angle=T[0], y=T[1], contact=True, contact_count=4)),
+        ("vision", VisualPose(visible=V[0], confidence=V[1], angle=V[2], y=V[3])),
+        ("task", task),
+        ("gripper", GripperState(x=0.001 * step, y=K[1], z=0.1, closure=K[2], episode=episode, step=step)),
+    ):
         if key in node.sync.keys:
             node.on_input(key, stamped(msg, step))
 
@@ -311,8 +327,10 @@ def test_perturbations_delay_what_the_policy_sees_and_what_it_commands(make_node
     assert commanded == expected
     feed_moving(node, 0, episode=4, seed=71)  # the next episode: its first observation and action, undelayed
     assert float(policy.seen[-1][0, 0]) == 0.0
-    assert (node.publisher[-1].vx, node.publisher[-1].episode) == (pytest.approx(action_to_command(
-        np.float32([0.4, -0.2, 0.1]))[0]), 4)
+    assert (node.publisher[-1].vx, node.publisher[-1].episode) == (
+        pytest.approx(action_to_command(np.float32([0.4, -0.2, 0.1]))[0]),
+        4,
+    )
     assert node.record["perturbations"] == "observation_delay=1,action_delay=1"  # on /dlo/policy/info too
 
 
@@ -333,14 +351,20 @@ def test_perturbation_noise_in_the_node_is_the_env_perturber_of_the_episode_seed
         np.testing.assert_array_equal(policy.seen[-1], env_side.observe(clean))
         action = env_side.act(np.float32([[0.1 * (step + 1), -0.05 * (step + 1), 0.5 - 0.1 * (step + 1)]]))[0]
         assert (node.publisher[-1].vx, node.publisher[-1].vy, node.publisher[-1].closure) == pytest.approx(
-            action_to_command(action))
+            action_to_command(action)
+        )
     assert not np.array_equal(policy.seen[-1][0, :2], [0.003, K[1]])  # noise was added
 
 
-@pytest.mark.parametrize("value, message", [
-    ("friction=0.6", "friction: physics and camera perturbations belong to the simulator"),
-    ("camera_yaw=2", "camera_yaw: physics and camera"), ("obs_delay=1", "did you mean 'observation_delay'"),
-    ("action_delay=-1", "action_delay: expected an integer")])
+@pytest.mark.parametrize(
+    "value, message",
+    [
+        ("friction=0.6", "friction: physics and camera perturbations belong to the simulator"),
+        ("camera_yaw=2", "camera_yaw: physics and camera"),
+        ("obs_delay=1", "did you mean 'observation_delay'"),
+        ("action_delay=-1", "action_delay: expected an integer"),
+    ],
+)
 def test_perturbations_the_node_does_not_own_or_cannot_read_are_one_line(make_node, value, message):
     from dlo_common.node_util import ParameterError
 

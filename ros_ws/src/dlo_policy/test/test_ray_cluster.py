@@ -8,6 +8,7 @@ spreads over the nodes; one worker node is killed (SIGKILL: its raylet and every
 started) while it runs a run; the grid still finishes every run, on the driver's disk, and
 reports the retry. Every Ray process started here is stopped at the end, also when a test fails.
 """
+
 import importlib.util
 import json
 import os
@@ -25,12 +26,20 @@ import pytest
 pytestmark = pytest.mark.skipif(importlib.util.find_spec("ray") is None, reason="Ray is not installed")
 
 HERE = Path(__file__).resolve().parent
-TINY = ["env_module=sac_reach_env", "sac.hidden_sizes=[16,16]", "sac.batch_size=16", "sac.learning_starts=20",
-        "sac.buffer_size=500", "train.eval_every=50", "train.checkpoint_every=50", "train.eval_episodes=4",
-        "train.test_episodes=4", "env_options.step_delay=0.01"]  # ~7 s of stepping per run: time to kill a node
+TINY = [
+    "env_module=sac_reach_env",
+    "sac.hidden_sizes=[16,16]",
+    "sac.batch_size=16",
+    "sac.learning_starts=20",
+    "sac.buffer_size=500",
+    "train.eval_every=50",
+    "train.checkpoint_every=50",
+    "train.eval_episodes=4",
+    "train.test_episodes=4",
+    "env_options.step_delay=0.01",
+]  # ~7 s of stepping per run: time to kill a node
 STEPS = 200
-RESULT_FILES = {"config.yaml", "eval.csv", "done.json", "best.json", "best_policy.pt", "policy.pt", "test.json",
-                "train.log"}
+RESULT_FILES = {"config.yaml", "eval.csv", "done.json", "best.json", "best_policy.pt", "policy.pt", "test.json", "train.log"}
 START_TIMEOUT_S = 300  # a node's start is ~10 s on an idle machine; far slower beside training jobs
 GRID_TIMEOUT_S = 1200
 RUNS = 4
@@ -43,10 +52,15 @@ def ray_env(temp_dir: str) -> dict:
     under /tmp/ray, temporary files in it too (the run directory of the run on the node killed, which
     that run cannot remove, goes with it), the test helpers importable by Ray's workers (sac_reach_env)."""
     env = dict(os.environ)
-    env.update(RAY_TMPDIR=temp_dir, TMPDIR=temp_dir, RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER="0", RAY_DISABLE_USAGE_STATS="1",
-               RAY_worker_register_timeout_seconds="600",  # workers start slowly on a loaded machine
-               RAY_worker_niceness="0",  # Ray's workers keep the test's priority (Ray's default: +15)
-               PYTHONPATH=os.pathsep.join([str(HERE), env.get("PYTHONPATH", "")]))
+    env.update(
+        RAY_TMPDIR=temp_dir,
+        TMPDIR=temp_dir,
+        RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER="0",
+        RAY_DISABLE_USAGE_STATS="1",
+        RAY_worker_register_timeout_seconds="600",  # workers start slowly on a loaded machine
+        RAY_worker_niceness="0",  # Ray's workers keep the test's priority (Ray's default: +15)
+        PYTHONPATH=os.pathsep.join([str(HERE), env.get("PYTHONPATH", "")]),
+    )
     return env
 
 
@@ -113,12 +127,13 @@ def listening_addresses(pids: list[int]) -> set[str]:
 
 def decode_address(raw: str) -> str:
     """/proc/net/tcp{,6} hex address (32-bit words, each little-endian) -> dotted IPv4 / IPv6 text."""
-    data = b"".join(bytes.fromhex(raw[i:i + 8])[::-1] for i in range(0, len(raw), 8))
+    data = b"".join(bytes.fromhex(raw[i : i + 8])[::-1] for i in range(0, len(raw), 8))
     if len(data) == 16 and data[:12] == bytes(10) + b"\xff\xff":  # IPv4-mapped IPv6 (::ffff:a.b.c.d)
         data = data[12:]
     if len(data) == 4:
         return ".".join(str(b) for b in data)
     import ipaddress  # noqa: PLC0415
+
     return str(ipaddress.IPv6Address(data))
 
 
@@ -126,10 +141,15 @@ def decode_address(raw: str) -> str:
 def cluster():
     """Head + 2 worker nodes on 127.0.0.1; stopped (and anything left of it killed) afterwards."""
     temp_dir = tempfile.mkdtemp(prefix="dlo-ray-", dir="/tmp")  # short: Ray puts sockets in it
-    holder = subprocess.Popen([sys.executable, str(HERE / "ray_local_cluster.py"), "--workers", "2",
-                               "--num-cpus", "1", "--temp-dir", temp_dir], stdin=subprocess.PIPE,
-                              stdout=subprocess.PIPE, stderr=open(Path(temp_dir) / "holder.log", "w"),
-                              text=True, env=ray_env(temp_dir), start_new_session=True)
+    holder = subprocess.Popen(
+        [sys.executable, str(HERE / "ray_local_cluster.py"), "--workers", "2", "--num-cpus", "1", "--temp-dir", temp_dir],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        stderr=open(Path(temp_dir) / "holder.log", "w"),
+        text=True,
+        env=ray_env(temp_dir),
+        start_new_session=True,
+    )
     try:
         line: list[str] = []
         reader = threading.Thread(target=lambda: line.append(holder.stdout.readline()), daemon=True)
@@ -156,8 +176,26 @@ def cluster():
 
 
 def grid_command(out: Path, address: str) -> list[str]:
-    return [sys.executable, "-m", "dlo_policy.experiments", "--out", str(out), "--ray-address", address,
-            "--groups", "single", "--seeds", "1", "--steps", str(STEPS), "--threads", "1", "--retries", "2", *TINY]
+    return [
+        sys.executable,
+        "-m",
+        "dlo_policy.experiments",
+        "--out",
+        str(out),
+        "--ray-address",
+        address,
+        "--groups",
+        "single",
+        "--seeds",
+        "1",
+        "--steps",
+        str(STEPS),
+        "--threads",
+        "1",
+        "--retries",
+        "2",
+        *TINY,
+    ]
 
 
 def test_ray_servers_listen_on_the_loopback_address_only(cluster):
@@ -174,9 +212,14 @@ def test_grid_spreads_over_nodes_survives_a_lost_node_and_returns_every_result(c
     victim = cluster["workers"][0]
     node_ids = {cluster["head"]["node_id"], *(w["node_id"] for w in cluster["workers"])}
     stderr_path = tmp_path / "driver.err"
-    driver = subprocess.Popen(grid_command(out, cluster["address"]), stdout=subprocess.PIPE,
-                              stderr=open(stderr_path, "w"), text=True, env=ray_env(cluster["temp_dir"]),
-                              cwd=tmp_path)
+    driver = subprocess.Popen(
+        grid_command(out, cluster["address"]),
+        stdout=subprocess.PIPE,
+        stderr=open(stderr_path, "w"),
+        text=True,
+        env=ray_env(cluster["temp_dir"]),
+        cwd=tmp_path,
+    )
     lines, killed_run = [], None
     deadline = time.monotonic() + GRID_TIMEOUT_S
     timer = threading.Timer(GRID_TIMEOUT_S, driver.kill)
@@ -221,7 +264,13 @@ def test_grid_spreads_over_nodes_survives_a_lost_node_and_returns_every_result(c
     assert f"{RUNS}/{RUNS}" in errors and "failed=0 retried=1" in errors  # the progress bar's last state
 
     # the same command again: every run is finished, nothing is dispatched
-    again = subprocess.run(grid_command(out, cluster["address"]), capture_output=True, text=True,
-                           env=ray_env(cluster["temp_dir"]), cwd=tmp_path, timeout=600)
+    again = subprocess.run(
+        grid_command(out, cluster["address"]),
+        capture_output=True,
+        text=True,
+        env=ray_env(cluster["temp_dir"]),
+        cwd=tmp_path,
+        timeout=600,
+    )
     assert again.returncode == 0, again.stderr[-3000:]
     assert f"{RUNS} runs, {RUNS} done, 0 to run" in again.stdout and "[start]" not in again.stdout

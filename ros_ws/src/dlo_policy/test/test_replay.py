@@ -4,7 +4,6 @@ stream)."""
 
 import numpy as np
 import torch
-
 from dlo_policy.replay import ReplayBuffer
 
 

@@ -1,4 +1,5 @@
 """dlo-report: statistics, tables and figures from hand-made run directories, and one real tiny run."""
+
 import csv
 import json
 import math
@@ -9,13 +10,12 @@ import matplotlib.pyplot as plt
 import numpy as np
 import pytest
 import torch
-from matplotlib.collections import PolyCollection
-
 from dlo_policy import report, report_data, report_plots, report_tables
 from dlo_policy.config import load_config, save_config
 from dlo_policy.grid import RunSpec, run_config
 from dlo_policy.rundir import EVAL_COLUMNS, OUTCOMES_AUTHORS
 from dlo_policy.train import train
+from matplotlib.collections import PolyCollection
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # --import-mode=importlib: helper modules
 
@@ -24,8 +24,21 @@ OLD_COLUMNS = tuple(c for c in EVAL_COLUMNS if c not in OUTCOMES_AUTHORS and c !
 EVERY = 100
 
 
-def write_run(root: Path, label: str, seed: int, hold, *, authors=None, modalities=None, done=True,
-              test=None, without=None, old_csv=False, total_steps=None, config_overrides=()):
+def write_run(
+    root: Path,
+    label: str,
+    seed: int,
+    hold,
+    *,
+    authors=None,
+    modalities=None,
+    done=True,
+    test=None,
+    without=None,
+    old_csv=False,
+    total_steps=None,
+    config_overrides=(),
+):
     """A run directory as dlo-train leaves it: config.yaml, eval.csv (hold the end per evaluation,
     every EVERY steps; authors' rule = `authors` or hold - 0.1), done.json and test.json if given.
     without: {modality: hold curve} extra ablation rows; test: (paper, authors) or
@@ -33,9 +46,18 @@ def write_run(root: Path, label: str, seed: int, hold, *, authors=None, modaliti
     directory = root / label.replace(" ", "_") / f"seed{seed}"
     directory.mkdir(parents=True)
     without = without or {}
-    config = load_config(None, config_overrides, {
-        "modalities": modalities or label, "seed": seed, "label": label, "train.eval_every": EVERY,
-        "train.total_steps": total_steps or (len(hold) - 1) * EVERY, "train.eval_without": sorted(without)})
+    config = load_config(
+        None,
+        config_overrides,
+        {
+            "modalities": modalities or label,
+            "seed": seed,
+            "label": label,
+            "train.eval_every": EVERY,
+            "train.total_steps": total_steps or (len(hold) - 1) * EVERY,
+            "train.eval_without": sorted(without),
+        },
+    )
     save_config(config, directory / "config.yaml")
     curves = {"": (hold, authors if authors is not None else [max(h - 0.1, 0.0) for h in hold])}
     curves.update({w: (c, [max(h - 0.1, 0.0) for h in c]) for w, c in without.items()})
@@ -43,12 +65,27 @@ def write_run(root: Path, label: str, seed: int, hold, *, authors=None, modaliti
     for k in range(len(hold)):
         for tested, (paper, authors_curve) in curves.items():
             h, a = paper[k], authors_curve[k]
-            rows.append({"step": k * EVERY, "tested_without": tested, "episodes": 10,
-                         "eval_seed": 1_000_000 + 100_000 * seed + 10 * k,
-                         "hold_the_end": h, "stop_before": 1 - h, "reach_end_but_drop": 0.0, "drop_before": 0.0,
-                         "hold_the_end_authors": a, "stop_before_authors": 1 - a, "reach_end_but_drop_authors": 0.0,
-                         "drop_before_authors": 0.0, "episode_reward": 3 * h, "time_at_end": 20 * h,
-                         "how_far": 30 * (1 - h), "train_episodes": k, "wall_time_s": k})
+            rows.append(
+                {
+                    "step": k * EVERY,
+                    "tested_without": tested,
+                    "episodes": 10,
+                    "eval_seed": 1_000_000 + 100_000 * seed + 10 * k,
+                    "hold_the_end": h,
+                    "stop_before": 1 - h,
+                    "reach_end_but_drop": 0.0,
+                    "drop_before": 0.0,
+                    "hold_the_end_authors": a,
+                    "stop_before_authors": 1 - a,
+                    "reach_end_but_drop_authors": 0.0,
+                    "drop_before_authors": 0.0,
+                    "episode_reward": 3 * h,
+                    "time_at_end": 20 * h,
+                    "how_far": 30 * (1 - h),
+                    "train_episodes": k,
+                    "wall_time_s": k,
+                }
+            )
     columns = OLD_COLUMNS if old_csv else EVAL_COLUMNS
     with (directory / "eval.csv").open("w", newline="") as f:
         writer = csv.DictWriter(f, fieldnames=columns, extrasaction="ignore")
@@ -83,8 +120,7 @@ FLAT = [0.5] * 12
 
 
 def test_smoothing_and_confidence_interval():
-    np.testing.assert_allclose(report_data.smooth(np.array([[0.0, 2, 4, 6, 8, 10, 12]]), window=5),
-                               [[0, 1, 2, 3, 4, 6, 8]])
+    np.testing.assert_allclose(report_data.smooth(np.array([[0.0, 2, 4, 6, 8, 10, 12]]), window=5), [[0, 1, 2, 3, 4, 6, 8]])
     mean, ci = report_data.mean_and_ci(np.array([[1.0], [2.0], [3.0]]))
     assert mean[0] == pytest.approx(2.0) and ci[0] == pytest.approx(4.303 / np.sqrt(3))
     assert report_data.mean_and_ci(np.array([[5.0]]))[1][0] == 0.0
@@ -224,11 +260,16 @@ def test_single_seed_rows_show_no_plus_minus(tmp_path):
 
 def test_held_out_test_means_come_from_test_json_of_finished_seeds(tmp_path):
     for seed, paper, authors in ((0, 0.9, 0.6), (1, 0.8, 0.5), (2, 0.7, 0.4)):
-        write_run(tmp_path, "All", seed, FLAT, test={"": (paper, authors), "T": (paper - 0.5, authors - 0.3)},
-                  without={"T": [0.2] * len(FLAT)})
+        write_run(
+            tmp_path,
+            "All",
+            seed,
+            FLAT,
+            test={"": (paper, authors), "T": (paper - 0.5, authors - 0.3)},
+            without={"T": [0.2] * len(FLAT)},
+        )
     # a seed still training: a stray test.json of it does not count, its curve does
-    write_run(tmp_path, "All", 3, FLAT[:8], done=False, test=(0.0, 0.0), without={"T": [0.2] * 8},
-              total_steps=1100)
+    write_run(tmp_path, "All", 3, FLAT[:8], done=False, test=(0.0, 0.0), without={"T": [0.2] * 8}, total_steps=1100)
     runs = report_data.load_runs(tmp_path)
     curves = runs["All"][""]
     assert curves.seeds == 4 and curves.finished_seeds == 3 and list(curves.steps) == [k * EVERY for k in range(8)]
@@ -276,9 +317,11 @@ def test_compare_writes_both_settings_with_their_numbers(tmp_path, capsys):
     assert report.main(["--compare", f"frozen={tmp_path / 'a'}", f"running={tmp_path / 'b'}", "--out", str(out)]) == 0
     text = (out / "compare.md").read_text()
     assert text in capsys.readouterr().out
-    rows = {tuple(cells[:2]): cells for cells in
-            ([c.strip() for c in line.strip().strip("|").split(" | ")] for line in text.splitlines())
-            if cells[0] == "All"}
+    rows = {
+        tuple(cells[:2]): cells
+        for cells in ([c.strip() for c in line.strip().strip("|").split(" | ")] for line in text.splitlines())
+        if cells[0] == "All"
+    }
     assert set(rows) == {("All", "frozen"), ("All", "running")}
     frozen, running = rows[("All", "frozen")], rows[("All", "running")]
     # frozen: smoothed 1.0 first at evaluation 8 (evaluations 4..8 are 1.0); last-5 1.0
@@ -298,8 +341,9 @@ def test_seeds_of_different_lengths_count_up_to_the_longest_configured_run(tmp_p
     write_run(tmp_path, "V", 1, [0.2] * 5, total_steps=8 * EVERY)  # configured for 800 (train.total_steps: no warning)
     curves = report_data.load_runs(tmp_path)["V"][""]
     assert curves.seed_ids == (0, 1) and curves.total_steps == 8 * EVERY
-    row = next(line for line in report_tables.results_table(report_data.load_runs(tmp_path)).splitlines()
-               if line.startswith("| V |"))
+    row = next(
+        line for line in report_tables.results_table(report_data.load_runs(tmp_path)).splitlines() if line.startswith("| V |")
+    )
     assert "2/2 × 400 (of 800)" in row
 
 
@@ -308,8 +352,9 @@ def test_a_setting_without_a_configuration_gets_a_full_row_in_compare_md(tmp_pat
     write_run(tmp_path / "a", "V", 0, [0.2] * 6, total_steps=5 * EVERY)
     write_run(tmp_path / "a", "K", 0, [0.1] * 6, total_steps=5 * EVERY)
     write_run(tmp_path / "b", "V", 0, [0.4] * 6, total_steps=5 * EVERY)
-    text = report_tables.compare_table([("a", report_data.load_runs(tmp_path / "a")),
-                                        ("b", report_data.load_runs(tmp_path / "b"))])
+    text = report_tables.compare_table(
+        [("a", report_data.load_runs(tmp_path / "a")), ("b", report_data.load_runs(tmp_path / "b"))]
+    )
     lines = [line for line in text.splitlines() if line.startswith("|")]
     header = lines[0].count("|")
     assert all(line.count("|") == header for line in lines), text
@@ -320,20 +365,23 @@ def test_a_setting_without_a_configuration_gets_a_full_row_in_compare_md(tmp_pat
 # --------------------------------------------------------------------------------------- command line
 
 
-@pytest.mark.parametrize("case", ["missing", "empty", "malformed", "duplicate", "no_out", "both", "neither",
-                                  "same_name", "unknown_flag"])
+@pytest.mark.parametrize(
+    "case", ["missing", "empty", "malformed", "duplicate", "no_out", "both", "neither", "same_name", "unknown_flag"]
+)
 def test_bad_input_is_one_line_and_exit_2(tmp_path, capsys, case):
     results = tmp_path / "results"
     write_run(results, "V", 0, FLAT)
     (tmp_path / "empty").mkdir()
-    argv = {"missing": [str(tmp_path / "nope")],
-            "empty": [str(tmp_path / "empty")],
-            "malformed": ["--compare", str(results), "--out", str(tmp_path / "o")],
-            "no_out": ["--compare", f"a={results}"],
-            "both": [str(results), "--compare", f"a={results}", "--out", str(tmp_path / "o")],
-            "neither": [],
-            "same_name": ["--compare", f"a={results}", f"a={results}", "--out", str(tmp_path / "o")],
-            "unknown_flag": [str(results), "--bogus"]}
+    argv = {
+        "missing": [str(tmp_path / "nope")],
+        "empty": [str(tmp_path / "empty")],
+        "malformed": ["--compare", str(results), "--out", str(tmp_path / "o")],
+        "no_out": ["--compare", f"a={results}"],
+        "both": [str(results), "--compare", f"a={results}", "--out", str(tmp_path / "o")],
+        "neither": [],
+        "same_name": ["--compare", f"a={results}", f"a={results}", "--out", str(tmp_path / "o")],
+        "unknown_flag": [str(results), "--bogus"],
+    }
     if case == "duplicate":  # the same label and seed twice: two settings mixed
         write_run(tmp_path / "results" / "other", "V", 0, FLAT)
         argv["duplicate"] = [str(results)]
@@ -345,8 +393,19 @@ def test_bad_input_is_one_line_and_exit_2(tmp_path, capsys, case):
 def test_help_describes_both_modes_and_the_statistics(capsys):
     assert report.main(["--help"]) == 0
     text = capsys.readouterr().out
-    for phrase in ("--compare NAME=DIR", "compare.md", "results.md", "outcomes_pairs.png", "held-out test",
-                   "trailing mean", ">= 3 seeds", "(1 seed)", "authors' rule", "last-5 mean", "exit status 2"):
+    for phrase in (
+        "--compare NAME=DIR",
+        "compare.md",
+        "results.md",
+        "outcomes_pairs.png",
+        "held-out test",
+        "trailing mean",
+        ">= 3 seeds",
+        "(1 seed)",
+        "authors' rule",
+        "last-5 mean",
+        "exit status 2",
+    ):
         assert phrase.lower() in text.lower(), phrase
 
 
@@ -365,9 +424,17 @@ def test_report_reads_what_dlo_train_writes(tmp_path, capsys):
     """One tiny real training run (All, also evaluated without T): eval.csv, done.json, test.json and
     test_without_T.json as dlo-train writes them give a full table row and the ablation figure."""
     previous = torch.get_num_threads()
-    tiny = ["env_module=sac_reach_env", "sac.hidden_sizes=[16,16]", "sac.batch_size=16", "sac.learning_starts=20",
-            "sac.buffer_size=500", "train.eval_every=20", "train.checkpoint_every=1000", "train.eval_episodes=4",
-            "train.test_episodes=6"]
+    tiny = [
+        "env_module=sac_reach_env",
+        "sac.hidden_sizes=[16,16]",
+        "sac.batch_size=16",
+        "sac.learning_starts=20",
+        "sac.buffer_size=500",
+        "train.eval_every=20",
+        "train.checkpoint_every=1000",
+        "train.eval_episodes=4",
+        "train.test_episodes=6",
+    ]
     spec = RunSpec("All", "All", 0, eval_without=("T",))
     try:
         train(run_config(spec, None, tiny, steps=100, threads=1), spec.directory(tmp_path))
@@ -391,11 +458,13 @@ def test_reading_runs_loads_no_learner():
     can be reported on a machine without the learner)."""
     import subprocess
 
-    code = ("import sys\n"
-            "import dlo_policy.rundir, dlo_policy.grid, dlo_policy.config\n"
-            "light = {'torch', 'ray'} & set(sys.modules)\n"
-            "import dlo_policy.report\n"
-            "print(sorted(light), sorted({'torch', 'ray', 'taichi', 'gymnasium'} & set(sys.modules)))\n")
+    code = (
+        "import sys\n"
+        "import dlo_policy.rundir, dlo_policy.grid, dlo_policy.config\n"
+        "light = {'torch', 'ray'} & set(sys.modules)\n"
+        "import dlo_policy.report\n"
+        "print(sorted(light), sorted({'torch', 'ray', 'taichi', 'gymnasium'} & set(sys.modules)))\n"
+    )
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert result.returncode == 0, result.stderr
     assert result.stdout.split("\n")[0] == "[] []", result.stdout

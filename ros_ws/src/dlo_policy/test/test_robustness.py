@@ -10,7 +10,6 @@ import sys
 
 import pytest
 import yaml
-
 from dlo_policy import perturbations as P
 from dlo_policy.robustness import sides, tolerance, wilson
 
@@ -32,8 +31,7 @@ def test_tolerance_is_the_first_magnitude_below_the_threshold_going_away_from_th
     assert tolerance(gain, 0.9, {0.25: 0.1, 0.5: 0.5, 0.75: 0.85, 1.5: 0.79, 3.0: 0.2}) == {"below": 0.5, "above": 1.5}
     friction = P.family("friction")  # the nominal is the training range 0.04-0.3: a value inside is on neither side
     assert sides(friction, [0.0, 0.02, 0.1, 0.45, 0.9]) == {"below": [0.02, 0.0], "above": [0.45, 0.9]}
-    assert tolerance(friction, 0.9, {0.0: 0.5, 0.02: 0.9, 0.1: 0.1, 0.45: 0.95, 0.9: 0.6}) == {"below": 0.0,
-                                                                                               "above": 0.9}
+    assert tolerance(friction, 0.9, {0.0: 0.5, 0.02: 0.9, 0.1: 0.1, 0.45: 0.95, 0.9: 0.6}) == {"below": 0.0, "above": 0.9}
     assert tolerance(P.family("cable_length"), 0.9, {10: 0.5, 20: 0.9}) == {"below": 10}  # one side only
 
 
@@ -53,12 +51,25 @@ def tiny_run(tmp_path_factory):
 
 
 def robustness(*args, timeout=600):
-    return subprocess.run([sys.executable, "-m", "dlo_policy.robustness", *map(str, args)], capture_output=True,
-                          text=True, timeout=timeout)
+    return subprocess.run(
+        [sys.executable, "-m", "dlo_policy.robustness", *map(str, args)], capture_output=True, text=True, timeout=timeout
+    )
 
 
-GRID = ("--episodes", 2, "--num-envs", 2, "--seed", 40, "--family", "observation_delay", "--grid",
-        "observation_delay=1,3", "--grid", "friction=0.9")
+GRID = (
+    "--episodes",
+    2,
+    "--num-envs",
+    2,
+    "--seed",
+    40,
+    "--family",
+    "observation_delay",
+    "--grid",
+    "observation_delay=1,3",
+    "--grid",
+    "friction=0.9",
+)
 
 
 def test_a_grid_is_evaluated_written_and_resumed(tiny_run, tmp_path):
@@ -70,8 +81,9 @@ def test_a_grid_is_evaluated_written_and_resumed(tiny_run, tmp_path):
     summary_line = json.loads(lines[-1])  # the JSON line last
     assert summary_line["points"] == 4 and summary_line["run"] == 4 and summary_line["read"] == 0
     assert set(summary_line["tolerance"]) == {"observation_delay", "friction"}
-    assert all(line.startswith("dlo-robustness: ") for line in result.stderr.splitlines() if line.strip()), \
-        result.stderr  # off a terminal: plain progress lines, nothing else
+    assert all(line.startswith("dlo-robustness: ") for line in result.stderr.splitlines() if line.strip()), (
+        result.stderr
+    )  # off a terminal: plain progress lines, nothing else
     assert "/8 episodes" in result.stderr  # 4 points x 2 episodes
 
     policy_dir = out / "tiny"  # the run directory's name
@@ -105,15 +117,18 @@ def test_a_grid_is_evaluated_written_and_resumed(tiny_run, tmp_path):
     assert "made with other settings (episodes 2)" in other.stderr and "Traceback" not in other.stderr
 
 
-@pytest.mark.parametrize("args, message", [
-    (("--family", "obs_delay"), "unknown perturbation 'obs_delay'; did you mean 'observation_delay'?"),
-    (("--grid", "observation_delay=1.5"), "observation_delay: expected an integer"),
-    (("--grid", "friction"), "--grid: expected NAME=M1,M2,..."),
-    (("--episodes", "0"), "--episodes, --num-envs and --threads must be >= 1"),
-    (("--checkpoint", "/nonexistent/policy.pt"), "checkpoint /nonexistent/policy.pt does not exist"),
-    (("--threshold", "2"), "--threshold in (0, 1]"),
-    (("--nosuch",), "unrecognized arguments: --nosuch"),
-])
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (("--family", "obs_delay"), "unknown perturbation 'obs_delay'; did you mean 'observation_delay'?"),
+        (("--grid", "observation_delay=1.5"), "observation_delay: expected an integer"),
+        (("--grid", "friction"), "--grid: expected NAME=M1,M2,..."),
+        (("--episodes", "0"), "--episodes, --num-envs and --threads must be >= 1"),
+        (("--checkpoint", "/nonexistent/policy.pt"), "checkpoint /nonexistent/policy.pt does not exist"),
+        (("--threshold", "2"), "--threshold in (0, 1]"),
+        (("--nosuch",), "unrecognized arguments: --nosuch"),
+    ],
+)
 def test_user_errors_are_one_line_and_exit_2(args, message):
     result = robustness(*args, timeout=120)
     assert result.returncode == 2 and result.stdout == ""

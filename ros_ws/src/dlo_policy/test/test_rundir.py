@@ -1,11 +1,11 @@
 """dlo_policy.rundir: one training process per run directory (the lock); where the shipped policy is found."""
+
 import os
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
-
 from dlo_policy import rundir
 
 
@@ -34,10 +34,16 @@ def test_the_lock_file_names_the_holder_even_over_a_longer_stale_pid(tmp_path):
 
 def test_a_lock_held_by_a_process_that_was_killed_is_free(tmp_path):
     run = tmp_path / "run"
-    holder = subprocess.Popen([sys.executable, "-c",
-                               "import sys, time; from pathlib import Path; from dlo_policy import rundir\n"
-                               f"with rundir.lock(Path({str(run)!r})):\n    print('held', flush=True); time.sleep(600)"],
-                              stdout=subprocess.PIPE, text=True)
+    holder = subprocess.Popen(
+        [
+            sys.executable,
+            "-c",
+            "import sys, time; from pathlib import Path; from dlo_policy import rundir\n"
+            f"with rundir.lock(Path({str(run)!r})):\n    print('held', flush=True); time.sleep(600)",
+        ],
+        stdout=subprocess.PIPE,
+        text=True,
+    )
     try:
         assert holder.stdout.readline().strip() == "held"
         with pytest.raises(rundir.RunInUse, match=f"pid {holder.pid}"):
@@ -108,17 +114,45 @@ def make_files(run, names):
 
 def test_result_and_record_names_are_the_files_present_done_json_last(tmp_path):
     run = tmp_path / "run"
-    make_files(run, ["done.json", "test_without_T.json", "test.json", "train.log", "policy.pt", "best_policy.pt",
-                     "best.json", "eval.csv", "config.yaml", "checkpoint.pt", "other.txt"])
+    make_files(
+        run,
+        [
+            "done.json",
+            "test_without_T.json",
+            "test.json",
+            "train.log",
+            "policy.pt",
+            "best_policy.pt",
+            "best.json",
+            "eval.csv",
+            "config.yaml",
+            "checkpoint.pt",
+            "other.txt",
+        ],
+    )
     (run / rundir.TB_DIR).mkdir()
-    assert rundir.result_names(run) == ["config.yaml", "eval.csv", "best.json", "best_policy.pt", "policy.pt",
-                                        "train.log", "test.json", "test_without_T.json", "done.json"]
-    assert rundir.record_names(run) == ["config.yaml", "eval.csv", "done.json", "best.json", "test.json",
-                                        "test_without_T.json"]
+    assert rundir.result_names(run) == [
+        "config.yaml",
+        "eval.csv",
+        "best.json",
+        "best_policy.pt",
+        "policy.pt",
+        "train.log",
+        "test.json",
+        "test_without_T.json",
+        "done.json",
+    ]
+    assert rundir.record_names(run) == ["config.yaml", "eval.csv", "done.json", "best.json", "test.json", "test_without_T.json"]
     for name in ("policy.pt", "done.json", "eval.csv"):
         (run / name).unlink()
-    assert rundir.result_names(run) == ["config.yaml", "best.json", "best_policy.pt", "train.log", "test.json",
-                                        "test_without_T.json"]
+    assert rundir.result_names(run) == [
+        "config.yaml",
+        "best.json",
+        "best_policy.pt",
+        "train.log",
+        "test.json",
+        "test_without_T.json",
+    ]
     assert rundir.record_names(run) == ["config.yaml", "best.json", "test.json", "test_without_T.json"]
 
 
@@ -174,7 +208,11 @@ def test_eval_log_keeps_the_rows_up_to_the_resume_step_and_their_wall_time(tmp_p
     assert resumed.wall_time_offset == 45.0
     resumed.append([eval_row(40, 70.0)])
     assert [(row["step"], row["wall_time_s"]) for row in rundir.read_eval_rows(run)] == [
-        ("10", "15.0"), ("20", "30.0"), ("30", "45.0"), ("40", "70.0")]
+        ("10", "15.0"),
+        ("20", "30.0"),
+        ("30", "45.0"),
+        ("40", "70.0"),
+    ]
 
     assert rundir.EvalLog(run, 5).wall_time_offset == 0.0  # resumed before the first evaluation: nothing kept
     assert rundir.read_eval_rows(run) == []
@@ -192,28 +230,49 @@ def test_sim_settings_are_what_the_policy_file_was_trained_on(tmp_path):
     checkpoint's run (its config.yaml); trained_sim_settings says which, None without a config.yaml."""
     from dlo_policy.config import load_config, save_config
 
-    runs = {"old": [], "spg": ["env_options.task_rules=authors_code", "env_options.single_particle_grip=true"],
-            "text": ["env_options.task_rules=paper_text", "env_options.single_particle_grip=false"],
-            "levers": ["env_options.task_rules=authors_code", "env_options.carry_law=authors",
-                       "env_options.contact_radius=0.005", "env_options.vision_source=particles"]}
+    runs = {
+        "old": [],
+        "spg": ["env_options.task_rules=authors_code", "env_options.single_particle_grip=true"],
+        "text": ["env_options.task_rules=paper_text", "env_options.single_particle_grip=false"],
+        "levers": [
+            "env_options.task_rules=authors_code",
+            "env_options.carry_law=authors",
+            "env_options.contact_radius=0.005",
+            "env_options.vision_source=particles",
+        ],
+    }
     for name, overrides in runs.items():
         (tmp_path / name).mkdir()
         save_config(load_config(None, overrides), tmp_path / name / rundir.CONFIG_FILE)
         (tmp_path / name / "policy.pt").write_bytes(b"")
     defaults = {"carry_law": "paper", "contact_radius": 0.004, "vision_source": "image", "start_pose": "ours"}
     assert rundir.trained_sim_settings(tmp_path / "old" / "policy.pt") == {
-        "task_rules": "paper_text", "single_particle_grip": False, **defaults}  # from before the options
+        "task_rules": "paper_text",
+        "single_particle_grip": False,
+        **defaults,
+    }  # from before the options
     assert rundir.trained_sim_settings(tmp_path / "spg" / "checkpoint.pt") == {
-        "task_rules": "authors_code", "single_particle_grip": True, **defaults}
+        "task_rules": "authors_code",
+        "single_particle_grip": True,
+        **defaults,
+    }
     assert rundir.trained_sim_settings(tmp_path / "levers" / "policy.pt") == {
-        "task_rules": "authors_code", "single_particle_grip": False, "carry_law": "authors", "contact_radius": 0.005,
-        "vision_source": "particles", "start_pose": "ours"}
+        "task_rules": "authors_code",
+        "single_particle_grip": False,
+        "carry_law": "authors",
+        "contact_radius": 0.005,
+        "vision_source": "particles",
+        "start_pose": "ours",
+    }
     (tmp_path / "bare").mkdir()
     (tmp_path / "bare" / "policy.pt").write_bytes(b"")
     assert rundir.trained_sim_settings(tmp_path / "bare" / "policy.pt") is None
     # the shipped policy: the study's authors_code, one-particle grip
     assert rundir.trained_sim_settings(rundir.shipped_policy_path()) == {
-        "task_rules": "authors_code", "single_particle_grip": True, **defaults}
+        "task_rules": "authors_code",
+        "single_particle_grip": True,
+        **defaults,
+    }
 
 
 def test_sim_settings_of_a_bad_config_is_a_config_error(tmp_path):
@@ -242,7 +301,8 @@ def test_the_shipped_policy_falls_back_to_the_source_tree(monkeypatch, tmp_path,
     def not_installed(package):
         raise index.PackageNotFoundError(package)
 
-    monkeypatch.setattr(index, "get_package_share_directory",
-                        not_installed if share == "not installed" else lambda package: str(tmp_path))
+    monkeypatch.setattr(
+        index, "get_package_share_directory", not_installed if share == "not installed" else lambda package: str(tmp_path)
+    )
     source_tree = Path(rundir.__file__).resolve().parents[1] / rundir.SHIPPED_POLICY
     assert rundir.shipped_policy_path() == source_tree and source_tree.is_file()

@@ -5,6 +5,7 @@ of the twin critics), gradients that do not accumulate, the update schedule, tar
 entropy tuning; the training loop's counters, seeds and callback, with horizon cut-offs stored as not
 terminal (unless sac.cutoff_as_terminal); observation scaling, persistence (checkpoints, policy files,
 old and other-device checkpoints) and devices."""
+
 import math
 import sys
 from pathlib import Path
@@ -13,7 +14,6 @@ import gymnasium as gym
 import numpy as np
 import pytest
 import torch
-
 from dlo_policy.config import SACConfig
 from dlo_policy.evaluate import evaluate_agent
 from dlo_policy.sac import SAC, frozen
@@ -92,8 +92,9 @@ def test_td_target_bootstraps_from_the_smaller_target_critic_unless_terminal():
     tiny_alpha = torch.tensor(1e-9)
     target = agent.td_target(rewards, torch.randn(3, 9), terminated, tiny_alpha)
     torch.testing.assert_close(target, torch.tensor([50 + 0.9 * 3, 50.0, -100 + 0.9 * 3]))
-    entropy_bonus = agent.td_target(rewards, torch.zeros(3, 9), terminated, torch.tensor(1.0)) - \
-        agent.td_target(rewards, torch.zeros(3, 9), terminated, tiny_alpha)
+    entropy_bonus = agent.td_target(rewards, torch.zeros(3, 9), terminated, torch.tensor(1.0)) - agent.td_target(
+        rewards, torch.zeros(3, 9), terminated, tiny_alpha
+    )
     assert entropy_bonus[1] == 0 and entropy_bonus[0] != 0  # -gamma * alpha * log pi, only when bootstrapping
 
 
@@ -103,7 +104,8 @@ def test_actor_log_prob_is_the_tanh_gaussian_density():
     actions, log_prob = agent.actor.sample(obs, torch.Generator().manual_seed(3))
     mean, log_std = agent.actor(obs)
     squashed = torch.distributions.TransformedDistribution(
-        torch.distributions.Normal(mean, log_std.exp()), torch.distributions.TanhTransform(cache_size=1))
+        torch.distributions.Normal(mean, log_std.exp()), torch.distributions.TanhTransform(cache_size=1)
+    )
     reference = squashed.log_prob(actions.clamp(-1 + 1e-6, 1 - 1e-6)).sum(-1)
     torch.testing.assert_close(log_prob, reference, rtol=1e-3, atol=1e-2)
 
@@ -189,8 +191,9 @@ def test_observation_normalizer_tracks_mean_and_variance():
 
 
 def test_frozen_scaling_keeps_the_statistics_of_the_random_action_phase():
-    agent = SAC(2, -np.ones(1), np.ones(1), SACConfig(**{**SMALL, "observation_scaling": "frozen",
-                                                         "learning_starts": 100}), seed=0)
+    agent = SAC(
+        2, -np.ones(1), np.ones(1), SACConfig(**{**SMALL, "observation_scaling": "frozen", "learning_starts": 100}), seed=0
+    )
     rng = np.random.default_rng(2)
     for step in range(300):  # store() is called before the step counter moves, as in learn()
         agent.store(rng.normal(1.0 if step < 100 else 50.0, 1.0, 2), np.zeros(1), 0.0, np.zeros(2), False)
@@ -201,8 +204,15 @@ def test_frozen_scaling_keeps_the_statistics_of_the_random_action_phase():
 
 def test_bounds_scaling_maps_the_observation_box_onto_minus_one_one_and_survives_save_load(tmp_path):
     low, high = np.array([-0.3, 0.0, -0.002]), np.array([0.3, 1.0, 0.002])
-    agent = SAC(3, -np.ones(1), np.ones(1), SACConfig(**{**SMALL, "observation_scaling": "bounds"}), seed=0,
-                observation_low=low, observation_high=high)
+    agent = SAC(
+        3,
+        -np.ones(1),
+        np.ones(1),
+        SACConfig(**{**SMALL, "observation_scaling": "bounds"}),
+        seed=0,
+        observation_low=low,
+        observation_high=high,
+    )
     corners = torch.tensor(np.stack([low, high, (low + high) / 2]), dtype=torch.float32)
     np.testing.assert_allclose(agent.normalizer(corners).numpy(), [[-1, -1, -1], [1, 1, 1], [0, 0, 0]], atol=1e-6)
     agent.store(np.array([5.0, 5.0, 5.0]), np.zeros(1), 0.0, np.zeros(3), False)  # never moves the map
@@ -288,8 +298,9 @@ def test_exploration_is_uniform_from_the_agent_generator_until_learning_starts()
 
 
 def test_one_update_exactly():
-    agent = agent_with(policy_update_every=1, target_update_every=1000, reward_scale=50.0, gamma=0.9,
-                       initial_alpha=0.3, target_entropy=-2.0)
+    agent = agent_with(
+        policy_update_every=1, target_update_every=1000, reward_scale=50.0, gamma=0.9, initial_alpha=0.3, target_entropy=-2.0
+    )
     constant_heads(agent.critic, 1.5, -0.5)
     constant_heads(agent.critic_target, 4.0, 2.0)
     for group in agent.critic_optimizer.param_groups:
@@ -312,8 +323,9 @@ def test_one_update_exactly():
 
 @pytest.mark.parametrize("q1, q2", [(3.0, 7.0), (7.0, -2.0)])
 def test_actor_loss_is_alpha_log_pi_minus_the_smaller_critic(q1, q2):
-    agent = SAC(9, -np.ones(3), np.ones(3), SACConfig(**TINY, autotune_alpha=False, initial_alpha=0.5,
-                                                      policy_update_every=1), seed=3)
+    agent = SAC(
+        9, -np.ones(3), np.ones(3), SACConfig(**TINY, autotune_alpha=False, initial_alpha=0.5, policy_update_every=1), seed=3
+    )
     rng = np.random.default_rng(0)
     for _ in range(40):
         agent.store(rng.normal(size=9), rng.uniform(-1, 1, 3), rng.normal(), rng.normal(size=9), False)
@@ -332,8 +344,10 @@ def test_actor_loss_is_alpha_log_pi_minus_the_smaller_critic(q1, q2):
 
 def test_update_schedule_and_that_every_network_learns():
     agent = agent_with(policy_update_every=2, target_update_every=3)
-    before = {name: [p.clone() for p in net.parameters()]
-              for name, net in (("actor", agent.actor), ("critic", agent.critic), ("target", agent.critic_target))}
+    before = {
+        name: [p.clone() for p in net.parameters()]
+        for name, net in (("actor", agent.actor), ("critic", agent.critic), ("target", agent.critic_target))
+    }
     alpha = agent.alpha
     keys = [sorted(agent.update()) for _ in range(3)]
     assert keys == [["critic_loss"], ["actor_loss", "alpha_loss", "critic_loss"], ["critic_loss"]]
@@ -359,15 +373,16 @@ def test_gradients_do_not_accumulate_across_updates():
     with torch.no_grad():
         next_actions, next_log_pi = agent.actor.sample(batch.next_obs, generator)
         target = agent.config.reward_scale * batch.rewards + agent.config.gamma * (1 - batch.terminated) * (
-            torch.min(*agent.critic_target(batch.next_obs, next_actions)) - alpha * next_log_pi)
+            torch.min(*agent.critic_target(batch.next_obs, next_actions)) - alpha * next_log_pi
+        )
     q1, q2 = agent.critic(batch.obs, batch.actions)
-    critic_grads = torch.autograd.grad(((q1 - target) ** 2).mean() + ((q2 - target) ** 2).mean(),
-                                       list(agent.critic.parameters()))
+    critic_grads = torch.autograd.grad(((q1 - target) ** 2).mean() + ((q2 - target) ** 2).mean(), list(agent.critic.parameters()))
     actions, log_pi = agent.actor.sample(batch.obs, generator)
     q = torch.min(*agent.critic(batch.obs, actions))
     actor_grads = torch.autograd.grad((alpha * log_pi - q).mean(), list(agent.actor.parameters()))
-    alpha_grad = torch.autograd.grad(-(agent.log_alpha.exp() * (log_pi.detach() + agent.target_entropy)).mean(),
-                                     [agent.log_alpha])[0]
+    alpha_grad = torch.autograd.grad(
+        -(agent.log_alpha.exp() * (log_pi.detach() + agent.target_entropy)).mean(), [agent.log_alpha]
+    )[0]
     agent.update()
     for expected, p in zip(critic_grads, agent.critic.parameters()):
         torch.testing.assert_close(p.grad, expected, rtol=1e-4, atol=1e-6)
@@ -410,6 +425,7 @@ def test_learn_stops_when_the_callback_says_so():
     def callback(learner, result):
         seen.append((result.reward, result.terminated, result.truncated))
         return False if learner.num_env_steps == 6 else None
+
     agent.learn(CountingEnv(), total_steps=50, callback=callback)
     assert agent.num_env_steps == 6 and len(seen) == 6 and seen[3] == (0.5, False, True)
 
@@ -417,6 +433,7 @@ def test_learn_stops_when_the_callback_says_so():
 def test_learn_notes_the_env_modalities_and_refuses_other_ones():
     class ModalEnv(CountingEnv):
         modalities = ("K", "T")
+
     agent = SAC(9, -np.ones(3), np.ones(3), SACConfig(**{**TINY, "learning_starts": 100}), seed=2)
     assert agent.modalities is None
     agent.learn(ModalEnv(), total_steps=2)
@@ -474,6 +491,7 @@ def _tensors(value):
 @pytest.mark.skipif(torch.cuda.is_available(), reason="a CUDA device is present")
 def test_device_names_resolve_and_cuda_without_a_gpu_is_a_clear_error():
     from dlo_policy.sac import resolve_device
+
     assert resolve_device("auto") == torch.device("cpu") and resolve_device("cpu") == torch.device("cpu")
     with pytest.raises(ValueError, match="sees no CUDA device"):
         resolve_device("cuda")
@@ -505,12 +523,18 @@ def test_a_checkpoint_from_another_device_gets_a_reproducible_fresh_generator(tm
 def _stored_done_flags(cutoff_as_terminal: bool):
     """(terminated, truncated) of every step of a 400-step random-action run on the reach task (horizon
     20: most episodes are cut off, some leave the interval) and the done flag each was stored with."""
-    agent = SAC(9, -np.ones(1), np.ones(1), SACConfig(**{**SMALL, "learning_starts": 10_000,
-                                                       "cutoff_as_terminal": cutoff_as_terminal}), seed=3)
+    agent = SAC(
+        9,
+        -np.ones(1),
+        np.ones(1),
+        SACConfig(**{**SMALL, "learning_starts": 10_000, "cutoff_as_terminal": cutoff_as_terminal}),
+        seed=3,
+    )
     ends = []
-    agent.learn(ReachEnv("All"), total_steps=400,
-                callback=lambda _agent, result: ends.append((result.terminated, result.truncated)))
-    stored = agent.replay.terminated[:agent.replay.size].cpu().numpy()
+    agent.learn(
+        ReachEnv("All"), total_steps=400, callback=lambda _agent, result: ends.append((result.terminated, result.truncated))
+    )
+    stored = agent.replay.terminated[: agent.replay.size].cpu().numpy()
     return np.array(ends, dtype=bool).reshape(-1, 2), stored
 
 
@@ -532,6 +556,7 @@ def test_cutoff_as_terminal_stores_horizon_cutoffs_as_terminal_only_when_switche
 def test_stored_terminal_is_the_one_rule_the_online_learner_uses_too(tmp_path):
     from dlo_policy.config import RunConfig
     from dlo_policy.online import OnlineLearner
+
     on = SAC(9, -np.ones(3), np.ones(3), SACConfig(**{**SMALL, "cutoff_as_terminal": True}), seed=0)
     off = SAC(9, -np.ones(3), np.ones(3), SACConfig(**SMALL), seed=0)
     cases = [(False, False), (True, False), (False, True), (True, True)]  # (terminated, truncated)
@@ -552,11 +577,16 @@ def test_stored_terminal_is_the_one_rule_the_online_learner_uses_too(tmp_path):
 def test_a_bad_cutoff_as_terminal_value_is_a_one_line_config_error(value, tmp_path, capsys):
     from dlo_policy import train
     from dlo_policy.config import ConfigError, load_config
+
     with pytest.raises(ConfigError, match="sac.cutoff_as_terminal: expected true or false"):
         load_config(None, [f"sac.cutoff_as_terminal={value}"])
     assert load_config(None, ["sac.cutoff_as_terminal=true"]).sac.cutoff_as_terminal is True
-    assert train.main(["--out", str(tmp_path / "run"), "--no-progress", "env_module=sac_reach_env",
-                       f"sac.cutoff_as_terminal={value}"]) == 2
+    assert (
+        train.main(
+            ["--out", str(tmp_path / "run"), "--no-progress", "env_module=sac_reach_env", f"sac.cutoff_as_terminal={value}"]
+        )
+        == 2
+    )
     err = capsys.readouterr().err.strip()
     assert "sac.cutoff_as_terminal: expected true or false" in err and len(err.splitlines()) == 1, err
     assert not (tmp_path / "run").exists()

@@ -2,7 +2,6 @@
 
 import numpy as np
 import pytest
-
 from dlo_policy.env import make_vec_env
 from dlo_policy.scripted import OracleFollow, RandomPolicy, TactileReactive, run_episodes
 

@@ -1,4 +1,5 @@
 """dlo-train / dlo-evaluate: eval CSV protocol, checkpoints, resume, config errors."""
+
 import csv
 import importlib
 import json
@@ -12,7 +13,6 @@ from pathlib import Path
 import pytest
 import torch
 import yaml
-
 from dlo_policy import config as config_module
 from dlo_policy import evaluate, rundir, train
 from dlo_policy.config import ConfigError, load_config
@@ -31,13 +31,18 @@ def read_eval(run: Path) -> list[dict[str, str]]:
 
 def test_eval_csv_has_documented_columns_and_ablation_rows(tmp_path):
     run = tmp_path / "run"
-    assert train.main(["--out", str(run), "--steps", "300", "--modalities", "All", "--no-progress",
-                       "train.eval_without=[T, V]", *TINY]) == 0
+    assert (
+        train.main(
+            ["--out", str(run), "--steps", "300", "--modalities", "All", "--no-progress", "train.eval_without=[T, V]", *TINY]
+        )
+        == 0
+    )
     with (run / rundir.EVAL_FILE).open(newline="") as f:
         assert next(csv.reader(f)) == list(rundir.EVAL_COLUMNS)
     rows = read_eval(run)
     assert [(int(r["step"]), r["tested_without"]) for r in rows] == [
-        (step, without) for step in (0, 100, 200, 300) for without in ("", "T", "V")]
+        (step, without) for step in (0, 100, 200, 300) for without in ("", "T", "V")
+    ]
     for row in rows:
         assert sum(float(row[o]) for o in rundir.OUTCOMES) == pytest.approx(1.0)
         assert sum(float(row[o]) for o in rundir.OUTCOMES_AUTHORS) == pytest.approx(1.0)
@@ -62,8 +67,10 @@ def test_eval_csv_has_documented_columns_and_ablation_rows(tmp_path):
 
 def test_resume_after_interruption_continues_steps_and_buffer(tmp_path):
     run = tmp_path / "run"
-    config = load_config(None, [*TINY, "env_options.crash_after=250", "train.progress=false",
-                                "train.total_steps=300", "train.checkpoint_every=200"])
+    config = load_config(
+        None,
+        [*TINY, "env_options.crash_after=250", "train.progress=false", "train.total_steps=300", "train.checkpoint_every=200"],
+    )
     with pytest.raises(InterruptedError):
         train.train(config, run)
     assert not (run / rundir.DONE_FILE).exists()
@@ -87,14 +94,17 @@ def test_existing_run_needs_resume(tmp_path, capsys):
     assert "--resume" in capsys.readouterr().err
 
 
-@pytest.mark.parametrize("override, message", [
-    ("sac.batch_sise=64", "unknown key(s) sac.batch_sise"),
-    ("sac.batch_size=many", "sac.batch_size: expected an integer"),
-    ("sac.tau=1.5", "sac.tau: must be in (0, 1]"),
-    ("modalities=X+K", "modalities: modalities must be a '+'-joined subset"),
-    ("sac.hidden_sizes=64", "sac.hidden_sizes: expected a list"),
-    ("train.eval_without=[V]", "train.eval_without: must be modalities that the run observes"),
-])
+@pytest.mark.parametrize(
+    "override, message",
+    [
+        ("sac.batch_sise=64", "unknown key(s) sac.batch_sise"),
+        ("sac.batch_size=many", "sac.batch_size: expected an integer"),
+        ("sac.tau=1.5", "sac.tau: must be in (0, 1]"),
+        ("modalities=X+K", "modalities: modalities must be a '+'-joined subset"),
+        ("sac.hidden_sizes=64", "sac.hidden_sizes: expected a list"),
+        ("train.eval_without=[V]", "train.eval_without: must be modalities that the run observes"),
+    ],
+)
 def test_bad_config_is_a_clear_error(override, message, tmp_path, capsys):
     with pytest.raises(ConfigError, match=message.replace("(", r"\(").replace(")", r"\)").replace("+", r"\+")):
         load_config(None, ["modalities=T+K", override])
@@ -133,8 +143,25 @@ def test_evaluate_cli_prints_table_and_writes_json(tmp_path, capsys):
     assert train.main(["--out", str(run), "--steps", "100", "--no-progress", *TINY]) == 0
     capsys.readouterr()
     out = tmp_path / "eval.json"
-    assert evaluate.main(["--checkpoint", str(run / rundir.POLICY_FILE), "--episodes", "12", "--seed", "5",
-                          "--json", str(out), "--without", "V", "--threads", "1"]) == 0
+    assert (
+        evaluate.main(
+            [
+                "--checkpoint",
+                str(run / rundir.POLICY_FILE),
+                "--episodes",
+                "12",
+                "--seed",
+                "5",
+                "--json",
+                str(out),
+                "--without",
+                "V",
+                "--threads",
+                "1",
+            ]
+        )
+        == 0
+    )
     printed = capsys.readouterr().out
     assert "hold_the_end" in printed and "authors rule" in printed and "without V" in printed
     assert set(json.loads(out.read_text())["authors_code"]) == set(rundir.OUTCOMES)
@@ -167,8 +194,9 @@ def test_best_policy_is_the_best_evaluation_so_far(tmp_path):
     rows = [r for r in read_eval(run) if r["tested_without"] == ""]
     best_row = max(rows, key=lambda r: (float(r["hold_the_end"]), float(r["episode_reward"])))
     best = json.loads((run / rundir.BEST_FILE).read_text())
-    first_best = next(r for r in rows if (r["hold_the_end"], r["episode_reward"]) ==
-                      (best_row["hold_the_end"], best_row["episode_reward"]))
+    first_best = next(
+        r for r in rows if (r["hold_the_end"], r["episode_reward"]) == (best_row["hold_the_end"], best_row["episode_reward"])
+    )
     assert best["step"] == int(first_best["step"])
     assert best["episode_reward"] == pytest.approx(float(best_row["episode_reward"]))
     assert SAC.load(run / rundir.BEST_POLICY_FILE).num_env_steps == best["step"]
@@ -190,14 +218,28 @@ def eval_rows_without_wall_time(run: Path) -> list[dict[str, str]]:
 def test_resume_after_sigkill_reproduces_the_uninterrupted_run(tmp_path):
     """A real SIGKILL of dlo-train mid-run, then --resume: the same evaluations, best policy and
     final weights as the run that was never interrupted (same seed, same config)."""
-    args = ["--steps", "450", "--seed", "3", "--modalities", "All", "--no-progress", *TINY,
-            "train.checkpoint_every=150", "train.eval_every=50", "env_options.step_delay=0.004"]
+    args = [
+        "--steps",
+        "450",
+        "--seed",
+        "3",
+        "--modalities",
+        "All",
+        "--no-progress",
+        *TINY,
+        "train.checkpoint_every=150",
+        "train.eval_every=50",
+        "env_options.step_delay=0.004",
+    ]
     whole, killed = tmp_path / "whole", tmp_path / "killed"
     assert train.main(["--out", str(whole), *args]) == 0
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(Path(__file__).resolve().parent),
-                                                        os.environ.get("PYTHONPATH", "")])}
-    process = subprocess.Popen([sys.executable, "-m", "dlo_policy.train", "--out", str(killed), *args],
-                               env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(Path(__file__).resolve().parent), os.environ.get("PYTHONPATH", "")])}
+    process = subprocess.Popen(
+        [sys.executable, "-m", "dlo_policy.train", "--out", str(killed), *args],
+        env=env,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
     deadline = time.monotonic() + 120
     while time.monotonic() < deadline and process.poll() is None:
         if (killed / rundir.CHECKPOINT_FILE).exists() and len(read_eval(killed)) >= 5:  # past the checkpoint
@@ -244,13 +286,19 @@ def test_missing_checkpoint_is_named(tmp_path, capsys):
     assert capsys.readouterr().err.strip() == "dlo-evaluate: error: checkpoint /missing.pt not found"
 
 
-@pytest.mark.parametrize("override, message", [
-    ("env_options.tactile_noise=loud", "env_options: tactile_noise: expected none, partial, full or a pair "
-                                       "[sigma_theta, sigma_y] (rad, m; >= 0) such as [0.1,0.001], got 'loud'"),
-    ("env_options.tactile_nois=full", "env_options: unknown option(s) tactile_nois"),
-    ("env_options.horizon=0", "env_options: horizon: expected an integer >= 1"),
-    ("env_options.without=X", "env_options: modalities must be"),
-])
+@pytest.mark.parametrize(
+    "override, message",
+    [
+        (
+            "env_options.tactile_noise=loud",
+            "env_options: tactile_noise: expected none, partial, full or a pair "
+            "[sigma_theta, sigma_y] (rad, m; >= 0) such as [0.1,0.001], got 'loud'",
+        ),
+        ("env_options.tactile_nois=full", "env_options: unknown option(s) tactile_nois"),
+        ("env_options.horizon=0", "env_options: horizon: expected an integer >= 1"),
+        ("env_options.without=X", "env_options: modalities must be"),
+    ],
+)
 def test_bad_env_options_are_one_line_and_write_nothing(override, message, tmp_path, capsys):
     run = tmp_path / "run"
     assert train.main(["--out", str(run), "--steps", "10", "--no-progress", override]) == 2
@@ -260,16 +308,24 @@ def test_bad_env_options_are_one_line_and_write_nothing(override, message, tmp_p
 
 
 @pytest.mark.skipif(torch.cuda.is_available(), reason="a CUDA device is present")
-@pytest.mark.parametrize("override, message", [
-    ("train.device=cuda", "sees no CUDA device"),
-    ("train.sim_arch=cuda", "Taichi found no CUDA device"),
-    ("train.device=tpu", "train.device: must be auto, cpu or cuda"),
-])
+@pytest.mark.parametrize(
+    "override, message",
+    [
+        ("train.device=cuda", "sees no CUDA device"),
+        ("train.sim_arch=cuda", "Taichi found no CUDA device"),
+        ("train.device=tpu", "train.device: must be auto, cpu or cuda"),
+    ],
+)
 def test_gpu_settings_without_a_gpu_exit_2_with_one_line(override, message, tmp_path):
     run = tmp_path / "run"
     env = {k: v for k, v in os.environ.items() if k != "DLO_TI_ARCH"}
-    result = subprocess.run([sys.executable, "-m", "dlo_policy.train", "--out", str(run), "--steps", "10",
-                             "--no-progress", override], capture_output=True, text=True, env=env, timeout=300)
+    result = subprocess.run(
+        [sys.executable, "-m", "dlo_policy.train", "--out", str(run), "--steps", "10", "--no-progress", override],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=300,
+    )
     assert result.returncode == 2
     errors = [line for line in result.stderr.splitlines() if not line.startswith("[Taichi]")]
     assert len(errors) == 1 and message in errors[0], result.stderr
@@ -280,19 +336,33 @@ def test_tensorboard_event_files_hold_losses_speed_episodes_and_both_rules(tmp_p
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
     run = tmp_path / "run"
-    assert train.main(["--out", str(run), "--steps", "300", "--modalities", "All", "--no-progress",
-                       "train.eval_without=[T]", *TINY]) == 0
+    assert (
+        train.main(["--out", str(run), "--steps", "300", "--modalities", "All", "--no-progress", "train.eval_without=[T]", *TINY])
+        == 0
+    )
     events = EventAccumulator(str(run / rundir.TB_DIR))
     events.Reload()
     tags = set(events.Tags()["scalars"])
-    for tag in ("loss/critic", "loss/actor", "loss/alpha", "speed/steps_per_s", "train/episode_return",
-                "train/episode_length", "eval/hold_the_end", "eval/hold_the_end_authors", "eval/episode_reward",
-                "eval/alpha", "eval/entropy", "eval/q_value", "eval/saturated", "eval_without_T/hold_the_end"):
+    for tag in (
+        "loss/critic",
+        "loss/actor",
+        "loss/alpha",
+        "speed/steps_per_s",
+        "train/episode_return",
+        "train/episode_length",
+        "eval/hold_the_end",
+        "eval/hold_the_end_authors",
+        "eval/episode_reward",
+        "eval/alpha",
+        "eval/entropy",
+        "eval/q_value",
+        "eval/saturated",
+        "eval_without_T/hold_the_end",
+    ):
         assert tag in tags, tag
     assert [e.step for e in events.Scalars("eval/hold_the_end")] == [0, 100, 200, 300]
     rows = [r for r in read_eval(run) if r["tested_without"] == ""]
-    assert [e.value for e in events.Scalars("eval/episode_reward")] == pytest.approx(
-        [float(r["episode_reward"]) for r in rows])
+    assert [e.value for e in events.Scalars("eval/episode_reward")] == pytest.approx([float(r["episode_reward"]) for r in rows])
     assert [e.step for e in events.Scalars("loss/critic")] == [100, 200, 300]  # updates start after step 50
 
 
@@ -322,8 +392,12 @@ def test_every_evaluation_is_flushed_to_tensorboard_at_once(tmp_path, monkeypatc
     monkeypatch.setattr(RecordingWriter, "made", [])
     monkeypatch.setattr("torch.utils.tensorboard.SummaryWriter", RecordingWriter)
     run = tmp_path / "run"
-    assert train.main(["--out", str(run), "--steps", "100", "--no-progress", *TINY, "train.eval_without=[T]",
-                       "train.test_episodes=2"]) == 0
+    assert (
+        train.main(
+            ["--out", str(run), "--steps", "100", "--no-progress", *TINY, "train.eval_without=[T]", "train.test_episodes=2"]
+        )
+        == 0
+    )
     (writer,) = RecordingWriter.made
     calls = writer.calls
     blocks = []  # one per evaluation row: (prefix, step, the call right after its scalars)
@@ -334,22 +408,35 @@ def test_every_evaluation_is_flushed_to_tensorboard_at_once(tmp_path, monkeypatc
             i += 1
             continue
         step, j = calls[i][2], i
-        while j < len(calls) and calls[j][0] == "add_scalar" and calls[j][1].split("/")[0] == prefix \
-                and calls[j][2] == step:
+        while j < len(calls) and calls[j][0] == "add_scalar" and calls[j][1].split("/")[0] == prefix and calls[j][2] == step:
             j += 1
         blocks.append((prefix, step, calls[j] if j < len(calls) else None))
         i = j
     rows = read_eval(run)
     assert len(rows) == 4  # evaluations at steps 0 and 100, each with and without T
-    assert blocks == [("eval_without_T" if r["tested_without"] else "eval", int(r["step"]), ("flush",))
-                      for r in rows], calls
+    assert blocks == [("eval_without_T" if r["tested_without"] else "eval", int(r["step"]), ("flush",)) for r in rows], calls
     assert calls[-1] == ("close",)
 
 
 def test_the_held_out_test_shows_progress(tmp_path, capsys):
     run = tmp_path / "run"
-    assert train.main(["--out", str(run), "--steps", "100", "--modalities", "All", *TINY,
-                       "train.test_episodes=12", "train.eval_without=[T]", "train.progress=true"]) == 0
+    assert (
+        train.main(
+            [
+                "--out",
+                str(run),
+                "--steps",
+                "100",
+                "--modalities",
+                "All",
+                *TINY,
+                "train.test_episodes=12",
+                "train.eval_without=[T]",
+                "train.progress=true",
+            ]
+        )
+        == 0
+    )
     err = capsys.readouterr().err
     assert "All held-out test" in err and "24/24" in err and "without T" in err
 
@@ -377,10 +464,26 @@ def test_the_episodes_each_evaluation_and_the_held_out_test_run_on(tmp_path, mon
     def spy(agent, env, first_seed, episodes, *args, **kwargs):
         calls.append((first_seed, episodes))
         return real(agent, env, first_seed, episodes, *args, **kwargs)
+
     monkeypatch.setattr(train, "evaluate_agent", spy)
     run = tmp_path / "run"
-    assert train.main(["--out", str(run), "--steps", "200", "--seed", "2", "--no-progress", *TINY,
-                       "train.eval_without=[T]", "train.test_episodes=30"]) == 0
+    assert (
+        train.main(
+            [
+                "--out",
+                str(run),
+                "--steps",
+                "200",
+                "--seed",
+                "2",
+                "--no-progress",
+                *TINY,
+                "train.eval_without=[T]",
+                "train.test_episodes=30",
+            ]
+        )
+        == 0
+    )
     seeds = [1_000_000 + 100_000 * 2 + 10 * k for k in range(3)]  # steps 0, 100, 200 (TINY: eval_every 100)
     assert calls == [(s, 10) for s in seeds for _ in ("", "T")] + [(5000, 30), (5000, 30)]
     assert [int(r["eval_seed"]) for r in read_eval(run)] == [s for s in seeds for _ in ("", "T")]
@@ -395,8 +498,7 @@ def test_resume_takes_the_saved_config_and_refuses_anything_but_steps(tmp_path, 
     from dlo_policy.config import save_config
 
     run = tmp_path / "run"
-    for extra in (["sac.batch_size=64"], ["--seed", "3"], ["--modalities", "V"], ["--config", "c.yaml"],
-                  ["--label", "x"]):
+    for extra in (["sac.batch_size=64"], ["--seed", "3"], ["--modalities", "V"], ["--config", "c.yaml"], ["--label", "x"]):
         assert train.main(["--out", str(run), "--resume", *extra]) == 2
         err = capsys.readouterr().err
         assert err.strip() == "dlo-train: error: --resume uses the run's saved config; only --steps may be given"
@@ -435,8 +537,22 @@ def test_a_run_from_before_task_rules_resumes_on_the_rules_it_was_trained_on(tmp
     monkeypatch.setattr(config_module, "CABLE_ENV", "audit_rules_env")  # it takes task_rules like the cable env
     tiny = [o for o in TINY if not o.startswith("env_module")]
     run = tmp_path / "run"
-    assert train.main(["--out", str(run), "--steps", "60", "env_module=audit_rules_env", *tiny, "train.progress=false",
-                       "train.eval_episodes=3", "train.test_episodes=2"]) == 0
+    assert (
+        train.main(
+            [
+                "--out",
+                str(run),
+                "--steps",
+                "60",
+                "env_module=audit_rules_env",
+                *tiny,
+                "train.progress=false",
+                "train.eval_episodes=3",
+                "train.test_episodes=2",
+            ]
+        )
+        == 0
+    )
     saved = yaml.safe_load((run / rundir.CONFIG_FILE).read_text())
     assert saved["env_options"] == {"task_rules": DEFAULT_TASK_RULES}
     assert set(env_module.GIVEN) == {DEFAULT_TASK_RULES}
@@ -458,13 +574,32 @@ def test_the_progress_bars_show_steps_training_returns_and_the_last_evaluation(t
 
     run = tmp_path / "run"
     started = time.perf_counter()
-    assert train.main(["--out", str(run), "--steps", "100", "--modalities", "All", *TINY,
-                       "train.test_episodes=3", "train.eval_without=[T]", "train.progress=true"]) == 0
+    assert (
+        train.main(
+            [
+                "--out",
+                str(run),
+                "--steps",
+                "100",
+                "--modalities",
+                "All",
+                *TINY,
+                "train.test_episodes=3",
+                "train.eval_without=[T]",
+                "train.progress=true",
+            ]
+        )
+        == 0
+    )
     elapsed = time.perf_counter() - started
     err = capsys.readouterr().err
     assert re.search(r"^All: 100/100 steps \(100%\), .* steps/s", err, re.MULTILINE), err
-    assert re.search(r"train_return -?\d+\.\d\d, eval_reward -?\d+\.\d\d, hold_the_end \d+% paper rule / \d+% "
-                     r"authors' rule, alpha \d\.\d{3}$", err, re.MULTILINE), err
+    assert re.search(
+        r"train_return -?\d+\.\d\d, eval_reward -?\d+\.\d\d, hold_the_end \d+% paper rule / \d+% "
+        r"authors' rule, alpha \d\.\d{3}$",
+        err,
+        re.MULTILINE,
+    ), err
     assert re.search(r"^All held-out test: 6/6 episodes \(100%\), .* episodes/s, .*, without T$", err, re.MULTILINE), err
     assert "all inputs" in err
     rows = read_eval(run)
@@ -491,8 +626,24 @@ def test_the_progress_bars_show_steps_training_returns_and_the_last_evaluation(t
     steps = [line.split()[1] for line in err.splitlines() if line.startswith("All: ")]
     assert err.startswith("dlo-train: resuming from step 100 (") and steps == [f"{n}/200" for n in range(120, 201, 20)]
     quiet = tmp_path / "quiet"
-    assert train.main(["--out", str(quiet), "--steps", "100", "--modalities", "All", "--no-progress", *TINY,
-                       "train.test_episodes=3", "train.eval_without=[T]", "train.progress=true"]) == 0
+    assert (
+        train.main(
+            [
+                "--out",
+                str(quiet),
+                "--steps",
+                "100",
+                "--modalities",
+                "All",
+                "--no-progress",
+                *TINY,
+                "train.test_episodes=3",
+                "train.eval_without=[T]",
+                "train.progress=true",
+            ]
+        )
+        == 0
+    )
     err = capsys.readouterr().err
     assert "100/100" not in err and "held-out test" not in err and "it/s" not in err, err
 
@@ -551,12 +702,26 @@ def test_a_run_closes_its_training_and_evaluation_envs_also_when_it_fails(tmp_pa
     monkeypatch.syspath_prepend(str(tmp_path))
     env_module = importlib.import_module("closing_env")
     tiny = [o for o in TINY if not o.startswith("env_module")]
-    assert train.main(["--out", str(tmp_path / "run"), "--steps", "60", "--no-progress", "env_module=closing_env",
-                       *tiny, "train.test_episodes=2"]) == 0
+    assert (
+        train.main(
+            [
+                "--out",
+                str(tmp_path / "run"),
+                "--steps",
+                "60",
+                "--no-progress",
+                "env_module=closing_env",
+                *tiny,
+                "train.test_episodes=2",
+            ]
+        )
+        == 0
+    )
     assert [env.closed for env in env_module.MADE] == [1, 1]  # the training env, then the evaluation env
     env_module.MADE.clear()
-    config = load_config(None, ["env_module=closing_env", *tiny, "train.progress=false", "train.total_steps=200",
-                                "env_options.crash_after=90"])
+    config = load_config(
+        None, ["env_module=closing_env", *tiny, "train.progress=false", "train.total_steps=200", "env_options.crash_after=90"]
+    )
     with pytest.raises(InterruptedError):
         train.train(config, tmp_path / "crashed")
     assert [env.closed for env in env_module.MADE] == [1, 1]
@@ -576,20 +741,36 @@ def resumed_equals_whole(resumed: Path, whole: Path) -> None:
 
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
 def test_a_signal_stops_the_run_at_an_episode_end_with_a_checkpoint_there_and_the_resumed_run_is_the_whole_one(
-        sig, tmp_path, capsys):
+    sig, tmp_path, capsys
+):
     """dlo-train --help: Ctrl-C (or SIGTERM) stops the run at the end of its episode with a checkpoint there (here
     the only one: train.checkpoint_every lies beyond the run), one line on stderr naming that step and the command
     that resumes it, exit 130, no traceback, nothing on stdout; --resume says the step it resumes from, and the
     run it finishes is the run that was never interrupted, number for number."""
-    args = ["--steps", "450", "--seed", "3", "--modalities", "All", "--no-progress", *TINY,
-            "train.checkpoint_every=100000", "train.eval_every=50", "env_options.step_delay=0.004"]
+    args = [
+        "--steps",
+        "450",
+        "--seed",
+        "3",
+        "--modalities",
+        "All",
+        "--no-progress",
+        *TINY,
+        "train.checkpoint_every=100000",
+        "train.eval_every=50",
+        "env_options.step_delay=0.004",
+    ]
     whole, stopped = tmp_path / "whole", tmp_path / "stopped"
     assert train.main(["--out", str(whole), *args]) == 0
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(Path(__file__).resolve().parent),
-                                                        os.environ.get("PYTHONPATH", "")])}
-    process = subprocess.Popen([sys.executable, "-m", "dlo_policy.train", "--out", str(stopped), *args],
-                               env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                               preexec_fn=default_sigint)  # as from a terminal, also in a background suite
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(Path(__file__).resolve().parent), os.environ.get("PYTHONPATH", "")])}
+    process = subprocess.Popen(
+        [sys.executable, "-m", "dlo_policy.train", "--out", str(stopped), *args],
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        preexec_fn=default_sigint,
+    )  # as from a terminal, also in a background suite
     deadline = time.monotonic() + 120
     while time.monotonic() < deadline and process.poll() is None:
         if (stopped / rundir.EVAL_FILE).exists() and len(read_eval(stopped)) >= 3:  # evaluated at step 100

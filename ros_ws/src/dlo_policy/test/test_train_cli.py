@@ -1,5 +1,6 @@
 """dlo-train without training (fast): the code a run records, cores and threads, the command line and its
 help, the warning when no update will happen, and the TensorBoard log's arithmetic (a recording writer)."""
+
 import os
 import subprocess
 import sys
@@ -8,7 +9,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-
 from dlo_policy import rundir, train
 from dlo_policy.config import ConfigError, load_config, save_config
 from dlo_policy.sac import StepResult
@@ -29,8 +29,15 @@ def test_source_commit_is_the_commit_and_whether_ros_ws_src_has_uncommitted_chan
     package = repo / "ros_ws" / "src" / "dlo_policy" / "dlo_policy"
     package.mkdir(parents=True)
     monkeypatch.setattr(train, "__file__", str(package / "train.py"))  # source_commit looks where train.py lies
-    env = {"GIT_AUTHOR_NAME": "t", "GIT_AUTHOR_EMAIL": "t@t", "GIT_COMMITTER_NAME": "t", "GIT_COMMITTER_EMAIL": "t@t",
-           "GIT_CONFIG_GLOBAL": os.devnull, "GIT_CONFIG_NOSYSTEM": "1", "GIT_CEILING_DIRECTORIES": str(tmp_path)}
+    env = {
+        "GIT_AUTHOR_NAME": "t",
+        "GIT_AUTHOR_EMAIL": "t@t",
+        "GIT_COMMITTER_NAME": "t",
+        "GIT_COMMITTER_EMAIL": "t@t",
+        "GIT_CONFIG_GLOBAL": os.devnull,
+        "GIT_CONFIG_NOSYSTEM": "1",
+        "GIT_CEILING_DIRECTORIES": str(tmp_path),
+    }
     for key, value in env.items():
         monkeypatch.setenv(key, value)
     assert train.source_commit() == {"commit": "unknown", "dirty": None}  # no checkout at all
@@ -89,17 +96,22 @@ def test_help_shows_the_protocol_the_options_and_the_override_examples(capsys):
     # the module docstring as written (RawDescriptionHelpFormatter: the column layout kept)
     assert "\n    step             env steps taken when evaluated\n" in out
     assert "\n    dlo-train --out runs/V+K/seed3 --resume          # continue from the last checkpoint\n" in out
-    assert "Overrides are key=value pairs on config keys (see config/sac_default.yaml), e.g.\n" \
-           "  sac.batch_size=256 train.eval_every=500 env_options.tactile_noise=partial" in out
+    assert (
+        "Overrides are key=value pairs on config keys (see config/sac_default.yaml), e.g.\n"
+        "  sac.batch_size=256 train.eval_every=500 env_options.tactile_noise=partial" in out
+    )
     flat = " ".join(out.split())
-    for text in ("--modalities MODALITIES All, or a '+'-joined subset of K, T, V (e.g. V+K); default All",
-                 "--seed SEED run seed (default 0)", "--steps STEPS total env steps (default 50000)",
-                 "--out OUT run directory",
-                 "--config CONFIG YAML config (default: built-in defaults, see config/sac_default.yaml)",
-                 "--label LABEL experiment name used to group seeds in dlo-report",
-                 "--resume continue the run in --out from its last checkpoint (its saved config; only --steps "
-                 "may change)", "--no-progress no progress display (a bar on a terminal, else a line every tenth of the run)",
-                 "key=value config overrides"):
+    for text in (
+        "--modalities MODALITIES All, or a '+'-joined subset of K, T, V (e.g. V+K); default All",
+        "--seed SEED run seed (default 0)",
+        "--steps STEPS total env steps (default 50000)",
+        "--out OUT run directory",
+        "--config CONFIG YAML config (default: built-in defaults, see config/sac_default.yaml)",
+        "--label LABEL experiment name used to group seeds in dlo-report",
+        "--resume continue the run in --out from its last checkpoint (its saved config; only --steps may change)",
+        "--no-progress no progress display (a bar on a terminal, else a line every tenth of the run)",
+        "key=value config overrides",
+    ):
         assert text in flat, text
 
 
@@ -130,17 +142,27 @@ def test_keep_if_best_keeps_the_first_of_the_highest_hold_the_end_then_reward(se
     import types
 
     states = iter(range(100))
-    trainer = types.SimpleNamespace(best=None, best_policy_state=None, written=[], selected_by=selected_by,
-                                    agent=types.SimpleNamespace(policy_state=lambda: next(states)))
+    trainer = types.SimpleNamespace(
+        best=None,
+        best_policy_state=None,
+        written=[],
+        selected_by=selected_by,
+        agent=types.SimpleNamespace(policy_state=lambda: next(states)),
+    )
     trainer.write_best = lambda: trainer.written.append((trainer.best["step"], trainer.best_policy_state))
     other = "hold_the_end" if selected_by == "hold_the_end_authors" else "hold_the_end_authors"
-    for step, hold, reward in ((0, 0.2, -1.0), (100, 0.2, -1.0), (200, 0.2, -0.5), (300, 0.1, 5.0), (400, 0.3, -9.0),
-                               (500, 0.3, -9.0)):
+    for step, hold, reward in (
+        (0, 0.2, -1.0),
+        (100, 0.2, -1.0),
+        (200, 0.2, -0.5),
+        (300, 0.1, 5.0),
+        (400, 0.3, -9.0),
+        (500, 0.3, -9.0),
+    ):
         row = {"step": step, selected_by: hold, other: 1.0 - hold, "episode_reward": reward, "alpha": 1}
         train.Trainer.keep_if_best(trainer, row)
     assert trainer.written == [(0, 0), (200, 1), (400, 2)]
-    assert trainer.best == {"step": 400, selected_by: 0.3, other: 0.7, "episode_reward": -9.0,
-                            "selected_by": selected_by}
+    assert trainer.best == {"step": 400, selected_by: 0.3, other: 0.7, "episode_reward": -9.0, "selected_by": selected_by}
 
 
 def test_a_trainer_makes_its_run_directory_records_its_config_and_seeds_its_agent(tmp_path, monkeypatch):
@@ -157,6 +179,7 @@ def test_a_trainer_makes_its_run_directory_records_its_config_and_seeds_its_agen
             trainer.env.close()
             trainer.eval_env.close()
             trainer.tb.close()
+
     selected = []
     monkeypatch.setattr(train.taichi_runtime, "select", selected.append)  # the simulator's backend: train.sim_arch
     out = tmp_path / "a" / "b"
@@ -168,8 +191,9 @@ def test_a_trainer_makes_its_run_directory_records_its_config_and_seeds_its_agen
     assert all(torch.equal(p, q) for p, q in zip(first, same))
     assert not all(torch.equal(p, q) for p, q in zip(first, other))
     # sac.observation_scaling=bounds scales by the env's observation bounds: the trainer passes them on
-    trainer = train.Trainer(load_config(None, [*TINY, "sac.observation_scaling=bounds", "train.progress=false"]),
-                            tmp_path / "bounds")
+    trainer = train.Trainer(
+        load_config(None, [*TINY, "sac.observation_scaling=bounds", "train.progress=false"]), tmp_path / "bounds"
+    )
     try:
         assert trainer.agent.normalizer is not None
     finally:
@@ -197,8 +221,10 @@ def test_a_run_without_any_gradient_update_is_warned_about(steps, warned, tmp_pa
     monkeypatch.setattr(train, "train", stub)
     assert train.main(["--out", str(tmp_path / "run"), "--steps", str(steps), "--no-progress", *TINY]) == 0
     captured = capsys.readouterr()
-    warning = (f"dlo-train: warning: train.total_steps {steps} <= sac.learning_starts 50: no gradient update will "
-               f"happen (random actions only); pass e.g. sac.learning_starts={steps // 3} or --steps above 50\n")
+    warning = (
+        f"dlo-train: warning: train.total_steps {steps} <= sac.learning_starts 50: no gradient update will "
+        f"happen (random actions only); pass e.g. sac.learning_starts={steps // 3} or --steps above 50\n"
+    )
     assert captured.err == (warning if warned else "")
     assert captured.out.strip().splitlines()[-1] == f'{{"env_steps": {steps}}}'  # the summary, after Taichi's line
     ((config, out, resume),) = stub.calls
@@ -209,11 +235,20 @@ def test_flags_reach_the_run_and_resume_takes_only_steps(tmp_path, monkeypatch):
     stub = NoTraining()
     monkeypatch.setattr(train, "train", stub)
     run = tmp_path / "run"
-    assert train.main(["--out", str(run), "--steps", "120", "--seed", "4", "--modalities", "T+K", "--label", "x",
-                       "--no-progress", *TINY]) == 0
+    assert (
+        train.main(
+            ["--out", str(run), "--steps", "120", "--seed", "4", "--modalities", "T+K", "--label", "x", "--no-progress", *TINY]
+        )
+        == 0
+    )
     config = stub.calls[-1][0]
     assert (config.train.total_steps, config.seed, config.modalities, config.label, config.train.progress) == (
-        120, 4, "T+K", "x", False)
+        120,
+        4,
+        "T+K",
+        "x",
+        False,
+    )
     assert train.main(["--out", str(run), "--steps", "120", *TINY]) == 0
     assert stub.calls[-1][0].train.progress is True  # no --no-progress: the config's (default) setting
     run.mkdir()
@@ -287,10 +322,18 @@ def test_tensorboard_losses_are_window_means_and_speed_is_steps_per_second(tb):
         losses = {"critic_loss": float(step), "actor_loss": 2.0, "q_extra": -1.0} if step > 50 else {}
         log.step(step, losses)
     calls = log.writer.calls
-    assert calls[:4] == [("loss/critic", pytest.approx(np.mean(range(51, 101))), 100), ("loss/actor", 2.0, 100),
-                         ("loss/q_extra", -1.0, 100), ("speed/steps_per_s", pytest.approx(100 / 2.0), 100)]
-    assert calls[4:] == [("loss/critic", pytest.approx(np.mean(range(101, 201))), 200), ("loss/actor", 2.0, 200),
-                         ("loss/q_extra", -1.0, 200), ("speed/steps_per_s", pytest.approx(100 / 2.0), 200)]
+    assert calls[:4] == [
+        ("loss/critic", pytest.approx(np.mean(range(51, 101))), 100),
+        ("loss/actor", 2.0, 100),
+        ("loss/q_extra", -1.0, 100),
+        ("speed/steps_per_s", pytest.approx(100 / 2.0), 100),
+    ]
+    assert calls[4:] == [
+        ("loss/critic", pytest.approx(np.mean(range(101, 201))), 200),
+        ("loss/actor", 2.0, 200),
+        ("loss/q_extra", -1.0, 200),
+        ("speed/steps_per_s", pytest.approx(100 / 2.0), 200),
+    ]
     clock.now += 0.0
     log.step(300, {})  # a window of no measurable time: finite (100 steps / 1 ns), no division by zero
     assert log.writer.calls[-1] == ("speed/steps_per_s", pytest.approx(1e11), 300)
@@ -301,14 +344,30 @@ def test_tensorboard_episodes_and_evaluations(tb):
     log.episode(57, -1.5, 57)
     assert log.writer.calls == [("train/episode_return", -1.5, 57), ("train/episode_length", 57, 57)]
     log.writer.calls.clear()
-    row = {"step": 200, "tested_without": "", "episodes": 10, "eval_seed": 1_000_020, "wall_time_s": 3.5,
-           "hold_the_end": 0.4, "episode_reward": -2.0, "time_at_end": float("nan"), "note": "text", "alpha": 1}
+    row = {
+        "step": 200,
+        "tested_without": "",
+        "episodes": 10,
+        "eval_seed": 1_000_020,
+        "wall_time_s": 3.5,
+        "hold_the_end": 0.4,
+        "episode_reward": -2.0,
+        "time_at_end": float("nan"),
+        "note": "text",
+        "alpha": 1,
+    }
     log.evaluation(row)
     log.evaluation({**row, "tested_without": "T", "hold_the_end": 0.1})
-    assert log.writer.calls == [("eval/hold_the_end", 0.4, 200), ("eval/episode_reward", -2.0, 200),
-                                ("eval/alpha", 1, 200), ("flush",),
-                                ("eval_without_T/hold_the_end", 0.1, 200), ("eval_without_T/episode_reward", -2.0, 200),
-                                ("eval_without_T/alpha", 1, 200), ("flush",)]
+    assert log.writer.calls == [
+        ("eval/hold_the_end", 0.4, 200),
+        ("eval/episode_reward", -2.0, 200),
+        ("eval/alpha", 1, 200),
+        ("flush",),
+        ("eval_without_T/hold_the_end", 0.1, 200),
+        ("eval_without_T/episode_reward", -2.0, 200),
+        ("eval_without_T/alpha", 1, 200),
+        ("flush",),
+    ]
     log.close()
     assert log.writer.calls[-1] == ("close",)
 
@@ -339,13 +398,22 @@ def test_each_training_episode_logs_its_own_return_and_length(tmp_path, monkeypa
     try:
         trainer.bar = types.SimpleNamespace(update=lambda n: None)
         agent = types.SimpleNamespace(num_env_steps=0, alpha=1.0)
-        for reward, terminated, truncated in ((-0.5, False, False), (-0.25, False, False), (-1.0, True, False),
-                                              (-0.5, False, False), (-0.25, False, True)):
+        for reward, terminated, truncated in (
+            (-0.5, False, False),
+            (-0.25, False, False),
+            (-1.0, True, False),
+            (-0.5, False, False),
+            (-0.25, False, True),
+        ):
             agent.num_env_steps += 1
             trainer.on_step(agent, StepResult(reward, terminated, truncated, {}, {}))
         logged = [call for call in trainer.tb.writer.calls if call[0].startswith("train/")]
-        assert logged == [("train/episode_return", -1.75, 3), ("train/episode_length", 3, 3),
-                          ("train/episode_return", -0.75, 5), ("train/episode_length", 2, 5)]
+        assert logged == [
+            ("train/episode_return", -1.75, 3),
+            ("train/episode_length", 3, 3),
+            ("train/episode_return", -0.75, 5),
+            ("train/episode_length", 2, 5),
+        ]
     finally:
         trainer.env.close()
         trainer.eval_env.close()
@@ -375,9 +443,14 @@ def held_out_trainer(tmp_path, monkeypatch, results):
         if isinstance(result, BaseException):
             raise result
         return types.SimpleNamespace(to_json=lambda: dict(result))
+
     monkeypatch.setattr(train, "evaluate_agent", evaluate_agent)
-    return types.SimpleNamespace(config=config, out_dir=tmp_path, eval_env=HeldOutEnv(),
-                                 tested=[("", []), ("T", blanked_columns(config.modalities, ["T"]))])
+    return types.SimpleNamespace(
+        config=config,
+        out_dir=tmp_path,
+        eval_env=HeldOutEnv(),
+        tested=[("", []), ("T", blanked_columns(config.modalities, ["T"]))],
+    )
 
 
 def test_held_out_test_files_say_which_modality_was_blanked_like_dlo_evaluate(tmp_path, monkeypatch):
@@ -388,11 +461,14 @@ def test_held_out_test_files_say_which_modality_was_blanked_like_dlo_evaluate(tm
 
     trainer = held_out_trainer(tmp_path, monkeypatch, [{"hold_the_end": 0.5}, {"hold_the_end": 0.25}])
     assert train.Trainer.test_best(trainer)["hold_the_end"] == 0.5
-    common = {"checkpoint": rundir.BEST_POLICY_FILE, "seed": trainer.config.train.test_seed, "modalities": "All",
-              "env_steps": 300}
+    common = {
+        "checkpoint": rundir.BEST_POLICY_FILE,
+        "seed": trainer.config.train.test_seed,
+        "modalities": "All",
+        "env_steps": 300,
+    }
     assert json.loads((tmp_path / "test.json").read_text()) == {"hold_the_end": 0.5, **common, "without": []}
-    assert json.loads((tmp_path / "test_without_T.json").read_text()) == {"hold_the_end": 0.25, **common,
-                                                                          "without": ["T"]}
+    assert json.loads((tmp_path / "test_without_T.json").read_text()) == {"hold_the_end": 0.25, **common, "without": ["T"]}
     assert trainer.eval_env.closed == 1
 
 
@@ -420,11 +496,15 @@ def test_an_interrupted_training_finishes_its_progress_line_and_closes_its_envs(
 
     agent = types.SimpleNamespace(num_env_steps=10, learn=learn)
     trainer = types.SimpleNamespace(
-        config=load_config(None, [*TINY, "train.total_steps=100", "train.progress=true"]), agent=agent,
+        config=load_config(None, [*TINY, "train.total_steps=100", "train.progress=true"]),
+        agent=agent,
         env=types.SimpleNamespace(close=lambda: closed.append("env")),
         eval_env=types.SimpleNamespace(close=lambda: closed.append("eval_env")),
         tb=types.SimpleNamespace(close=lambda: closed.append("tb")),
-        save_checkpoint=lambda: closed.append("checkpoint"), on_step=None, stop=train.StopSignals())
+        save_checkpoint=lambda: closed.append("checkpoint"),
+        on_step=None,
+        stop=train.StopSignals(),
+    )
     with pytest.raises(KeyboardInterrupt):
         train.Trainer.run(trainer)
     err = capsys.readouterr().err

@@ -3,6 +3,7 @@ to a JSON parser); progress goes to stderr, a bar on a terminal and plain lines 
 evaluation under both outcome rules; a wrong key=value is answered at once with the key it likely meant; a run
 that does not set train.checkpoint_every checkpoints every tenth of its steps, so that a short one can be
 resumed too."""
+
 import json
 import os
 import re
@@ -12,7 +13,6 @@ from pathlib import Path
 
 import pytest
 import yaml
-
 from dlo_policy import rundir, train
 from dlo_policy.sac import SAC
 
@@ -30,8 +30,13 @@ def test_stdout_is_only_the_json_summary(tmp_path):
     """`dlo-train ... | python -c 'import json, sys; json.loads(sys.stdin.read())'` works: Taichi's start line
     ("[Taichi] Starting on arch=x64") is not on stdout, nor is the progress."""
     run = tmp_path / "run"
-    result = subprocess.run([sys.executable, "-m", "dlo_policy.train", "--out", str(run), "--steps", "100", *TINY,
-                             "train.test_episodes=2"], capture_output=True, text=True, timeout=600, env=environment())
+    result = subprocess.run(
+        [sys.executable, "-m", "dlo_policy.train", "--out", str(run), "--steps", "100", *TINY, "train.test_episodes=2"],
+        capture_output=True,
+        text=True,
+        timeout=600,
+        env=environment(),
+    )
     assert result.returncode == 0, result.stderr[-3000:]
     summary = json.loads(result.stdout)
     assert summary["env_steps"] == 100 and summary == json.loads((run / rundir.DONE_FILE).read_text())
@@ -41,16 +46,14 @@ def test_off_a_terminal_progress_is_a_plain_line_every_tenth_showing_both_outcom
     """A log file (here pytest's capture) gets no bar refreshes (carriage returns): a line at every tenth of the
     run; the last evaluation's hold-the-end fraction under the paper-text rule and under the authors' rule."""
     run = tmp_path / "run"
-    assert train.main(["--out", str(run), "--steps", "200", *TINY, "train.test_episodes=4",
-                       "train.progress=true"]) == 0
+    assert train.main(["--out", str(run), "--steps", "200", *TINY, "train.test_episodes=4", "train.progress=true"]) == 0
     err = capsys.readouterr().err
     assert "\r" not in err
     lines = [line for line in err.splitlines() if line.startswith("All: ")]
     assert [line.split()[1] for line in lines] == [f"{step}/200" for step in range(20, 201, 20)]
     rows = {int(row["step"]): row for row in rundir.read_eval_rows(run) if row["tested_without"] == ""}
     last = rows[200]
-    shown = (f"hold_the_end {float(last['hold_the_end']):.0%} paper rule / "
-             f"{float(last['hold_the_end_authors']):.0%} authors' rule")
+    shown = f"hold_the_end {float(last['hold_the_end']):.0%} paper rule / {float(last['hold_the_end_authors']):.0%} authors' rule"
     assert shown in lines[-1], lines[-1]
     assert re.search(r"^All held-out test: 4/4 episodes \(100%\)", err, re.MULTILINE), err
 
@@ -58,26 +61,34 @@ def test_off_a_terminal_progress_is_a_plain_line_every_tenth_showing_both_outcom
 def test_a_wrong_key_is_answered_with_the_likely_one_before_torch_loads(tmp_path):
     """`dlo-train sac.batch_sise=64`: one line naming the closest key (dlo_common.params.did_you_mean), exit 2,
     answered before torch (and the simulator) is loaded: at once, not after seconds of imports."""
-    probe = ("import json, sys\n"
-             "from dlo_policy import train\n"
-             f"code = train.main(['--out', {str(tmp_path / 'run')!r}, 'sac.batch_sise=64', 'train.eval_every=500'])\n"
-             "print(json.dumps({'code': code, 'torch': 'torch' in sys.modules}))\n")
-    result = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=300,
-                            env=environment())
+    probe = (
+        "import json, sys\n"
+        "from dlo_policy import train\n"
+        f"code = train.main(['--out', {str(tmp_path / 'run')!r}, 'sac.batch_sise=64', 'train.eval_every=500'])\n"
+        "print(json.dumps({'code': code, 'torch': 'torch' in sys.modules}))\n"
+    )
+    result = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=300, env=environment())
     assert json.loads(result.stdout) == {"code": 2, "torch": False}, result.stdout + result.stderr
     assert result.stderr == "dlo-train: error: unknown key 'sac.batch_sise'; did you mean 'sac.batch_size'?\n"
     assert not (tmp_path / "run").exists()
 
 
-@pytest.mark.parametrize("override, key", [("sak.batch_size=64", "sac.batch_size"), ("evl_every=3", "train.eval_every"),
-                                           ("train.checkpoint_evry=9", "train.checkpoint_every")])
+@pytest.mark.parametrize(
+    "override, key",
+    [
+        ("sak.batch_size=64", "sac.batch_size"),
+        ("evl_every=3", "train.eval_every"),
+        ("train.checkpoint_evry=9", "train.checkpoint_every"),
+    ],
+)
 def test_every_unknown_key_gets_a_suggestion_and_the_known_ones_pass(override, key, tmp_path, capsys):
     assert train.main(["--out", str(tmp_path / "run"), override]) == 2
     assert capsys.readouterr().err.endswith(f"; did you mean {key!r}?\n")
     from dlo_policy.cli import check_override_keys
 
-    check_override_keys(["sac.normalize_observations=true", "env_options.anything=1", "train={eval_every: 5}",
-                         "seed=3", "label="])  # an old name still read, a free mapping, a section, top-level keys
+    check_override_keys(
+        ["sac.normalize_observations=true", "env_options.anything=1", "train={eval_every: 5}", "seed=3", "label="]
+    )  # an old name still read, a free mapping, a section, top-level keys
 
 
 def test_a_short_run_that_does_not_set_checkpoint_every_can_be_resumed(tmp_path):
@@ -91,8 +102,7 @@ def test_a_short_run_that_does_not_set_checkpoint_every_can_be_resumed(tmp_path)
     assert 200 <= SAC.load(run / rundir.CHECKPOINT_FILE).num_env_steps < 250
     assert train.main(["--out", str(run), "--resume"]) == 0
     assert [int(row["step"]) for row in rundir.read_eval_rows(run) if row["tested_without"] == ""] == [0, 100, 200, 300]
-    assert [train.default_checkpoint_every(n) for n in (300, 1500, 20_000, 50_000, 200_000)] == [100, 150, 2000, 5000,
-                                                                                                  5000]
+    assert [train.default_checkpoint_every(n) for n in (300, 1500, 20_000, 50_000, 200_000)] == [100, 150, 2000, 5000, 5000]
 
 
 def test_a_checkpoint_interval_that_is_set_is_kept(tmp_path):

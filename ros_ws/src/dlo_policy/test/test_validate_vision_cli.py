@@ -9,7 +9,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
 from dlo_policy import validate_vision
 
 INSTALL_BIN = Path(__file__).resolve().parents[3] / "ros_ws" / "install" / "dlo_policy" / "lib" / "dlo_policy"
@@ -27,12 +26,15 @@ def test_help():
         assert option in result.stdout
 
 
-@pytest.mark.parametrize("argv, message", [
-    (["--steps", "0"], "--num-envs, --rounds and --steps must be >= 1"),
-    (["--num-envs", "-2"], "--num-envs, --rounds and --steps must be >= 1"),
-    (["--rounds", "two"], "argument --rounds: invalid int value: 'two'"),
-    (["--episodes", "64"], "unrecognized arguments: --episodes 64"),
-])
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["--steps", "0"], "--num-envs, --rounds and --steps must be >= 1"),
+        (["--num-envs", "-2"], "--num-envs, --rounds and --steps must be >= 1"),
+        (["--rounds", "two"], "argument --rounds: invalid int value: 'two'"),
+        (["--episodes", "64"], "unrecognized arguments: --episodes 64"),
+    ],
+)
 def test_bad_input_is_one_line_and_exit_2(capsys, argv, message):
     with pytest.raises(SystemExit) as exit_:
         raise SystemExit(validate_vision.main(argv))

@@ -51,9 +51,17 @@ def hold_action(closure: float) -> np.ndarray:
     return np.array([0.0, 0.0, 2.0 * float(closure) - 1.0], np.float32)
 
 
-def command_mismatch(mode: str, episode: int, step: int, cmd_episode: int, cmd_step: int, *,
-                     period: float = 0.08, command_timeout: float = 0.5,
-                     previous_final: tuple[int, int] | None = None) -> tuple[str, str] | None:
+def command_mismatch(
+    mode: str,
+    episode: int,
+    step: int,
+    cmd_episode: int,
+    cmd_step: int,
+    *,
+    period: float = 0.08,
+    command_timeout: float = 0.5,
+    previous_final: tuple[int, int] | None = None,
+) -> tuple[str, str] | None:
     """Why a command stamped (``cmd_episode``, ``cmd_step``) must not act on the sim's current
     (``episode``, ``step``): ``(cause, text)``, or None when it matches (docs/ARCHITECTURE.md#topics).
 
@@ -75,8 +83,7 @@ def command_mismatch(mode: str, episode: int, step: int, cmd_episode: int, cmd_s
         return None
     age = (step - cmd_step) * period
     if age > command_timeout:
-        return "stale", (f"for step {cmd_step}, {age:.2f} s old (current step {step}, command_timeout "
-                         f"{command_timeout:g} s)")
+        return "stale", (f"for step {cmd_step}, {age:.2f} s old (current step {step}, command_timeout {command_timeout:g} s)")
     return None
 
 
@@ -103,8 +110,7 @@ class RejectionLog:
         return None
 
     def due(self, now: float) -> list[str]:
-        return [self._line(cause, now) for cause in list(self._pending)
-                if now - self._last.get(cause, -1e18) >= self.interval]
+        return [self._line(cause, now) for cause in list(self._pending) if now - self._last.get(cause, -1e18) >= self.interval]
 
     def _line(self, cause: str, now: float) -> str:
         count, text, first = self._pending.pop(cause)

@@ -100,9 +100,11 @@ class SimConfig:
         if self.damping < 0:
             raise ValueError(f"damping must be >= 0 1/s, got {self.damping}")
         if not 0 < self.contact_radius <= MAX_CONTACT_RADIUS:
-            raise ValueError(f"contact_radius must be in (0, {MAX_CONTACT_RADIUS}] m (above "
-                             f"{0.5 * FINGER_CLEARANCE} m the fingers pinch the cable between them, as Flex's "
-                             f"5 mm collision distance does), got {self.contact_radius}")
+            raise ValueError(
+                f"contact_radius must be in (0, {MAX_CONTACT_RADIUS}] m (above "
+                f"{0.5 * FINGER_CLEARANCE} m the fingers pinch the cable between them, as Flex's "
+                f"5 mm collision distance does), got {self.contact_radius}"
+            )
         for name in ("stretch_range", "bending_range"):
             lo, hi = getattr(self, name)
             if not 0 < lo <= hi:
@@ -116,8 +118,15 @@ class SimConfig:
         lo, hi = self.num_particles_range
         if not 2 <= lo <= hi <= P_MAX:
             raise ValueError(f"num_particles_range must satisfy 2 <= low <= high <= {P_MAX}, got {(lo, hi)}")
-        for name in ("stretch_compliance_ref", "bending_compliance_ref", "stretch_exponent",
-                     "bending_exponent", "pick_max_speed", "max_speed", "max_distance"):
+        for name in (
+            "stretch_compliance_ref",
+            "bending_compliance_ref",
+            "stretch_exponent",
+            "bending_exponent",
+            "pick_max_speed",
+            "max_speed",
+            "max_distance",
+        ):
             if getattr(self, name) <= 0:
                 raise ValueError(f"{name} must be positive, got {getattr(self, name)}")
         for name in ("pick_moves", "pick_steps", "drop_steps", "settle_steps"):
@@ -134,8 +143,8 @@ class SimConfig:
 
     def stretch_compliance(self, stretch):
         """XPBD compliance [m/N] of the (i, i+1) distance constraint for a stretch stiffness."""
-        return self.stretch_compliance_ref * stretch ** -self.stretch_exponent
+        return self.stretch_compliance_ref * stretch**-self.stretch_exponent
 
     def bending_compliance(self, bending):
         """XPBD compliance [m/N] of the (i-1, i+1) distance constraint for a bending stiffness."""
-        return self.bending_compliance_ref * bending ** -self.bending_exponent
+        return self.bending_compliance_ref * bending**-self.bending_exponent

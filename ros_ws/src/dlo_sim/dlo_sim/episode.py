@@ -9,8 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from dlo_sim.rope import RopeSim, Snapshot
-from dlo_sim.task import (DEFAULT_TASK_RULES, END_PARTICLES, HORIZON, EpisodeTracker, held_mask_authors,
-                          held_statistics)
+from dlo_sim.task import DEFAULT_TASK_RULES, END_PARTICLES, HORIZON, EpisodeTracker, held_mask_authors, held_statistics
 from dlo_sim.task import task_rules as task_rules_record
 
 
@@ -26,12 +25,18 @@ class TaskSim:
     termination and the tactile input use: ``held_task`` is that mask.
     """
 
-    def __init__(self, num_envs: int, horizon: int = HORIZON, end_particles: int = END_PARTICLES,
-                 render: bool = False, task_rules: str = DEFAULT_TASK_RULES, **sim_options):
+    def __init__(
+        self,
+        num_envs: int,
+        horizon: int = HORIZON,
+        end_particles: int = END_PARTICLES,
+        render: bool = False,
+        task_rules: str = DEFAULT_TASK_RULES,
+        **sim_options,
+    ):
         self.rules = task_rules_record(task_rules)
         self.sim = RopeSim(num_envs, **sim_options)
-        self.tracker = EpisodeTracker(self.sim.num_envs, horizon=horizon, end_particles=end_particles,
-                                      task_rules=task_rules)
+        self.tracker = EpisodeTracker(self.sim.num_envs, horizon=horizon, end_particles=end_particles, task_rules=task_rules)
         self.task_rules = task_rules
         self.render = bool(render)
         self.state: Snapshot | None = None
@@ -58,8 +63,13 @@ class TaskSim:
         self.sim.reset(seeds, ids)
         self.state = self.sim.snapshot(self.render)
         self._held_statistics()
-        self.tracker.reset(ids, self.mean_held_index[ids], self.max_held_index[ids], self.sim.num_particles[ids],
-                           self.mean_held_index_authors[ids])
+        self.tracker.reset(
+            ids,
+            self.mean_held_index[ids],
+            self.max_held_index[ids],
+            self.sim.num_particles[ids],
+            self.mean_held_index_authors[ids],
+        )
 
     def step(self, actions):
         """One control step (8 x 0.01 s) of every environment -> (reward, terminated, truncated, unstable), (N,) each.
@@ -68,9 +78,15 @@ class TaskSim:
         as truncated."""
         self.state = self.sim.step_snapshot(actions, self.render)
         self._held_statistics()
-        reward, terminated, truncated = self.tracker.step(self.mean_held_index, self.n_held, self.max_held_index,
-                                                          self.sim.num_particles, self.sim.cable_length,
-                                                          self.mean_held_index_authors, self.n_held_authors)
+        reward, terminated, truncated = self.tracker.step(
+            self.mean_held_index,
+            self.n_held,
+            self.max_held_index,
+            self.sim.num_particles,
+            self.sim.cable_length,
+            self.mean_held_index_authors,
+            self.n_held_authors,
+        )
         unstable = self.sim.unstable()
         return reward, terminated, truncated | (unstable & ~terminated), unstable
 

@@ -5,7 +5,6 @@ Usage: python -m dlo_sim.figure [--seed 3] [--out docs/img/dlo_sim_initial_cable
 
 import argparse
 
-
 from .config import FINGER_CLEARANCE, FINGER_RADIUS
 from .rope import RopeSim
 
@@ -35,16 +34,20 @@ def draw(seed: int, out: str) -> None:
     side.scatter(x[~held, 0], x[~held, 2], s=6, color="tab:blue", label="particles")
     side.scatter(x[held, 0], x[held, 2], s=8, color="tab:red", label="held")
     for sign in (1.0, -1.0):
-        side.add_patch(plt.Circle((g[0], g[2] + sign * (FINGER_RADIUS + 0.5 * FINGER_CLEARANCE)), FINGER_RADIUS,
-                                  color="0.3", alpha=0.5))
+        side.add_patch(
+            plt.Circle((g[0], g[2] + sign * (FINGER_RADIUS + 0.5 * FINGER_CLEARANCE)), FINGER_RADIUS, color="0.3", alpha=0.5)
+        )
     side.axhline(0.0, color="k", lw=0.8)
     side.set_aspect("equal")
     side.set_xlim(min(x[:, 0].min(), g[0]) - 0.02, x[:, 0].max() + 0.02)
     side.set_ylim(-0.005, 0.135)
     side.set_xlabel("x [m]", fontsize=8)
     side.set_ylabel("z [m]", fontsize=8)
-    side.set_title(f"side view, seed {seed}: {n} particles, stretch {p['stretch'][0]:.2f}, "
-                   f"bending {p['bending'][0]:.2f}, friction {p['friction'][0]:.2f}", fontsize=8)
+    side.set_title(
+        f"side view, seed {seed}: {n} particles, stretch {p['stretch'][0]:.2f}, "
+        f"bending {p['bending'][0]:.2f}, friction {p['friction'][0]:.2f}",
+        fontsize=8,
+    )
     side.legend(fontsize=7, loc="upper right")
     for ax in (top, side):
         ax.tick_params(labelsize=7)

@@ -74,6 +74,7 @@ def authors_grip_particle(positions, num_particles, gripper, c) -> int:
     their narrow held set (``dlo_sim.task.held_mask_authors``), the one nearest the finger axis in x, never
     particle 0, ties to the lower index. positions (P, 3), gripper (3,) [m]; float32 as the kernel."""
     from .task import held_mask_authors
+
     if not c > 0.5:
         return -1
     positions = np.asarray(positions, dtype=np.float32)

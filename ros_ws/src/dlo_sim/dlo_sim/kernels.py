@@ -8,13 +8,27 @@ Per-environment arrays are padded to ``P_MAX`` particles; loops stop at ``n[e]``
 
 import math
 
-from dlo_common.taichi_runtime import init as init_taichi  # before taichi: no "[Taichi] version" banner (see there)
 import taichi as ti
+from dlo_common.taichi_runtime import init as init_taichi  # before taichi: no "[Taichi] version" banner (see there)
 
-from .config import (DT, FINGER_AXIS_OFFSET, FINGER_HALF_LENGTH, FINGER_RADIUS, FIXED_END, GRAVITY,
-                     GRIPPER_HEIGHT, IMAGE_CABLE, IMAGE_GRIPPER, START_POSES,
-                     MAX_DISPLACEMENT, NOMINAL_INVERSE_MASS, P_MAX, PARTICLE_RADIUS, REST_SPACING,
-                     WORKSPACE_HALF_WIDTH)
+from .config import (
+    DT,
+    FINGER_AXIS_OFFSET,
+    FINGER_HALF_LENGTH,
+    FINGER_RADIUS,
+    FIXED_END,
+    GRAVITY,
+    GRIPPER_HEIGHT,
+    IMAGE_CABLE,
+    IMAGE_GRIPPER,
+    MAX_DISPLACEMENT,
+    NOMINAL_INVERSE_MASS,
+    P_MAX,
+    PARTICLE_RADIUS,
+    REST_SPACING,
+    START_POSES,
+    WORKSPACE_HALF_WIDTH,
+)
 from .grip import AUTHORS_MAX_NEIGHBOUR_DISTANCE, GRIP_SLIP_STRAIN  # dlo_sim.grip states the rules in numpy
 from .task import AUTHORS_HELD_ABOVE, AUTHORS_HELD_DISTANCE, AUTHORS_HELD_HALF_WIDTH
 
@@ -106,8 +120,11 @@ class RopeKernels:
         q = self.x[e, i]
         dx = q.x - g.x
         dz = q.z - (g.z - FINGER_AXIS_OFFSET)
-        return (ti.abs(q.y - g.y) <= FINGER_HALF_LENGTH + FINGER_RADIUS
-                and dx * dx + dz * dz <= HELD_DISTANCE * HELD_DISTANCE and dz > 0.0)
+        return (
+            ti.abs(q.y - g.y) <= FINGER_HALF_LENGTH + FINGER_RADIUS
+            and dx * dx + dz * dz <= HELD_DISTANCE * HELD_DISTANCE
+            and dz > 0.0
+        )
 
     @ti.func
     def single_grip_particle(self, e, g):
@@ -134,8 +151,11 @@ class RopeKernels:
             q = self.x[e, i]
             dx = q.x - g.x
             dz = q.z - (g.z - FINGER_AXIS_OFFSET)
-            if (ti.abs(q.y - g.y) < AUTHORS_HELD_HALF_WIDTH and dx * dx + dz * dz < AUTHORS_HELD_DISTANCE ** 2
-                    and dz > AUTHORS_HELD_ABOVE):
+            if (
+                ti.abs(q.y - g.y) < AUTHORS_HELD_HALF_WIDTH
+                and dx * dx + dz * dz < AUTHORS_HELD_DISTANCE**2
+                and dz > AUTHORS_HELD_ABOVE
+            ):
                 d = ti.abs(dx)
                 if chosen < 0 or d < nearest:
                     chosen = i
@@ -531,10 +551,16 @@ class RopeKernels:
         return n_bad
 
     @ti.kernel
-    def advance_and_read(self, actions: ti.types.ndarray(dtype=ti.f32, ndim=2), n_steps: ti.i32,
-                         positions: ti.types.ndarray(dtype=ti.f32, ndim=3), held: ti.types.ndarray(dtype=ti.u8, ndim=2),
-                         gripper: ti.types.ndarray(dtype=ti.f32, ndim=2), image: ti.types.ndarray(dtype=ti.u8, ndim=3),
-                         draw: ti.i32) -> ti.i32:
+    def advance_and_read(
+        self,
+        actions: ti.types.ndarray(dtype=ti.f32, ndim=2),
+        n_steps: ti.i32,
+        positions: ti.types.ndarray(dtype=ti.f32, ndim=3),
+        held: ti.types.ndarray(dtype=ti.u8, ndim=2),
+        gripper: ti.types.ndarray(dtype=ti.f32, ndim=2),
+        image: ti.types.ndarray(dtype=ti.u8, ndim=3),
+        draw: ti.i32,
+    ) -> ti.i32:
         """``advance`` (``n_steps`` may be 0), then everything the task and the observations read, in
         the same launch: positions (N, P_MAX, 3), held (N, P_MAX) 0/1, gripper (N, 4); if ``draw``
         also the top view into ``image`` (N, H, W), given all 0 (else it is not touched)."""

@@ -18,7 +18,6 @@ import warnings
 from dataclasses import dataclass
 
 import numpy as np
-
 from dlo_perception.camera import TopCamera
 
 from .config import DT, P_MAX, PARTICLE_MASS, REST_SPACING, SUBSTEPS_PER_ACTION, SimConfig
@@ -31,8 +30,12 @@ def physics_draw(config: SimConfig) -> dict:
     """The stretch, bending and friction every episode gets under ``config.physics_seed`` >= 0 (the authors'
     one physics draw) and the particle mass: uniform in the config's ranges, from the generator of that seed alone."""
     rng = np.random.default_rng(config.physics_seed)
-    return {"stretch": rng.uniform(*config.stretch_range), "bending": rng.uniform(*config.bending_range),
-            "friction": rng.uniform(*config.friction_range), "particle_mass": rng.uniform(*config.particle_mass_range)}
+    return {
+        "stretch": rng.uniform(*config.stretch_range),
+        "bending": rng.uniform(*config.bending_range),
+        "friction": rng.uniform(*config.friction_range),
+        "particle_mass": rng.uniform(*config.particle_mass_range),
+    }
 
 
 @dataclass
@@ -57,9 +60,14 @@ class RopeSim:
         self.camera = camera if camera is not None else TopCamera.covering_workspace(128)
         self._k = RopeKernels(self.num_envs, self.config, self.camera)
         n = self.num_envs
-        self._params = {"stretch": np.zeros(n, np.float32), "bending": np.zeros(n, np.float32),
-                        "friction": np.zeros(n, np.float32), "num_particles": np.zeros(n, np.int32),
-                        "particle_mass": np.full(n, PARTICLE_MASS, np.float32), "seed": np.full(n, -1, np.int64)}
+        self._params = {
+            "stretch": np.zeros(n, np.float32),
+            "bending": np.zeros(n, np.float32),
+            "friction": np.zeros(n, np.float32),
+            "num_particles": np.zeros(n, np.int32),
+            "particle_mass": np.full(n, PARTICLE_MASS, np.float32),
+            "seed": np.full(n, -1, np.int64),
+        }
         self._pick = np.full(n, -1, np.int32)
         self._pick_vel = np.zeros((n, 3), np.float32)
         self._unstable = np.zeros(n, bool)
@@ -221,31 +229,35 @@ class RopeSim:
     def _read(self, actions, n: int, out: Snapshot) -> int:
         """``n`` steps, then the read-back into ``out``, in one launch; returns how many envs exploded."""
         image = self._no_image if out.image is None else out.image
-        return self._k.advance_and_read(actions, n, out.positions, out.held.view(np.uint8), out.gripper, image,
-                                        int(out.image is not None))
+        return self._k.advance_and_read(
+            actions, n, out.positions, out.held.view(np.uint8), out.gripper, image, int(out.image is not None)
+        )
 
     def _new_snapshot(self, render: bool) -> Snapshot:
         """Uninitialised read-back arrays; the image zeroed (the renderer draws on background; fresh
         zero pages from the OS cost less than clearing the image in the kernel)."""
         n = self.num_envs
         image = np.zeros((n, self.camera.height, self.camera.width), np.uint8) if render else None
-        return Snapshot(np.empty((n, P_MAX, 3), np.float32), np.empty((n, P_MAX), bool),
-                        np.empty((n, 4), np.float32), image)
+        return Snapshot(np.empty((n, P_MAX, 3), np.float32), np.empty((n, P_MAX), bool), np.empty((n, 4), np.float32), image)
 
     def _draw(self, seed: int) -> dict:
         """All random draws of one episode, from its own generator (independent of the batch)."""
         cfg = self.config
         rng = np.random.default_rng(seed)
         n = int(rng.integers(cfg.num_particles_range[0], cfg.num_particles_range[1] + 1))
-        draw = {"num_particles": n, "stretch": rng.uniform(*cfg.stretch_range),
-                "bending": rng.uniform(*cfg.bending_range), "friction": rng.uniform(*cfg.friction_range)}
+        draw = {
+            "num_particles": n,
+            "stretch": rng.uniform(*cfg.stretch_range),
+            "bending": rng.uniform(*cfg.bending_range),
+            "friction": rng.uniform(*cfg.friction_range),
+        }
         if cfg.physics_seed >= 0:  # one physics for every episode; the episode's stream is drawn as without
             draw.update(physics_draw(cfg))
         picks = rng.integers(n // 2, n, size=cfg.pick_moves)
         azimuth = rng.uniform(0.0, 2.0 * np.pi, size=cfg.pick_moves)
         rise = rng.uniform(0.2, 1.0, size=cfg.pick_moves)  # upward bias: sine of the elevation
         speed = rng.uniform(0.5, 1.0, size=cfg.pick_moves) * cfg.pick_max_speed / DT
-        flat = np.sqrt(1.0 - rise ** 2)
+        flat = np.sqrt(1.0 - rise**2)
         draw["pick"] = np.minimum(picks, n - 1)
         draw["pick_vel"] = speed[:, None] * np.stack([flat * np.cos(azimuth), flat * np.sin(azimuth), rise], 1)
         if cfg.physics_seed < 0:  # the last draw: every draw above is as it was without it

@@ -33,6 +33,13 @@ import time
 
 import numpy as np
 from builtin_interfaces.msg import Time
+from dlo_common.node_util import NodeStartError, declare_parameters
+from dlo_common.params import Param
+from dlo_common.topics import message_class, select, topic
+from dlo_msgs.msg import GripperCommand, GripperState, TaskState
+from dlo_msgs.srv import ResetEpisode
+from dlo_perception.camera import CAMERA_FRAME, TopCamera, camera_info
+from dlo_perception.cloud import particle_cloud
 from geometry_msgs.msg import Point
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile
@@ -41,23 +48,34 @@ from sensor_msgs.msg import Image
 from std_msgs.msg import String
 from visualization_msgs.msg import Marker, MarkerArray
 
-from dlo_common.topics import message_class, select, topic
-from dlo_msgs.msg import GripperCommand, GripperState, TaskState
-from dlo_msgs.srv import ResetEpisode
-from dlo_perception.camera import CAMERA_FRAME, TopCamera, camera_info
-from dlo_perception.cloud import particle_cloud
 from dlo_sim.command import CommandError, RejectionLog, command_mismatch, command_to_action, hold_action
-from dlo_sim.config import (DT, FINGER_CLEARANCE, FINGER_HALF_LENGTH, FINGER_RADIUS, MAX_CONTACT_RADIUS,
-                            START_POSES, SUBSTEPS_PER_ACTION, SimConfig)
-from dlo_sim.grip import CARRY_LAWS
+from dlo_sim.config import (
+    DT,
+    FINGER_CLEARANCE,
+    FINGER_HALF_LENGTH,
+    FINGER_RADIUS,
+    MAX_CONTACT_RADIUS,
+    START_POSES,
+    SUBSTEPS_PER_ACTION,
+    SimConfig,
+)
 from dlo_sim.episode import TaskSim
+from dlo_sim.grip import CARRY_LAWS
 from dlo_sim.task import DEFAULT_TASK_RULES, HORIZON, TASK_RULES
-from dlo_common.node_util import NodeStartError, declare_parameters
-from dlo_common.params import Param
 
 # the parameters that decide what an episode is (the task and the physics), published with the instance record
-SETTINGS = ("mode", "seed", "horizon", "task_rules", "single_particle_grip", "physics_seed", "carry_law",
-            "contact_radius", "start_pose", "camera_resolution")
+SETTINGS = (
+    "mode",
+    "seed",
+    "horizon",
+    "task_rules",
+    "single_particle_grip",
+    "physics_seed",
+    "carry_law",
+    "contact_radius",
+    "start_pose",
+    "camera_resolution",
+)
 CONTROL_PERIOD_NS = int(round(DT * SUBSTEPS_PER_ACTION * 1e9))  # 0.08 s of simulation time per action
 MODES = ("step_locked", "real_time")
 PARAMETERS = (
@@ -65,30 +83,60 @@ PARAMETERS = (
     Param("seed", 0, "episode k is randomised with seed + k", at_least=0),
     Param("episodes", 0, "episodes to run before the node exits (0 = forever)", at_least=0),
     Param("horizon", HORIZON, "control steps per episode", at_least=1),
-    Param("task_rules", DEFAULT_TASK_RULES, "which held set the reward, the episode's end and the tactile input (the "
-                                      "particles' held flags) use, one of " + str(TASK_RULES), choices=TASK_RULES),
-    Param("single_particle_grip", False, "the grip carries ONE particle, the held one nearest the finger axis (never "
-                                         "particle 0), as the authors' code did (docs/FIDELITY.md row 5); false: "
-                                         "every held particle"),
-    Param("physics_seed", -1, "-1: stretch, bending and friction drawn per episode; >= 0: every episode gets those "
-                              "drawn from this seed (the authors' one physics draw, docs/FIDELITY.md row 8)",
-          at_least=-1),
-    Param("carry_law", "paper", "how the grip carries the cable: paper (the paper's law on the held set) or authors "
-                                "(their carry law: one particle moved by the whole displacement above closure 0.5; "
-                                "docs/FIDELITY.md rows 5-6)", choices=CARRY_LAWS),
-    Param("contact_radius", SimConfig.contact_radius, "the cable's contact half-thickness [m]; above half the finger "
-          f"gap ({FINGER_CLEARANCE / 2}) the fingers pinch the cable, as Flex's 5 mm collision distance does",
-          above=0.0, at_most=MAX_CONTACT_RADIUS),
-    Param("start_pose", "ours", "where the gripper starts: ours (5 mm behind the fixed end, at its height) or authors "
-                                "(8 mm behind, 2.25 mm lower, as the authors' code)", choices=tuple(START_POSES)),
+    Param(
+        "task_rules",
+        DEFAULT_TASK_RULES,
+        "which held set the reward, the episode's end and the tactile input (the "
+        "particles' held flags) use, one of " + str(TASK_RULES),
+        choices=TASK_RULES,
+    ),
+    Param(
+        "single_particle_grip",
+        False,
+        "the grip carries ONE particle, the held one nearest the finger axis (never "
+        "particle 0), as the authors' code did (docs/FIDELITY.md row 5); false: "
+        "every held particle",
+    ),
+    Param(
+        "physics_seed",
+        -1,
+        "-1: stretch, bending and friction drawn per episode; >= 0: every episode gets those "
+        "drawn from this seed (the authors' one physics draw, docs/FIDELITY.md row 8)",
+        at_least=-1,
+    ),
+    Param(
+        "carry_law",
+        "paper",
+        "how the grip carries the cable: paper (the paper's law on the held set) or authors "
+        "(their carry law: one particle moved by the whole displacement above closure 0.5; "
+        "docs/FIDELITY.md rows 5-6)",
+        choices=CARRY_LAWS,
+    ),
+    Param(
+        "contact_radius",
+        SimConfig.contact_radius,
+        "the cable's contact half-thickness [m]; above half the finger "
+        f"gap ({FINGER_CLEARANCE / 2}) the fingers pinch the cable, as Flex's 5 mm collision distance does",
+        above=0.0,
+        at_most=MAX_CONTACT_RADIUS,
+    ),
+    Param(
+        "start_pose",
+        "ours",
+        "where the gripper starts: ours (5 mm behind the fixed end, at its height) or authors "
+        "(8 mm behind, 2.25 mm lower, as the authors' code)",
+        choices=tuple(START_POSES),
+    ),
     Param("rate_factor", 1.0, "real_time mode: simulation speed relative to wall time", above=0.0),
     Param("command_timeout", 0.5, "real_time mode: a command older than this [s] stops the gripper", above=0.0),
-    Param("step_timeout", 1.0, "step_locked mode: republish the state after this long [s] without a command",
-          above=0.0),
-    Param("min_subscribers", 0, "wait until /dlo/gripper/state has this many subscribers before the first episode",
-          at_least=0),
-    Param("wait_for_recorder", "", "name of a recorder node that must subscribe to every published /dlo topic "
-                                   "before the first episode (empty = do not wait)"),
+    Param("step_timeout", 1.0, "step_locked mode: republish the state after this long [s] without a command", above=0.0),
+    Param("min_subscribers", 0, "wait until /dlo/gripper/state has this many subscribers before the first episode", at_least=0),
+    Param(
+        "wait_for_recorder",
+        "",
+        "name of a recorder node that must subscribe to every published /dlo topic "
+        "before the first episode (empty = do not wait)",
+    ),
     Param("camera_resolution", 128, "top-view image width = height [px]", at_least=8),
     Param("publish_markers", True, "publish /dlo/markers for RViz/Foxglove"),
     Param("summary_file", "", "write the per-episode outcomes as JSON lines here (empty = off)"),
@@ -131,42 +179,68 @@ class SimNode(Node):
         qos = QoSProfile(depth=10)
         latched = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
         # one publisher per topic of the registry that sim_node publishes (dlo_common.topics), by its key
-        self.pubs = {t.key: self.create_publisher(message_class(t.type), t.name, latched if t.rate == "latched" else qos)
-                     for t in select(publisher="sim_node") if t.key != "markers" or p["publish_markers"]}
+        self.pubs = {
+            t.key: self.create_publisher(message_class(t.type), t.name, latched if t.rate == "latched" else qos)
+            for t in select(publisher="sim_node")
+            if t.key != "markers" or p["publish_markers"]
+        }
         self.pub_clock, self.pub_particles, self.pub_gripper, self.pub_image, self.pub_info, self.pub_task = (
-            self.pubs[key] for key in ("clock", "particles", "gripper", "image", "camera_info", "task"))
+            self.pubs[key] for key in ("clock", "particles", "gripper", "image", "camera_info", "task")
+        )
         self.pub_markers, self.pub_instance = self.pubs.get("markers"), self.pubs["instance"]
         self.sub_command = self.create_subscription(GripperCommand, topic("command").name, self.on_command, qos)
         self.last_command_wall = None  # real_time: when the last command arrived (or the episode clock started)
         self.create_service(ResetEpisode, "/dlo/sim/reset", self.on_reset_service)
-        self.instance = {"host": socket.gethostname(), "pid": os.getpid(), "started_ns": time.time_ns(),
-                         # what the episodes run under: latched and recorded, so a bag says it (dlo-analyze)
-                         "settings": {name: p[name] for name in SETTINGS}}
-        self.create_subscription(String, INSTANCE_TOPIC, self.on_instance,  # several publishers: more than 1 deep
-                                 QoSProfile(depth=10, durability=DurabilityPolicy.TRANSIENT_LOCAL))
+        self.instance = {
+            "host": socket.gethostname(),
+            "pid": os.getpid(),
+            "started_ns": time.time_ns(),
+            # what the episodes run under: latched and recorded, so a bag says it (dlo-analyze)
+            "settings": {name: p[name] for name in SETTINGS},
+        }
+        self.create_subscription(
+            String,
+            INSTANCE_TOPIC,
+            self.on_instance,  # several publishers: more than 1 deep
+            QoSProfile(depth=10, durability=DurabilityPolicy.TRANSIENT_LOCAL),
+        )
 
         # Another simulator or driver on this DDS domain would mix two graphs: look before building (slow) and
         # publishing anything (discovery runs meanwhile); looked at again until the first episode starts.
         time.sleep(DISCOVERY_GRACE)
         self.check_alone()
         self.pub_instance.publish(String(data=json.dumps(self.instance)))
-        self.get_logger().info(f"alone on ROS_DOMAIN_ID={os.environ.get('ROS_DOMAIN_ID') or '0'}: no other publisher "
-                               f"of {self.pub_gripper.topic_name}; building the simulation")
+        self.get_logger().info(
+            f"alone on ROS_DOMAIN_ID={os.environ.get('ROS_DOMAIN_ID') or '0'}: no other publisher "
+            f"of {self.pub_gripper.topic_name}; building the simulation"
+        )
         self.camera = TopCamera.covering_workspace(p["camera_resolution"])
-        self.task = TaskSim(1, horizon=p["horizon"], render=True, camera=self.camera, task_rules=p["task_rules"],
-                            config=SimConfig(single_particle_grip=p["single_particle_grip"],
-                                             physics_seed=p["physics_seed"], carry_law=p["carry_law"],
-                                             contact_radius=p["contact_radius"], start_pose=p["start_pose"]))
+        self.task = TaskSim(
+            1,
+            horizon=p["horizon"],
+            render=True,
+            camera=self.camera,
+            task_rules=p["task_rules"],
+            config=SimConfig(
+                single_particle_grip=p["single_particle_grip"],
+                physics_seed=p["physics_seed"],
+                carry_law=p["carry_law"],
+                contact_radius=p["contact_radius"],
+                start_pose=p["start_pose"],
+            ),
+        )
 
         if p["mode"] == "real_time":
             self.create_timer(DT * SUBSTEPS_PER_ACTION / p["rate_factor"], self.on_real_time_tick)
         self.create_timer(0.05, self.on_watchdog)
-        self.get_logger().info(f"{p['mode']} simulation, seed {p['seed']}, task rules {p['task_rules']}, "
-                               f"{'single-particle grip, ' if p['single_particle_grip'] else ''}"
-                               f"{'the authors carry law, ' if p['carry_law'] == 'authors' else ''}"
-                               f"contact radius {p['contact_radius']} m, "
-                               f"{'one physics draw (seed %d), ' % p['physics_seed'] if p['physics_seed'] >= 0 else ''}"
-                               f"{p['episodes'] or 'unlimited'} episodes of {p['horizon']} steps")
+        self.get_logger().info(
+            f"{p['mode']} simulation, seed {p['seed']}, task rules {p['task_rules']}, "
+            f"{'single-particle grip, ' if p['single_particle_grip'] else ''}"
+            f"{'the authors carry law, ' if p['carry_law'] == 'authors' else ''}"
+            f"contact radius {p['contact_radius']} m, "
+            f"{'one physics draw (seed %d), ' % p['physics_seed'] if p['physics_seed'] >= 0 else ''}"
+            f"{p['episodes'] or 'unlimited'} episodes of {p['horizon']} steps"
+        )
 
     # ------------------------------------------------------------------ episodes
     def start_episode(self, seed: int):
@@ -190,14 +264,22 @@ class SimNode(Node):
             self.finish_episode()
 
     def finish_episode(self):
-        summary = {"episode": self.episode, "seed": self.episode_seed, **self.task.tracker.summary(0),
-                   "single_particle_grip": self.p["single_particle_grip"], "carry_law": self.p["carry_law"],
-                   "contact_radius": self.p["contact_radius"], "start_pose": self.p["start_pose"]}
+        summary = {
+            "episode": self.episode,
+            "seed": self.episode_seed,
+            **self.task.tracker.summary(0),
+            "single_particle_grip": self.p["single_particle_grip"],
+            "carry_law": self.p["carry_law"],
+            "contact_radius": self.p["contact_radius"],
+            "start_pose": self.p["start_pose"],
+        }
         self.finished.append(summary)
-        self.get_logger().info(f"episode {self.episode} (seed {self.episode_seed}): {summary['outcome']} "
-                               f"(authors' rule: {summary['outcome_authors']}), "
-                               f"return {summary['episode_return']:.3f}, time at end {summary['time_at_end']}, "
-                               f"{summary['how_far']} particles from the end")
+        self.get_logger().info(
+            f"episode {self.episode} (seed {self.episode_seed}): {summary['outcome']} "
+            f"(authors' rule: {summary['outcome_authors']}), "
+            f"return {summary['episode_return']:.3f}, time at end {summary['time_at_end']}, "
+            f"{summary['how_far']} particles from the end"
+        )
         if self.p["summary_file"]:
             with open(self.p["summary_file"], "a") as f:
                 f.write(json.dumps(summary) + "\n")
@@ -220,8 +302,9 @@ class SimNode(Node):
             self.get_logger().info(f"ran {self.episode} episodes: exiting")
             raise SystemExit(0)
         if time.monotonic() - self.closing_since > FINAL_ANSWER_WAIT:
-            self.get_logger().info(f"ran {self.episode} episodes: exiting (no answer to the final state in "
-                                   f"{FINAL_ANSWER_WAIT:g} s)")
+            self.get_logger().info(
+                f"ran {self.episode} episodes: exiting (no answer to the final state in {FINAL_ANSWER_WAIT:g} s)"
+            )
             raise SystemExit(0)
 
     # ------------------------------------------------------------------ inputs
@@ -239,9 +322,16 @@ class SimNode(Node):
             self.exit_when_answered((int(msg.episode), int(msg.step)) == tuple(self.previous_final))
             return
         self.last_command_wall = time.monotonic()
-        mismatch = command_mismatch(self.p["mode"], self.episode, self.step_index, int(msg.episode), int(msg.step),
-                                    period=self.period_wall, command_timeout=self.p["command_timeout"],
-                                    previous_final=self.previous_final)
+        mismatch = command_mismatch(
+            self.p["mode"],
+            self.episode,
+            self.step_index,
+            int(msg.episode),
+            int(msg.step),
+            period=self.period_wall,
+            command_timeout=self.p["command_timeout"],
+            previous_final=self.previous_final,
+        )
         if mismatch is not None:
             cause, text = mismatch
             if cause == "previous episode":  # the policy answered the final state: expected
@@ -267,11 +357,12 @@ class SimNode(Node):
         self.last_command_wall = self.last_command_wall or now
         if self.command is None or now - self.command[1] > self.p["command_timeout"]:
             if now - self.last_command_wall >= NO_COMMAND_WARNING:
-                self.get_logger().warning(f"no command for {now - self.last_command_wall:.0f} s: is a policy running? "
-                                          "(the gripper stands still)", throttle_duration_sec=NO_COMMAND_WARNING)
+                self.get_logger().warning(
+                    f"no command for {now - self.last_command_wall:.0f} s: is a policy running? (the gripper stands still)",
+                    throttle_duration_sec=NO_COMMAND_WARNING,
+                )
             elif self.command is not None:
-                self.get_logger().warning("command timed out: the gripper stops and holds",
-                                          throttle_duration_sec=2.0)
+                self.get_logger().warning("command timed out: the gripper stops and holds", throttle_duration_sec=2.0)
             action = hold_action(closure)
         else:
             action = self.command[0]
@@ -283,10 +374,12 @@ class SimNode(Node):
         for line in self.rejections.due(now):
             self.get_logger().warning(line)
         if self.count_publishers(self.pub_gripper.topic_name) > 1:  # a driver, or a simulator about to leave
-            self.get_logger().error(f"another node publishes {self.pub_gripper.topic_name} too "
-                                    f"({', '.join(self.other_publishers(self.pub_gripper.topic_name))}): "
-                                    "two graphs share this DDS domain and their messages mix",
-                                    throttle_duration_sec=WAIT_REPORT_PERIOD)
+            self.get_logger().error(
+                f"another node publishes {self.pub_gripper.topic_name} too "
+                f"({', '.join(self.other_publishers(self.pub_gripper.topic_name))}): "
+                "two graphs share this DDS domain and their messages mix",
+                throttle_duration_sec=WAIT_REPORT_PERIOD,
+            )
         if not self.started:
             if not self.info_published:  # after the look for another simulator (__init__)
                 self.pub_info.publish(camera_info(self.camera))
@@ -294,9 +387,10 @@ class SimNode(Node):
                 return
             subscribers = self.count_subscribers(self.pub_gripper.topic_name)
             if subscribers < self.p["min_subscribers"]:
-                self.get_logger().info(f"waiting for {self.p['min_subscribers']} subscribers of "
-                                       f"{self.pub_gripper.topic_name} (have {subscribers})",
-                                       throttle_duration_sec=WAIT_REPORT_PERIOD)
+                self.get_logger().info(
+                    f"waiting for {self.p['min_subscribers']} subscribers of {self.pub_gripper.topic_name} (have {subscribers})",
+                    throttle_duration_sec=WAIT_REPORT_PERIOD,
+                )
             elif self.recorder_ready() and self.command_source_ready():
                 self.started = True
                 self.start_episode(self.p["seed"])
@@ -310,8 +404,11 @@ class SimNode(Node):
         if self.step_index == 0 and self.episode == 0 and waited > 0.25:  # start-up: nodes still joining
             self.publish_state(new_stamp=False)
         elif waited > self.p["step_timeout"]:
-            self.get_logger().warning(f"no command for episode {self.episode} step {self.step_index} in "
-                                      f"{self.p['step_timeout']} s: republishing the state", throttle_duration_sec=5.0)
+            self.get_logger().warning(
+                f"no command for episode {self.episode} step {self.step_index} in "
+                f"{self.p['step_timeout']} s: republishing the state",
+                throttle_duration_sec=5.0,
+            )
             self.publish_state(new_stamp=False)
 
     def own_publishers(self):
@@ -346,11 +443,15 @@ class SimNode(Node):
         domain = os.environ.get("ROS_DOMAIN_ID") or "0"
         who = f"pid {key[2]} on {key[1]}, started {time.strftime('%H:%M:%S', time.localtime(key[0] / 1e9))}"
         if key < mine:
-            raise NodeStartError(f"another simulator already runs on ROS_DOMAIN_ID={domain} ({who}): two graphs would "
-                                 "mix; stop it, or use another ROS_DOMAIN_ID (scripts/launch_graph.sh picks a free one) "
-                                 "or --namespace")
-        self.get_logger().error(f"a second simulator appeared on ROS_DOMAIN_ID={domain} ({who}); it leaves, but "
-                                "messages of the two graphs may have mixed meanwhile")
+            raise NodeStartError(
+                f"another simulator already runs on ROS_DOMAIN_ID={domain} ({who}): two graphs would "
+                "mix; stop it, or use another ROS_DOMAIN_ID (scripts/launch_graph.sh picks a free one) "
+                "or --namespace"
+            )
+        self.get_logger().error(
+            f"a second simulator appeared on ROS_DOMAIN_ID={domain} ({who}); it leaves, but "
+            "messages of the two graphs may have mixed meanwhile"
+        )
 
     def check_alone(self):
         """Refuse to start when another node already publishes one of this simulator's topics."""
@@ -360,7 +461,8 @@ class SimNode(Node):
                 raise NodeStartError(
                     f"another node already publishes {pub.topic_name} ({', '.join(self.other_publishers(pub.topic_name))}) "
                     f"on ROS_DOMAIN_ID={domain}: a second simulator or driver would mix two graphs; stop it, or use "
-                    "another ROS_DOMAIN_ID (scripts/launch_graph.sh picks a free one) or --namespace")
+                    "another ROS_DOMAIN_ID (scripts/launch_graph.sh picks a free one) or --namespace"
+                )
 
     def recorder_ready(self) -> bool:
         """True when ``wait_for_recorder`` is unset or that node subscribes to every /dlo topic with a publisher,
@@ -370,17 +472,16 @@ class SimNode(Node):
         recorder = self.p["wait_for_recorder"]
         if not recorder:
             return True
-        prefix = self.pub_gripper.topic_name[:-len("gripper/state")]  # /dlo/, or /<namespace>/dlo/
-        topics = sorted(t for t, _ in self.get_topic_names_and_types()
-                        if t.startswith(prefix) and self.count_publishers(t) > 0)
-        missing = [t for t in topics
-                   if not any(info.node_name == recorder for info in self.get_subscriptions_info_by_topic(t))]
+        prefix = self.pub_gripper.topic_name[: -len("gripper/state")]  # /dlo/, or /<namespace>/dlo/
+        topics = sorted(t for t, _ in self.get_topic_names_and_types() if t.startswith(prefix) and self.count_publishers(t) > 0)
+        missing = [t for t in topics if not any(info.node_name == recorder for info in self.get_subscriptions_info_by_topic(t))]
         if missing and time.monotonic() - self.created_wall > DISCOVERY_GRACE + 1.0:
             known = recorder in self.get_node_names()
             self.get_logger().warning(
                 f"waiting for the recorder '{recorder}' to subscribe to {', '.join(missing)}"
                 + ("" if known else f" (no node '{recorder}' in the graph: is it running?)"),
-                throttle_duration_sec=WAIT_REPORT_PERIOD)
+                throttle_duration_sec=WAIT_REPORT_PERIOD,
+            )
         return not missing
 
     def command_source_ready(self) -> bool:
@@ -389,9 +490,11 @@ class SimNode(Node):
         topic = self.sub_command.topic_name
         if self.p["mode"] != "real_time" or self.count_publishers(topic) > 0:
             return True
-        self.get_logger().warning(f"no publisher of {topic} for {time.monotonic() - self.created_wall:.0f} s: is a "
-                                  "policy running? (the real-time episode starts when one appears)",
-                                  throttle_duration_sec=NO_COMMAND_WARNING)
+        self.get_logger().warning(
+            f"no publisher of {topic} for {time.monotonic() - self.created_wall:.0f} s: is a "
+            "policy running? (the real-time episode starts when one appears)",
+            throttle_duration_sec=NO_COMMAND_WARNING,
+        )
         return False
 
     def on_reset_service(self, request, response):
@@ -423,23 +526,43 @@ class SimNode(Node):
         gripper = snapshot.gripper[0]
 
         cloud = particle_cloud(positions, self.task.held_task[0, :n_c])  # the touch the tactile node fits to
-        state = GripperState(x=float(gripper[0]), y=float(gripper[1]), z=float(gripper[2]),
-                             closure=float(gripper[3]), episode=self.episode, step=self.step_index)
+        state = GripperState(
+            x=float(gripper[0]),
+            y=float(gripper[1]),
+            z=float(gripper[2]),
+            closure=float(gripper[3]),
+            episode=self.episode,
+            step=self.step_index,
+        )
         pixels = snapshot.image[0]
-        image = Image(height=pixels.shape[0], width=pixels.shape[1], encoding="mono8", is_bigendian=0,
-                      step=pixels.shape[1], data=pixels.tobytes())
+        image = Image(
+            height=pixels.shape[0],
+            width=pixels.shape[1],
+            encoding="mono8",
+            is_bigendian=0,
+            step=pixels.shape[1],
+            data=pixels.tobytes(),
+        )
         tracker = self.task.tracker
         held_indices = np.flatnonzero(held).astype(np.int32)
-        task = TaskState(episode=self.episode, seed=self.episode_seed, step=self.step_index,
-                         held_indices=held_indices.tolist(), n_held=len(held_indices),
-                         mean_held_index=float(self.task.mean_held_index[0]),
-                         num_particles=n_c, cable_length=float(sim.cable_length[0]), reward=self.last_reward,
-                         episode_return=float(tracker.episode_return[0]), done=self.done,
-                         outcome=int(tracker.outcome[0]) if self.done else 0,
-                         held_indices_authors=np.flatnonzero(self.task.held_authors[0, :n_c]).astype(np.int32).tolist(),
-                         mean_held_index_authors=float(self.task.mean_held_index_authors[0]),
-                         outcome_authors=int(tracker.outcome_authors[0]) if self.done else 0,
-                         task_rules=self.task.task_rules)
+        task = TaskState(
+            episode=self.episode,
+            seed=self.episode_seed,
+            step=self.step_index,
+            held_indices=held_indices.tolist(),
+            n_held=len(held_indices),
+            mean_held_index=float(self.task.mean_held_index[0]),
+            num_particles=n_c,
+            cable_length=float(sim.cable_length[0]),
+            reward=self.last_reward,
+            episode_return=float(tracker.episode_return[0]),
+            done=self.done,
+            outcome=int(tracker.outcome[0]) if self.done else 0,
+            held_indices_authors=np.flatnonzero(self.task.held_authors[0, :n_c]).astype(np.int32).tolist(),
+            mean_held_index_authors=float(self.task.mean_held_index_authors[0]),
+            outcome_authors=int(tracker.outcome_authors[0]) if self.done else 0,
+            task_rules=self.task.task_rules,
+        )
         for msg in (cloud, state, image, task):
             msg.header.stamp = stamp
             msg.header.frame_id = "world"

@@ -134,11 +134,19 @@ class TaskRules:
         return np.asarray(self.select(n_h, n_h_authors)) <= self.drop_at
 
 
-RULES = {rules.name: rules for rules in (
-    TaskRules("paper_text", authors_set=False, drop_at=0, reward=step_reward, outcome_key="hold_the_end"),
-    TaskRules("authors_code", authors_set=True, drop_at=AUTHORS_DROP_AT, reward=step_reward_authors,
-              outcome_key="hold_the_end_authors"),
-)}
+RULES = {
+    rules.name: rules
+    for rules in (
+        TaskRules("paper_text", authors_set=False, drop_at=0, reward=step_reward, outcome_key="hold_the_end"),
+        TaskRules(
+            "authors_code",
+            authors_set=True,
+            drop_at=AUTHORS_DROP_AT,
+            reward=step_reward_authors,
+            outcome_key="hold_the_end_authors",
+        ),
+    )
+}
 TASK_RULES = tuple(RULES)  # their names: what reward, termination and the tactile input use
 DEFAULT_TASK_RULES = "authors_code"  # the study's variant: its results come closest to the paper (docs/FIDELITY.md)
 LEGACY_TASK_RULES = "paper_text"  # what runs, bags and outcome files from before the switch existed used
@@ -183,8 +191,12 @@ def held_mask_authors(positions, num_particles, gripper):
     dy = positions[..., 1] - g[..., 1]
     dz = positions[..., 2] - (g[..., 2] - FINGER_AXIS_OFFSET)
     inside = np.arange(positions.shape[1])[None, :] < np.asarray(num_particles)[:, None]
-    return (inside & (np.abs(dy) < AUTHORS_HELD_HALF_WIDTH)
-            & (dx * dx + dz * dz < AUTHORS_HELD_DISTANCE ** 2) & (dz > AUTHORS_HELD_ABOVE))
+    return (
+        inside
+        & (np.abs(dy) < AUTHORS_HELD_HALF_WIDTH)
+        & (dx * dx + dz * dz < AUTHORS_HELD_DISTANCE**2)
+        & (dz > AUTHORS_HELD_ABOVE)
+    )
 
 
 def at_end_authors(mean_index, n_c):
@@ -261,8 +273,13 @@ class EpisodeTracker:
     def step(self, p_i, n_h, max_held_index, n_c, L_c, p_i_authors, n_h_authors):
         """Account one control step of all environments; arrays (N,). Returns reward, terminated, truncated."""
         rules = self.rules
-        reward = rules.reward(rules.select(self.prev_p_i, self.prev_p_i_authors), rules.select(p_i, p_i_authors),
-                              rules.select(n_h, n_h_authors), n_c, L_c)
+        reward = rules.reward(
+            rules.select(self.prev_p_i, self.prev_p_i_authors),
+            rules.select(p_i, p_i_authors),
+            rules.select(n_h, n_h_authors),
+            n_c,
+            L_c,
+        )
         end_now = at_end(max_held_index, n_c, self.end_particles)
         self.steps += 1
         self.episode_return += reward
@@ -280,7 +297,8 @@ class EpisodeTracker:
         holding_authors = p_i_authors >= 0
         self.last_p_i_authors = np.where(holding_authors, p_i_authors, self.last_p_i_authors)
         self.outcome_authors = np.where(
-            done, classify_outcome_authors(holding_authors, self.last_p_i_authors, n_c), self.outcome_authors)
+            done, classify_outcome_authors(holding_authors, self.last_p_i_authors, n_c), self.outcome_authors
+        )
         return reward, terminated, truncated
 
     def how_far(self):

@@ -4,14 +4,28 @@ boundaries as the sim node applies them: tests/test_command_gate.py)."""
 
 import numpy as np
 import pytest
+from dlo_sim.command import (
+    MAX_SPEED,
+    SPEED_TOLERANCE,
+    CommandError,
+    RejectionLog,
+    action_to_command,
+    command_mismatch,
+    command_to_action,
+    hold_action,
+)
 
-from dlo_sim.command import (MAX_SPEED, SPEED_TOLERANCE, CommandError, RejectionLog, action_to_command, command_mismatch,
-                             command_to_action, hold_action)
 
-
-@pytest.mark.parametrize("action, command", [
-    ((1.0, -1.0, 1.0), (0.25, -0.25, 1.0)), ((-0.5, 0.2, -1.0), (-0.125, 0.05, 0.0)), ((0.0, 0.0, 0.0), (0.0, 0.0, 0.5)),
-    ((3.0, -7.0, 2.0), (0.25, -0.25, 1.0)), ((-3.0, 7.0, -2.0), (-0.25, 0.25, 0.0))])  # clipped to [-1, 1] first
+@pytest.mark.parametrize(
+    "action, command",
+    [
+        ((1.0, -1.0, 1.0), (0.25, -0.25, 1.0)),
+        ((-0.5, 0.2, -1.0), (-0.125, 0.05, 0.0)),
+        ((0.0, 0.0, 0.0), (0.0, 0.0, 0.5)),
+        ((3.0, -7.0, 2.0), (0.25, -0.25, 1.0)),
+        ((-3.0, 7.0, -2.0), (-0.25, 0.25, 0.0)),
+    ],
+)  # clipped to [-1, 1] first
 def test_action_to_command_in_si_units(action, command):
     assert MAX_SPEED == pytest.approx(0.25)
     result = action_to_command(np.array(action, np.float32))
@@ -58,8 +72,10 @@ def test_mismatch_texts_name_the_steps():
     assert "step 39" in text and "current step 40" in text and "episode 3" in text
     cause, text = command_mismatch("real_time", 5, 100, 5, 90, period=0.08, command_timeout=0.5)
     assert cause == "stale" and "0.80 s old" in text and "0.5 s" in text
-    assert command_mismatch("step_locked", 3, 0, 2, 150, previous_final=(2, 150))[1] == \
-        "for the final step of the previous episode 2"
+    assert (
+        command_mismatch("step_locked", 3, 0, 2, 150, previous_final=(2, 150))[1]
+        == "for the final step of the previous episode 2"
+    )
     assert command_mismatch("real_time", 5, 100, 5, 94, period=0.08, command_timeout=0.5) is None  # 0.48 s
     assert command_mismatch("real_time", 1, 10, 1, 5, period=0.1, command_timeout=0.5) is None  # exactly the timeout
 

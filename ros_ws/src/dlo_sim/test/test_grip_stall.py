@@ -9,7 +9,6 @@ it is test_kernel_rules.py::test_the_numpy_stall_rule_equals_the_kernel_on_these
 
 import numpy as np
 import pytest
-
 from dlo_sim.config import FIXED_END, REST_SPACING
 from dlo_sim.grip import GRIP_SLIP_STRAIN, carried_fraction, stall_firm_grip, taut_reach
 
@@ -48,13 +47,16 @@ def test_the_stall_is_horizontal_only():
     assert allowed[2] == 0.0 and abs(allowed[0]) < 1e-15
 
 
-@pytest.mark.parametrize("cable, carried", [
-    (straight(), held([20, 21], closure=0.85)),  # sliding grip: slides through the fingers instead
-    (straight(), held([20, 21], closure=0.5)),
-    (straight(stretch=0.8), held([20, 21])),  # slack cable: the firm grip carries it
-    (straight(), np.zeros(30)),  # nothing between the fingers
-    (straight(), held([0])),  # the fixed end is not a held particle
-])
+@pytest.mark.parametrize(
+    "cable, carried",
+    [
+        (straight(), held([20, 21], closure=0.85)),  # sliding grip: slides through the fingers instead
+        (straight(), held([20, 21], closure=0.5)),
+        (straight(stretch=0.8), held([20, 21])),  # slack cable: the firm grip carries it
+        (straight(), np.zeros(30)),  # nothing between the fingers
+        (straight(), held([0])),  # the fixed end is not a held particle
+    ],
+)
 def test_no_stall_without_a_firm_grip_on_a_taut_cable(cable, carried):
     np.testing.assert_allclose(stall_firm_grip(cable, carried, (STEP, 0.0, 0.0)), (STEP, 0.0, 0.0))
 
@@ -87,6 +89,7 @@ def test_the_single_particle_grip_picks_the_held_particle_nearest_the_finger_nev
     """dlo_sim.grip.single_grip_particle (docs/FIDELITY.md row 5): the held particle nearest the gripper in x,
     the lower index on a tie, never particle 0; -1 when nothing but particle 0 (or nothing) is held."""
     from dlo_sim.grip import single_grip_particle
+
     x = np.array([[0.0, 0, 0], [0.25, 0, 0], [0.5, 0, 0], [0.75, 0, 0], [1.0, 0, 0]], np.float32)  # exact in binary
     held = np.array([True, True, True, True, False])
     assert single_grip_particle(x, held, 0.7) == 3

@@ -10,7 +10,6 @@ fixed end. Before, a gripper pulling away at c = 1 stretched the cable 3.4x, one
 
 import numpy as np
 import pytest
-
 from dlo_sim import RopeSim
 from dlo_sim.config import REST_SPACING
 
@@ -34,8 +33,9 @@ def pull(sim, seed, closure, actions=60, command=(1.0, 0.0), lead_in=0):
         yield np.flatnonzero(sim.held_mask()[0]), sim.positions()[0][:n], sim.gripper_state()[0, :2].copy()
 
 
-@pytest.mark.parametrize("closure, command, lead_in", [(1.0, (1.0, 0.0), 0), (0.85, (1.0, 0.0), 0),
-                                                       (1.0, (0.3, 1.0), 4), (0.7, (0.0, -1.0), 4)])
+@pytest.mark.parametrize(
+    "closure, command, lead_in", [(1.0, (1.0, 0.0), 0), (0.85, (1.0, 0.0), 0), (1.0, (0.3, 1.0), 4), (0.7, (0.0, -1.0), 4)]
+)
 @pytest.mark.parametrize("seed", [3, 4])
 def test_pulling_a_gripped_cable_does_not_stretch_it(sim, seed, closure, command, lead_in):
     worst_span, worst_length, worst_segment, steps_held = 0.0, 0.0, 0.0, 0
@@ -67,8 +67,9 @@ def test_a_firm_grip_on_a_taut_cable_stops_the_gripper(sim):
     assert abs(held1.mean() - held0.mean()) <= 1.0
 
 
-@pytest.mark.parametrize("closure, command, lead_in", [(1.0, (1.0, 0.0), 4), (1.0, (0.3, 1.0), 4),
-                                                       (1.0, (1.0, 0.0), 0), (0.95, (0.7, -0.7), 8)])
+@pytest.mark.parametrize(
+    "closure, command, lead_in", [(1.0, (1.0, 0.0), 4), (1.0, (0.3, 1.0), 4), (1.0, (1.0, 0.0), 0), (0.95, (0.7, -0.7), 8)]
+)
 def test_a_stalled_gripper_stays_at_its_height(sim, closure, command, lead_in):
     """The gripper moves in the horizontal plane only (docs/ARCHITECTURE.md#world): the stall removes the
     horizontal part of the motion away from the fixed end and never lifts or lowers the gripper

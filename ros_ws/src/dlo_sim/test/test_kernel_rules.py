@@ -20,10 +20,17 @@ compilation in tools/mutation_check.sh.
 import numpy as np
 import pytest
 import taichi as ti
-
 from dlo_sim import RopeSim
-from dlo_sim.config import (FINGER_AXIS_OFFSET, FINGER_HALF_LENGTH, FINGER_RADIUS, FIXED_END, NOMINAL_INVERSE_MASS,
-                            P_MAX, PARTICLE_RADIUS, REST_SPACING)
+from dlo_sim.config import (
+    FINGER_AXIS_OFFSET,
+    FINGER_HALF_LENGTH,
+    FINGER_RADIUS,
+    FIXED_END,
+    NOMINAL_INVERSE_MASS,
+    P_MAX,
+    PARTICLE_RADIUS,
+    REST_SPACING,
+)
 from dlo_sim.grip import carried_fraction, inverse_mass, stall_firm_grip
 
 HELD_DISTANCE = PARTICLE_RADIUS + FINGER_RADIUS + REST_SPACING  # docs/ARCHITECTURE.md#constants
@@ -73,16 +80,22 @@ def place(sim, probes):
     for i, (dx, dy, dz) in enumerate(probes):
         positions[0, i + 1] = (F32(g[0]) + F32(dx), F32(g[1]) + F32(dy), axis_z + F32(dz) if dz else axis_z)
     sim.set_positions(positions)
-    return sim.held_mask()[0, 1:len(probes) + 1].tolist()
+    return sim.held_mask()[0, 1 : len(probes) + 1].tolist()
 
 
 def test_held_rule_extent_along_the_finger_includes_the_rounded_ends(sim):
     sim.reset(np.array([1]))
     extent = FINGER_HALF_LENGTH + FINGER_RADIUS
     up = 0.002  # well above the lower finger's axis, well within the held distance
-    probes = [(0.0, 0.0, up), (0.0, FINGER_HALF_LENGTH + 0.5 * FINGER_RADIUS, up),
-              (0.0, -(FINGER_HALF_LENGTH + 0.5 * FINGER_RADIUS), up), (0.0, extent - 1e-4, up),
-              (0.0, -(extent - 1e-4), up), (0.0, extent + 1e-4, up), (0.0, -(extent + 1e-4), up)]
+    probes = [
+        (0.0, 0.0, up),
+        (0.0, FINGER_HALF_LENGTH + 0.5 * FINGER_RADIUS, up),
+        (0.0, -(FINGER_HALF_LENGTH + 0.5 * FINGER_RADIUS), up),
+        (0.0, extent - 1e-4, up),
+        (0.0, -(extent - 1e-4), up),
+        (0.0, extent + 1e-4, up),
+        (0.0, -(extent + 1e-4), up),
+    ]
     assert place(sim, probes) == [True, True, True, True, True, False, False]
 
 
@@ -91,17 +104,26 @@ def test_held_rule_boundaries_are_inclusive_along_the_finger_and_strict_above_th
     assert float(sim.gripper_state()[0, 1]) == 0.0  # the gripper starts on y = 0: exact float32 boundaries
     extent = float(F32(FINGER_HALF_LENGTH + FINGER_RADIUS))
     # exactly at the end of the extent: held; exactly at the height of the lower finger's axis: not held
-    assert place(sim, [(0.0, extent, 0.002), (0.0, -extent, 0.002), (0.0, 0.0, None), (0.001, 0.0, None),
-                       (0.0, 0.0, 1e-5), (0.0, 0.0, -1e-5)]) == [True, True, False, False, True, False]
+    assert place(
+        sim,
+        [(0.0, extent, 0.002), (0.0, -extent, 0.002), (0.0, 0.0, None), (0.001, 0.0, None), (0.0, 0.0, 1e-5), (0.0, 0.0, -1e-5)],
+    ) == [True, True, False, False, True, False]
 
 
 def test_held_rule_distance_from_the_lower_finger_axis(sim):
     sim.reset(np.array([1]))
     d = HELD_DISTANCE
     s = np.sqrt(0.5)
-    probes = [(0.0, 0.0, d - 1e-4), (0.0, 0.0, d + 1e-4), (d - 1e-4, 0.0, 1e-3), (-(d - 1e-4), 0.0, 1e-3),
-              ((d + 1e-4), 0.0, 1e-3), (-(d + 1e-4), 0.0, 1e-3), (s * (d - 1e-4), 0.0, s * (d - 1e-4)),
-              (s * (d + 1e-4), 0.0, s * (d + 1e-4))]
+    probes = [
+        (0.0, 0.0, d - 1e-4),
+        (0.0, 0.0, d + 1e-4),
+        (d - 1e-4, 0.0, 1e-3),
+        (-(d - 1e-4), 0.0, 1e-3),
+        ((d + 1e-4), 0.0, 1e-3),
+        (-(d + 1e-4), 0.0, 1e-3),
+        (s * (d - 1e-4), 0.0, s * (d - 1e-4)),
+        (s * (d + 1e-4), 0.0, s * (d + 1e-4)),
+    ]
     assert place(sim, probes) == [True, False, True, True, False, False, True, False]
 
 
@@ -177,10 +199,17 @@ def stall_states():
     firm[20:23] = 1.0
     sliding = np.where(firm > 0, carried_fraction(0.8), 0.0)
     step = 0.0025 / 4  # m, the gripper's largest sub-step (full speed, 4 sub-steps)
-    states = [(straight, firm, (step, 0.0, 0.0)), (straight, firm, (0.0, step, 0.0)),
-              (straight, firm, (-step, 0.0, 0.0)), (straight, firm, (step, -step, 0.0)),
-              (straight, sliding, (step, 0.0, 0.0)), (slack, firm, (step, 0.0, 0.0)),
-              (fan, firm, (step, 0.0, 0.0)), (fan, firm, (step, step, 0.0)), (fan, firm, (0.0, -step, 0.0))]
+    states = [
+        (straight, firm, (step, 0.0, 0.0)),
+        (straight, firm, (0.0, step, 0.0)),
+        (straight, firm, (-step, 0.0, 0.0)),
+        (straight, firm, (step, -step, 0.0)),
+        (straight, sliding, (step, 0.0, 0.0)),
+        (slack, firm, (step, 0.0, 0.0)),
+        (fan, firm, (step, 0.0, 0.0)),
+        (fan, firm, (step, step, 0.0)),
+        (fan, firm, (0.0, -step, 0.0)),
+    ]
     rng = np.random.default_rng(7)
     for _ in range(12):  # particle i at 0.97 .. 1.03 of its reach, in random directions (a little z)
         directions = rng.normal(size=(30, 3)) * [1.0, 1.0, 0.2] + [1.0, 0.0, 0.0]
@@ -188,7 +217,7 @@ def stall_states():
         positions = anchor + directions * (np.arange(30) * REST_SPACING * rng.uniform(0.97, 1.03, 30))[:, None]
         held = rng.integers(1, 28)
         carried = np.zeros(30)
-        carried[held:held + 3] = rng.choice([1.0, 1.0, 0.6])
+        carried[held : held + 3] = rng.choice([1.0, 1.0, 0.6])
         states.append((positions, carried, (*rng.uniform(-step, step, 2), 0.0)))
     return states
 
@@ -212,6 +241,7 @@ def test_single_particle_grip_kernel_choice_equals_the_numpy_rule():
     particle 0; every other particle keeps w_nom and is not carried."""
     from dlo_sim import SimConfig
     from dlo_sim.grip import single_grip_particle
+
     single = RopeSim(1, SimConfig(single_particle_grip=True))
     rng = np.random.default_rng(17)
     zero_nearest = several = not_lowest = 0
@@ -254,7 +284,7 @@ def kernel_slip(sim, positions, carried):
     """RopeKernels.slip_taut_grip of env 0 for these particles and carried fractions: the positions after it."""
     load_particles(sim, positions, carried)
     _kernel_slip(sim._k)
-    return sim._k.x.to_numpy()[0, :len(positions)]
+    return sim._k.x.to_numpy()[0, : len(positions)]
 
 
 def test_finite_grip_pulls_only_carried_particles_beyond_their_reach_back_onto_it(sim):
@@ -284,7 +314,7 @@ def test_a_firm_grip_is_not_stalled_by_motion_that_ends_exactly_at_the_taut_reac
     """The stall removes the motion that would take a firmly held particle *beyond* its rest length from the
     fixed end: in the kernel's float32, motion ending exactly at it is allowed, one float32 step further is not."""
     reach = F32(REST_SPACING)  # particle 1: taut_reach(1) = 1 * REST_SPACING, in float32
-    dg = F32(2.0 ** -12)  # m, outward along x (a sub-step is at most 0.000625 m); reach - dg is exact
+    dg = F32(2.0**-12)  # m, outward along x (a sub-step is at most 0.000625 m); reach - dg is exact
     at_reach = F32(reach - dg)
     beyond = np.nextafter(at_reach, F32(1.0))
     for x1, allowed in ((at_reach, dg), (beyond, 0.0)):
@@ -297,10 +327,10 @@ def test_a_firm_grip_stall_removes_all_outward_motion_even_for_a_tiny_horizontal
     any offset longer than the rule's 1e-9 m guard: a particle 1.5e-9 m beside the vertical through the fixed end
     (and beyond its reach above it) stops all motion away from it, as in dlo_sim.grip.stall_firm_grip."""
     positions = np.array([[0.0, 0.0, 0.0], [1.5e-9, 0.0, 2.0 * REST_SPACING]], np.float32)
-    dg = (2.0 ** -12, 2.0 ** -13, 0.0)
+    dg = (2.0**-12, 2.0**-13, 0.0)
     got = kernel_stall(sim, positions, [0.0, 1.0], dg)
     expected = stall_firm_grip(positions, [0.0, 1.0], dg)
-    np.testing.assert_allclose(expected, [0.0, 2.0 ** -13, 0.0], atol=1e-12)  # sideways motion stays
+    np.testing.assert_allclose(expected, [0.0, 2.0**-13, 0.0], atol=1e-12)  # sideways motion stays
     np.testing.assert_allclose(got, expected, atol=1e-9)
 
 
@@ -317,14 +347,22 @@ def test_held_rule_is_relative_to_the_gripper_and_its_distance_bound_is_inclusiv
     assert F32(d * d) == F32(HELD_DISTANCE * HELD_DISTANCE) and F32(np.nextafter(d, F32(1)) ** 2) > F32(d * d)
     hair = float(np.spacing(F32(F32(g[0, 2]) - F32(FINGER_AXIS_OFFSET))))  # the next float32 above the axis
     extent = FINGER_HALF_LENGTH + FINGER_RADIUS
-    probes = [(d, 0.0, hair), (-d, 0.0, hair), (np.nextafter(d, F32(1)), 0.0, hair), (0.0, extent - 1e-4, 0.002),
-              (0.0, -(extent - 1e-4), 0.002), (0.0, extent + 1e-4, 0.002), (0.0, -(extent + 1e-4), 0.002)]
+    probes = [
+        (d, 0.0, hair),
+        (-d, 0.0, hair),
+        (np.nextafter(d, F32(1)), 0.0, hair),
+        (0.0, extent - 1e-4, 0.002),
+        (0.0, -(extent - 1e-4), 0.002),
+        (0.0, extent + 1e-4, 0.002),
+        (0.0, -(extent + 1e-4), 0.002),
+    ]
     assert place(sim, probes) == [True, True, False, True, True, False, False]
 
 
 @pytest.fixture(scope="module")
 def authors_sim():
     from dlo_sim import SimConfig
+
     return RopeSim(1, SimConfig(carry_law="authors"))
 
 
@@ -334,6 +372,7 @@ def test_authors_carry_law_kernel_choice_equals_the_numpy_rule(authors_sim):
     finger axis in x, never particle 0; none at c <= 0.5), moved by the WHOLE displacement (carry 1) with
     the grip law's inverse mass; every other particle keeps w_nom and is not carried."""
     from dlo_sim.grip import authors_grip_particle
+
     rng = np.random.default_rng(23)
     carried = none = 0
     for seed in (0, 5, 11):
@@ -371,6 +410,7 @@ def test_authors_cancel_equals_the_numpy_rule_and_cuts_at_ten_millimetres(author
     """The authors' stretch limit: the sub-step motion is cancelled (0) when it would take the carried particle
     more than 10 mm from particle i - 1 or i + 1, kept otherwise; the kernel equals ``grip.authors_cancel``."""
     from dlo_sim.grip import AUTHORS_MAX_NEIGHBOUR_DISTANCE, authors_cancel
+
     assert AUTHORS_MAX_NEIGHBOUR_DISTANCE == pytest.approx(0.01)
     n = 20
     positions = np.stack([FIXED_END[0] + REST_SPACING * np.arange(n), np.zeros(n), np.full(n, FIXED_END[2])], 1)

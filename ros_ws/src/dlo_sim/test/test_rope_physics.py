@@ -2,10 +2,17 @@
 
 import numpy as np
 import pytest
-
 from dlo_sim import RopeSim, SimConfig
-from dlo_sim.config import (FIXED_END, GRIPPER_HEIGHT, IMAGE_CABLE, IMAGE_GRIPPER, MAX_DISPLACEMENT,
-                            NOMINAL_INVERSE_MASS, P_MAX, REST_SPACING)
+from dlo_sim.config import (
+    FIXED_END,
+    GRIPPER_HEIGHT,
+    IMAGE_CABLE,
+    IMAGE_GRIPPER,
+    MAX_DISPLACEMENT,
+    NOMINAL_INVERSE_MASS,
+    P_MAX,
+    REST_SPACING,
+)
 from dlo_sim.grip import carried_fraction, inverse_mass
 
 N = 8
@@ -30,12 +37,12 @@ def actions(dx=0.0, dy=0.0, c=0.0, n=N):
 
 def segment_ratios(sim):
     x, n = sim.positions(), sim.num_particles
-    return [np.linalg.norm(np.diff(x[e, :n[e]], axis=0), axis=1) / REST_SPACING for e in range(sim.num_envs)]
+    return [np.linalg.norm(np.diff(x[e, : n[e]], axis=0), axis=1) / REST_SPACING for e in range(sim.num_envs)]
 
 
 def kinetic_energy(sim):
     v = sim.velocities()
-    return 0.5 / NOMINAL_INVERSE_MASS * (v ** 2).sum(axis=(1, 2))
+    return 0.5 / NOMINAL_INVERSE_MASS * (v**2).sum(axis=(1, 2))
 
 
 def test_grip_law_regimes():
@@ -181,7 +188,7 @@ def test_higher_bending_stiffness_straighter_free_end(sim):
     def mean_turn(x, n):
         angles = []
         for e in range(len(n)):
-            d = np.diff(x[e, n[e] // 2:n[e]], axis=0)
+            d = np.diff(x[e, n[e] // 2 : n[e]], axis=0)
             d /= np.linalg.norm(d, axis=1, keepdims=True)
             angles.append(np.arccos(np.clip((d[1:] * d[:-1]).sum(1), -1, 1)).mean())
         return np.mean(angles)
@@ -291,6 +298,7 @@ def test_single_particle_grip_carries_one_particle_the_held_one_nearest_the_fing
     finger: the held one nearest the finger axis in x, never particle 0; the other held particles keep
     w_nom and are not all carried along. Off (the default), every held particle is."""
     from dlo_sim.grip import single_grip_particle
+
     single = RopeSim(N, SimConfig(single_particle_grip=True))
     seeds = np.arange(N) + 30
     followers = {}
@@ -328,6 +336,7 @@ def test_physics_seed_gives_every_episode_one_physics_and_keeps_the_rest_of_the_
     rest of the episode's draw) is the episode seed's, as without it; -1 (the default) draws per episode;
     anything else is refused with one line."""
     from dlo_sim.rope import physics_draw
+
     one = RopeSim(N, SimConfig(physics_seed=7))
     seeds = np.arange(100, 100 + N)
     one.reset(seeds)

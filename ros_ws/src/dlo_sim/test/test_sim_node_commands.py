@@ -16,8 +16,8 @@ Each action the node executes is recorded by wrapping its TaskSim's ``step``; ti
 monotonic clock.
 """
 
-import math
 import json
+import math
 import os
 import time
 
@@ -27,14 +27,19 @@ import pytest
 rclpy = pytest.importorskip("rclpy")
 from dlo_common.testing import LogLines, release_domains, reserve_domains  # noqa: E402
 from dlo_msgs.msg import GripperCommand  # noqa: E402
-
 from dlo_sim import sim_node as sim_node_module  # noqa: E402
 from dlo_sim.command import MAX_SPEED  # noqa: E402
 
 RATE_FACTOR = 2.0  # wall seconds per step: 0.04 (so a command's age is not the 0.08 s default)
 COMMAND_TIMEOUT = 0.5
-PARAMETERS = {"publish_markers": False, "camera_resolution": 32, "rate_factor": RATE_FACTOR,
-              "command_timeout": COMMAND_TIMEOUT, "step_timeout": 30.0, "episodes": 0}
+PARAMETERS = {
+    "publish_markers": False,
+    "camera_resolution": 32,
+    "rate_factor": RATE_FACTOR,
+    "command_timeout": COMMAND_TIMEOUT,
+    "step_timeout": 30.0,
+    "episodes": 0,
+}
 
 
 @pytest.fixture(scope="module")
@@ -59,6 +64,7 @@ def _in_context(init, context):
     def wrapped(self, *args, **kwargs):
         kwargs.setdefault("context", context)
         return init(self, *args, **kwargs)
+
     return wrapped
 
 
@@ -91,6 +97,7 @@ def executed(node, monkeypatch):
     def recording(batch):
         actions.append(np.array(batch[0], dtype=np.float64))
         return step(batch)
+
     monkeypatch.setattr(node.task, "step", recording)
     return actions
 
@@ -103,9 +110,13 @@ def start(node, mode, seed):
 
 
 def command(node, vx=0.05, vy=0.0, closure=0.7, episode=None, step=None):
-    return GripperCommand(vx=float(vx), vy=float(vy), closure=float(closure),
-                          episode=node.episode if episode is None else episode,
-                          step=node.step_index if step is None else step)
+    return GripperCommand(
+        vx=float(vx),
+        vy=float(vy),
+        closure=float(closure),
+        episode=node.episode if episode is None else episode,
+        step=node.step_index if step is None else step,
+    )
 
 
 def gripper(node):
@@ -119,8 +130,12 @@ def test_step_locked_obeys_only_the_answer_to_the_current_step(node, clock, exec
     assert executed[0] == pytest.approx([0.05 / MAX_SPEED, 0.0, 0.4])
     moved = gripper(node)
     rejected_before = sum(node.rejections.total.values())
-    for stale in (command(node, step=0), command(node, step=2), command(node, episode=episode + 1),
-                  command(node, episode=episode + 7, step=1)):
+    for stale in (
+        command(node, step=0),
+        command(node, step=2),
+        command(node, episode=episode + 1),
+        command(node, episode=episode + 7, step=1),
+    ):
         node.on_command(stale)
         assert node.step_index == 1 and node.episode == episode and len(executed) == 1
         np.testing.assert_array_equal(gripper(node), moved)
@@ -159,9 +174,19 @@ def test_the_speed_limit_itself_is_executed(node, clock, executed, vx, vy):
     assert executed[-1] == pytest.approx([vx / 0.25, vy / 0.25, 0.2], abs=1e-6)
 
 
-@pytest.mark.parametrize("vx, vy, closure", [(0.2501, 0.0, 0.6), (-0.2501, 0.0, 0.6), (0.0, 0.2501, 0.6),
-                                             (0.0, -0.2501, 0.6), (2.5, 0.0, 0.6), (math.nan, 0.0, 0.6),
-                                             (0.0, 0.0, 1.0001), (0.0, 0.0, -0.0001)])
+@pytest.mark.parametrize(
+    "vx, vy, closure",
+    [
+        (0.2501, 0.0, 0.6),
+        (-0.2501, 0.0, 0.6),
+        (0.0, 0.2501, 0.6),
+        (0.0, -0.2501, 0.6),
+        (2.5, 0.0, 0.6),
+        (math.nan, 0.0, 0.6),
+        (0.0, 0.0, 1.0001),
+        (0.0, 0.0, -0.0001),
+    ],
+)
 def test_an_invalid_command_makes_the_gripper_hold(node, clock, executed, vx, vy, closure):
     start(node, "step_locked", seed=2)
     node.on_command(command(node, vx=0.05, closure=0.8))  # a valid step first: closure 0.8
@@ -271,15 +296,18 @@ def test_a_refusal_names_the_other_publisher_once_discovery_knows_it(monkeypatch
     def info(name, namespace="/"):
         return SimpleNamespace(node_name=name, node_namespace=namespace)
 
-    answers = [[info("sim_node"), info("_NODE_NAME_UNKNOWN_", "_NODE_NAMESPACE_UNKNOWN_")]] * 3 + \
-        [[info("sim_node"), info("sim_node", "/other")]]
-    stub = SimpleNamespace(get_namespace=lambda: "/", get_name=lambda: "sim_node",
-                           get_publishers_info_by_topic=lambda topic: answers.pop(0) if len(answers) > 1 else answers[0])
+    answers = [[info("sim_node"), info("_NODE_NAME_UNKNOWN_", "_NODE_NAMESPACE_UNKNOWN_")]] * 3 + [
+        [info("sim_node"), info("sim_node", "/other")]
+    ]
+    stub = SimpleNamespace(
+        get_namespace=lambda: "/",
+        get_name=lambda: "sim_node",
+        get_publishers_info_by_topic=lambda topic: answers.pop(0) if len(answers) > 1 else answers[0],
+    )
     monkeypatch.setattr(sim_node_module.time, "sleep", lambda s: None)
     assert sim_node_module.SimNode.other_publishers(stub, "/clock") == ["/other/sim_node"]
     stub.get_publishers_info_by_topic = lambda topic: [info("_NODE_NAME_UNKNOWN_", "_NODE_NAMESPACE_UNKNOWN_")]
-    assert sim_node_module.SimNode.other_publishers(stub, "/clock", wait_for_names=0.0) == [
-        "a node discovery has not named yet"]
+    assert sim_node_module.SimNode.other_publishers(stub, "/clock", wait_for_names=0.0) == ["a node discovery has not named yet"]
     stub.get_publishers_info_by_topic = lambda topic: [info("sim_node")]
     assert sim_node_module.SimNode.other_publishers(stub, "/clock") == ["unknown"]
 
@@ -292,25 +320,23 @@ def log(node, monkeypatch):
     return logger
 
 
-def test_rejected_commands_are_logged_at_once_then_at_most_once_a_second_per_cause_with_a_count(
-        node, clock, executed, log):
+def test_rejected_commands_are_logged_at_once_then_at_most_once_a_second_per_cause_with_a_count(node, clock, executed, log):
     start(node, "step_locked", seed=2)
     node.on_command(command(node, vx=0.3))  # too fast: the gripper holds, logged at once
-    assert log.of("warning") == ["rejected command: speed out of range: vx=0.3, vy=0.0 (limit 0.25 m/s); "
-                              "the gripper holds"]
+    assert log.of("warning") == ["rejected command: speed out of range: vx=0.3, vy=0.0 (limit 0.25 m/s); the gripper holds"]
     assert executed[-1] == pytest.approx([0.0, 0.0, -1.0]) and node.step_index == 1
     node.on_command(command(node, step=0))  # another cause: logged at once too
-    assert log.of("warning")[1:] == ["rejected command: for step 0, not the current step 1 of episode "
-                                  f"{node.episode}: ignored"]
+    assert log.of("warning")[1:] == [f"rejected command: for step 0, not the current step 1 of episode {node.episode}: ignored"]
     clock.now += 0.5
     node.on_command(command(node, vx=-0.3))  # within the second: counted, not logged
     assert len(log.of("warning")) == 2 and node.rejections.total == {"speed": 2, "old step": 1}
     clock.now += 0.5
     node.on_command(command(node, vx=0.0, closure=1.5))  # the closure rule: a cause of its own
     node.on_command(command(node, vx=0.4))  # a second after the first speed line: logged with the count
-    assert log.of("warning")[2:] == ["rejected command: closure out of range: 1.5 (must be in [0, 1]); the gripper holds",
-                                  "rejected command: speed out of range: vx=0.4, vy=0.0 (limit 0.25 m/s); the gripper "
-                                  "holds (2 such commands in 0.5 s)"]
+    assert log.of("warning")[2:] == [
+        "rejected command: closure out of range: 1.5 (must be in [0, 1]); the gripper holds",
+        "rejected command: speed out of range: vx=0.4, vy=0.0 (limit 0.25 m/s); the gripper holds (2 such commands in 0.5 s)",
+    ]
     assert node.rejections.total == {"speed": 3, "old step": 1, "closure": 1} and node.step_index == 4
 
 
@@ -373,7 +399,8 @@ def test_the_reset_service_starts_seed_zero_when_asked_for_it(node, clock, execu
 
 
 def test_the_reset_service_starts_a_waiting_or_finished_node_and_camera_info_is_published_once(
-        node, clock, executed, monkeypatch):
+    node, clock, executed, monkeypatch
+):
     from dlo_msgs.srv import ResetEpisode
 
     published = []

@@ -6,7 +6,6 @@ across episodes."""
 
 import numpy as np
 import pytest
-
 from dlo_sim import task
 from dlo_sim.config import FINGER_AXIS_OFFSET
 from dlo_sim.task import EpisodeTracker, classify_outcome, held_statistics, step_reward
@@ -43,8 +42,12 @@ def test_outcome_codes_match_task_state_message():
     msg = open(__file__.rsplit("/ros_ws/", 1)[0] + "/ros_ws/src/dlo_msgs/msg/TaskState.msg").read()
     for code, name in task.OUTCOME_NAMES.items():
         assert f"uint8 OUTCOME_{name.upper()} = {code}" in msg
-    assert classify_outcome([False, False, True, True], [True, False, True, False],
-                            [True, False, False, False]).tolist() == [1, 2, 3, 4]
+    assert classify_outcome([False, False, True, True], [True, False, True, False], [True, False, False, False]).tolist() == [
+        1,
+        2,
+        3,
+        4,
+    ]
 
 
 def run(trajectory, n_c=N_C, horizon=task.HORIZON):
@@ -55,8 +58,9 @@ def run(trajectory, n_c=N_C, horizon=task.HORIZON):
     rewards = []
     for p_i, n_h, max_held, *authors in trajectory:
         p_a = authors[0] if authors else p_i
-        reward, terminated, truncated = tracker.step([p_i], [n_h], [max_held], [n_c], [(n_c - 1) * 0.0043], [p_a],
-                                                        [2 if p_a >= 0 else 0])
+        reward, terminated, truncated = tracker.step(
+            [p_i], [n_h], [max_held], [n_c], [(n_c - 1) * 0.0043], [p_a], [2 if p_a >= 0 else 0]
+        )
         rewards.append(float(reward[0]))
         if terminated[0] or truncated[0]:
             break
@@ -90,8 +94,7 @@ def test_end_is_a_parameter_and_batched_envs_are_independent():
     tracker = EpisodeTracker(2, horizon=3, end_particles=5, task_rules="paper_text")
     tracker.reset(None, [0.5, 0.5], [1, 1], [40, 40], [0.5, 0.5])
     for _ in range(3):
-        _, terminated, truncated = tracker.step([33.0, 36.0], [2, 2], [34, 36], [40, 40], [0.17, 0.17], [33.0, 36.0],
-                                             [2, 2])
+        _, terminated, truncated = tracker.step([33.0, 36.0], [2, 2], [34, 36], [40, 40], [0.17, 0.17], [33.0, 36.0], [2, 2])
     assert truncated.tolist() == [True, True] and not terminated.any()
     assert [tracker.summary(i)["outcome"] for i in range(2)] == ["stop_before", "hold_the_end"]
     tracker.reset([1], [0.5], [1], [40], [0.5])
@@ -227,15 +230,14 @@ def test_authors_held_set_lies_inside_the_paper_text_one():
     points = rng.uniform([-0.03, -0.03, AXIS_Z - 0.01], [0.03, 0.03, AXIS_Z + 0.03], (1, 20000, 3))
     authors = task.held_mask_authors(points, [20000], G)[0]
     dx, dy, dz = points[0, :, 0], points[0, :, 1], points[0, :, 2] - AXIS_Z
-    paper = (np.abs(dy) <= 0.0075 + 0.0125) & (dx ** 2 + dz ** 2 <= (0.008 + 0.0125 + 0.0043) ** 2) & (dz > 0)
+    paper = (np.abs(dy) <= 0.0075 + 0.0125) & (dx**2 + dz**2 <= (0.008 + 0.0125 + 0.0043) ** 2) & (dz > 0)
     assert authors.sum() > 100 and not (authors & ~paper).any()
 
 
 def test_authors_at_end_is_the_mean_held_index_within_5_of_the_last():
     # n_c = 40: last index 39; (39 - p) < 5  <=>  p > 34
     assert task.at_end_authors([34.0, 34.01, 39.0, -1.0], 40).tolist() == [False, True, True, False]
-    assert task.classify_outcome_authors([True, True, False, False], [36.0, 20.0, 36.0, 20.0],
-                                         [40] * 4).tolist() == [1, 2, 3, 4]
+    assert task.classify_outcome_authors([True, True, False, False], [36.0, 20.0, 36.0, 20.0], [40] * 4).tolist() == [1, 2, 3, 4]
 
 
 def test_oracle_touching_particle_n_c_minus_10_holds_the_end_only_under_the_paper_rule():
@@ -324,6 +326,7 @@ def test_task_rules_are_records_that_say_their_held_set_end_and_outcome_rule():
     """dlo_sim.task.RULES: one record per variant; callers ask it (held set, drop, reward, outcome column) instead of
     comparing names; records of old runs and bags without the field read as the legacy rules, in one place."""
     from dlo_sim import task as t
+
     paper, authors = t.task_rules("paper_text"), t.task_rules("authors_code")
     assert t.TASK_RULES == ("paper_text", "authors_code") and t.DEFAULT_TASK_RULES in t.RULES
     assert (paper.select("physics", "authors"), authors.select("physics", "authors")) == ("physics", "authors")
@@ -342,8 +345,12 @@ def test_no_module_compares_task_rule_names_outside_the_registry():
     record (dlo_sim.task)."""
     import pathlib
     import re
+
     src = pathlib.Path(__file__).resolve().parents[2]
     compare = re.compile(r"""[=!]= *["'](authors_code|paper_text)["']|["'](authors_code|paper_text)["'] *[=!]=""")
-    offenders = [str(path.relative_to(src)) for path in src.glob("*/*/*.py")
-                 if "/test/" not in str(path) and compare.search(path.read_text())]
+    offenders = [
+        str(path.relative_to(src))
+        for path in src.glob("*/*/*.py")
+        if "/test/" not in str(path) and compare.search(path.read_text())
+    ]
     assert offenders == []

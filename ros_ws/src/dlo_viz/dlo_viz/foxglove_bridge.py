@@ -41,9 +41,8 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
-from rosbags.typesys.store import Typestore
-
 from dlo_bag.bag import make_typestore, message_definition
+from rosbags.typesys.store import Typestore
 
 DEFAULT_TOPICS = ("/dlo", "/clock")
 DEFAULT_PORT = 8765
@@ -96,14 +95,22 @@ class BridgeStats:
     slow_client_reports: list[str] = field(default_factory=list)  # SDK: a client's outbox overflowed
 
     def to_dict(self) -> dict:
-        return {"received": sum(self.received.values()), "forwarded": sum(self.forwarded.values()),
-                "lost": sum(self.lost.values()), "clients_connected": self.clients_connected,
-                "clients_now": self.clients_now, "clients_refused": self.clients_refused,
-                "subscriptions": self.subscriptions, "subscriptions_lost": self.subscriptions_lost,
-                "readvertised": self.readvertised, "slow_client_reports": list(self.slow_client_reports),
-                "topics": {t: {"received": self.received.get(t, 0), "forwarded": self.forwarded.get(t, 0),
-                               "lost": self.lost.get(t, 0)}
-                           for t in sorted(set(self.received) | set(self.forwarded))}}
+        return {
+            "received": sum(self.received.values()),
+            "forwarded": sum(self.forwarded.values()),
+            "lost": sum(self.lost.values()),
+            "clients_connected": self.clients_connected,
+            "clients_now": self.clients_now,
+            "clients_refused": self.clients_refused,
+            "subscriptions": self.subscriptions,
+            "subscriptions_lost": self.subscriptions_lost,
+            "readvertised": self.readvertised,
+            "slow_client_reports": list(self.slow_client_reports),
+            "topics": {
+                t: {"received": self.received.get(t, 0), "forwarded": self.forwarded.get(t, 0), "lost": self.lost.get(t, 0)}
+                for t in sorted(set(self.received) | set(self.forwarded))
+            },
+        }
 
 
 _REGISTERED = re.compile(r"^Registered client (\S+)")
@@ -148,9 +155,16 @@ class FoxgloveBridge:
     bound one) and raises ``OSError`` when the address cannot be bound.
     """
 
-    def __init__(self, *, port: int = DEFAULT_PORT, address: str = DEFAULT_ADDRESS,
-                 client_backlog: int = DEFAULT_CLIENT_BACKLOG, typestore: Typestore | None = None,
-                 name: str = "dlo-vitac", log: Callable[[int, str], None] | None = None) -> None:
+    def __init__(
+        self,
+        *,
+        port: int = DEFAULT_PORT,
+        address: str = DEFAULT_ADDRESS,
+        client_backlog: int = DEFAULT_CLIENT_BACKLOG,
+        typestore: Typestore | None = None,
+        name: str = "dlo-vitac",
+        log: Callable[[int, str], None] | None = None,
+    ) -> None:
         if not 0 <= port <= 65535:
             raise ValueError(f"port must be in 0..65535, got {port}")
         if client_backlog < 1:
@@ -195,8 +209,13 @@ class FoxgloveBridge:
         self._context = foxglove.Context()
         try:
             self._server = foxglove.start_server(
-                name=self.name, host=self.address, port=self.requested_port, context=self._context,
-                server_listener=_Listener(self), message_backlog_size=self.client_backlog)
+                name=self.name,
+                host=self.address,
+                port=self.requested_port,
+                context=self._context,
+                server_listener=_Listener(self),
+                message_backlog_size=self.client_backlog,
+            )
         except RuntimeError as err:  # FoxgloveError: Failed to bind port: ...
             text = str(err).replace("FoxgloveError: ", "")
             raise OSError(f"cannot serve on {self.address}:{self.requested_port}: {text}") from None
@@ -258,8 +277,12 @@ class FoxgloveBridge:
         """A new channel for ``topic`` (the SDK advertises it to every connected client)."""
         from foxglove import Channel, Schema
 
-        channel = Channel(topic, schema=Schema(name=self.types[topic], encoding="ros2msg", data=self._schemas[topic]),
-                          message_encoding="cdr", context=self._context)
+        channel = Channel(
+            topic,
+            schema=Schema(name=self.types[topic], encoding="ros2msg", data=self._schemas[topic]),
+            message_encoding="cdr",
+            context=self._context,
+        )
         with self._lock:
             self._topic_of_id[int(channel.id())] = topic
             self.channels[topic] = channel
@@ -305,8 +328,11 @@ class FoxgloveBridge:
             channel = self.channels.get(topic) if topic is not None else None
             if channel is not None and int(channel.id()) == channel_id:
                 if channel_id not in self._pending.get(topic, ()):
-                    self.log(logging.INFO, f"{topic}: client {client} subscribed before the server had registered "
-                                           f"channel {channel_id} for it (foxglove-sdk): advertised again")
+                    self.log(
+                        logging.INFO,
+                        f"{topic}: client {client} subscribed before the server had registered "
+                        f"channel {channel_id} for it (foxglove-sdk): advertised again",
+                    )
                 self.stats.subscriptions_lost += 1
                 self._pending.setdefault(topic, set()).add(channel_id)
             elif topic is not None:  # a channel advertised again meanwhile: the client has the new one too
@@ -314,16 +340,20 @@ class FoxgloveBridge:
             elif time.monotonic() - when < UNRESOLVED_WAIT:  # maybe a channel still being created on another thread
                 self._unresolved.append((client, channel_id, when))
             else:
-                self.log(logging.WARNING, f"client {client} subscribed to channel {channel_id}, which this bridge "
-                                          "never advertised (refused; the client is served as before)")
+                self.log(
+                    logging.WARNING,
+                    f"client {client} subscribed to channel {channel_id}, which this bridge "
+                    "never advertised (refused; the client is served as before)",
+                )
         if not self._pending:
             return 0
         time.sleep(0.005)  # (lets an SDK thread that waits for the GIL to report such a subscription do so)
         if time.monotonic() - self._last_unknown < UNKNOWN_QUIET or self._server is None:
             return 0
         pending, self._pending = self._pending, {}
-        lost = [topic for topic, ids in pending.items()
-                if topic in self.channels and int(self.channels[topic].id()) in ids]  # not already replaced
+        lost = [
+            topic for topic, ids in pending.items() if topic in self.channels and int(self.channels[topic].id()) in ids
+        ]  # not already replaced
         for topic in lost:
             if self.subscribers.get(topic, 0) > 0 or topic in self._held:
                 self._held[topic] = time.monotonic() + READVERTISE_GRACE
@@ -396,16 +426,20 @@ class FoxgloveBridge:
             self.log(logging.INFO, f"client {m.group(1)} left ({self.stats.clients_now} now)")
         elif m := _OUTBOX_FULL.match(text):
             self.stats.slow_client_reports.append(m.group(1))
-            self.log(logging.WARNING,
-                     f"client {m.group(1)} reads slower than the graph publishes: its queue of "
-                     f"{self.client_backlog} messages is full and its oldest messages are dropped "
-                     "(the graph is not slowed; the SDK reports this once)")
+            self.log(
+                logging.WARNING,
+                f"client {m.group(1)} reads slower than the graph publishes: its queue of "
+                f"{self.client_backlog} messages is full and its oldest messages are dropped "
+                "(the graph is not slowed; the SDK reports this once)",
+            )
         elif m := _HANDSHAKE_FAILED.match(text):
             self.stats.clients_refused += 1
-            self.log(logging.WARNING,
-                     f"client {m.group(1)} refused: its WebSocket handshake failed (a client must offer the "
-                     f"subprotocol {SUBPROTOCOL}; one that offers only {OLD_SUBPROTOCOL}, as older Foxglove and "
-                     "Lichtblick releases do, gets HTTP 400; dlo_viz README); the other clients are served as before")
+            self.log(
+                logging.WARNING,
+                f"client {m.group(1)} refused: its WebSocket handshake failed (a client must offer the "
+                f"subprotocol {SUBPROTOCOL}; one that offers only {OLD_SUBPROTOCOL}, as older Foxglove and "
+                "Lichtblick releases do, gets HTTP 400; dlo_viz README); the other clients are served as before",
+            )
         elif m := _UNKNOWN_CHANNEL.match(text):
             # (the SDK reports it while it still creates the channel: which topic it is, readvertise() finds out)
             self._last_unknown = time.monotonic()

@@ -35,40 +35,59 @@ import sys
 import time
 from pathlib import Path
 
+from dlo_bag.bag import BagError, qos_from_profile, subscription_qos
+from dlo_bag.playback import import_message_class
+from dlo_common.node_util import NodeStartError, ParameterError, declare_parameters
+from dlo_common.params import Param
 from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rosbags.interfaces import QosDurability, QosReliability
 
-from dlo_bag.bag import BagError, qos_from_profile, subscription_qos
-from dlo_bag.playback import import_message_class
-from dlo_common.node_util import NodeStartError, ParameterError, declare_parameters
-from dlo_common.params import Param
-
-from .foxglove_bridge import (DEFAULT_ADDRESS, DEFAULT_CLIENT_BACKLOG, DEFAULT_PORT, DEFAULT_TOPICS,
-                              FoxgloveBridge, topic_matches)
+from .foxglove_bridge import DEFAULT_ADDRESS, DEFAULT_CLIENT_BACKLOG, DEFAULT_PORT, DEFAULT_TOPICS, FoxgloveBridge, topic_matches
 
 PARAMETERS = (
-    Param("port", DEFAULT_PORT, "TCP port of the WebSocket server (0 = any free port; the log names it).",
-          at_least=0, at_most=65535),
-    ("address", DEFAULT_ADDRESS, "Address to bind: 127.0.0.1 (this machine only, default) or "
-                                 "0.0.0.0 (every interface: anyone on the network can connect)."),
-    ("topics", list(DEFAULT_TOPICS), "Topics to serve: names or namespaces (a namespace serves every "
-                                     "topic under it)."),
-    Param("client_backlog", DEFAULT_CLIENT_BACKLOG, "Messages queued per client; a client that falls "
-                                                    "further behind loses its oldest queued messages.", at_least=1),
+    Param(
+        "port", DEFAULT_PORT, "TCP port of the WebSocket server (0 = any free port; the log names it).", at_least=0, at_most=65535
+    ),
+    (
+        "address",
+        DEFAULT_ADDRESS,
+        "Address to bind: 127.0.0.1 (this machine only, default) or "
+        "0.0.0.0 (every interface: anyone on the network can connect).",
+    ),
+    ("topics", list(DEFAULT_TOPICS), "Topics to serve: names or namespaces (a namespace serves every topic under it)."),
+    Param(
+        "client_backlog",
+        DEFAULT_CLIENT_BACKLOG,
+        "Messages queued per client; a client that falls further behind loses its oldest queued messages.",
+        at_least=1,
+    ),
     Param("queue_depth", 100, "Subscription history depth (KEEP_LAST) per topic.", at_least=1),
-    ("lazy", True, "Subscribe to a topic only while a client subscribes to it (transient-local topics "
-                   "always): a bridge nobody watches costs the graph nothing."),
-    ("reliable", False, "Subscribe reliably to topics whose publishers are reliable. Default false: "
-                        "best effort (no acknowledgements for the graph's publishers to process; "
-                        "transient-local topics such as camera_info are always reliable)."),
-    Param("nice", 0, "Raise this process's nice value by this much at start (0..19) to yield the CPU to "
-                     "the graph's nodes on a busy machine (measured: no gain in the loop's rate on 2 loaded "
-                     "cores, latency to the clients x2).", at_least=0, at_most=19),
+    (
+        "lazy",
+        True,
+        "Subscribe to a topic only while a client subscribes to it (transient-local topics "
+        "always): a bridge nobody watches costs the graph nothing.",
+    ),
+    (
+        "reliable",
+        False,
+        "Subscribe reliably to topics whose publishers are reliable. Default false: "
+        "best effort (no acknowledgements for the graph's publishers to process; "
+        "transient-local topics such as camera_info are always reliable).",
+    ),
+    Param(
+        "nice",
+        0,
+        "Raise this process's nice value by this much at start (0..19) to yield the CPU to "
+        "the graph's nodes on a busy machine (measured: no gain in the loop's rate on 2 loaded "
+        "cores, latency to the clients x2).",
+        at_least=0,
+        at_most=19,
+    ),
     Param("discovery_period", 0.5, "Seconds between topic discovery passes.", above=0.0),
-    Param("stats_period", 30.0, "Seconds between the bridge's one-line statistics in the log (0 = never).",
-          at_least=0.0),
+    Param("stats_period", 30.0, "Seconds between the bridge's one-line statistics in the log (0 = never).", at_least=0.0),
     ("summary_file", "", "If set, write the per-topic counts there as JSON at shutdown."),
 )
 
@@ -95,17 +114,22 @@ class FoxgloveBridgeNode(Node):
         self._warned: set[tuple[str, str]] = set()
         levels = {logging.DEBUG: "debug", logging.INFO: "info", logging.WARNING: "warning"}
         self.bridge = FoxgloveBridge(
-            port=p["port"], address=p["address"], client_backlog=p["client_backlog"],
-            log=lambda level, text: self._say(text, levels.get(level, "error")))
+            port=p["port"],
+            address=p["address"],
+            client_backlog=p["client_backlog"],
+            log=lambda level, text: self._say(text, levels.get(level, "error")),
+        )
         try:
             self.bridge.start()
         except OSError as err:
-            raise NodeStartError(f"{err} (another bridge running? choose one with -p port:=N, "
-                                 "or port:=0 for any free port)") from None
+            raise NodeStartError(
+                f"{err} (another bridge running? choose one with -p port:=N, or port:=0 for any free port)"
+            ) from None
         self._started = time.monotonic()
         self._cpu0 = os.times()
-        self.get_logger().info(f"Foxglove bridge on {self.bridge.ws_url} serving "
-                               f"{', '.join(self.patterns)}: open {self.bridge.app_url}")
+        self.get_logger().info(
+            f"Foxglove bridge on {self.bridge.ws_url} serving {', '.join(self.patterns)}: open {self.bridge.app_url}"
+        )
         self.create_timer(p["discovery_period"], self.discover)
         self.create_timer(0.05, self.sync_subscriptions)
         if p["stats_period"] > 0:
@@ -141,11 +165,17 @@ class FoxgloveBridgeNode(Node):
                 self._skipped.add(topic)
                 self.get_logger().error(f"{topic}: not served: {err}")
                 continue
-            qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=self.queue_depth,
-                             reliability=ReliabilityPolicy(rel.value), durability=DurabilityPolicy(dur.value))
+            qos = QoSProfile(
+                history=HistoryPolicy.KEEP_LAST,
+                depth=self.queue_depth,
+                reliability=ReliabilityPolicy(rel.value),
+                durability=DurabilityPolicy(dur.value),
+            )
             self._qos[topic] = (msg_class, qos, dur == QosDurability.TRANSIENT_LOCAL)
-            self.get_logger().info(f"advertising {topic} [{msgtype}] ({rel.name.lower()}, {dur.name.lower()}"
-                                   f"{', subscribed while watched' if self.lazy else ''})")
+            self.get_logger().info(
+                f"advertising {topic} [{msgtype}] ({rel.name.lower()}, {dur.name.lower()}"
+                f"{', subscribed while watched' if self.lazy else ''})"
+            )
             self._update_subscription(topic)
 
     def _update_subscription(self, topic: str) -> None:
@@ -157,8 +187,8 @@ class FoxgloveBridgeNode(Node):
         if wanted and topic not in self._served:
             events = SubscriptionEventCallbacks(message_lost=functools.partial(self._on_lost, topic))
             self._served[topic] = self.create_subscription(
-                msg_class, topic, functools.partial(self._on_message, topic), qos, raw=True,
-                event_callbacks=events)
+                msg_class, topic, functools.partial(self._on_message, topic), qos, raw=True, event_callbacks=events
+            )
         elif not wanted and topic in self._served:
             self.destroy_subscription(self._served.pop(topic))
 
@@ -212,14 +242,19 @@ class FoxgloveBridgeNode(Node):
             + (f", lost before delivery {sum(s.lost.values())}" if s.lost else "")
             + (f", slow clients reported {len(s.slow_client_reports)}" if s.slow_client_reports else "")
             + (f", clients refused {s.clients_refused}" if s.clients_refused else "")
-            + (f", channels advertised again {s.readvertised}" if s.readvertised else ""))
+            + (f", channels advertised again {s.readvertised}" if s.readvertised else "")
+        )
 
     def finish(self) -> dict:
         """Stop the server (bounded time) and report the counts (run_node calls this once the node stops)."""
         stopped = self.bridge.stop()
         summary = self.bridge.stats.to_dict()
-        summary.update(url=self.bridge.ws_url, wall_s=round(time.monotonic() - self._started, 3),
-                       cpu_s=round(self.cpu_seconds(), 3), stopped_cleanly=stopped)
+        summary.update(
+            url=self.bridge.ws_url,
+            wall_s=round(time.monotonic() - self._started, 3),
+            cpu_s=round(self.cpu_seconds(), 3),
+            stopped_cleanly=stopped,
+        )
         self.log_stats()
         self._say(f"bridge cpu {summary['cpu_s']:.2f} s over {summary['wall_s']:.1f} s")
         if not stopped:

@@ -51,8 +51,9 @@ def _plain(model: Any) -> Any:
 def _series(path: str, label: str, i: int, **extra) -> Any:
     import foxglove.layouts as fl
 
-    return fl.PlotSeries(value=path, label=label, enabled=True, timestamp_method=TIMESTAMP,
-                         color=COLORS[i % len(COLORS)], **extra)
+    return fl.PlotSeries(
+        value=path, label=label, enabled=True, timestamp_method=TIMESTAMP, color=COLORS[i % len(COLORS)], **extra
+    )
 
 
 def _plot(title: str, series: list, **config) -> dict:
@@ -71,55 +72,101 @@ def panel_configs() -> dict[str, dict]:
         follow_tf="world",
         fixed_frame="world",
         follow_mode="follow-none",
-        camera_state=fl.ThreeDeeCameraState(distance=0.9, perspective=True, phi=55.0, theta_offset=-90.0,
-                                            target=(0.0, 0.0, 0.05), target_offset=(0.0, 0.0, 0.0),
-                                            target_orientation=(0.0, 0.0, 0.0, 1.0), fovy=45.0, near=0.01,
-                                            far=100.0),
+        camera_state=fl.ThreeDeeCameraState(
+            distance=0.9,
+            perspective=True,
+            phi=55.0,
+            theta_offset=-90.0,
+            target=(0.0, 0.0, 0.05),
+            target_offset=(0.0, 0.0, 0.0),
+            target_orientation=(0.0, 0.0, 0.0, 1.0),
+            fovy=45.0,
+            near=0.01,
+            far=100.0,
+        ),
         scene=fl.BaseRendererSceneSettings(background_color="#202020"),
-        layers={"grid": fl.BaseRendererGridLayerSettings(visible=True, frame_id="world", size=0.6, divisions=12,
-                                                         line_width=1.0, color="#ffffff40", position=(0.0, 0.0, 0.0),
-                                                         rotation=(0.0, 0.0, 0.0), layer_id="foxglove.Grid",
-                                                         order=1)},
+        layers={
+            "grid": fl.BaseRendererGridLayerSettings(
+                visible=True,
+                frame_id="world",
+                size=0.6,
+                divisions=12,
+                line_width=1.0,
+                color="#ffffff40",
+                position=(0.0, 0.0, 0.0),
+                rotation=(0.0, 0.0, 0.0),
+                layer_id="foxglove.Grid",
+                order=1,
+            )
+        },
         topics={
             _topic("particles"): fl.BaseRendererPointCloudTopicSettings(
-                visible=True, point_size=9.0, point_shape="circle", color_mode="colormap", color_field="held",
-                color_map="turbo", min_value=0.0, max_value=1.0),
+                visible=True,
+                point_size=9.0,
+                point_shape="circle",
+                color_mode="colormap",
+                color_field="held",
+                color_map="turbo",
+                min_value=0.0,
+                max_value=1.0,
+            ),
             _topic("markers"): fl.BaseRendererRosMarkerTopicSettings(visible=True),
         },
     )
-    image = fl.ImageConfig(image_mode=fl.ImageModeConfig(image_topic=_topic("image"),
-                                                         calibration_topic=_topic("camera_info")))
-    outcome = fl.StateTransitionsConfig(paths=[
-        fl.StateTransitionsSeries(value=_field("task", "outcome"), label="outcome, paper rule",
-                                  timestamp_method=TIMESTAMP, enabled=True),
-        fl.StateTransitionsSeries(value=_field("task", "outcome_authors"), label="outcome, authors' rule",
-                                  timestamp_method=TIMESTAMP, enabled=True),
-        fl.StateTransitionsSeries(value=_field("task", "done"), label="episode done",
-                                  timestamp_method=TIMESTAMP, enabled=True),
-    ])
+    image = fl.ImageConfig(image_mode=fl.ImageModeConfig(image_topic=_topic("image"), calibration_topic=_topic("camera_info")))
+    outcome = fl.StateTransitionsConfig(
+        paths=[
+            fl.StateTransitionsSeries(
+                value=_field("task", "outcome"), label="outcome, paper rule", timestamp_method=TIMESTAMP, enabled=True
+            ),
+            fl.StateTransitionsSeries(
+                value=_field("task", "outcome_authors"), label="outcome, authors' rule", timestamp_method=TIMESTAMP, enabled=True
+            ),
+            fl.StateTransitionsSeries(
+                value=_field("task", "done"), label="episode done", timestamp_method=TIMESTAMP, enabled=True
+            ),
+        ]
+    )
     configs = {
         "3D!dlo_scene": {**_plain(three_d), "title": "rope, gripper and fingers (world frame)"},
         "Image!dlo_camera": {**_plain(image), "title": "top camera"},
-        "Plot!dlo_closure": _plot("closure [-]", [
-            _series(_field("gripper", "closure"), "c_G measured", 0),
-            _series(_field("command", "closure"), "c_G commanded", 1, line_style="dashed"),
-            _series(_field("vision", "confidence"), "q_V vision confidence", 2),
-        ], min_y_value=-0.05, max_y_value=1.05, y_axis_label="closure"),
-        "Plot!dlo_angles": _plot("pose angles [rad] (gripper frame)", [
-            _series(_field("tactile", "angle"), "θ_T tactile", 0),
-            _series(_field("vision", "angle"), "θ_V vision", 1),
-        ], y_axis_label="rad"),
-        "Plot!dlo_offsets": _plot("pose offsets [m] (gripper frame)", [
-            _series(_field("tactile", "y"), "y_T tactile", 0),
-            _series(_field("vision", "y"), "y_V vision", 1),
-        ], y_axis_label="m"),
-        "Plot!dlo_reward": _plot("reward [-]", [_series(_field("task", "reward"), "reward per step", 0)],
-                                 y_axis_label="reward"),
-        "Plot!dlo_held": _plot("held particle index (0 = fixed end)", [
-            _series(_field("task", "mean_held_index"), "mean held (paper rule)", 0),
-            _series(_field("task", "mean_held_index_authors"), "mean held (authors' rule)", 1),
-            _series(_field("task", "num_particles"), "n_c particles", 2, line_style="dotted"),
-        ], y_axis_label="particle index"),
+        "Plot!dlo_closure": _plot(
+            "closure [-]",
+            [
+                _series(_field("gripper", "closure"), "c_G measured", 0),
+                _series(_field("command", "closure"), "c_G commanded", 1, line_style="dashed"),
+                _series(_field("vision", "confidence"), "q_V vision confidence", 2),
+            ],
+            min_y_value=-0.05,
+            max_y_value=1.05,
+            y_axis_label="closure",
+        ),
+        "Plot!dlo_angles": _plot(
+            "pose angles [rad] (gripper frame)",
+            [
+                _series(_field("tactile", "angle"), "θ_T tactile", 0),
+                _series(_field("vision", "angle"), "θ_V vision", 1),
+            ],
+            y_axis_label="rad",
+        ),
+        "Plot!dlo_offsets": _plot(
+            "pose offsets [m] (gripper frame)",
+            [
+                _series(_field("tactile", "y"), "y_T tactile", 0),
+                _series(_field("vision", "y"), "y_V vision", 1),
+            ],
+            y_axis_label="m",
+        ),
+        "Plot!dlo_reward": _plot("reward [-]", [_series(_field("task", "reward"), "reward per step", 0)], y_axis_label="reward"),
+        "Plot!dlo_held": _plot(
+            "held particle index (0 = fixed end)",
+            [
+                _series(_field("task", "mean_held_index"), "mean held (paper rule)", 0),
+                _series(_field("task", "mean_held_index_authors"), "mean held (authors' rule)", 1),
+                _series(_field("task", "num_particles"), "n_c particles", 2, line_style="dotted"),
+            ],
+            y_axis_label="particle index",
+        ),
         "StateTransitions!dlo_outcome": {**_plain(outcome), "title": "outcome (both rules) and done"},
     }
     return configs
@@ -127,22 +174,32 @@ def panel_configs() -> dict[str, dict]:
 
 def build_layout() -> dict:
     """The layout as the Foxglove app exports it."""
+
     def column(*ids: str) -> Any:  # equal heights
         if len(ids) == 1:
             return ids[0]
-        return {"direction": "column", "first": ids[0], "second": column(*ids[1:]),
-                "splitPercentage": round(100.0 / len(ids), 2)}
+        return {"direction": "column", "first": ids[0], "second": column(*ids[1:]), "splitPercentage": round(100.0 / len(ids), 2)}
 
     layout_tree = {
         "direction": "row",
-        "first": {"direction": "column", "first": "3D!dlo_scene", "second": "Image!dlo_camera",
-                  "splitPercentage": 62},
-        "second": column("Plot!dlo_closure", "Plot!dlo_angles", "Plot!dlo_offsets", "Plot!dlo_reward",
-                         "Plot!dlo_held", "StateTransitions!dlo_outcome"),
+        "first": {"direction": "column", "first": "3D!dlo_scene", "second": "Image!dlo_camera", "splitPercentage": 62},
+        "second": column(
+            "Plot!dlo_closure",
+            "Plot!dlo_angles",
+            "Plot!dlo_offsets",
+            "Plot!dlo_reward",
+            "Plot!dlo_held",
+            "StateTransitions!dlo_outcome",
+        ),
         "splitPercentage": 52,
     }
-    return {"configById": panel_configs(), "globalVariables": {}, "userNodes": {},
-            "playbackConfig": {"speed": 1.0}, "layout": layout_tree}
+    return {
+        "configById": panel_configs(),
+        "globalVariables": {},
+        "userNodes": {},
+        "playbackConfig": {"speed": 1.0},
+        "layout": layout_tree,
+    }
 
 
 def layout_text() -> str:

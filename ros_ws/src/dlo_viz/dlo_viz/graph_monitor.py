@@ -91,8 +91,9 @@ class ClockCounter:
         self.node = rclpy.create_node("launch_monitor", context=self.context)
         self.last_ns, self.steps, self.first_ns = None, 0, None
         self.last_step_wall = None  # time.time() when the last new step was counted
-        self.node.create_subscription(Clock, topic, self.on_clock,
-                                      QoSProfile(depth=50, reliability=ReliabilityPolicy.BEST_EFFORT))
+        self.node.create_subscription(
+            Clock, topic, self.on_clock, QoSProfile(depth=50, reliability=ReliabilityPolicy.BEST_EFFORT)
+        )
         self.executor = rclpy.executors.SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
 

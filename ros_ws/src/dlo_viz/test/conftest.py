@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import pytest
-
 from dlo_common.testing import Procs, package_test_env
 
 

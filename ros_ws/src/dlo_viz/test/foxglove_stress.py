@@ -60,9 +60,11 @@ class SessionReport:
         return not self.missing and not self.failed and all(status == 400 for status in self.refused)
 
     def describe(self) -> str:
-        return (f"{self.stayed} clients stayed, {self.dropped} dropped mid-stream, {len(self.refused)} refused "
-                f"(HTTP {sorted(set(self.refused))}); missing topics: {self.missing or 'none'}; failed: "
-                f"{self.failed or 'none'}; error statuses: {len(self.errors)} ({sorted(set(self.errors))[:5]})")
+        return (
+            f"{self.stayed} clients stayed, {self.dropped} dropped mid-stream, {len(self.refused)} refused "
+            f"(HTTP {sorted(set(self.refused))}); missing topics: {self.missing or 'none'}; failed: "
+            f"{self.failed or 'none'}; error statuses: {len(self.errors)} ({sorted(set(self.errors))[:5]})"
+        )
 
 
 def refused_status(url: str, timeout: float = 10.0) -> tuple[int, str]:
@@ -78,8 +80,16 @@ def refused_status(url: str, timeout: float = 10.0) -> tuple[int, str]:
     return 101, ""
 
 
-def step_locked_sessions(typestore, topics: dict[str, str], payloads: dict[str, bytes], *, sessions: int,
-                         clients: int, timeout: float = 30.0, maintain: bool = True) -> list[SessionReport]:
+def step_locked_sessions(
+    typestore,
+    topics: dict[str, str],
+    payloads: dict[str, bytes],
+    *,
+    sessions: int,
+    clients: int,
+    timeout: float = 30.0,
+    maintain: bool = True,
+) -> list[SessionReport]:
     """``sessions`` fresh bridges, each with ``clients`` eager clients connected before any topic exists;
     ``topics`` (name -> type) added one at a time, each once every client has its advertisement; a graph
     thread forwards ``payloads`` (one per topic) every 20 ms and calls ``maintain()`` (only
@@ -88,8 +98,9 @@ def step_locked_sessions(typestore, topics: dict[str, str], payloads: dict[str, 
     return [_step_locked_session(typestore, topics, payloads, clients, timeout, maintain) for _ in range(sessions)]
 
 
-def _step_locked_session(typestore, topics: dict[str, str], payloads: dict[str, bytes], clients: int,
-                         timeout: float, maintain: bool) -> SessionReport:
+def _step_locked_session(
+    typestore, topics: dict[str, str], payloads: dict[str, bytes], clients: int, timeout: float, maintain: bool
+) -> SessionReport:
     from dlo_viz.foxglove_bridge import FoxgloveBridge
 
     bridge = FoxgloveBridge(port=0, typestore=typestore).start()
@@ -112,8 +123,11 @@ def _step_locked_session(typestore, topics: dict[str, str], payloads: dict[str, 
         thread.start()
         for topic, msgtype in topics.items():
             bridge.add_topic(topic, msgtype)
-            wait_until(lambda t=topic: all(c.channel_by_topic(t) is not None for c in conns), timeout,
-                       f"the advertisement of {topic} at every client")
+            wait_until(
+                lambda t=topic: all(c.channel_by_topic(t) is not None for c in conns),
+                timeout,
+                f"the advertisement of {topic} at every client",
+            )
         return _report(conns, set(topics), timeout)
     finally:
         stop.set()
@@ -139,9 +153,18 @@ def _report(staying: list[FoxgloveTestClient], topics: set[str], timeout: float)
     return report
 
 
-def client_session(url: str, topics: list[str], *, clients: int = 50, old_share: float = 0.2,
-                   drop_share: float = 0.2, late_share: float = 0.2, timeout: float = 60.0,
-                   seed: int = 0, started=None) -> SessionReport:
+def client_session(
+    url: str,
+    topics: list[str],
+    *,
+    clients: int = 50,
+    old_share: float = 0.2,
+    drop_share: float = 0.2,
+    late_share: float = 0.2,
+    timeout: float = 60.0,
+    seed: int = 0,
+    started=None,
+) -> SessionReport:
     """``clients`` Foxglove clients against the bridge at ``url`` while the ``topics`` appear: ``old_share``
     offer only ``foxglove.websocket.v1`` (each must be refused with HTTP 400, at times spread over the
     session), ``drop_share`` are eager and leave without a closing handshake once they received a few
@@ -209,10 +232,9 @@ def publish(topics: list[str], rate: float, appear_every: float) -> int:
     import signal
 
     import rclpy
-    from rclpy.qos import DurabilityPolicy, QoSProfile
-
     from dlo_bag.playback import import_message_class
     from dlo_common.topics import TOPICS
+    from rclpy.qos import DurabilityPolicy, QoSProfile
 
     types = {t.name: t.type for t in TOPICS}
     rclpy.init()
@@ -228,8 +250,7 @@ def publish(topics: list[str], rate: float, appear_every: float) -> int:
                 topic = topics[len(pubs)]
                 cls = import_message_class(types[topic])
                 latched = topic.endswith("camera_info")
-                qos = QoSProfile(depth=10, durability=DurabilityPolicy.TRANSIENT_LOCAL if latched
-                                 else DurabilityPolicy.VOLATILE)
+                qos = QoSProfile(depth=10, durability=DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE)
                 pubs.append((node.create_publisher(cls, topic, qos), cls()))
                 print(f"[publish] {topic}", flush=True)
             for pub, msg in pubs:

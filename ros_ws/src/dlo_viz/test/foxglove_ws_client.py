@@ -136,9 +136,11 @@ class FoxgloveTestClient:
             if self.error is not None:
                 raise AssertionError(f"client failed while waiting for {what}: {self.error!r}")
             time.sleep(0.02)
-        raise AssertionError(f"timed out after {timeout} s waiting for {what}; received "
-                             f"{len(self.messages)} messages on {sorted(self.topics_received())}; advertised: "
-                             f"{sorted(c['topic'] for c in self.channels.values())}")
+        raise AssertionError(
+            f"timed out after {timeout} s waiting for {what}; received "
+            f"{len(self.messages)} messages on {sorted(self.topics_received())}; advertised: "
+            f"{sorted(c['topic'] for c in self.channels.values())}"
+        )
 
     def channel_by_topic(self, topic: str) -> dict | None:
         with self._lock:
@@ -147,8 +149,11 @@ class FoxgloveTestClient:
     def subscribe(self, topics: list[str] | None = None) -> list[str]:
         """Subscribe to the advertised channels of ``topics`` (None = all not yet subscribed)."""
         with self._lock:
-            chosen = [c for c in self.channels.values()
-                      if (topics is None or c["topic"] in topics) and int(c["id"]) not in self._subs.values()]
+            chosen = [
+                c
+                for c in self.channels.values()
+                if (topics is None or c["topic"] in topics) and int(c["id"]) not in self._subs.values()
+            ]
             subs = []
             for c in chosen:
                 sub_id, self._next_sub = self._next_sub, self._next_sub + 1

@@ -35,10 +35,10 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # --import-mode=importlib
 
-from dlo_common.topics import TOPICS  # noqa: E402
 from dlo_common.testing import ROS2RUN, Proc, Procs  # noqa: E402
-from foxglove_ws_client import FoxgloveTestClient  # noqa: E402
+from dlo_common.topics import TOPICS  # noqa: E402
 from dlo_viz.foxglove_bridge import foxglove_url, topic_matches  # noqa: E402
+from foxglove_ws_client import FoxgloveTestClient  # noqa: E402
 
 pytest.importorskip("foxglove")
 pytest.importorskip("websockets")
@@ -61,8 +61,7 @@ def bridge(typestore):
     from dlo_viz.foxglove_bridge import FoxgloveBridge
 
     lines = []
-    b = FoxgloveBridge(port=0, typestore=typestore, client_backlog=64,
-                       log=lambda level, text: lines.append(text)).start()
+    b = FoxgloveBridge(port=0, typestore=typestore, client_backlog=64, log=lambda level, text: lines.append(text)).start()
     b.lines = lines
     yield b
     b.stop()
@@ -72,46 +71,88 @@ def make_messages(ts) -> dict:
     """One message per graph topic, built with the rosbags typestore (every field set)."""
     T = ts.types
     header = T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](sec=12, nanosec=345), frame_id="world")
-    fields = [T["sensor_msgs/msg/PointField"](name=n, offset=4 * i, datatype=7, count=1)
-              for i, n in enumerate(("x", "y", "z", "held"))]
+    fields = [
+        T["sensor_msgs/msg/PointField"](name=n, offset=4 * i, datatype=7, count=1) for i, n in enumerate(("x", "y", "z", "held"))
+    ]
     points = np.arange(3 * 4, dtype="<f4").reshape(3, 4)
     point = T["geometry_msgs/msg/Point"]
     marker = T["visualization_msgs/msg/Marker"](
-        header=header, ns="cable", id=0, type=4, action=0,
-        pose=T["geometry_msgs/msg/Pose"](position=point(x=0.1, y=0.2, z=0.3),
-                                          orientation=T["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0)),
+        header=header,
+        ns="cable",
+        id=0,
+        type=4,
+        action=0,
+        pose=T["geometry_msgs/msg/Pose"](
+            position=point(x=0.1, y=0.2, z=0.3), orientation=T["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0)
+        ),
         scale=T["geometry_msgs/msg/Vector3"](x=0.008, y=0.0, z=0.0),
         color=T["std_msgs/msg/ColorRGBA"](r=0.9, g=0.5, b=0.1, a=1.0),
-        lifetime=T["builtin_interfaces/msg/Duration"](sec=0, nanosec=0), frame_locked=False,
-        points=[point(x=0.0, y=0.0, z=0.1), point(x=0.01, y=0.0, z=0.1)], colors=[], texture_resource="",
+        lifetime=T["builtin_interfaces/msg/Duration"](sec=0, nanosec=0),
+        frame_locked=False,
+        points=[point(x=0.0, y=0.0, z=0.1), point(x=0.01, y=0.0, z=0.1)],
+        colors=[],
+        texture_resource="",
         texture=T["sensor_msgs/msg/CompressedImage"](header=header, format="", data=np.zeros(0, np.uint8)),
-        uv_coordinates=[], text="", mesh_resource="",
+        uv_coordinates=[],
+        text="",
+        mesh_resource="",
         mesh_file=T["visualization_msgs/msg/MeshFile"](filename="", data=np.zeros(0, np.uint8)),
-        mesh_use_embedded_materials=False)
+        mesh_use_embedded_materials=False,
+    )
     roi = T["sensor_msgs/msg/RegionOfInterest"](x_offset=0, y_offset=0, height=0, width=0, do_rectify=False)
     return {
         "/dlo/rope/particles": T["sensor_msgs/msg/PointCloud2"](
-            header=header, height=1, width=3, fields=fields, is_bigendian=False, point_step=16, row_step=48,
-            data=np.frombuffer(points.tobytes(), np.uint8), is_dense=True),
-        "/dlo/gripper/state": T["dlo_msgs/msg/GripperState"](header=header, x=0.1, y=-0.2, z=0.1, closure=0.7,
-                                                             episode=2, step=17),
-        "/dlo/gripper/cmd": T["dlo_msgs/msg/GripperCommand"](header=header, vx=0.1, vy=-0.05, closure=1.0,
-                                                             episode=2, step=17),
-        "/dlo/camera/image": T["sensor_msgs/msg/Image"](header=header, height=4, width=5, encoding="mono8",
-                                                        is_bigendian=0, step=5,
-                                                        data=np.arange(20, dtype=np.uint8)),
+            header=header,
+            height=1,
+            width=3,
+            fields=fields,
+            is_bigendian=False,
+            point_step=16,
+            row_step=48,
+            data=np.frombuffer(points.tobytes(), np.uint8),
+            is_dense=True,
+        ),
+        "/dlo/gripper/state": T["dlo_msgs/msg/GripperState"](
+            header=header, x=0.1, y=-0.2, z=0.1, closure=0.7, episode=2, step=17
+        ),
+        "/dlo/gripper/cmd": T["dlo_msgs/msg/GripperCommand"](header=header, vx=0.1, vy=-0.05, closure=1.0, episode=2, step=17),
+        "/dlo/camera/image": T["sensor_msgs/msg/Image"](
+            header=header, height=4, width=5, encoding="mono8", is_bigendian=0, step=5, data=np.arange(20, dtype=np.uint8)
+        ),
         "/dlo/camera/camera_info": T["sensor_msgs/msg/CameraInfo"](
-            header=header, height=4, width=5, distortion_model="plumb_bob", d=np.zeros(5), k=np.arange(9.0),
-            r=np.eye(3).ravel(), p=np.zeros(12), binning_x=0, binning_y=0, roi=roi),
-        "/dlo/tactile/pose": T["dlo_msgs/msg/TactilePose"](header=header, angle=0.1, y=0.002, contact=True,
-                                                           contact_count=3),
-        "/dlo/vision/pose": T["dlo_msgs/msg/VisualPose"](header=header, visible=True, confidence=0.8, angle=-0.2,
-                                                         y=0.004),
+            header=header,
+            height=4,
+            width=5,
+            distortion_model="plumb_bob",
+            d=np.zeros(5),
+            k=np.arange(9.0),
+            r=np.eye(3).ravel(),
+            p=np.zeros(12),
+            binning_x=0,
+            binning_y=0,
+            roi=roi,
+        ),
+        "/dlo/tactile/pose": T["dlo_msgs/msg/TactilePose"](header=header, angle=0.1, y=0.002, contact=True, contact_count=3),
+        "/dlo/vision/pose": T["dlo_msgs/msg/VisualPose"](header=header, visible=True, confidence=0.8, angle=-0.2, y=0.004),
         "/dlo/task/state": T["dlo_msgs/msg/TaskState"](
-            header=header, episode=2, seed=42, step=17, held_indices=np.array([3, 4], np.int32), n_held=2,
-            mean_held_index=3.5, num_particles=40, cable_length=0.4, reward=0.25, episode_return=1.5,
-            done=True, outcome=1, held_indices_authors=np.array([4], np.int32), mean_held_index_authors=4.0,
-            outcome_authors=2, task_rules="paper_text"),
+            header=header,
+            episode=2,
+            seed=42,
+            step=17,
+            held_indices=np.array([3, 4], np.int32),
+            n_held=2,
+            mean_held_index=3.5,
+            num_particles=40,
+            cable_length=0.4,
+            reward=0.25,
+            episode_return=1.5,
+            done=True,
+            outcome=1,
+            held_indices_authors=np.array([4], np.int32),
+            mean_held_index_authors=4.0,
+            outcome_authors=2,
+            task_rules="paper_text",
+        ),
         "/dlo/markers": T["visualization_msgs/msg/MarkerArray"](markers=[marker]),
         "/dlo/sim/instance": T["std_msgs/msg/String"](data='{"pid": 1}'),
         "/dlo/policy/info": T["std_msgs/msg/String"](data='{"policy": "sac", "modalities": "K+T+V"}'),
@@ -121,9 +162,8 @@ def make_messages(ts) -> dict:
 
 def test_schemas_are_the_recorders_definitions(bridge, typestore, tmp_path):
     """The advertised schema of each topic is byte-for-byte what the recorder writes into a bag."""
-    from rosbags.rosbag2 import Reader
-
     from dlo_bag.bag import BagWriter
+    from rosbags.rosbag2 import Reader
 
     with BagWriter(tmp_path / "bag", typestore, fsync=False) as writer:
         for topic, msgtype in GRAPH_TYPES.items():
@@ -149,8 +189,10 @@ def test_every_graph_type_round_trips_and_late_topics_are_advertised(bridge, typ
     for topic in early:
         bridge.add_topic(topic, GRAPH_TYPES[topic], latched=topic.endswith("camera_info"))
     # camera_info is latched: published before any client exists, it still reaches a late subscriber
-    bridge.forward("/dlo/camera/camera_info", typestore.serialize_cdr(msgs["/dlo/camera/camera_info"],
-                                                                      GRAPH_TYPES["/dlo/camera/camera_info"]))
+    bridge.forward(
+        "/dlo/camera/camera_info",
+        typestore.serialize_cdr(msgs["/dlo/camera/camera_info"], GRAPH_TYPES["/dlo/camera/camera_info"]),
+    )
     client = FoxgloveTestClient(bridge.ws_url).connect()
     try:
         assert client.subprotocol in ("foxglove.sdk.v1", "foxglove.websocket.v1")
@@ -168,8 +210,9 @@ def test_every_graph_type_round_trips_and_late_topics_are_advertised(bridge, typ
         for item in client.messages:
             decoded = client.decode(item)
             expected = msgs[item.topic]
-            assert typestore.serialize_cdr(decoded, GRAPH_TYPES[item.topic]) == \
-                typestore.serialize_cdr(expected, GRAPH_TYPES[item.topic]), item.topic
+            assert typestore.serialize_cdr(decoded, GRAPH_TYPES[item.topic]) == typestore.serialize_cdr(
+                expected, GRAPH_TYPES[item.topic]
+            ), item.topic
             assert abs(item.log_time - time.time_ns()) < 60e9  # stamped with the receive (wall) time
         task = client.decode(next(m for m in client.messages if m.topic == "/dlo/task/state"))
         assert (task.outcome, task.outcome_authors, task.seed) == (1, 2, 42)
@@ -194,8 +237,14 @@ def test_clients_connect_and_leave(bridge, typestore):
         clients[0].unsubscribe_all()  # one unsubscribes, then both leave (one abruptly)
         clients[0].close()
         clients[1]._ws.socket.close()
-        wait_until(lambda: bridge.subscribers["/dlo/gripper/state"] == 0 and bridge.stats.clients_now == 0
-                   and not bridge.channels["/dlo/gripper/state"].has_sinks(), 10)  # both gone
+        wait_until(
+            lambda: (
+                bridge.subscribers["/dlo/gripper/state"] == 0
+                and bridge.stats.clients_now == 0
+                and not bridge.channels["/dlo/gripper/state"].has_sinks()
+            ),
+            10,
+        )  # both gone
     bridge.forward("/dlo/gripper/state", data)  # nobody subscribed: not forwarded, no error
     wait_until(lambda: bridge.stats.clients_now == 0, 10)
     assert bridge.stats.clients_connected == 6
@@ -214,17 +263,22 @@ def stalled_client(port: int, channel_id: int) -> socket.socket:
     s = socket.create_connection(("127.0.0.1", port))
     s.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
     key = base64.b64encode(os.urandom(16)).decode()
-    s.sendall((f"GET / HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
-               f"Sec-WebSocket-Key: {key}\r\nSec-WebSocket-Version: 13\r\n"
-               "Sec-WebSocket-Protocol: foxglove.sdk.v1\r\n\r\n").encode())
+    s.sendall(
+        (
+            f"GET / HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
+            f"Sec-WebSocket-Key: {key}\r\nSec-WebSocket-Version: 13\r\n"
+            "Sec-WebSocket-Protocol: foxglove.sdk.v1\r\n\r\n"
+        ).encode()
+    )
     head = b""
     while b"\r\n\r\n" not in head:
         head += s.recv(1)
     assert b" 101 " in head.split(b"\r\n")[0], head
     payload = json.dumps({"op": "subscribe", "subscriptions": [{"id": 1, "channelId": channel_id}]}).encode()
     mask = os.urandom(4)
-    s.sendall(bytes([0x81, 0x80 | 126]) + len(payload).to_bytes(2, "big") + mask
-              + bytes(b ^ mask[i % 4] for i, b in enumerate(payload)))
+    s.sendall(
+        bytes([0x81, 0x80 | 126]) + len(payload).to_bytes(2, "big") + mask + bytes(b ^ mask[i % 4] for i, b in enumerate(payload))
+    )
     return s
 
 
@@ -238,9 +292,20 @@ def test_a_client_that_stops_reading_never_blocks(bridge, typestore):
     images = []
     for i in range(n):
         header = T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](sec=0, nanosec=i), frame_id="cam")
-        images.append(typestore.serialize_cdr(T[msgtype](header=header, height=100, width=200, encoding="mono8",
-                                                         is_bigendian=0, step=200,
-                                                         data=np.full(size, i % 256, np.uint8)), msgtype))
+        images.append(
+            typestore.serialize_cdr(
+                T[msgtype](
+                    header=header,
+                    height=100,
+                    width=200,
+                    encoding="mono8",
+                    is_bigendian=0,
+                    step=200,
+                    data=np.full(size, i % 256, np.uint8),
+                ),
+                msgtype,
+            )
+        )
     slow = stalled_client(bridge.port, channel.id())
     good = FoxgloveTestClient(bridge.ws_url).connect()
     try:
@@ -273,24 +338,28 @@ def test_a_client_that_stops_reading_never_blocks(bridge, typestore):
         slow.close()
 
 
-@pytest.mark.parametrize("topic, patterns, matches", [
-    ("/dlo/gripper/state", ["/dlo"], True),
-    ("/dlo", ["/dlo"], True),
-    ("/dlo/gripper/state", ["dlo/gripper/"], True),
-    ("/dlox/state", ["/dlo"], False),
-    ("/dlo/gripper/stateful", ["/dlo/gripper/state"], False),
-    ("/clock", ["/dlo", "/tf"], False),
-    ("/clock", ["/dlo", "/"], True),
-    ("/clock", [], False),
-])
+@pytest.mark.parametrize(
+    "topic, patterns, matches",
+    [
+        ("/dlo/gripper/state", ["/dlo"], True),
+        ("/dlo", ["/dlo"], True),
+        ("/dlo/gripper/state", ["dlo/gripper/"], True),
+        ("/dlox/state", ["/dlo"], False),
+        ("/dlo/gripper/stateful", ["/dlo/gripper/state"], False),
+        ("/clock", ["/dlo", "/tf"], False),
+        ("/clock", ["/dlo", "/"], True),
+        ("/clock", [], False),
+    ],
+)
 def test_a_pattern_matches_its_topic_and_what_lies_under_it(topic, patterns, matches):
     """topic_matches: a pattern matches the topic and what lies under it, never a topic that only starts
     with the same letters."""
     assert topic_matches(topic, patterns) is matches
 
 
-@pytest.mark.parametrize("host, ws", [("0.0.0.0", "ws://127.0.0.1:8765"), ("", "ws://127.0.0.1:8765"),
-                                      ("192.168.1.7", "ws://192.168.1.7:8765")])
+@pytest.mark.parametrize(
+    "host, ws", [("0.0.0.0", "ws://127.0.0.1:8765"), ("", "ws://127.0.0.1:8765"), ("192.168.1.7", "ws://192.168.1.7:8765")]
+)
 def test_the_app_url_opens_a_reachable_address(host, ws):
     """foxglove_url: the app URL of a bridge that listens on every address (0.0.0.0) points at this machine."""
     url = urlparse(foxglove_url(host, 8765))
@@ -299,15 +368,20 @@ def test_the_app_url_opens_a_reachable_address(host, ws):
 
 # ---- the node in a running graph -------------------------------------------------------------
 
+
 @pytest.fixture
 def launcher(ros_env):
     """Start ``launch_graph.sh`` (its own DDS domain); stopped with SIGINT afterwards if still running."""
     with Procs({**ros_env, "DLO_USE_ROS2RUN": "1"}, stop_timeout=60) as started:
+
         def start(*args: str) -> Proc:
-            return started("launch", ["bash", str(ROS2RUN.parent / "launch_graph.sh"), *args],
-                           # bash cannot trap a signal ignored at its start (a test run started as a background
-                           # job ignores SIGINT): the launcher must stop its graph on the SIGINT sent to it
-                           preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+            return started(
+                "launch",
+                ["bash", str(ROS2RUN.parent / "launch_graph.sh"), *args],
+                # bash cannot trap a signal ignored at its start (a test run started as a background
+                # job ignores SIGINT): the launcher must stop its graph on the SIGINT sent to it
+                preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+            )
 
         yield start
 
@@ -325,8 +399,7 @@ class GraphObserver:
 
     def subscribed_by(self, node_name: str, topics) -> set[str]:
         """The ``topics`` that node ``node_name`` subscribes to, as discovery shows them now."""
-        return {t for t in topics
-                if any(i.node_name == node_name for i in self.node.get_subscriptions_info_by_topic(t))}
+        return {t for t in topics if any(i.node_name == node_name for i in self.node.get_subscriptions_info_by_topic(t))}
 
     def close(self) -> None:
         self.node.destroy_node()
@@ -344,8 +417,7 @@ def test_launch_graph_foxglove_serves_every_graph_topic_live(launcher, tmp_path,
     with a fixed number of episodes, a slow machine could end the graph while a client still
     watches, or before the bridge has followed the clients' departure."""
     logs = tmp_path / "logs"
-    launch = launcher("--foxglove", "0", "--episodes", "0", "--seed", "3", "--policy", "tactile_reactive",
-                      "--logs", str(logs))
+    launch = launcher("--foxglove", "0", "--episodes", "0", "--seed", "3", "--policy", "tactile_reactive", "--logs", str(logs))
     launch.wait_line("Foxglove live view: open https://app.foxglove.dev/", timeout=180)
     url = re.search(r"(ws://127\.0\.0\.1:\d+)", launch.wait_line("Foxglove WebSocket ->", timeout=10)).group(1)
     domain = int(re.search(r"\[launch\] ROS_DOMAIN_ID=(\d+)", launch.output()).group(1))
@@ -367,19 +439,28 @@ def test_launch_graph_foxglove_serves_every_graph_topic_live(launcher, tmp_path,
 
     try:
         try:  # the sim builds its Taichi kernels first (minutes on a loaded 2-core machine)
-            client.wait(lambda: set(GRAPH_TYPES) <= {c["topic"] for c in client.channels.values()}
-                        or launch.p.poll() is not None, 480, "every graph topic advertised")
+            client.wait(
+                lambda: set(GRAPH_TYPES) <= {c["topic"] for c in client.channels.values()} or launch.p.poll() is not None,
+                480,
+                "every graph topic advertised",
+            )
             assert launch.p.poll() is None, "the launcher ended early"
             for ch in client.channels.values():
                 assert ch["schemaName"] == GRAPH_TYPES.get(ch["topic"], ch["schemaName"])
             client.subscribe()
             client.wait(lambda: set(GRAPH_TYPES) <= client.topics_received(), 240, "a message on every topic")
             second = FoxgloveTestClient(url).connect()  # joins mid-run
-            second.wait(lambda: {"/dlo/gripper/state", "/dlo/camera/camera_info"}
-                        <= {c["topic"] for c in second.channels.values()}, 30, "advertise")
+            second.wait(
+                lambda: {"/dlo/gripper/state", "/dlo/camera/camera_info"} <= {c["topic"] for c in second.channels.values()},
+                30,
+                "advertise",
+            )
             second.subscribe(["/dlo/gripper/state", "/dlo/camera/camera_info"])
-            second.wait(lambda: {"/dlo/gripper/state", "/dlo/camera/camera_info"} <= second.topics_received(), 60,
-                        "state + latched camera_info at the second client")
+            second.wait(
+                lambda: {"/dlo/gripper/state", "/dlo/camera/camera_info"} <= second.topics_received(),
+                60,
+                "state + latched camera_info at the second client",
+            )
             bridge_subscribes(set(GRAPH_TYPES), "while every topic is watched")
             decoded = {m.topic: client.decode(m) for m in client.messages}  # every message, from the schemas
             for m in second.messages:
@@ -387,8 +468,9 @@ def test_launch_graph_foxglove_serves_every_graph_topic_live(launcher, tmp_path,
             client.close()
             second.close()
             # lazy: with both clients gone, only the transient-local topics stay subscribed
-            latched = set(re.findall(r"advertising (\S+) \[[^]]+\] \([a-z_]+, transient_local",
-                                     (logs / "foxglove.log").read_text()))
+            latched = set(
+                re.findall(r"advertising (\S+) \[[^]]+\] \([a-z_]+, transient_local", (logs / "foxglove.log").read_text())
+            )
             assert "/dlo/camera/camera_info" in latched, latched
             bridge_subscribes(latched & set(GRAPH_TYPES), "once both clients left")
         except AssertionError as err:
@@ -404,8 +486,9 @@ def test_launch_graph_foxglove_serves_every_graph_topic_live(launcher, tmp_path,
     assert "did not stop within" not in launch.output(), launch.output()
     assert decoded["/dlo/camera/image"].encoding == "mono8"
     # frames: each message names the frame its values are in (docs/ARCHITECTURE.md#world)
-    assert decoded["/dlo/camera/image"].header.frame_id == decoded["/dlo/camera/camera_info"].header.frame_id \
-        == "top_camera_optical"
+    assert (
+        decoded["/dlo/camera/image"].header.frame_id == decoded["/dlo/camera/camera_info"].header.frame_id == "top_camera_optical"
+    )
     assert decoded["/dlo/tactile/pose"].header.frame_id == decoded["/dlo/vision/pose"].header.frame_id == "gripper"
     for topic in ("/dlo/rope/particles", "/dlo/gripper/state", "/dlo/task/state"):
         assert decoded[topic].header.frame_id == "world", topic
@@ -483,8 +566,11 @@ def test_a_late_client_gets_the_last_latched_message_and_no_old_volatile_ones(br
         assert bridge.resend_latched() == 1  # what the node does on its timer (foxglove_bridge_node)
         state.step = 2
         bridge.forward("/dlo/gripper/state", typestore.serialize_cdr(state, state_type))
-        first.wait(lambda: first.topics_received() == {"/dlo/camera/camera_info", "/dlo/gripper/state"}, 10,
-                   "camera_info and the new state")
+        first.wait(
+            lambda: first.topics_received() == {"/dlo/camera/camera_info", "/dlo/gripper/state"},
+            10,
+            "camera_info and the new state",
+        )
         infos = [first.decode(m) for m in first.messages if m.topic == "/dlo/camera/camera_info"]
         assert [m.width for m in infos] == [7]
         assert [first.decode(m).step for m in first.messages if m.topic == "/dlo/gripper/state"] == [2]
@@ -511,9 +597,14 @@ def listening_addresses(port: int) -> set[str]:
                 local, state = line.split()[1], line.split()[3]
                 address, _, hex_port = local.partition(":")
                 if state == "0A" and int(hex_port, 16) == port:
-                    found.add(socket.inet_ntop(socket.AF_INET if len(address) == 8 else socket.AF_INET6,
-                                               bytes.fromhex(address)[::-1] if len(address) == 8 else
-                                               b"".join(bytes.fromhex(address[i:i + 8])[::-1] for i in range(0, 32, 8))))
+                    found.add(
+                        socket.inet_ntop(
+                            socket.AF_INET if len(address) == 8 else socket.AF_INET6,
+                            bytes.fromhex(address)[::-1]
+                            if len(address) == 8
+                            else b"".join(bytes.fromhex(address[i : i + 8])[::-1] for i in range(0, 32, 8)),
+                        )
+                    )
     return found
 
 
@@ -522,8 +613,9 @@ def test_bridge_node_exits_0_on_a_signal_after_writing_its_counts(procs, tmp_pat
     """dlo_viz README (foxglove_bridge): exit status 0 after SIGINT/SIGTERM (it closes its server and
     writes summary_file); it binds 127.0.0.1 unless told otherwise."""
     summary = tmp_path / "bridge.json"
-    proc = procs("bridge", [str(ROS2RUN), "dlo_viz", "foxglove_bridge", "--ros-args", "-p", "port:=0",
-                            "-p", f"summary_file:={summary}"])
+    proc = procs(
+        "bridge", [str(ROS2RUN), "dlo_viz", "foxglove_bridge", "--ros-args", "-p", "port:=0", "-p", f"summary_file:={summary}"]
+    )
     port = int(re.search(r"ws://[\d.]+:(\d+)", proc.wait_line("Foxglove bridge on ws://", timeout=120)).group(1))
     assert listening_addresses(port) == {"127.0.0.1"}
     client = FoxgloveTestClient(f"ws://127.0.0.1:{port}").connect()  # it serves
@@ -535,20 +627,40 @@ def test_bridge_node_exits_0_on_a_signal_after_writing_its_counts(procs, tmp_pat
 
 # ---- the library's contract, case by case (mutation testing, issue 14) -------------------------------
 
+
 def test_the_summary_counts_every_topic_received_or_forwarded():
     """BridgeStats.to_dict (the node's summary_file): totals, and per topic 0 for what it never had."""
     from dlo_viz.foxglove_bridge import BridgeStats
 
-    stats = BridgeStats(clients_connected=3, clients_now=1, clients_refused=2, subscriptions=4, subscriptions_lost=5,
-                        readvertised=6, slow_client_reports=["c1"])
+    stats = BridgeStats(
+        clients_connected=3,
+        clients_now=1,
+        clients_refused=2,
+        subscriptions=4,
+        subscriptions_lost=5,
+        readvertised=6,
+        slow_client_reports=["c1"],
+    )
     stats.received.update({"/a": 3, "/b": 1})
     stats.forwarded.update({"/a": 2, "/c": 1})  # /c: a latched resend of a message received before
     stats.lost.update({"/b": 4})
     assert stats.to_dict() == {
-        "received": 4, "forwarded": 3, "lost": 4, "clients_connected": 3, "clients_now": 1, "clients_refused": 2,
-        "subscriptions": 4, "subscriptions_lost": 5, "readvertised": 6, "slow_client_reports": ["c1"],
-        "topics": {"/a": {"received": 3, "forwarded": 2, "lost": 0}, "/b": {"received": 1, "forwarded": 0, "lost": 4},
-                   "/c": {"received": 0, "forwarded": 1, "lost": 0}}}
+        "received": 4,
+        "forwarded": 3,
+        "lost": 4,
+        "clients_connected": 3,
+        "clients_now": 1,
+        "clients_refused": 2,
+        "subscriptions": 4,
+        "subscriptions_lost": 5,
+        "readvertised": 6,
+        "slow_client_reports": ["c1"],
+        "topics": {
+            "/a": {"received": 3, "forwarded": 2, "lost": 0},
+            "/b": {"received": 1, "forwarded": 0, "lost": 4},
+            "/c": {"received": 0, "forwarded": 1, "lost": 0},
+        },
+    }
 
 
 def test_port_and_backlog_are_checked_and_the_address_before_start(typestore):
@@ -593,7 +705,9 @@ def test_the_server_names_itself_and_each_bridge_serves_only_its_own_topics(brid
             client.wait(lambda c=client, t=topic: c.channel_by_topic(t) is not None, 10, topic)
         assert [c.server_info["name"] for c in clients] == ["dlo-vitac", "second"]
         assert [sorted(ch["topic"] for ch in c.channels.values()) for c in clients] == [
-            ["/dlo/gripper/state"], ["/dlo/gripper/cmd"]]
+            ["/dlo/gripper/state"],
+            ["/dlo/gripper/cmd"],
+        ]
     finally:
         for client in clients:
             client.close()
@@ -641,6 +755,7 @@ def test_stop_closes_the_server_and_detaches_from_the_sdk_log(typestore):
         except ConnectionResetError:  # accepted into the backlog as the listener closed (rehearsal 88): look again
             return False
         return False
+
     wait_until(refused, 10)  # the SDK closes its listening socket as it shuts down
     before = b.stats.clients_connected
     sdk.info("Registered client 127.0.0.1:1")  # a later bridge's client: not counted by this stopped one
@@ -718,12 +833,14 @@ def test_sdk_reports_become_counts_and_lines(bridge):
     sdk.error("something that failed")
     sdk.info("an info line of the SDK")
     assert bridge.stats.slow_client_reports == ["127.0.0.1:4242"]
-    assert bridge.lines[0].startswith("client 127.0.0.1:4242 reads slower than the graph publishes: its queue of "
-                                      "64 messages is full"), bridge.lines
+    assert bridge.lines[0].startswith(
+        "client 127.0.0.1:4242 reads slower than the graph publishes: its queue of 64 messages is full"
+    ), bridge.lines
     assert bridge.lines[1:] == ["foxglove-sdk: something the SDK warns about", "foxglove-sdk: something that failed"]
 
 
 # ---- every client, every log line (issue: one client killed the live view; a channel lost for the session) ---------
+
 
 def payload_of(typestore, topic: str) -> bytes:
     return typestore.serialize_cdr(make_messages(typestore)[topic], GRAPH_TYPES[topic])
@@ -745,8 +862,7 @@ def test_a_node_log_line_of_any_severity_from_any_thread_never_raises(monkeypatc
     with reserved_domain() as domain:  # dlo_common.testing: no other test or graph on this machine uses it meanwhile
         rclpy.init(context=context, domain_id=domain)
         declare = module.declare_parameters
-        monkeypatch.setattr(module, "declare_parameters",
-                            lambda n, specs: {**declare(n, specs), "port": 0, "stats_period": 0.0})
+        monkeypatch.setattr(module, "declare_parameters", lambda n, specs: {**declare(n, specs), "port": 0, "stats_period": 0.0})
         init = rclpy.node.Node.__init__
         monkeypatch.setattr(rclpy.node.Node, "__init__", lambda self, *a, **k: init(self, *a, **{"context": context, **k}))
         node = module.FoxgloveBridgeNode()
@@ -764,6 +880,7 @@ def test_a_node_log_line_of_any_severity_from_any_thread_never_raises(monkeypatc
                         node._say(f"from the SDK's thread: {level}", level)
                 except Exception as err:  # noqa: BLE001
                     errors.append(err)
+
             worker = threading.Thread(target=sdk_thread)
             worker.start()
             worker.join(10)
@@ -774,7 +891,9 @@ def test_a_node_log_line_of_any_severity_from_any_thread_never_raises(monkeypatc
                 def __getattr__(self, name):
                     def refuse(*args, **kwargs):
                         raise ValueError("Logger severity cannot be changed between calls.")
+
                     return refuse
+
             monkeypatch.setattr(node, "get_logger", lambda: Refusing())
             node._say("a logger that raises", "warning")  # to stderr instead
             assert "[WARNING] [foxglove_bridge]: a logger that raises" in capfd.readouterr().err
@@ -789,9 +908,8 @@ def test_a_node_log_line_of_any_severity_from_any_thread_never_raises(monkeypatc
 def test_a_client_offering_only_the_old_subprotocol_is_refused_in_one_line_and_the_others_served(bridge, typestore):
     """foxglove-sdk's server speaks foxglove.sdk.v1 (as foxglove_bridge 3.x); a client that offers only
     foxglove.websocket.v1 gets HTTP 400. The bridge counts it, says why in one warning, and goes on serving."""
-    from foxglove_stress import refused_status
-
     from dlo_viz.foxglove_bridge import OLD_SUBPROTOCOL, SUBPROTOCOL
+    from foxglove_stress import refused_status
 
     topic = "/dlo/gripper/state"
     bridge.add_topic(topic, GRAPH_TYPES[topic])
@@ -845,12 +963,18 @@ def test_a_subscription_the_sdk_refused_as_unknown_gets_its_channel_advertised_a
         bridge.maintain()
         new_id = int(bridge.channels[state].id())
         assert new_id != old_id and bridge.stats.readvertised == 1 and bridge.stats.subscriptions_lost == 1
-        assert f"{state}: client {address} subscribed before the server had registered channel {old_id}" in \
-            " ".join(bridge.lines)
+        assert f"{state}: client {address} subscribed before the server had registered channel {old_id}" in " ".join(bridge.lines)
         assert bridge.watched(state)  # held while the clients subscribe again
         for c in clients:
-            c.wait(lambda c=c: old_id in c.removed and c.channel_by_topic(state) is not None
-                   and int(c.channel_by_topic(state)["id"]) == new_id, 10, "unadvertise, then the new channel")
+            c.wait(
+                lambda c=c: (
+                    old_id in c.removed
+                    and c.channel_by_topic(state) is not None
+                    and int(c.channel_by_topic(state)["id"]) == new_id
+                ),
+                10,
+                "unadvertise, then the new channel",
+            )
         wait_until(lambda: bridge.subscribers[state] == 2, 10)
         bridge.forward(state, payload_of(typestore, state))
         for c in clients:
@@ -876,8 +1000,10 @@ def test_a_report_of_a_channel_the_bridge_never_advertised_is_one_warning(bridge
     monkeypatch.setattr(module, "UNKNOWN_QUIET", 0.0)
     logging.getLogger(module.SDK_LOGGER).error("Client 127.0.0.1:4242 attempted to subscribe to unknown channel: 999999")
     assert bridge.maintain() is None and bridge.stats.readvertised == 0 and bridge.stats.subscriptions_lost == 0
-    assert bridge.lines == ["client 127.0.0.1:4242 subscribed to channel 999999, which this bridge never advertised "
-                            "(refused; the client is served as before)"]
+    assert bridge.lines == [
+        "client 127.0.0.1:4242 subscribed to channel 999999, which this bridge never advertised "
+        "(refused; the client is served as before)"
+    ]
 
 
 def test_clients_subscribing_at_each_advertisement_get_every_topic_in_many_sessions(typestore):
@@ -896,8 +1022,10 @@ def test_clients_subscribing_at_each_advertisement_get_every_topic_in_many_sessi
 
 def start_bridge_node(procs, tmp_path, *extra: str) -> tuple[Proc, int, Path]:
     summary = tmp_path / "bridge.json"
-    proc = procs("bridge", [str(ROS2RUN), "dlo_viz", "foxglove_bridge", "--ros-args", "-p", "port:=0",
-                            "-p", f"summary_file:={summary}", *extra])
+    proc = procs(
+        "bridge",
+        [str(ROS2RUN), "dlo_viz", "foxglove_bridge", "--ros-args", "-p", "port:=0", "-p", f"summary_file:={summary}", *extra],
+    )
     port = int(re.search(r"ws://[\d.]+:(\d+)", proc.wait_line("Foxglove bridge on ws://", timeout=120)).group(1))
     return proc, port, summary
 
@@ -933,8 +1061,16 @@ def test_bridge_node_serves_on_after_clients_offering_only_the_old_subprotocol(p
     assert (counts["clients_refused"], counts["clients_connected"]) == (3, 1), counts
 
 
-STRESS_TOPICS = ("/clock", "/dlo/gripper/state", "/dlo/gripper/cmd", "/dlo/tactile/pose", "/dlo/vision/pose",
-                 "/dlo/task/state", "/dlo/camera/camera_info", "/dlo/sim/instance")
+STRESS_TOPICS = (
+    "/clock",
+    "/dlo/gripper/state",
+    "/dlo/gripper/cmd",
+    "/dlo/tactile/pose",
+    "/dlo/vision/pose",
+    "/dlo/task/state",
+    "/dlo/camera/camera_info",
+    "/dlo/sim/instance",
+)
 
 
 def test_fifty_clients_old_eager_late_and_dropped_against_the_bridge_node(procs, tmp_path):
@@ -947,10 +1083,27 @@ def test_fifty_clients_old_eager_late_and_dropped_against_the_bridge_node(procs,
     from foxglove_stress import client_session
 
     proc, port, summary = start_bridge_node(procs, tmp_path, "-p", "stats_period:=0.5", "-p", "discovery_period:=0.1")
-    publisher = procs("publisher", [sys.executable, str(Path(__file__).resolve().parent / "foxglove_stress.py"),
-                                    "publish", "--topics", *STRESS_TOPICS, "--rate", "20", "--appear-every", "0.2"])
-    report = client_session(f"ws://127.0.0.1:{port}", list(STRESS_TOPICS), clients=50, timeout=120,
-                            started=lambda: publisher.wait_line("[publish] /clock", timeout=60))
+    publisher = procs(
+        "publisher",
+        [
+            sys.executable,
+            str(Path(__file__).resolve().parent / "foxglove_stress.py"),
+            "publish",
+            "--topics",
+            *STRESS_TOPICS,
+            "--rate",
+            "20",
+            "--appear-every",
+            "0.2",
+        ],
+    )
+    report = client_session(
+        f"ws://127.0.0.1:{port}",
+        list(STRESS_TOPICS),
+        clients=50,
+        timeout=120,
+        started=lambda: publisher.wait_line("[publish] /clock", timeout=60),
+    )
     assert report.ok, report.describe() + "\n" + proc.output()[-3000:]
     assert (report.stayed, report.dropped, len(report.refused)) == (30, 10, 10)
     assert set(report.refused_bodies) == {"Missing expected sec-websocket-protocol header"}

@@ -4,8 +4,10 @@ test_graph_monitor.py; their texts: dlo_bag test_outcome_text.py."""
 
 import time
 
-SIM_WAITS = ("[INFO] [100.0] [sim_node]: waiting for 4 subscribers of /dlo/gripper/state (have 0)\n"
-             "[WARN] [104.2] [sim_node]: waiting for the recorder 'recorder' to subscribe to /dlo/gripper/cmd\n")
+SIM_WAITS = (
+    "[INFO] [100.0] [sim_node]: waiting for 4 subscribers of /dlo/gripper/state (have 0)\n"
+    "[WARN] [104.2] [sim_node]: waiting for the recorder 'recorder' to subscribe to /dlo/gripper/cmd\n"
+)
 RECORDER_WAIT = "sim: waiting for the recorder 'recorder' to subscribe to /dlo/gripper/cmd"
 
 
