@@ -234,71 +234,91 @@ class Bridge:
         return json.loads(self.out.read_text()) if self.out.exists() else {"rows": [], "counts": {}}
 
 
-def live_benchmark(args, work: Path) -> dict:
-    proc = launch(args, "--episodes", "0", "--logs", str(work / "logs_live"))
-    watcher = None
-    lines: list[str] = []
-    windows = []
-    try:
-        for line in proc.stdout:
-            lines.append(line.rstrip())
-            if m := re.search(r"ROS_DOMAIN_ID=(\d+)", line):
-                watcher = Watcher(int(m.group(1)))
-                domain = int(m.group(1))
-            if "[launch] policy" in line:
-                break
-        threading.Thread(target=lambda: [lines.append(x.rstrip()) for x in proc.stdout], daemon=True).start()
-        end = time.monotonic() + 900
-        while watcher is None or len(watcher.states) < 50:  # the graph runs (Taichi kernels built)
-            if proc.poll() is not None or time.monotonic() > end:
-                raise RuntimeError("the graph did not start:\n" + "\n".join(lines[-20:]))
-            time.sleep(0.5)
-        order = "ABBA" * args.pairs
-        for i, mode in enumerate(order):
-            bridge = None
-            if mode == "B":
-                bridge = Bridge(domain, work, i, args.bridge_param)
-                time.sleep(args.warmup)  # discovery, subscriptions, the client subscribes to every topic
-            else:
-                time.sleep(1.0)  # settle after the last bridge left
-            t0, cpu0 = time.time_ns(), (cpu_seconds(bridge.proc.pid) if bridge else None)
-            ccpu0 = cpu_seconds(bridge.client.pid) if bridge else None
-            time.sleep(args.window)
-            t1, cpu1 = time.time_ns(), (cpu_seconds(bridge.proc.pid) if bridge else None)
-            ccpu1 = cpu_seconds(bridge.client.pid) if bridge else None
-            window = {"mode": mode, **window_rate(watcher.states, t0, t1)}
-            if bridge:
-                data = bridge.close()
-                if cpu0 is not None and cpu1 is not None:
-                    window["bridge_cpu_percent"] = 100.0 * (cpu1 - cpu0) / ((t1 - t0) / 1e9)
-                if ccpu0 is not None and ccpu1 is not None:
-                    window["client_cpu_percent"] = 100.0 * (ccpu1 - ccpu0) / ((t1 - t0) / 1e9)
-                rows = [r for r in data["rows"] if t0 <= r[2] <= t1]
-                window["probe_ns"] = [recv - stamp for topic, stamp, recv in rows if topic == PROBE]
-                direct: dict[int, int] = {}
-                for _e, _s, stamp, t in watcher.states:
-                    direct.setdefault(stamp, t)
-                seen_states: dict[int, int] = {}
-                for topic, stamp, recv in rows:
-                    if topic == "/dlo/gripper/state":
-                        seen_states.setdefault(stamp, recv)
-                window["added_ns"] = [recv - direct[s] for s, recv in seen_states.items() if s in direct]
-                window["client_counts"] = data["counts"]
-            windows.append(window)
-            print(
-                f"[bench_viz] window {i} {mode}: {window['steps_per_s'] or 0:.1f} steps/s "
-                f"({window['periods']} periods)" + (f", bridge {window.get('bridge_cpu_percent', 0):.1f}% CPU" if bridge else ""),
-                file=sys.stderr,
-            )
-    finally:
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGINT)  # the launcher stops every node it started
-            try:
-                proc.wait(120)
-            except subprocess.TimeoutExpired:
-                proc.terminate()
-        if watcher is not None:
-            watcher.close()
+def _wait_for_graph(proc: subprocess.Popen, lines: list[str]) -> tuple[Watcher | None, int | None]:
+    """Read the launcher's output until the policy starts; a Watcher on the graph's domain."""
+    watcher, domain = None, None
+    for line in proc.stdout:
+        lines.append(line.rstrip())
+        if m := re.search(r"ROS_DOMAIN_ID=(\d+)", line):
+            watcher = Watcher(int(m.group(1)))
+            domain = int(m.group(1))
+        if "[launch] policy" in line:
+            break
+    return watcher, domain
+
+
+def _wait_until_running(proc: subprocess.Popen, watcher: Watcher | None, lines: list[str]) -> None:
+    end = time.monotonic() + 900
+    while watcher is None or len(watcher.states) < 50:  # the graph runs (Taichi kernels built)
+        if proc.poll() is not None or time.monotonic() > end:
+            raise RuntimeError("the graph did not start:\n" + "\n".join(lines[-20:]))
+        time.sleep(0.5)
+
+
+def _cpu_percent(before: float | None, after: float | None, t0: int, t1: int) -> float | None:
+    if before is None or after is None:
+        return None
+    return 100.0 * (after - before) / ((t1 - t0) / 1e9)
+
+
+def _bridge_window(window: dict, bridge: Bridge, watcher: Watcher, cpu: tuple, t0: int, t1: int) -> None:
+    """Close the B window's bridge and add its CPU shares, probe and added latencies to ``window``."""
+    data = bridge.close()
+    (cpu0, cpu1), (ccpu0, ccpu1) = cpu
+    if (bridge_cpu := _cpu_percent(cpu0, cpu1, t0, t1)) is not None:
+        window["bridge_cpu_percent"] = bridge_cpu
+    if (client_cpu := _cpu_percent(ccpu0, ccpu1, t0, t1)) is not None:
+        window["client_cpu_percent"] = client_cpu
+    rows = [r for r in data["rows"] if t0 <= r[2] <= t1]
+    window["probe_ns"] = [recv - stamp for topic, stamp, recv in rows if topic == PROBE]
+    direct: dict[int, int] = {}
+    for _e, _s, stamp, t in watcher.states:
+        direct.setdefault(stamp, t)
+    seen_states: dict[int, int] = {}
+    for topic, stamp, recv in rows:
+        if topic == "/dlo/gripper/state":
+            seen_states.setdefault(stamp, recv)
+    window["added_ns"] = [recv - direct[s] for s, recv in seen_states.items() if s in direct]
+    window["client_counts"] = data["counts"]
+
+
+def _measure_window(args, work: Path, i: int, mode: str, watcher: Watcher, domain: int) -> dict:
+    """One A (graph alone) or B (graph + bridge + client) window of ``args.window`` seconds."""
+    bridge = None
+    if mode == "B":
+        bridge = Bridge(domain, work, i, args.bridge_param)
+        time.sleep(args.warmup)  # discovery, subscriptions, the client subscribes to every topic
+    else:
+        time.sleep(1.0)  # settle after the last bridge left
+    t0, cpu0 = time.time_ns(), (cpu_seconds(bridge.proc.pid) if bridge else None)
+    ccpu0 = cpu_seconds(bridge.client.pid) if bridge else None
+    time.sleep(args.window)
+    t1, cpu1 = time.time_ns(), (cpu_seconds(bridge.proc.pid) if bridge else None)
+    ccpu1 = cpu_seconds(bridge.client.pid) if bridge else None
+    window = {"mode": mode, **window_rate(watcher.states, t0, t1)}
+    if bridge:
+        _bridge_window(window, bridge, watcher, ((cpu0, cpu1), (ccpu0, ccpu1)), t0, t1)
+    print(
+        f"[bench_viz] window {i} {mode}: {window['steps_per_s'] or 0:.1f} steps/s "
+        f"({window['periods']} periods)" + (f", bridge {window.get('bridge_cpu_percent', 0):.1f}% CPU" if bridge else ""),
+        file=sys.stderr,
+    )
+    return window
+
+
+def _stop_graph(proc: subprocess.Popen, watcher: Watcher | None) -> None:
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGINT)  # the launcher stops every node it started
+        try:
+            proc.wait(120)
+        except subprocess.TimeoutExpired:
+            proc.terminate()
+    if watcher is not None:
+        watcher.close()
+
+
+def _summarise(windows: list[dict]) -> dict:
+    """The JSON result of the live part: rates per mode, latencies, CPU shares."""
 
     def rate(mode, key="steps_per_s"):
         values = [w[key] for w in windows if w["mode"] == mode and w[key]]
@@ -342,6 +362,22 @@ def live_benchmark(args, work: Path) -> dict:
         "client_cpu_percent_of_one_core": round(float(np.mean(client_cpu)), 1) if client_cpu else None,
         "client_messages_last_window": next((w["client_counts"] for w in reversed(windows) if "client_counts" in w), None),
     }
+
+
+def live_benchmark(args, work: Path) -> dict:
+    proc = launch(args, "--episodes", "0", "--logs", str(work / "logs_live"))
+    watcher = None
+    lines: list[str] = []
+    windows = []
+    try:
+        watcher, domain = _wait_for_graph(proc, lines)
+        threading.Thread(target=lambda: [lines.append(x.rstrip()) for x in proc.stdout], daemon=True).start()
+        _wait_until_running(proc, watcher, lines)
+        for i, mode in enumerate("ABBA" * args.pairs):
+            windows.append(_measure_window(args, work, i, mode, watcher, domain))
+    finally:
+        _stop_graph(proc, watcher)
+    return _summarise(windows)
 
 
 def main() -> int:
