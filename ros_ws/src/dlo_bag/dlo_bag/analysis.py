@@ -193,24 +193,10 @@ def plot_episode(episode: int, streams: dict, path: Path, summary: dict | None =
     episode_figure(episode, streams, summary).savefig(path, dpi=90, bbox_inches="tight")
 
 
-def episode_figure(episode: int, streams: dict, summary: dict | None = None):
-    """The episode plot (a matplotlib Figure): top view (cable at start and end, gripper path, fixed end,
-    where the end was first reached) and, over the control steps, one axis per unit: closure [-], held
-    particle index, angles [rad], offsets [mm], commanded velocity [m/s], reward [-]; legends outside the
-    data. Matplotlib's constrained layout places the titles, tick labels and legends (no text overlaps
-    another axis' tick labels, whatever the data's extent)."""
-    from matplotlib.figure import Figure
-
-    from dlo_bag.episode_series import episode_series, still_spans
-
-    s = episode_series(episode, streams)
+def _plot_top_view(top, s, particles: dict) -> None:
+    """The episode's top view: the cable at start and end, the gripper path, the fixed end and where the
+    gripper first reached the end (both rules); legend outside the axes."""
     steps = s.steps
-    fig = Figure(figsize=(12.0, 13.5), dpi=90, layout="constrained")
-    fig.suptitle(episode_title(episode, summary), fontsize=13)
-    grid = fig.add_gridspec(7, 1, height_ratios=[2.2, 1, 1, 1, 1, 1, 1])
-    # top view
-    top = fig.add_subplot(grid[0])
-    particles = streams.get("particles", {})
     fixed = None
     for step, style, label in (
         (min(particles, default=None), "-", "cable at start"),
@@ -243,9 +229,11 @@ def episode_figure(episode: int, streams: dict, summary: dict | None = None):
     top.set(xlabel="x [m]", ylabel="y [m]", title="top view (world frame)", aspect="equal")
     top.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False, borderaxespad=0)
 
-    # signals over the control steps: one axis per unit
+
+def _signal_axes_spec(s) -> list:
+    """The signals over the control steps, one axis per unit: [(y label, [(name, values, line style)])]."""
     held_end = s["num_particles"] - 10
-    axes_spec = [
+    return [
         (
             "closure [-]",
             [
@@ -268,32 +256,27 @@ def episode_figure(episode: int, streams: dict, summary: dict | None = None):
         ("command\n[m/s]", [("v_x", s["cmd_vx"], {}), ("v_y", s["cmd_vy"], {})]),
         ("reward [-]", [("reward per step", s["reward"], {"drawstyle": "steps-mid"})]),
     ]
-    spans = still_spans(s)
-    axes = []
-    for row, (label, lines) in enumerate(axes_spec):
-        ax = fig.add_subplot(grid[row + 1], sharex=axes[0] if axes else None)
-        for name, values, style in lines:
-            if np.isfinite(values).any():
-                ax.plot(steps, values, label=name, **{"lw": 1.2, **style})
-        ax.set_ylabel(label, fontsize=9)
-        ax.tick_params(labelsize=8)
-        for mark, color in ((s.first_at_end, "tab:green"), (s.first_at_end_authors, "tab:purple")):
-            if mark is not None:
-                ax.axvline(mark, color=color, ls=":", lw=1.2)
-        for a, b in spans:
-            ax.axvspan(a, b, color="0.85", zorder=0)
-        if ax.get_legend_handles_labels()[0]:
-            ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False, borderaxespad=0)
-        if row < len(axes_spec) - 1:
-            ax.tick_params(labelbottom=False)
-        axes.append(ax)
-    axes[0].set_title(
-        "signals over the episode (dotted: first step at the end, green = paper rule, "
-        "purple = authors' rule; grey: gripper still)",
-        fontsize=9,
-    )
+
+
+def _plot_signal_axis(ax, s, label: str, lines: list, spans: list) -> None:
+    """One signal axis: its lines, the first-at-the-end marks, the still spans, its legend outside."""
+    for name, values, style in lines:
+        if np.isfinite(values).any():
+            ax.plot(s.steps, values, label=name, **{"lw": 1.2, **style})
+    ax.set_ylabel(label, fontsize=9)
+    ax.tick_params(labelsize=8)
+    for mark, color in ((s.first_at_end, "tab:green"), (s.first_at_end_authors, "tab:purple")):
+        if mark is not None:
+            ax.axvline(mark, color=color, ls=":", lw=1.2)
     for a, b in spans:
-        axes[0].annotate(
+        ax.axvspan(a, b, color="0.85", zorder=0)
+    if ax.get_legend_handles_labels()[0]:
+        ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False, borderaxespad=0)
+
+
+def _annotate_still_spans(ax, spans: list) -> None:
+    for a, b in spans:
+        ax.annotate(
             f"gripper still (no motion, constant closure): steps {a}-{b}",
             xy=((a + b) / 2, 0.5),
             xycoords=("data", "axes fraction"),
@@ -303,6 +286,41 @@ def episode_figure(episode: int, streams: dict, summary: dict | None = None):
             color="0.3",
             bbox={"boxstyle": "round", "fc": "white", "ec": "0.7", "alpha": 0.8},
         )
+
+
+def episode_figure(episode: int, streams: dict, summary: dict | None = None):
+    """The episode plot (a matplotlib Figure): top view (cable at start and end, gripper path, fixed end,
+    where the end was first reached) and, over the control steps, one axis per unit: closure [-], held
+    particle index, angles [rad], offsets [mm], commanded velocity [m/s], reward [-]; legends outside the
+    data. Matplotlib's constrained layout places the titles, tick labels and legends (no text overlaps
+    another axis' tick labels, whatever the data's extent)."""
+    from matplotlib.figure import Figure
+
+    from dlo_bag.episode_series import episode_series, still_spans
+
+    s = episode_series(episode, streams)
+    steps = s.steps
+    fig = Figure(figsize=(12.0, 13.5), dpi=90, layout="constrained")
+    fig.suptitle(episode_title(episode, summary), fontsize=13)
+    grid = fig.add_gridspec(7, 1, height_ratios=[2.2, 1, 1, 1, 1, 1, 1])
+    _plot_top_view(fig.add_subplot(grid[0]), s, streams.get("particles", {}))
+
+    # signals over the control steps: one axis per unit
+    axes_spec = _signal_axes_spec(s)
+    spans = still_spans(s)
+    axes = []
+    for row, (label, lines) in enumerate(axes_spec):
+        ax = fig.add_subplot(grid[row + 1], sharex=axes[0] if axes else None)
+        _plot_signal_axis(ax, s, label, lines, spans)
+        if row < len(axes_spec) - 1:
+            ax.tick_params(labelbottom=False)
+        axes.append(ax)
+    axes[0].set_title(
+        "signals over the episode (dotted: first step at the end, green = paper rule, "
+        "purple = authors' rule; grey: gripper still)",
+        fontsize=9,
+    )
+    _annotate_still_spans(axes[0], spans)
     axes[-1].set_xlabel("control step (0.08 s each)")
     fig.align_ylabels(axes)
     if len(steps):
