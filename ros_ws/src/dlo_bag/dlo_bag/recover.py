@@ -126,12 +126,8 @@ def _is_intact(part: Path) -> int | None:
         return None
 
 
-def recover_part(part: Path, *, output: Path | None = None, keep_original: bool = True) -> RecoverReport:
-    """Recover one bag directory (see the module doc)."""
-    (part / RESERVE_FILE).unlink(missing_ok=True)
-    intact = _is_intact(part)
-    if intact is not None and output is None:
-        return RecoverReport(part, "intact", messages=intact)
+def _the_mcap(part: Path) -> Path | RecoverReport:
+    """The one .mcap file of ``part``, or the failed report when it has none or several."""
     mcaps = sorted(part.glob("*.mcap"))
     if not mcaps:
         return RecoverReport(part, "failed", error="no .mcap file in it")
@@ -139,65 +135,44 @@ def recover_part(part: Path, *, output: Path | None = None, keep_original: bool 
         return RecoverReport(
             part, "failed", error=f"{len(mcaps)} .mcap files; recover a bag of one file (copy each into its own directory)"
         )
-    source = mcaps[0]
-    try:
-        scan, messages = scan_mcap(source)
-    except (McapScanError, OSError) as err:
-        return RecoverReport(part, "failed", error=str(err))
-    report = RecoverReport(part, "recovered", output=output or part)
-    work = output if output is not None else part / WORK_DIR / part.name
-    if output is None and work.parent.exists():
-        shutil.rmtree(work.parent)
-    try:
-        writer = BagWriter(work, get_typestore(Stores.EMPTY), reserve=False)
-        specs: dict[int, TopicSpec | None] = {}
-        counts: Counter = Counter()
+    return mcaps[0]
 
-        def spec_of(channel_id: int) -> TopicSpec | None:
-            if channel_id not in specs:
-                specs[channel_id] = _topic_spec(scan, channel_id)
-                if specs[channel_id] is not None:
-                    writer.add_topic_spec(specs[channel_id])
-            return specs[channel_id]
 
-        for message in messages:
-            spec = spec_of(message.channel_id)
-            if spec is not None:
-                writer.write(spec.topic, message.data, message.log_time)
-                counts[spec.topic] += 1
-        for channel_id in scan.channels:  # topics without messages are listed too
-            spec_of(channel_id)
-        old = scan.metadata.get("rosbag2", {}).get("serialized_metadata")
-        with contextlib.suppress(Exception):
-            writer.custom_data.update((yaml.safe_load(old) or {}).get("custom_data") or {})
-        writer.custom_data[f"{WRITER_NAME}.recovered"] = (
-            f"{datetime.datetime.now():%Y-%m-%d %H:%M:%S} by dlo-bag-recover from {source.name}: "
-            f"{sum(counts.values())} messages, {scan.discarded} bytes discarded"
-        )
-        writer.close()
-    except (BagError, OSError) as err:
-        if output is None:
-            shutil.rmtree(part / WORK_DIR, ignore_errors=True)
-        cause = err.cause if isinstance(err, BagWriteError) else str(err)
-        return RecoverReport(
-            part, "failed", error=f"cannot write the recovered bag: {cause} (free some space, or use --output DIR elsewhere)"
-        )
-    if not counts and not any(s is not None for s in specs.values()):
-        if output is None:
-            shutil.rmtree(part / WORK_DIR, ignore_errors=True)
-        else:
-            shutil.rmtree(output, ignore_errors=True)
-        return RecoverReport(
-            part, "failed", error=f"{source.name} holds no complete record to salvage", problems=list(scan.problems)
-        )
-    report.messages = sum(counts.values())
-    report.topics = dict(counts)
-    report.discarded_bytes = scan.discarded
-    report.problems = list(scan.problems)
+def _write_salvage(scan, messages, work: Path, source: Path) -> tuple[Counter, dict[int, TopicSpec | None]]:
+    """Write every salvaged message of ``scan`` into a new bag at ``work``: (messages per topic, the topic spec
+    of each channel). Raises BagError/OSError when the bag cannot be written."""
+    writer = BagWriter(work, get_typestore(Stores.EMPTY), reserve=False)
+    specs: dict[int, TopicSpec | None] = {}
+    counts: Counter = Counter()
+
+    def spec_of(channel_id: int) -> TopicSpec | None:
+        if channel_id not in specs:
+            specs[channel_id] = _topic_spec(scan, channel_id)
+            if specs[channel_id] is not None:
+                writer.add_topic_spec(specs[channel_id])
+        return specs[channel_id]
+
+    for message in messages:
+        spec = spec_of(message.channel_id)
+        if spec is not None:
+            writer.write(spec.topic, message.data, message.log_time)
+            counts[spec.topic] += 1
+    for channel_id in scan.channels:  # topics without messages are listed too
+        spec_of(channel_id)
+    old = scan.metadata.get("rosbag2", {}).get("serialized_metadata")
+    with contextlib.suppress(Exception):
+        writer.custom_data.update((yaml.safe_load(old) or {}).get("custom_data") or {})
+    writer.custom_data[f"{WRITER_NAME}.recovered"] = (
+        f"{datetime.datetime.now():%Y-%m-%d %H:%M:%S} by dlo-bag-recover from {source.name}: "
+        f"{sum(counts.values())} messages, {scan.discarded} bytes discarded"
+    )
+    writer.close()
+    return counts, specs
+
+
+def _replace_in_place(part: Path, source: Path, work: Path, report: RecoverReport, keep_original: bool) -> None:
+    """In place: the recovered .mcap takes the original's name, metadata.yaml is rewritten for it."""
     recovered = work / f"{work.name}.mcap"
-    if output is not None:
-        return report
-    # in place: the recovered .mcap takes the original's name, metadata.yaml is rewritten for it
     if keep_original:
         report.original = source.with_name(source.name + DAMAGED_SUFFIX)
         os.replace(source, report.original)
@@ -210,6 +185,45 @@ def recover_part(part: Path, *, output: Path | None = None, keep_original: bool 
         entry["path"] = source.name
     write_metadata(part, info)
     shutil.rmtree(part / WORK_DIR, ignore_errors=True)
+
+
+def recover_part(part: Path, *, output: Path | None = None, keep_original: bool = True) -> RecoverReport:
+    """Recover one bag directory (see the module doc)."""
+    (part / RESERVE_FILE).unlink(missing_ok=True)
+    intact = _is_intact(part)
+    if intact is not None and output is None:
+        return RecoverReport(part, "intact", messages=intact)
+    source = _the_mcap(part)
+    if isinstance(source, RecoverReport):
+        return source
+    try:
+        scan, messages = scan_mcap(source)
+    except (McapScanError, OSError) as err:
+        return RecoverReport(part, "failed", error=str(err))
+    report = RecoverReport(part, "recovered", output=output or part)
+    work = output if output is not None else part / WORK_DIR / part.name
+    if output is None and work.parent.exists():
+        shutil.rmtree(work.parent)
+    try:
+        counts, specs = _write_salvage(scan, messages, work, source)
+    except (BagError, OSError) as err:
+        if output is None:
+            shutil.rmtree(part / WORK_DIR, ignore_errors=True)
+        cause = err.cause if isinstance(err, BagWriteError) else str(err)
+        return RecoverReport(
+            part, "failed", error=f"cannot write the recovered bag: {cause} (free some space, or use --output DIR elsewhere)"
+        )
+    if not counts and not any(s is not None for s in specs.values()):
+        shutil.rmtree(part / WORK_DIR if output is None else output, ignore_errors=True)
+        return RecoverReport(
+            part, "failed", error=f"{source.name} holds no complete record to salvage", problems=list(scan.problems)
+        )
+    report.messages = sum(counts.values())
+    report.topics = dict(counts)
+    report.discarded_bytes = scan.discarded
+    report.problems = list(scan.problems)
+    if output is None:
+        _replace_in_place(part, source, work, report, keep_original)
     return report
 
 
