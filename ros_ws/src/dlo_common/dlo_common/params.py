@@ -222,15 +222,8 @@ def as_params(specs: Iterable[Param | Sequence[Any]]) -> list[Param]:
     return [as_param(spec) for spec in specs]
 
 
-def coerce(param: Param, value: Any) -> Any:
-    """``value`` read as the type of ``param.default``, or :class:`ParameterError` naming the parameter."""
-    name, default = param.name, param.default
-
-    def bad(expected: str) -> ParameterError:
-        return ParameterError(
-            f"parameter '{name}': expected {expected}, e.g. {example(param)}, got {value!r} ({ros_type_name(value)})"
-        )
-
+def _coerce_scalar(default: Any, value: Any, bad: Callable[[str], ParameterError]) -> Any:
+    """``value`` read as the scalar type of ``default`` (bool, int, float, str; anything else: as it is)."""
     if isinstance(default, bool):
         if isinstance(value, bool):
             return value
@@ -247,29 +240,50 @@ def coerce(param: Param, value: Any) -> Any:
         if isinstance(value, (str, int, float)) and not isinstance(value, bool):
             return str(value)
         raise bad("a string")
-    if isinstance(default, (list, tuple)):
-        count = f"{param.length} " if param.length is not None else "a list of "
-        if param.type_name == "double_array":
-            items = value.split(",") if isinstance(value, str) else value  # also 'x,y,z'
-            expected = f"{count}numbers"
-            try:
-                if not isinstance(items, (list, tuple)) or not all(_is_number(v) or isinstance(v, str) for v in items):
-                    raise ValueError
-                got = [float(v) for v in items]
-            except ValueError:
-                raise bad(expected) from None
-        else:
-            expected = f"{count}strings"
-            if isinstance(value, str):  # one topic, or a comma-separated list
-                got = [v.strip() for v in value.split(",") if v.strip()]
-            elif isinstance(value, (list, tuple)) and all(isinstance(v, str) for v in value):
-                got = list(value)
-            else:
-                raise bad(expected)
-        if param.length is not None and len(got) != param.length:
-            raise bad(expected)
-        return got
     return value
+
+
+def _numbers(value: Any, expected: str, bad: Callable[[str], ParameterError]) -> list[float]:
+    """A ``double_array`` value: a list of numbers (or of number strings), or 'x,y,z'."""
+    items = value.split(",") if isinstance(value, str) else value  # also 'x,y,z'
+    try:
+        if not isinstance(items, (list, tuple)) or not all(_is_number(v) or isinstance(v, str) for v in items):
+            raise ValueError
+        return [float(v) for v in items]
+    except ValueError:
+        raise bad(expected) from None
+
+
+def _strings(value: Any, expected: str, bad: Callable[[str], ParameterError]) -> list[str]:
+    """A ``string_array`` value: a list of strings, or one string of comma-separated items."""
+    if isinstance(value, str):  # one topic, or a comma-separated list
+        return [v.strip() for v in value.split(",") if v.strip()]
+    if isinstance(value, (list, tuple)) and all(isinstance(v, str) for v in value):
+        return list(value)
+    raise bad(expected)
+
+
+def coerce(param: Param, value: Any) -> Any:
+    """``value`` read as the type of ``param.default``, or :class:`ParameterError` naming the parameter."""
+    name, default = param.name, param.default
+
+    def bad(expected: str) -> ParameterError:
+        return ParameterError(
+            f"parameter '{name}': expected {expected}, e.g. {example(param)}, got {value!r} ({ros_type_name(value)})"
+        )
+
+    if not isinstance(default, (list, tuple)):
+        return _coerce_scalar(default, value, bad)
+    count = f"{param.length} " if param.length is not None else "a list of "
+    if param.type_name == "double_array":
+        expected = f"{count}numbers"
+        got = _numbers(value, expected, bad)
+    else:
+        expected = f"{count}strings"
+        got = _strings(value, expected, bad)
+    if param.length is not None and len(got) != param.length:
+        raise bad(expected)
+    return got
 
 
 def check_value(param: Param, value: Any) -> Any:
