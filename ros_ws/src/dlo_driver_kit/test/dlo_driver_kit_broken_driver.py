@@ -34,6 +34,48 @@ FAULTS = {
 }
 
 
+# fault -> (the publisher it alters, the alteration made for the node): each message changed just before publishing
+ALTERED_PUBLISHERS = {
+    # state_own_clock: a few microseconds after the stamp its image and cloud carry
+    "state_own_clock": ("pub_state", lambda node: restamp(lambda: node.get_clock().now().to_msg())),
+    "cloud_one_step_late": ("pub_cloud", lambda node: one_step_late()),
+    "image_float_stamp": ("pub_image", lambda node: through_float),
+    "state_offset": ("pub_state", lambda node: shifted(1_000_000)),
+    "color_image": ("pub_image", lambda node: to_rgb8),
+    "cloud_float64": ("pub_cloud", lambda node: to_float64),
+}
+
+
+def break_publishers(node, fault: str) -> None:
+    """The faults in what the driver publishes: a missing publisher or messages altered on their way out."""
+    if fault == "no_camera_info":  # the latched message goes with its publisher
+        node.destroy_publisher(node.pub_info)
+    if fault == "no_touch":
+        node.destroy_publisher(node.pub_cloud)
+        node.pub_cloud = _Null()
+    if fault in ALTERED_PUBLISHERS:
+        name, alteration = ALTERED_PUBLISHERS[fault]
+        setattr(node, name, _Altered(getattr(node, name), alteration(node)))
+
+
+def broken_stamp(node, fault: str, stamp):
+    """The faults in the state's stamp: ``stamp`` (the mock driver's) as the broken driver stamps it."""
+    if fault == "frozen_stamps":
+        if node.first_stamp is None:
+            node.first_stamp = stamp
+        return node.first_stamp
+    if fault == "stamps_per_episode":  # 1 s + the time since the episode began: restarts at a reset
+        now = stamp.sec * 1_000_000_000 + stamp.nanosec
+        if node.episode != node.stamp_episode:
+            node.stamp_episode, node.episode_start = node.episode, now
+        return ns_stamp(1_000_000_000 + now - node.episode_start)
+    if fault == "stamps_back":
+        node.states_published += 1
+        if node.states_published % 5 == 0:
+            stamp.sec -= 1
+    return stamp
+
+
 def broken_driver(fault: str):
     class BrokenDriver(MockDriver):
         first_stamp = None  # frozen_stamps: the stamp of the first state
@@ -42,23 +84,7 @@ def broken_driver(fault: str):
         def __init__(self):
             super().__init__()
             self.states_published = 0
-            if fault == "no_camera_info":  # the latched message goes with its publisher
-                self.destroy_publisher(self.pub_info)
-            if fault == "no_touch":
-                self.destroy_publisher(self.pub_cloud)
-                self.pub_cloud = _Null()
-            if fault == "state_own_clock":  # a few microseconds after the stamp its image and cloud carry
-                self.pub_state = _Altered(self.pub_state, restamp(lambda: self.get_clock().now().to_msg()))
-            if fault == "cloud_one_step_late":
-                self.pub_cloud = _Altered(self.pub_cloud, one_step_late())
-            if fault == "image_float_stamp":
-                self.pub_image = _Altered(self.pub_image, through_float)
-            if fault == "state_offset":
-                self.pub_state = _Altered(self.pub_state, shifted(1_000_000))
-            if fault == "color_image":
-                self.pub_image = _Altered(self.pub_image, to_rgb8)
-            if fault == "cloud_float64":
-                self.pub_cloud = _Altered(self.pub_cloud, to_float64)
+            break_publishers(self, fault)
 
         def on_command(self, msg):
             if fault == "accepts_invalid" and int(msg.episode) == self.episode:
@@ -78,21 +104,7 @@ def broken_driver(fault: str):
             super().move(vx, vy, closure, dt)
 
         def state_stamp(self):
-            stamp = super().state_stamp()
-            if fault == "frozen_stamps":
-                if self.first_stamp is None:
-                    self.first_stamp = stamp
-                return self.first_stamp
-            if fault == "stamps_per_episode":  # 1 s + the time since the episode began: restarts at a reset
-                now = stamp.sec * 1_000_000_000 + stamp.nanosec
-                if self.episode != self.stamp_episode:
-                    self.stamp_episode, self.episode_start = self.episode, now
-                return ns_stamp(1_000_000_000 + now - self.episode_start)
-            if fault == "stamps_back":
-                self.states_published += 1
-                if self.states_published % 5 == 0:
-                    stamp.sec -= 1
-            return stamp
+            return broken_stamp(self, fault, super().state_stamp())
 
     return BrokenDriver
 
