@@ -94,6 +94,33 @@ def _patch_pixel(images: ti.template(), e, row, column) -> ti.i32:
     return value
 
 
+@ti.func
+def _strand_start(images: ti.template(), e, centre_row, centre_column, patch_columns, half_rows, first_column) -> ti.i32:
+    """The patch column (relative to the gripper's) where the strand starts: ``first_column`` (the first centred
+    beyond the occlusion edge), moved past every gripper pixel in the patch's ``patch_columns`` columns."""
+    start = first_column
+    for c in range(patch_columns):
+        for r in range(-half_rows, half_rows + 1):
+            if _patch_pixel(images, e, centre_row + r, centre_column + c) == IMAGE_GRIPPER:
+                start = ti.max(start, c + 1)
+    return start
+
+
+@ti.func
+def _nearest_cable_row(images: ti.template(), e, centre_row, column, half_rows, row_shift, gate_lo, gate_hi, predicted) -> ti.i32:
+    """The patch row (relative to ``centre_row``) of ``column``'s cable pixel nearest to the ``predicted`` row
+    position among those whose position lies within the gate (+-1); ``half_rows + 1`` when there is none."""
+    nearest = half_rows + 1  # none
+    best = ti.f64(0.0)
+    for r in range(-half_rows, half_rows + 1):
+        pos = r + row_shift
+        if _patch_pixel(images, e, centre_row + r, column) == IMAGE_CABLE and gate_lo - 1.0 <= pos <= gate_hi + 1.0:
+            if nearest > half_rows or ti.abs(pos - predicted) < best:
+                nearest = r
+                best = ti.abs(pos - predicted)
+    return nearest
+
+
 @ti.kernel
 def _track_strands(
     images: ti.types.ndarray(dtype=ti.u8, ndim=3),
@@ -124,10 +151,7 @@ def _track_strands(
         row_shift = (centre_row - gripper_uv[e, 1]) + 0.5  # row offset -> row centre - v_G [px]
         patch_columns = margin_columns + num_columns
         first_column = ti.cast(ti.ceil(u_occluded - 0.5), ti.i32) - centre_column
-        for c in range(patch_columns):
-            for r in range(-half_rows, half_rows + 1):
-                if _patch_pixel(images, e, centre_row + r, centre_column + c) == IMAGE_GRIPPER:
-                    first_column = ti.max(first_column, c + 1)
+        first_column = _strand_start(images, e, centre_row, centre_column, patch_columns, half_rows, first_column)
 
         gate_half = search_half_width / metres_per_pixel
         gate_lo, gate_hi = -gate_half, gate_half  # rows the next run must touch
@@ -142,14 +166,7 @@ def _track_strands(
         for k in range(num_columns):
             column = centre_column + first_column + k
             if tracking and first_column + k < patch_columns:
-                nearest = half_rows + 1  # none
-                best = ti.f64(0.0)
-                for r in range(-half_rows, half_rows + 1):
-                    pos = r + row_shift
-                    if _patch_pixel(images, e, centre_row + r, column) == IMAGE_CABLE and gate_lo - 1.0 <= pos <= gate_hi + 1.0:
-                        if nearest > half_rows or ti.abs(pos - predicted) < best:
-                            nearest = r
-                            best = ti.abs(pos - predicted)
+                nearest = _nearest_cable_row(images, e, centre_row, column, half_rows, row_shift, gate_lo, gate_hi, predicted)
                 if nearest > half_rows:
                     tracking = False
                 else:
