@@ -263,28 +263,36 @@ def capture(domain: int, window: float, timeout: float, workdir: Path, log=print
     return {"records": records, "samples": samples, "wire": wire}
 
 
-def observe(node, proc: subprocess.Popen, window: float, timeout: float) -> tuple[dict, dict]:
-    """Subscribe to every /dlo topic and /clock once the policy answers; count and inspect messages."""
+def _wait_for_policy(node, proc: subprocess.Popen, deadline: float, timeout: float) -> None:
+    """Until the policy answers the sim (both gripper topics have a publisher)."""
     import rclpy
-    from dlo_bag.playback import import_message_class
-    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
-    deadline = time.monotonic() + timeout
     while not (node.count_publishers("/dlo/gripper/cmd") and node.count_publishers("/dlo/gripper/state")):
         if proc.poll() is not None:
             raise CaptureError(f"the graph ended before it ran (launch_graph.sh exit {proc.returncode})")
         if time.monotonic() > deadline:
             raise CaptureError(f"no policy answering the sim within {timeout:.0f} s")
         rclpy.spin_once(node, timeout_sec=0.2)
-    # the remaining endpoints: until the graph's topics have stopped appearing for 2 s (a loaded machine
-    # discovers them later than an idle one)
+
+
+def _wait_for_discovery(node, deadline: float) -> None:
+    """The remaining endpoints: until the graph's topics have stopped appearing for 2 s (a loaded machine
+    discovers them later than an idle one)."""
+    import rclpy
+
     known, stable_since = set(), time.monotonic()
     while time.monotonic() - stable_since < 2.0 and time.monotonic() < deadline:
         topics = {t for t, _ in node.get_topic_names_and_types() if node.count_publishers(t)}
         if topics != known:
             known, stable_since = topics, time.monotonic()
         rclpy.spin_once(node, timeout_sec=0.1)
-    samples: dict[str, dict] = {}
+
+
+def _subscribe_everything(node, samples: dict[str, dict]) -> list:
+    """A subscription to every /dlo topic and /clock (transient-local where a publisher latches) that counts
+    its messages, keeps the first and the stamps in ``samples[topic]``."""
+    from dlo_bag.playback import import_message_class
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
     def on_message(topic, msg):
         entry = samples[topic]
@@ -310,6 +318,13 @@ def observe(node, proc: subprocess.Popen, window: float, timeout: float) -> tupl
         subscriptions.append(
             node.create_subscription(import_message_class(types[0]), topic, lambda m, t=topic: on_message(t, m), qos)
         )
+    return subscriptions
+
+
+def _spin_window(node, proc: subprocess.Popen, samples: dict, window: float, deadline: float, timeout: float) -> float | None:
+    """Spin for ``window`` s from the first gripper state (or until the graph ends): when that state came."""
+    import rclpy
+
     started = None
     while True:
         rclpy.spin_once(node, timeout_sec=0.1)
@@ -321,6 +336,17 @@ def observe(node, proc: subprocess.Popen, window: float, timeout: float) -> tupl
             break
         if started is None and time.monotonic() > deadline:
             raise CaptureError(f"no /dlo/gripper/state within {timeout:.0f} s")
+    return started
+
+
+def observe(node, proc: subprocess.Popen, window: float, timeout: float) -> tuple[dict, dict]:
+    """Subscribe to every /dlo topic and /clock once the policy answers; count and inspect messages."""
+    deadline = time.monotonic() + timeout
+    _wait_for_policy(node, proc, deadline, timeout)
+    _wait_for_discovery(node, deadline)
+    samples: dict[str, dict] = {}
+    subscriptions = _subscribe_everything(node, samples)  # noqa: F841 - kept alive while spinning
+    started = _spin_window(node, proc, samples, window, deadline, timeout)
     wire = {}
     for topic in samples:
         wire[topic] = {
@@ -574,16 +600,9 @@ def qos_text(e: dict) -> str:
     return f"{e['reliability']}, {e['durability'].replace('_', ' ')}, {depth}"
 
 
-def render(model: dict, sem: dict, params: list, definitions: list) -> str:
-    from dlo_perception.camera import TopCamera
-    from dlo_sim.config import DT, FIXED_END, GRIPPER_HEIGHT, SUBSTEPS_PER_ACTION, WORKSPACE_HALF_WIDTH
-    from dlo_sim.task import HORIZON
-
-    period = DT * SUBSTEPS_PER_ACTION
-    rate = 1.0 / period
-    topics = model["topics"]
-    order = sorted(topics, key=lambda t: (t == "/clock", not t.startswith("/dlo/gripper"), t))
-    out = []
+def _head_lines() -> list[str]:
+    """The title, what the doc is, its conventions and its contents."""
+    out: list[str] = []
     add = out.append
     add("# Interfaces of the dlo-vitac graph\n")
     add(
@@ -621,7 +640,13 @@ def render(model: dict, sem: dict, params: list, definitions: list) -> str:
     ):
         add(f"- [{title}](#{anchor(title)})")
     add("")
+    return out
 
+
+def _driver_lines(topics: dict, order: list, sem: dict) -> list[str]:
+    """A driver's interface: the topics a driver publishes or subscribes, with the graph's QoS."""
+    out: list[str] = []
+    add = out.append
     add("## A driver's interface\n")
     add(
         "What a real robot driver that replaces `sim_node` publishes and subscribes, with the QoS the graph uses "
@@ -644,7 +669,15 @@ def render(model: dict, sem: dict, params: list, definitions: list) -> str:
         "Step-by-step guide and a template: [WRITE_YOUR_DRIVER.md](WRITE_YOUR_DRIVER.md); conformance: "
         "`dlo-driver-check`.\n"
     )
+    return out
 
+
+def _topics_lines(model: dict, order: list, sem: dict, period: float) -> list[str]:
+    """Topics: one row per topic, the data flow, the nodes."""
+    out: list[str] = []
+    add = out.append
+    rate = 1.0 / period
+    topics = model["topics"]
     add("## Topics\n")
     add(
         f"Rates: **step** = one message per control step: {rate:g} Hz (one step = {period:g} s of simulation) "
@@ -675,39 +708,57 @@ def render(model: dict, sem: dict, params: list, definitions: list) -> str:
         "`/dlo/rope/particles`, with `train:=true` also `/dlo/task/state`; without T or V in its modalities "
         "(or `without:=`) not to that pose.\n"
     )
+    return out
 
+
+def _topic_detail_lines(topic: str, t: dict, s: dict) -> list[str]:
+    """One topic's details: values, frame and stamp, layout, markers, a real robot's part, QoS of every endpoint."""
+    out: list[str] = []
+    add = out.append
+    add(f"### `{topic}` (`{t['type']}`)\n")
+    if s.get("units"):
+        add(f"- **Values**: {s['units']}.")
+    add(f"- **frame_id**: {frame_text(t)}; **stamp**: {t['stamp']}.")
+    if "fields" in t:
+        fields = ", ".join(f"`{n}` {typ} @{off}" for n, typ, off in t["fields"])
+        add(
+            f"- **Layout**: fields {fields}; point_step {t['point_step']}, "
+            f"{'big' if t['is_bigendian'] else 'little'} endian; one point per particle."
+        )
+    if "image" in t:
+        i = t["image"]
+        add(f"- **Layout**: encoding `{i['encoding']}`, {i['width']} x {i['height']} px, step {i['step']} bytes.")
+    if "camera_info" in t:
+        c = t["camera_info"]
+        add(
+            f"- **Layout**: {c['width']} x {c['height']} px, distortion_model `{c['distortion_model'] or '(empty)'}`"
+            f", K = {[round(v, 6) for v in c['k']]}."
+        )
+    if "markers" in t:
+        add(f"- **Markers**: {', '.join(t['markers'])}.")
+    if s.get("driver"):
+        add(f"- **Real robot**: {s['driver']}.")
+    for key, label in (("publishers", "Publisher"), ("subscribers", "Subscriber")):
+        for e in t[key]:
+            add(f"- {label} `{e['node']}`: {qos_text(e)}.")
+    add("")
+    return out
+
+
+def _details_lines(topics: dict, order: list, sem: dict) -> list[str]:
+    """Topic details: units, ranges, QoS of every endpoint."""
+    out: list[str] = []
+    add = out.append
     add("## Topic details: units, ranges, QoS of every endpoint\n")
     for topic in order:
-        t = topics[topic]
-        s = sem.get(topic, {})
-        add(f"### `{topic}` (`{t['type']}`)\n")
-        if s.get("units"):
-            add(f"- **Values**: {s['units']}.")
-        add(f"- **frame_id**: {frame_text(t)}; **stamp**: {t['stamp']}.")
-        if "fields" in t:
-            fields = ", ".join(f"`{n}` {typ} @{off}" for n, typ, off in t["fields"])
-            add(
-                f"- **Layout**: fields {fields}; point_step {t['point_step']}, "
-                f"{'big' if t['is_bigendian'] else 'little'} endian; one point per particle."
-            )
-        if "image" in t:
-            i = t["image"]
-            add(f"- **Layout**: encoding `{i['encoding']}`, {i['width']} x {i['height']} px, step {i['step']} bytes.")
-        if "camera_info" in t:
-            c = t["camera_info"]
-            add(
-                f"- **Layout**: {c['width']} x {c['height']} px, distortion_model `{c['distortion_model'] or '(empty)'}`"
-                f", K = {[round(v, 6) for v in c['k']]}."
-            )
-        if "markers" in t:
-            add(f"- **Markers**: {', '.join(t['markers'])}.")
-        if s.get("driver"):
-            add(f"- **Real robot**: {s['driver']}.")
-        for key, label in (("publishers", "Publisher"), ("subscribers", "Subscriber")):
-            for e in t[key]:
-                add(f"- {label} `{e['node']}`: {qos_text(e)}.")
-        add("")
+        out += _topic_detail_lines(topic, topics[topic], sem.get(topic, {}))
+    return out
 
+
+def _services_lines(model: dict) -> list[str]:
+    """Services: server and clients of each."""
+    out: list[str] = []
+    add = out.append
     add("## Services\n")
     add("| service | type | server | clients in the graph |")
     add("|---|---|---|---|")
@@ -721,9 +772,13 @@ def render(model: dict, sem: dict, params: list, definitions: list) -> str:
         "move the robot home). Every node also serves the standard ROS 2 parameter services "
         "(`/<node>/get_parameters`, `/<node>/set_parameters`, ...).\n"
     )
+    return out
 
-    cam = TopCamera.covering_workspace()
-    w = WORKSPACE_HALF_WIDTH
+
+def _frames_lines(topics: dict, cam, fixed_end, half_width: float, gripper_height: float) -> list[str]:
+    """Frames: world, gripper, the camera's; the static transforms and the diagram."""
+    out: list[str] = []
+    add = out.append
     add("## Frames\n")
     if not {"/tf", "/tf_static"} & set(topics):
         add("No node publishes `/tf`: the frames are fixed by convention, and each message names its frame.\n")
@@ -735,11 +790,11 @@ def render(model: dict, sem: dict, params: list, definitions: list) -> str:
             if f:
                 users.setdefault(f, []).append(f"`{topic}`")
     add(
-        f"| `world` | table centre, table plane z = 0 | x along the cable (fixed end at x = {FIXED_END[0]}), "
+        f"| `world` | table centre, table plane z = 0 | x along the cable (fixed end at x = {fixed_end[0]}), "
         f"z up | {', '.join(sorted(users.get('world', [])))} |"
     )
     add(
-        f"| `gripper` | gripper centre (x_G, y_G, z_G = {GRIPPER_HEIGHT} m), midway between the finger axes | "
+        f"| `gripper` | gripper centre (x_G, y_G, z_G = {gripper_height} m), midway between the finger axes | "
         "parallel to `world` (the gripper does not rotate): x = direction of travel, y = along the fingers | "
         f"{', '.join(sorted(users.get('gripper', [])))} |"
     )
@@ -757,15 +812,21 @@ def render(model: dict, sem: dict, params: list, definitions: list) -> str:
         "`/dlo/gripper/state` (translation only).\n"
     )
     add("```")
-    add(frames_diagram(FIXED_END, w, cam.position[2], GRIPPER_HEIGHT))
+    add(frames_diagram(fixed_end, half_width, cam.position[2], gripper_height))
     add("```\n")
+    return out
 
+
+def _timing_lines(model: dict, period: float, substeps: int, dt: float, horizon: int) -> list[str]:
+    """Timing: a control step, the publishing order within it, the two modes, the timers."""
+    out: list[str] = []
+    add = out.append
     add("## Timing\n")
     step_ns = model["step_ns"]
     step_text = f"{step_ns / 1e9:g} s" if step_ns else "?"
     add(
-        f"One control step = {SUBSTEPS_PER_ACTION} simulation steps of {DT} s = {period:g} s; the state's stamp "
-        f"advances by {step_text} per step (observed), continuing across episodes; an episode has {HORIZON} steps. "
+        f"One control step = {substeps} simulation steps of {dt} s = {period:g} s; the state's stamp "
+        f"advances by {step_text} per step (observed), continuing across episodes; an episode has {horizon} steps. "
         "Within a step the simulator publishes, in this order (observed): "
         + (" → ".join(f"`{t}`" for t in model["step_order"]) or "?")
         + (
@@ -802,7 +863,13 @@ def render(model: dict, sem: dict, params: list, definitions: list) -> str:
         add(f"| `{node}` | {period_s:g} | `{callback}` |")
     add("")
     add(f"(Observed with `mode:=real_time`, `rate_factor:=1`: the sim's tick timer is {period:g} s / rate_factor.)\n")
+    return out
 
+
+def _sim_only_lines(topics: dict, order: list, sem: dict) -> list[str]:
+    """What the simulator publishes that a robot cannot."""
+    out: list[str] = []
+    add = out.append
     add("## What the simulator publishes that a robot cannot\n")
     add("| topic | in the simulation | with a real robot driver |")
     add("|---|---|---|")
@@ -817,7 +884,13 @@ def render(model: dict, sem: dict, params: list, definitions: list) -> str:
         "nodes then run unchanged. Without `/dlo/task/state` there is no reward or outcome: run a trained policy, "
         "judge episodes yourself (or from the camera).\n"
     )
+    return out
 
+
+def _definitions_lines(definitions: list) -> list[str]:
+    """The dlo_msgs message and service definitions."""
+    out: list[str] = []
+    add = out.append
     add("## Message definitions\n")
     add(
         "The project's own interfaces (`ros_ws/src/dlo_msgs`), with their comments (units in brackets). The "
@@ -830,7 +903,13 @@ def render(model: dict, sem: dict, params: list, definitions: list) -> str:
         add("```")
         add(text)
         add("```\n")
+    return out
 
+
+def _parameter_lines(params: list) -> list[str]:
+    """Every node's parameter table."""
+    out: list[str] = []
+    add = out.append
     add("## Node parameters\n")
     add(
         "Rendered from each node module's `PARAMETERS` declarations by `dlo_common.params.markdown_table`, the "
@@ -842,11 +921,40 @@ def render(model: dict, sem: dict, params: list, definitions: list) -> str:
         add(f"### `{package} {exe}`\n")
         add(table.rstrip())
         add("")
+    return out
 
+
+def _deviation_lines(model: dict) -> list[str]:
+    """Known deviations from the topic contract."""
+    out: list[str] = []
+    add = out.append
     add("## Known deviations from the topic contract\n")
     for line in deviations(model):
         add(f"- {line}")
     add("")
+    return out
+
+
+def render(model: dict, sem: dict, params: list, definitions: list) -> str:
+    from dlo_perception.camera import TopCamera
+    from dlo_sim.config import DT, FIXED_END, GRIPPER_HEIGHT, SUBSTEPS_PER_ACTION, WORKSPACE_HALF_WIDTH
+    from dlo_sim.task import HORIZON
+
+    period = DT * SUBSTEPS_PER_ACTION
+    topics = model["topics"]
+    order = sorted(topics, key=lambda t: (t == "/clock", not t.startswith("/dlo/gripper"), t))
+    out = _head_lines()
+    out += _driver_lines(topics, order, sem)
+    out += _topics_lines(model, order, sem, period)
+    out += _details_lines(topics, order, sem)
+    out += _services_lines(model)
+    cam = TopCamera.covering_workspace()
+    out += _frames_lines(topics, cam, FIXED_END, WORKSPACE_HALF_WIDTH, GRIPPER_HEIGHT)
+    out += _timing_lines(model, period, SUBSTEPS_PER_ACTION, DT, HORIZON)
+    out += _sim_only_lines(topics, order, sem)
+    out += _definitions_lines(definitions)
+    out += _parameter_lines(params)
+    out += _deviation_lines(model)
     return "\n".join(out)
 
 
