@@ -214,7 +214,10 @@ def recover_part(part: Path, *, output: Path | None = None, keep_original: bool 
             part, "failed", error=f"cannot write the recovered bag: {cause} (free some space, or use --output DIR elsewhere)"
         )
     if not counts and not any(s is not None for s in specs.values()):
-        shutil.rmtree(part / WORK_DIR if output is None else output, ignore_errors=True)
+        if output is None:
+            shutil.rmtree(part / WORK_DIR, ignore_errors=True)
+        else:
+            shutil.rmtree(output, ignore_errors=True)
         return RecoverReport(
             part, "failed", error=f"{source.name} holds no complete record to salvage", problems=list(scan.problems)
         )
