@@ -95,6 +95,13 @@ class SimConfig:
 
     def validate(self) -> None:
         """Raise ValueError with a clear message for any physically invalid setting."""
+        self._validate_step()
+        self._validate_ranges()
+        self._validate_positive()
+        self._validate_variants()
+
+    def _validate_step(self) -> None:
+        """Sub-steps, damping and the contact radius."""
         if int(self.substeps) < 1:
             raise ValueError(f"substeps must be >= 1, got {self.substeps}")
         if self.damping < 0:
@@ -105,6 +112,9 @@ class SimConfig:
                 f"{0.5 * FINGER_CLEARANCE} m the fingers pinch the cable between them, as Flex's "
                 f"5 mm collision distance does), got {self.contact_radius}"
             )
+
+    def _validate_ranges(self) -> None:
+        """The per-episode draws' ranges: low <= high, each within its bounds."""
         for name in ("stretch_range", "bending_range"):
             lo, hi = getattr(self, name)
             if not 0 < lo <= hi:
@@ -118,6 +128,9 @@ class SimConfig:
         lo, hi = self.num_particles_range
         if not 2 <= lo <= hi <= P_MAX:
             raise ValueError(f"num_particles_range must satisfy 2 <= low <= high <= {P_MAX}, got {(lo, hi)}")
+
+    def _validate_positive(self) -> None:
+        """Compliance laws and limits positive, shaping step counts >= 0."""
         for name in (
             "stretch_compliance_ref",
             "bending_compliance_ref",
@@ -132,6 +145,9 @@ class SimConfig:
         for name in ("pick_moves", "pick_steps", "drop_steps", "settle_steps"):
             if int(getattr(self, name)) < 0:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
+
+    def _validate_variants(self) -> None:
+        """The authors' variants: physics seed, start pose, carry law, one-particle grip."""
         if isinstance(self.physics_seed, bool) or not isinstance(self.physics_seed, int) or self.physics_seed < -1:
             raise ValueError(f"physics_seed must be an integer >= 0 (or -1: drawn per episode), got {self.physics_seed!r}")
         if self.start_pose not in START_POSES:
