@@ -525,7 +525,7 @@ def digest(*texts: str) -> str:
     return h.hexdigest()[:20]
 
 
-def main(argv: list[str] | None = None) -> int:
+def parse_args(argv: list[str] | None):
     parser = argparse.ArgumentParser(
         prog="mutation_check", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
@@ -538,98 +538,84 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--slow", action="store_true", help="also the modules marked slow = true")
     parser.add_argument("--max", type=int, default=0, help="at most this many mutants per module (0 = all)")
     parser.add_argument("--work", type=Path, default=Path(os.environ.get("DLO_MUTATION_DIR", "/tmp/dlo-mutation")))
-    args = parser.parse_args(argv)
+    return parser.parse_args(argv)
 
-    config = load_config(args.config)
-    target = float(config.get("target", 0.9))
-    modules = [
-        m for m in config["module"] if m["name"] in args.module or (not args.module and (args.slow or not m.get("slow", False)))
-    ]
+
+def unknown_names(args, config: dict) -> str | None:
+    """The error line when --module or a [[named]] bug names a module the configuration does not have."""
     unknown = set(args.module) - {m["name"] for m in config["module"]}
     if unknown:
-        print(f"mutation_check: unknown module(s) {', '.join(sorted(unknown))}", file=sys.stderr)
-        return 2
-    equivalent = {(e["module"], e["key"]): e["reason"] for e in config.get("equivalent", [])}
-
-    named = config.get("named", [])
-    unknown_named = {n["module"] for n in named} - {m["name"] for m in config["module"]}
+        return f"mutation_check: unknown module(s) {', '.join(sorted(unknown))}"
+    unknown_named = {n["module"] for n in config.get("named", [])} - {m["name"] for m in config["module"]}
     if unknown_named:
-        print(f"mutation_check: [[named]] for unknown module(s) {', '.join(sorted(unknown_named))}", file=sys.stderr)
-        return 2
-    plan = {
-        m["name"]: named_mutants(m["name"], m["file"], [n for n in named if n["module"] == m["name"]])
-        + generate(m["name"], m["file"], m.get("functions"))
-        for m in modules
-    }
-    for module, key in equivalent:
-        if module in plan and key not in {mu.key for mu in plan[module]}:
-            print(f"mutation_check: warning: [[equivalent]] of {module} matches no mutant (stale key?): {key}", file=sys.stderr)
-    if args.list:
-        for m in modules:
-            for mutant in plan[m["name"]]:
-                tag = "  (equivalent)" if (m["name"], mutant.key) in equivalent else ""
-                print(f"{m['name']}: {mutant.describe()}{tag}\n    key = {mutant.key!r}")
-        print(f"{sum(len(v) for v in plan.values())} mutants")
-        return 0
+        return f"mutation_check: [[named]] for unknown module(s) {', '.join(sorted(unknown_named))}"
+    return None
 
-    work = args.work / "tree"
-    logs = args.work / "logs"
-    logs.mkdir(parents=True, exist_ok=True)
-    verdict_file = args.work / "verdicts.json"
-    verdicts = {} if args.fresh or not verdict_file.exists() else json.loads(verdict_file.read_text())
+
+def list_mutants(modules: list[dict], plan: dict, equivalent: dict) -> None:
+    for m in modules:
+        for mutant in plan[m["name"]]:
+            tag = "  (equivalent)" if (m["name"], mutant.key) in equivalent else ""
+            print(f"{m['name']}: {mutant.describe()}{tag}\n    key = {mutant.key!r}")
+    print(f"{sum(len(v) for v in plan.values())} mutants")
+
+
+def prepare_work(root: Path, work: Path, fork: bool) -> None:
+    """The tree copy ``work``, the environment of the test runs (Taichi's cache in ``root``), the fork server."""
     copy_tree(work)
-    os.environ.setdefault("TI_OFFLINE_CACHE_FILE_PATH", str(args.work / "taichi-cache"))
+    os.environ.setdefault("TI_OFFLINE_CACHE_FILE_PATH", str(root / "taichi-cache"))
     os.environ["PYTEST_DISABLE_PLUGIN_AUTOLOAD"] = "1"  # only pytest-timeout, loaded by name
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     os.environ.setdefault("ROS_DOMAIN_ID", str(150 + os.getpid() % 50))
     redirect_paths(work)
-    fork = not args.no_fork
     if fork:
         preload()
 
-    results = {}
-    for m in modules:
-        name, rel = m["name"], m["file"]
-        target_file = work / rel
-        original = (ROOT / rel).read_text()
-        tests = list(m["tests"])
-        missing = [t for t in tests if not (ROOT / t.split("::")[0]).exists()]
-        if missing:
-            print(f"{name}: test file(s) missing, skipped: {', '.join(missing)}", flush=True)
-            tests = [t for t in tests if t not in missing]
-        status, base = run_tests(work, tests, float(m.get("timeout", 1800)), logs / f"{name}.baseline.log", fork)
-        if status != "passed":
-            print(f"{name}: the unmutated tests do not pass ({status}); see {logs / (name + '.baseline.log')}", flush=True)
-            results[name] = None
-            continue
-        limit = max(60.0, 4.0 * base + 30.0)
-        mutants = plan[name][: args.max or None] if not args.named_only else [mu for mu in plan[name] if mu.operator == "named"]
-        print(f"{name}: {len(mutants)} mutants, baseline {base:.0f} s, limit {limit:.0f} s each", flush=True)
-        outcome = []
-        try:
-            for i, mutant in enumerate(mutants):
-                vkey = f"{name}|{mutant.key}"
-                signature = digest(mutant.source)
-                known = verdicts.get(vkey)
-                if known and known["signature"] == signature and known["verdict"] != "survived":
-                    outcome.append((mutant, known["verdict"], 0.0))
-                    continue
-                write_source(target_file, mutant.source)
-                try:
-                    status, seconds = run_tests(work, tests, limit, logs / f"{name}.mutant.log", fork)
-                finally:
-                    write_source(target_file, original)
-                verdict = {"passed": "survived", "failed": "killed", "timeout": "killed (timeout)"}.get(
-                    status, f"killed ({status})"
-                )
-                outcome.append((mutant, verdict, seconds))
-                verdicts[vkey] = {"signature": signature, "verdict": verdict, "describe": mutant.describe()}
-                verdict_file.write_text(json.dumps(verdicts, indent=1))
-                print(f"  [{i + 1}/{len(mutants)}] {verdict:<16} {seconds:5.0f} s  {mutant.describe()}", flush=True)
-        finally:
-            write_source(target_file, original)
-        results[name] = outcome
 
+def run_module(m: dict, mutants: list, work: Path, logs: Path, verdicts: dict, verdict_file: Path, fork: bool):
+    """Every mutant of one module against its tests: [(mutant, verdict, seconds)], or None when the unmutated
+    tests fail. A mutant killed before with the same source keeps its verdict; verdicts are saved as they come."""
+    name, rel = m["name"], m["file"]
+    target_file = work / rel
+    original = (ROOT / rel).read_text()
+    tests = list(m["tests"])
+    missing = [t for t in tests if not (ROOT / t.split("::")[0]).exists()]
+    if missing:
+        print(f"{name}: test file(s) missing, skipped: {', '.join(missing)}", flush=True)
+        tests = [t for t in tests if t not in missing]
+    status, base = run_tests(work, tests, float(m.get("timeout", 1800)), logs / f"{name}.baseline.log", fork)
+    if status != "passed":
+        print(f"{name}: the unmutated tests do not pass ({status}); see {logs / (name + '.baseline.log')}", flush=True)
+        return None
+    limit = max(60.0, 4.0 * base + 30.0)
+    print(f"{name}: {len(mutants)} mutants, baseline {base:.0f} s, limit {limit:.0f} s each", flush=True)
+    outcome = []
+    try:
+        for i, mutant in enumerate(mutants):
+            vkey = f"{name}|{mutant.key}"
+            signature = digest(mutant.source)
+            known = verdicts.get(vkey)
+            if known and known["signature"] == signature and known["verdict"] != "survived":
+                outcome.append((mutant, known["verdict"], 0.0))
+                continue
+            write_source(target_file, mutant.source)
+            try:
+                status, seconds = run_tests(work, tests, limit, logs / f"{name}.mutant.log", fork)
+            finally:
+                write_source(target_file, original)
+            verdict = {"passed": "survived", "failed": "killed", "timeout": "killed (timeout)"}.get(status, f"killed ({status})")
+            outcome.append((mutant, verdict, seconds))
+            verdicts[vkey] = {"signature": signature, "verdict": verdict, "describe": mutant.describe()}
+            verdict_file.write_text(json.dumps(verdicts, indent=1))
+            print(f"  [{i + 1}/{len(mutants)}] {verdict:<16} {seconds:5.0f} s  {mutant.describe()}", flush=True)
+    finally:
+        write_source(target_file, original)
+    return outcome
+
+
+def report_scores(modules: list[dict], results: dict, equivalent: dict, target: float) -> tuple[bool, list]:
+    """The score line of each module: (every module at the target, the surviving mutants: (name, mutant) or,
+    when listed as equivalent, (name, mutant, reason))."""
     print("\n=== mutation score per module ===")
     ok = True
     survivors = []
@@ -653,6 +639,12 @@ def main(argv: list[str] | None = None) -> int:
         )
         survivors += [(name, mu) for mu in alive]
         survivors += [(name, mu, equivalent[(name, mu.key)]) for mu in equiv]
+    return ok, survivors
+
+
+def report_survivors(results: dict, survivors: list) -> bool:
+    """The surviving, named and equivalent mutants; False when a named bug survived."""
+    ok = True
     alive = [s for s in survivors if len(s) == 2]
     if alive:
         print("\n=== surviving mutants (no test fails) ===")
@@ -669,6 +661,51 @@ def main(argv: list[str] | None = None) -> int:
         print("\n=== equivalent mutants (listed in tools/mutation.toml) ===")
         for name, mutant, reason in equiv:
             print(f"{name}: {mutant.describe()}\n    why: {reason}")
+    return ok
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = parse_args(argv)
+    config = load_config(args.config)
+    target = float(config.get("target", 0.9))
+    modules = [
+        m for m in config["module"] if m["name"] in args.module or (not args.module and (args.slow or not m.get("slow", False)))
+    ]
+    error = unknown_names(args, config)
+    if error:
+        print(error, file=sys.stderr)
+        return 2
+    equivalent = {(e["module"], e["key"]): e["reason"] for e in config.get("equivalent", [])}
+    named = config.get("named", [])
+    plan = {
+        m["name"]: named_mutants(m["name"], m["file"], [n for n in named if n["module"] == m["name"]])
+        + generate(m["name"], m["file"], m.get("functions"))
+        for m in modules
+    }
+    for module, key in equivalent:
+        if module in plan and key not in {mu.key for mu in plan[module]}:
+            print(f"mutation_check: warning: [[equivalent]] of {module} matches no mutant (stale key?): {key}", file=sys.stderr)
+    if args.list:
+        list_mutants(modules, plan, equivalent)
+        return 0
+
+    work = args.work / "tree"
+    logs = args.work / "logs"
+    logs.mkdir(parents=True, exist_ok=True)
+    verdict_file = args.work / "verdicts.json"
+    verdicts = {} if args.fresh or not verdict_file.exists() else json.loads(verdict_file.read_text())
+    fork = not args.no_fork
+    prepare_work(args.work, work, fork)
+
+    results = {}
+    for m in modules:
+        mutants = plan[m["name"]][: args.max or None]
+        if args.named_only:
+            mutants = [mu for mu in plan[m["name"]] if mu.operator == "named"]
+        results[m["name"]] = run_module(m, mutants, work, logs, verdicts, verdict_file, fork)
+
+    ok, survivors = report_scores(modules, results, equivalent, target)
+    ok &= report_survivors(results, survivors)
     return 0 if ok else 1
 
 
