@@ -33,7 +33,7 @@ def main() -> int:
     parser.add_argument("--policy", default="tactile_reactive", choices=("sac", "tactile_reactive", "random"))
     args = parser.parse_args()
 
-    from dlo_bag.bag import read_messages
+    from dlo_bag.reader import read_messages
     from dlo_perception.sync import stamp_to_ns
 
     work = Path(tempfile.mkdtemp(prefix="bench_graph_"))

@@ -14,7 +14,8 @@ import time
 
 import pytest
 from dlo_bag.analysis import read_run
-from dlo_bag.bag import bag_info, read_messages
+from dlo_bag.info import bag_info
+from dlo_bag.reader import read_messages
 from dlo_bag.recorder_node import PARAMETERS as RECORDER_PARAMETERS
 from dlo_common.params import as_params
 

@@ -208,7 +208,7 @@ def test_checker_on_a_copy_of_the_tree_with_an_undeclared_import(tmp_path):
     module.parent.mkdir()
     module.write_text(
         (SRC / "dlo_perception" / "dlo_perception" / "tactile_node.py").read_text()
-        + "\n\ndef _late():\n    from dlo_bag.bag import read_messages  # noqa\n"
+        + "\n\ndef _late():\n    from dlo_bag.reader import read_messages  # noqa\n"
     )
     problems = undeclared_imports(src)
     assert len(problems) == 1 and "imports dlo_bag, not declared in dlo_perception/package.xml" in problems[0]

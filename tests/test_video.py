@@ -31,7 +31,8 @@ N_C = 40
 def synthetic_bag(tmp_path_factory):
     if "DLO_ROOT" not in os.environ:
         pytest.skip("source scripts/env.sh first")
-    from dlo_bag.bag import BagWriter, make_typestore
+    from dlo_bag.typestore import make_typestore
+    from dlo_bag.writer import BagWriter
     from dlo_perception.cloud import pack_particles
     from dlo_sim.task import EpisodeTracker
 

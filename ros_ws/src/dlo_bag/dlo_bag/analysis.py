@@ -20,7 +20,7 @@ every episode of ``--json`` and into the video titles; ``--policy TEXT`` overrid
 recorded before the policy node published it has none: its titles say "policy not recorded").
 
 A bag without ``/dlo/task/state`` (recorded from a robot driver, not the sim) has no outcomes: it
-says so in one line and exits 3. Exit status (the same table for every bag tool, ``dlo_bag.bag``):
+says so in one line and exits 3. Exit status (the same table for every bag tool, ``dlo_bag.errors``):
 0 analysed, 1 a recomputed outcome differs from the recorded one or the bag is damaged (run
 dlo-bag-recover), 2 bad option, no such path or not a bag, 3 no task state.
 """
@@ -40,8 +40,10 @@ from dlo_perception.cloud import unpack_particles
 from dlo_perception.sync import stamp_to_ns
 from dlo_sim.task import OUTCOME_NAMES, EpisodeTracker, recorded_task_rules
 
-from dlo_bag.bag import EXIT_BAD_BAG, EXIT_NO_TASK_STATE, EXIT_USAGE, BagError, NotABagError, bag_info, read_messages
+from dlo_bag.errors import EXIT_BAD_BAG, EXIT_NO_TASK_STATE, EXIT_USAGE, BagError, NotABagError
+from dlo_bag.info import bag_info
 from dlo_bag.outcome_table import outcome_table
+from dlo_bag.reader import read_messages
 from dlo_bag.recording import POLICY_KEY, POLICY_TOPIC
 
 # What an episode is read from, {topic: stream} (the registry, dlo_common.topics): the topics of a control step that

@@ -1,6 +1,6 @@
 """dlo-bag-info BAG: topics, types, counts and duration of a bag, like ``ros2 bag info``.
 
-Exit status (the same table for every bag tool, ``dlo_bag.bag``): 0 printed, 1 the bag is
+Exit status (the same table for every bag tool, ``dlo_bag.errors``): 0 printed, 1 the bag is
 damaged (run dlo-bag-recover), 2 bad option, no such path or not a bag.
 """
 
@@ -12,7 +12,8 @@ import sys
 
 from dlo_common.console import console_main
 
-from .bag import EXIT_BAD_BAG, EXIT_USAGE, BagError, NotABagError, bag_info, format_info
+from .errors import EXIT_BAD_BAG, EXIT_USAGE, BagError, NotABagError
+from .info import bag_info, format_info
 
 
 @console_main("dlo-bag-info")

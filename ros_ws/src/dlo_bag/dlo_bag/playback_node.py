@@ -23,8 +23,10 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from rclpy.signals import SignalHandlerOptions
 from rosbags.interfaces import QosDurability, QosReliability
 
-from .bag import BagError, bag_info, read_messages
+from .errors import BagError
+from .info import bag_info
 from .playback import Pacer, import_message_class, playback_qos
+from .reader import read_messages
 
 PARAMETERS = (
     ("bag", "", "Bag directory to play (a rosbag2 bag, or a directory of rolled parts). Required."),

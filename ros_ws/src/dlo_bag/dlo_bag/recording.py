@@ -26,8 +26,10 @@ from dlo_common.topics import topic as topic_record
 from rosbags.interfaces import Qos
 from rosbags.typesys.store import Typestore
 
-from .bag import BagError, BagWriteError, BagWriter, TopicSpec, make_typestore
+from .errors import BagError
 from .mcap_file import WRITER_NAME
+from .typestore import make_typestore
+from .writer import BagWriteError, BagWriter, TopicSpec
 
 TASK_TOPIC = topic_record("task").name  # the topic that marks episodes (dlo_common.topics)
 TASK_TYPE = topic_record("task").type

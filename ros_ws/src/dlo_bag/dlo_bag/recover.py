@@ -7,7 +7,7 @@ offered QoS, RIHS01 type hashes). The original file is kept as ``<name>.mcap.dam
 ``--delete-original`` (or the recovered bag goes to ``--output DIR``). A bag that reads completely
 is left alone. Works on a bag directory or a directory of rolled parts (``split_episodes``).
 
-Exit status (the same table for every bag tool, ``dlo_bag.bag``): 0 recovered (or nothing to
+Exit status (the same table for every bag tool, ``dlo_bag.errors``): 0 recovered (or nothing to
 do), 1 a part could not be recovered, 2 bad option, no such path or not a bag.
 """
 
@@ -28,21 +28,11 @@ from dlo_common.console import console_main
 from rosbags.rosbag2.metadata import parse_qos
 from rosbags.typesys import Stores, get_types_from_idl, get_types_from_msg, get_typestore
 
-from .bag import (
-    EXIT_BAD_BAG,
-    EXIT_OK,
-    EXIT_USAGE,
-    METADATA,
-    RESERVE_FILE,
-    BagError,
-    BagWriteError,
-    BagWriter,
-    NotABagError,
-    TopicSpec,
-    read_messages,
-    write_metadata,
-)
+from .errors import EXIT_BAD_BAG, EXIT_OK, EXIT_USAGE, BagError, NotABagError
 from .mcap_file import WRITER_NAME, McapScanError, scan_mcap
+from .metadata import METADATA, write_metadata
+from .reader import read_messages
+from .writer import RESERVE_FILE, BagWriteError, BagWriter, TopicSpec
 
 DAMAGED_SUFFIX = ".damaged"
 WORK_DIR = ".dlo_recovering"

@@ -1,4 +1,5 @@
-"""dlo_bag.bag / recording library: types, hashes, QoS, writing, rolling and reading."""
+"""The bag library (dlo_bag.typestore, qos, writer, reader, info) and recording: types, hashes, QoS, writing, rolling and
+reading."""
 
 from __future__ import annotations
 
@@ -6,19 +7,13 @@ import json
 import os
 
 import pytest
-from dlo_bag.bag import (
-    BagError,
-    BagWriter,
-    ament_prefixes,
-    bag_info,
-    bag_parts,
-    format_info,
-    make_typestore,
-    qos_from_profile,
-    read_messages,
-    subscription_qos,
-)
+from dlo_bag.errors import BagError
+from dlo_bag.info import bag_info, format_info
+from dlo_bag.qos import qos_from_profile, subscription_qos
+from dlo_bag.reader import bag_parts, read_messages
 from dlo_bag.recording import Recorder, topic_selected
+from dlo_bag.typestore import ament_prefixes, make_typestore
+from dlo_bag.writer import BagWriter
 from dlo_msgs.msg import GripperState, TaskState
 from mcap.reader import make_reader
 from rclpy.duration import Infinite

@@ -1,9 +1,10 @@
-"""One exit-status table for the bag tools (dlo_bag.bag EXIT_*), each case as a user meets it."""
+"""One exit-status table for the bag tools (dlo_bag.errors EXIT_*), each case as a user meets it."""
 
 import pytest
 from dlo_bag import analysis, bag_info, recover
 from dlo_bag.analysis import recompute_episode
-from dlo_bag.bag import EXIT_BAD_BAG, EXIT_OK, EXIT_USAGE, BagWriter
+from dlo_bag.errors import EXIT_BAD_BAG, EXIT_OK, EXIT_USAGE
+from dlo_bag.writer import BagWriter
 from dlo_msgs.msg import TaskState
 from rclpy.serialization import serialize_message
 

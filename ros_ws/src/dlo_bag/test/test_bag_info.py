@@ -7,7 +7,7 @@ import subprocess
 import sys
 
 from dlo_bag import bag_info as bag_info_cli
-from dlo_bag.bag import BagWriter
+from dlo_bag.writer import BagWriter
 from dlo_msgs.msg import GripperState
 from rclpy.serialization import serialize_message
 

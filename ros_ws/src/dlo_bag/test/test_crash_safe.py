@@ -24,19 +24,14 @@ from sensor_msgs.msg import Image
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # --import-mode=importlib
 
 from dlo_bag import bag_info as bag_info_cli  # noqa: E402
-from dlo_bag.bag import (  # noqa: E402
-    EXIT_OK,
-    EXIT_USAGE,
-    METADATA,
-    BagError,
-    BagWriter,
-    bag_info,
-    bag_parts,
-    read_messages,
-)
+from dlo_bag.errors import EXIT_OK, EXIT_USAGE, BagError  # noqa: E402
+from dlo_bag.info import bag_info  # noqa: E402
 from dlo_bag.mcap_file import _record_bytes  # noqa: E402
+from dlo_bag.metadata import METADATA  # noqa: E402
+from dlo_bag.reader import bag_parts, read_messages  # noqa: E402
 from dlo_bag.recover import main as recover_cli  # noqa: E402
 from dlo_bag.recover import recover_bag  # noqa: E402
+from dlo_bag.writer import BagWriter  # noqa: E402
 from dlo_bag_faults import file_size_limit, small_disk  # noqa: E402
 
 STATE = "/dlo/gripper/state"
@@ -94,7 +89,7 @@ def test_sigkilled_writer_loses_only_what_was_not_flushed(tmp_path):
         import os, signal
         from rclpy.serialization import serialize_message
         from dlo_msgs.msg import GripperState
-        from dlo_bag.bag import BagWriter
+        from dlo_bag.writer import BagWriter
         def state(i):
             m = GripperState(); m.step = i; m.header.frame_id = str(i); return serialize_message(m)
         w = BagWriter({str(bag)!r}, chunk_size=4096)
@@ -428,7 +423,7 @@ def test_topic_specs_of_scanned_channels(tmp_path):
     quietly."""
     from types import SimpleNamespace
 
-    from dlo_bag.bag import qos_from_profile, qos_yaml
+    from dlo_bag.qos import qos_from_profile, qos_yaml
     from dlo_bag.recover import _topic_spec
     from mcap.records import Channel, Schema
     from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
@@ -586,7 +581,7 @@ def test_a_recovered_bag_that_cannot_be_written_is_one_line_and_leaves_the_bag_a
     """A write failure (the writer's short cause, or the OSError) is the failed report's one line; in place
     the work directory is removed, whether the writer had made it or not; the damaged bag is untouched."""
     from dlo_bag import recover
-    from dlo_bag.bag import BagWriteError
+    from dlo_bag.writer import BagWriteError
 
     bag = killed_bag(tmp_path / "run")
     before = {name: (bag / name).read_bytes() for name in listing(bag) if name != ".dlo_reserve"}  # the killed

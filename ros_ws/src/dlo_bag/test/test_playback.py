@@ -12,8 +12,9 @@ from rclpy.serialization import serialize_message
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # --import-mode=importlib
 
-from dlo_bag.bag import BagWriter, read_messages  # noqa: E402
 from dlo_bag.playback import Pacer, import_message_class  # noqa: E402
+from dlo_bag.reader import read_messages  # noqa: E402
+from dlo_bag.writer import BagWriter  # noqa: E402
 from dlo_bag_graph_helper import TOPICS, TYPE_NAMES, make_message  # noqa: E402
 from dlo_bag_testutil import helper_cmd  # noqa: E402
 from dlo_common.testing import ROS2RUN  # noqa: E402

@@ -19,8 +19,10 @@ import yaml
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # --import-mode=importlib
 
 from dlo_bag import analysis, video  # noqa: E402
-from dlo_bag.bag import bag_info, bag_parts, make_typestore, read_messages  # noqa: E402
+from dlo_bag.info import bag_info  # noqa: E402
+from dlo_bag.reader import bag_parts, read_messages  # noqa: E402
 from dlo_bag.recording import POLICY_KEY, POLICY_TOPIC, POLICY_TYPE, Recorder  # noqa: E402
+from dlo_bag.typestore import make_typestore  # noqa: E402
 from dlo_bag_testutil import helper_cmd, recorder_cmd  # noqa: E402
 from dlo_common.testing import ROS2RUN  # noqa: E402
 

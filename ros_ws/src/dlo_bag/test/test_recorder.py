@@ -13,7 +13,8 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # --import-mode=importlib
 
-from dlo_bag.bag import bag_info, bag_parts, read_messages  # noqa: E402
+from dlo_bag.info import bag_info  # noqa: E402
+from dlo_bag.reader import bag_parts, read_messages  # noqa: E402
 from dlo_bag_graph_helper import TOPICS, TYPE_NAMES  # noqa: E402
 from dlo_bag_testutil import helper_cmd, recorder_cmd  # noqa: E402
 from dlo_common.testing import ROS2RUN  # noqa: E402

@@ -13,8 +13,9 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # --import-mode=importlib
 
-from dlo_bag.bag import bag_info, read_messages  # noqa: E402
+from dlo_bag.info import bag_info  # noqa: E402
 from dlo_bag.mcap_file import scan_mcap  # noqa: E402
+from dlo_bag.reader import read_messages  # noqa: E402
 from dlo_bag_faults import file_size_limit, small_disk  # noqa: E402
 from dlo_bag_graph_helper import LATCHED_TOPIC, TOPICS, latched_message  # noqa: E402
 from dlo_bag_testutil import helper_cmd, recorder_cmd  # noqa: E402

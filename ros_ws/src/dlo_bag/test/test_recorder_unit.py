@@ -16,7 +16,8 @@ import pytest
 
 rclpy = pytest.importorskip("rclpy")
 from dlo_bag import recorder_node as recorder_module  # noqa: E402
-from dlo_bag.bag import bag_info, read_messages  # noqa: E402
+from dlo_bag.info import bag_info  # noqa: E402
+from dlo_bag.reader import read_messages  # noqa: E402
 from dlo_common.testing import LogLines, reserved_domain  # noqa: E402
 from dlo_msgs.msg import GripperState  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
@@ -286,7 +287,7 @@ def test_a_topic_that_cannot_be_recorded_is_reported_once_and_left_alone(offline
 
 
 def test_write_errors_are_logged_once_a_second_and_a_failed_recording_stops_the_node(offline_recorder, monkeypatch):
-    from dlo_bag.bag import BagWriteError
+    from dlo_bag.writer import BagWriteError
     from rclpy.serialization import serialize_message
 
     node, log = offline_recorder, offline_recorder.log

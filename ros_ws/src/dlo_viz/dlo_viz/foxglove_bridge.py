@@ -3,7 +3,7 @@
 :class:`FoxgloveBridge` owns a foxglove-sdk WebSocket server. For every topic it is given
 (:meth:`FoxgloveBridge.add_topic`) it advertises a channel with ``encoding: cdr`` and a
 ``schemaEncoding: ros2msg`` schema: the full message definition (every nested type after a
-``MSG:`` separator) from :func:`dlo_bag.bag.message_definition`, the same text the recorder
+``MSG:`` separator) from :func:`dlo_bag.typestore.message_definition`, the same text the recorder
 embeds in its bags, so a live connection and a recorded bag look the same to Foxglove. Messages
 are forwarded as the received bytes (:meth:`FoxgloveBridge.forward`): nothing is deserialised.
 
@@ -41,7 +41,7 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
-from dlo_bag.bag import make_typestore, message_definition
+from dlo_bag.typestore import make_typestore, message_definition
 from rosbags.typesys.store import Typestore
 
 DEFAULT_TOPICS = ("/dlo", "/clock")
@@ -260,7 +260,7 @@ class FoxgloveBridge:
     def add_topic(self, topic: str, msgtype: str, *, latched: bool = False) -> Any:
         """Advertise ``topic`` (idempotent) with the ros2msg definition of ``msgtype``.
 
-        Raises :class:`dlo_bag.bag.BagError` for a type that is not installed.
+        Raises :class:`dlo_bag.errors.BagError` for a type that is not installed.
         """
         channel = self.channels.get(topic)
         if channel is not None:

@@ -51,7 +51,7 @@ GRAPH_TYPES = {t.name: t.type for t in TOPICS}
 def typestore():
     if "DLO_ROOT" not in os.environ:
         pytest.skip("source scripts/env.sh first")
-    from dlo_bag.bag import make_typestore
+    from dlo_bag.typestore import make_typestore
 
     return make_typestore()
 
@@ -162,7 +162,7 @@ def make_messages(ts) -> dict:
 
 def test_schemas_are_the_recorders_definitions(bridge, typestore, tmp_path):
     """The advertised schema of each topic is byte-for-byte what the recorder writes into a bag."""
-    from dlo_bag.bag import BagWriter
+    from dlo_bag.writer import BagWriter
     from rosbags.rosbag2 import Reader
 
     with BagWriter(tmp_path / "bag", typestore, fsync=False) as writer:
@@ -676,7 +676,7 @@ def test_port_and_backlog_are_checked_and_the_address_before_start(typestore):
     assert everywhere.ws_url == "ws://127.0.0.1:9000" and everywhere.app_url == foxglove_url("0.0.0.0", 9000)
     assert FoxgloveBridge(port=9000, address="192.168.1.7", typestore=typestore).ws_url == "ws://192.168.1.7:9000"
     own = FoxgloveBridge()  # no typestore given: its own, with the project's messages
-    from dlo_bag.bag import message_definition
+    from dlo_bag.typestore import message_definition
 
     assert "float64 closure" in message_definition(own.typestore, "dlo_msgs/msg/GripperState")[0]
 
