@@ -12,9 +12,9 @@ import pytest
 @pytest.fixture(scope="session", autouse=True)
 def isolated_ros_domain():
     """Give this test session (each pytest-xdist worker) a DDS domain of its own, reserved so that no other
-    test process, launched graph or participant on this machine uses it (dlo_common.testing.reserve_domains),
+    test process, launched graph or participant on this machine uses it (harness.reserve_domains),
     also when the shell sets ROS_DOMAIN_ID (a user's graph runs there)."""
-    from dlo_common.testing import reserve_domains
+    from harness import reserve_domains
 
     os.environ["ROS_DOMAIN_ID"] = str(reserve_domains())
     os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"

@@ -16,7 +16,7 @@ import time
 import numpy as np
 import pytest
 from dlo_bag.analysis import read_run
-from dlo_common.testing import stop_or_explain
+from harness import stop_or_explain
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 SEED = 11

@@ -11,8 +11,8 @@ import time
 
 import pytest
 import rclpy
-from dlo_common.testing import stop_all_or_explain
 from dlo_msgs.msg import GripperCommand, GripperState, TactilePose, TaskState, VisualPose
+from harness import stop_all_or_explain
 from rosgraph_msgs.msg import Clock
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]

@@ -12,7 +12,7 @@ import pathlib
 import sys
 
 import pytest
-from dlo_common.testing import ROS2RUN, Procs, package_test_env
+from harness import ROS2RUN, Procs, package_test_env
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))  # --import-mode=importlib: tests/ helpers
 from env_replay import replay_and_compare  # noqa: E402

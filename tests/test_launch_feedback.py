@@ -17,7 +17,7 @@ import threading
 import time
 
 import pytest
-from dlo_common.testing import stop_or_explain
+from harness import stop_or_explain
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 ROS2RUN = str(ROOT / "scripts" / "ros2run")

@@ -4,9 +4,9 @@
     tools/stop_together.py [--rounds 100] [--run 20] [--out /tmp/stop_together]
 
 Each round starts sim_node, tactile_node, vision_node and a random policy_node on a ROS domain reserved for it
-(dlo_common.testing), lets them run ``--run`` s, sends SIGINT to all four at once (what a terminal's Ctrl-C to a
+(tests/support/harness.py), lets them run ``--run`` s, sends SIGINT to all four at once (what a terminal's Ctrl-C to a
 launched graph does) and waits 30 s for each. A node still running then gets its C and Python stacks written to
-OUT/hang_<round>_<node>.txt (dlo_common.testing.hang_report: gdb, then SIGABRT) and is killed; a node that
+OUT/hang_<round>_<node>.txt (harness.hang_report: gdb, then SIGABRT) and is killed; a node that
 exits with another status than its interrupted one (1: its middleware teardown was cut after
 dlo_common.node_main.TEARDOWN_LIMIT s) keeps its stderr in OUT/stderr_<round>_<node>.txt. One JSON line per
 round on stdout and in OUT/rounds.jsonl.
@@ -20,10 +20,12 @@ import argparse
 import json
 import signal
 import subprocess
+import sys
 import time
 from pathlib import Path
 
-from dlo_common.testing import ROS2RUN, hang_report, isolated_env, release_domains, reserve_domains
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "support"))  # the test harness
+from harness import ROS2RUN, hang_report, isolated_env, release_domains, reserve_domains  # noqa: E402
 
 NODES = {
     "sim": ["dlo_sim", "sim_node", "min_subscribers:=3", "publish_markers:=false"],

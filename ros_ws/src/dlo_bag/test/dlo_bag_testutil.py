@@ -1,11 +1,11 @@
-"""Commands for the dlo_bag tests (processes, ros2run, the environment: dlo_common.testing)."""
+"""Commands for the dlo_bag tests (processes, ros2run, the environment: tests/support/harness.py)."""
 
 from __future__ import annotations
 
 import sys
 from pathlib import Path
 
-from dlo_common.testing import ROS2RUN
+from harness import ROS2RUN
 
 HERE = Path(__file__).resolve().parent
 HELPER = HERE / "dlo_bag_graph_helper.py"

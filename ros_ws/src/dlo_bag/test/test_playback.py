@@ -17,7 +17,7 @@ from dlo_bag.reader import read_messages  # noqa: E402
 from dlo_bag.writer import BagWriter  # noqa: E402
 from dlo_bag_graph_helper import TOPICS, TYPE_NAMES, make_message  # noqa: E402
 from dlo_bag_testutil import helper_cmd  # noqa: E402
-from dlo_common.testing import ROS2RUN  # noqa: E402
+from harness import ROS2RUN  # noqa: E402
 
 N = 8
 PLAYED = ["/dlo/gripper/state", "/dlo/task/state", "/dlo/rope/particles", "/dlo/camera/image"]

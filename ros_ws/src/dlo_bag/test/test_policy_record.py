@@ -24,7 +24,7 @@ from dlo_bag.reader import bag_parts, read_messages  # noqa: E402
 from dlo_bag.recording import POLICY_KEY, POLICY_TOPIC, POLICY_TYPE, Recorder  # noqa: E402
 from dlo_bag.typestore import make_typestore  # noqa: E402
 from dlo_bag_testutil import helper_cmd, recorder_cmd  # noqa: E402
-from dlo_common.testing import ROS2RUN  # noqa: E402
+from harness import ROS2RUN  # noqa: E402
 
 
 def sha256(path: Path) -> str:

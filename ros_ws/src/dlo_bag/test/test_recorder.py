@@ -17,7 +17,7 @@ from dlo_bag.info import bag_info  # noqa: E402
 from dlo_bag.reader import bag_parts, read_messages  # noqa: E402
 from dlo_bag_graph_helper import TOPICS, TYPE_NAMES  # noqa: E402
 from dlo_bag_testutil import helper_cmd, recorder_cmd  # noqa: E402
-from dlo_common.testing import ROS2RUN  # noqa: E402
+from harness import ROS2RUN  # noqa: E402
 
 N = 12
 

@@ -19,7 +19,7 @@ from dlo_bag.reader import read_messages  # noqa: E402
 from dlo_bag_faults import file_size_limit, small_disk  # noqa: E402
 from dlo_bag_graph_helper import LATCHED_TOPIC, TOPICS, latched_message  # noqa: E402
 from dlo_bag_testutil import helper_cmd, recorder_cmd  # noqa: E402
-from dlo_common.testing import ROS2RUN  # noqa: E402
+from harness import ROS2RUN  # noqa: E402
 
 N = 12
 

@@ -18,8 +18,8 @@ rclpy = pytest.importorskip("rclpy")
 from dlo_bag import recorder_node as recorder_module  # noqa: E402
 from dlo_bag.info import bag_info  # noqa: E402
 from dlo_bag.reader import read_messages  # noqa: E402
-from dlo_common.testing import LogLines, reserved_domain  # noqa: E402
 from dlo_msgs.msg import GripperState  # noqa: E402
+from harness import LogLines, reserved_domain  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
 from rosbags.interfaces import QosDurability, QosReliability  # noqa: E402
@@ -33,7 +33,7 @@ N = 5
 def context():
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     context = rclpy.Context()
-    with reserved_domain() as domain:  # dlo_common.testing: no other test or graph on this machine uses it meanwhile
+    with reserved_domain() as domain:  # harness: no other test or graph on this machine uses it meanwhile
         rclpy.init(context=context, domain_id=domain)
         yield context
         rclpy.shutdown(context=context)

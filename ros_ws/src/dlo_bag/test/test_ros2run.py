@@ -9,7 +9,7 @@ import signal
 import subprocess
 import time
 
-from dlo_common.testing import REPO, ROS2RUN
+from harness import REPO, ROS2RUN
 
 SRC = REPO / "ros_ws" / "src"
 

@@ -2,7 +2,7 @@
 
 A domain is busy when a participant on this machine has bound one of its UDP ports (RTPS: 7400 + 250 * domain
 + 0..249); a lock per domain (flock on ``<DOMAIN_LOCK_DIR>/N.lock``) keeps two launchers starting at the same
-moment apart. Tests lock theirs in the same directory (dlo_common.testing.reserve_domains, domains 100..232);
+moment apart. Tests lock theirs in the same directory (tests/support/harness.py, domains 100..232; dlo_common.domains);
 launchers pick from 10..99 (not 0, the default; below the ephemeral ports). The lock is held while the graph runs,
 by the launcher and its nodes (they inherit the descriptor: a killed launcher's nodes still stopping keep it).
 """
@@ -13,7 +13,7 @@ import fcntl
 import os
 import random
 
-from dlo_common.testing import DOMAIN_LOCK_DIR, domain_busy
+from dlo_common.domains import DOMAIN_LOCK_DIR, domain_busy
 
 LAUNCH_DOMAINS = (10, 99)
 

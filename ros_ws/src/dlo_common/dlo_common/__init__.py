@@ -12,6 +12,6 @@
 - :mod:`dlo_common.console`: what the console commands (dlo-train, dlo-evaluate, dlo-bag-info, ...) share about
   their output: a quiet end on a broken pipe or Ctrl-C (``console_main``), progress on stderr as a bar on a
   terminal and plain lines elsewhere (``Progress``); standard library only.
-- :mod:`dlo_common.testing`: what the packages' tests share to run nodes as processes (``Proc``, an
-  isolated test domain, ``Procs`` that stops every process it started); standard library only.
+- :mod:`dlo_common.domains`: the DDS domains of this machine (busy ports, the directory of their locks) that the
+  launcher and the tests share; standard library only. (The test harness is not here: tests/support/harness.py.)
 """

@@ -10,8 +10,8 @@ import subprocess
 import sys
 import types
 
+import harness as testing
 import pytest
-from dlo_common import testing
 from dlo_common.node_main import handle_help, params_file_problem, params_files, ros_arguments_problem
 
 BUSY = """import os, signal, sys, time

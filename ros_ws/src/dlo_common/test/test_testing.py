@@ -1,4 +1,6 @@
-"""dlo_common.testing.reserve_domains: a ROS domain a test uses is used by nothing else on the machine
+"""The test harness (tests/support/harness.py) and dlo_common.domains.
+
+reserve_domains: a ROS domain a test uses is used by nothing else on the machine
 (another test process, a pytest-xdist worker, launch_graph.sh, any DDS participant);
 remove_orphaned_dds_shm: what killed participants leave in /dev/shm is removed, nothing in use;
 stop_or_explain and Procs: a node that does not stop on SIGINT fails with its stacks."""
@@ -12,14 +14,16 @@ import sys
 import time
 from pathlib import Path
 
+import harness as testing
 import pytest
-from dlo_common import testing
+
+SUPPORT = Path(testing.__file__).resolve().parent  # tests/support: a child Python finds the harness there
 
 
 def reserve_in_another_process(first: int, last: int, span: int = 1) -> str:
     """What reserve_domains gives a second process ('none' when nothing is free)."""
     code = (
-        "from dlo_common import testing\n"
+        f"import sys\nsys.path.insert(0, {str(SUPPORT)!r})\nimport harness as testing\n"
         f"try:\n    print(testing.reserve_domains({span}, {first}, {last}))\n"
         "except RuntimeError:\n    print('none')\n"
     )

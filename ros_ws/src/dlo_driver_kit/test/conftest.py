@@ -1,9 +1,9 @@
-"""Fixtures for the dlo_driver_kit tests: processes on an isolated ROS domain (dlo_common.testing)."""
+"""Fixtures for the dlo_driver_kit tests: processes on an isolated ROS domain (tests/support/harness.py)."""
 
 from __future__ import annotations
 
 import pytest
-from dlo_common.testing import Procs, package_test_env
+from harness import Procs, package_test_env
 
 
 @pytest.fixture(scope="session")

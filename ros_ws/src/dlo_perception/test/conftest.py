@@ -3,12 +3,12 @@
 import os
 
 import pytest
-from dlo_common.testing import reserved_domain
+from harness import reserved_domain
 
 
 @pytest.fixture(scope="module")
 def context():
-    """An rclpy context of the module's own, on a DDS domain reserved for it (dlo_common.testing: no other
+    """An rclpy context of the module's own, on a DDS domain reserved for it (harness: no other
     test module, test process or graph on this machine uses it meanwhile)."""
     rclpy = pytest.importorskip("rclpy")
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")

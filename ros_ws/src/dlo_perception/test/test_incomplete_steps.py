@@ -9,8 +9,8 @@
 """
 
 import pytest
-from dlo_common.testing import LogLines
 from dlo_perception.sync import NEAR_MISS_NS, IncompleteSteps, StampSync, format_stamp
+from harness import LogLines
 
 STEP_NS = 80_000_000
 

@@ -10,7 +10,7 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # --import-mode=importlib
 
-from dlo_common.testing import LogLines  # noqa: E402
+from harness import LogLines  # noqa: E402
 from test_vision import GRIPPER, PLANE_Z, draw, held_then_bent  # noqa: E402
 
 rclpy = pytest.importorskip("rclpy")

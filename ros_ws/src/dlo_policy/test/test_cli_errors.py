@@ -15,8 +15,8 @@ from pathlib import Path
 
 import pytest
 import torch
-from dlo_common.testing import reserve_domains
 from dlo_policy.sac import CHECKPOINT_FORMAT, CheckpointError, read_checkpoint
+from harness import reserve_domains
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parents[3]
@@ -26,7 +26,7 @@ INSTALL_BIN = ROOT / "ros_ws" / "install" / "dlo_policy" / "lib" / "dlo_policy"
 
 @functools.lru_cache(maxsize=None)
 def module_domain() -> int:
-    """A ROS domain reserved for this module's node processes (dlo_common.testing), held until pytest ends."""
+    """A ROS domain reserved for this module's node processes (tests/support/harness.py), held until pytest ends."""
     return reserve_domains()
 
 

@@ -12,10 +12,10 @@ import time
 from pathlib import Path
 
 import pytest
-from dlo_common.testing import exited
 from dlo_policy import experiments
 from dlo_policy.config import load_config
 from dlo_policy.rundir import CHECKPOINT_FILE, DONE_FILE, EVAL_COLUMNS, EVAL_FILE, LOCK_FILE
+from harness import exited
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # --import-mode=importlib: helper modules (spawned runs too)
 

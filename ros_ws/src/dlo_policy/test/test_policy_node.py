@@ -19,9 +19,9 @@ import pytest
 
 rclpy = pytest.importorskip("rclpy")
 from dlo_common.params import as_params, check_value  # noqa: E402
-from dlo_common.testing import LogLines, reserved_domain  # noqa: E402
 from dlo_msgs.msg import GripperState, TactilePose, TaskState, VisualPose  # noqa: E402
 from dlo_policy import policy_node as policy_node_module  # noqa: E402
+from harness import LogLines, reserved_domain  # noqa: E402
 
 DECLARE = policy_node_module.declare_parameters  # the original: every node gets only its own overrides
 SPECS = {param.name: param for param in as_params(policy_node_module.PARAMETERS)}
@@ -35,7 +35,7 @@ V = (True, 0.5, -0.2, 0.011)
 def context():
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     context = rclpy.Context()
-    with reserved_domain() as domain:  # dlo_common.testing: no other test or graph on this machine uses it meanwhile
+    with reserved_domain() as domain:  # harness: no other test or graph on this machine uses it meanwhile
         rclpy.init(context=context, domain_id=domain)
         yield context
         rclpy.shutdown(context=context)

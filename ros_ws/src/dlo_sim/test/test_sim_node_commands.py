@@ -25,10 +25,10 @@ import numpy as np
 import pytest
 
 rclpy = pytest.importorskip("rclpy")
-from dlo_common.testing import LogLines, release_domains, reserve_domains  # noqa: E402
 from dlo_msgs.msg import GripperCommand  # noqa: E402
 from dlo_sim import sim_node as sim_node_module  # noqa: E402
 from dlo_sim.command import MAX_SPEED  # noqa: E402
+from harness import LogLines, release_domains, reserve_domains  # noqa: E402
 
 RATE_FACTOR = 2.0  # wall seconds per step: 0.04 (so a command's age is not the 0.08 s default)
 COMMAND_TIMEOUT = 0.5
@@ -46,7 +46,7 @@ PARAMETERS = {
 def node():
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     context = rclpy.Context()
-    domain = reserve_domains()  # dlo_common.testing: no other test or graph on this machine uses it meanwhile
+    domain = reserve_domains()  # harness: no other test or graph on this machine uses it meanwhile
     rclpy.init(context=context, domain_id=domain)
     with pytest.MonkeyPatch.context() as patch:
         patch.setattr(sim_node_module, "DISCOVERY_GRACE", 0.0)

@@ -1,14 +1,14 @@
-"""Fixtures for the dlo_viz tests: processes on an isolated ROS domain (dlo_common.testing)."""
+"""Fixtures for the dlo_viz tests: processes on an isolated ROS domain (tests/support/harness.py)."""
 
 from __future__ import annotations
 
 import pytest
-from dlo_common.testing import Procs, package_test_env
+from harness import Procs, package_test_env
 
 
 @pytest.fixture(scope="session")
 def ros_env() -> dict[str, str]:
-    """Environment of env.sh on a reserved ROS_DOMAIN_ID (dlo_common.testing) and localhost discovery."""
+    """Environment of env.sh on a reserved ROS_DOMAIN_ID (tests/support/harness.py) and localhost discovery."""
     return package_test_env("dlo_viz", "foxglove_bridge")
 
 

@@ -35,10 +35,10 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # --import-mode=importlib
 
-from dlo_common.testing import ROS2RUN, Proc, Procs  # noqa: E402
 from dlo_common.topics import TOPICS  # noqa: E402
 from dlo_viz.foxglove_bridge import foxglove_url, topic_matches  # noqa: E402
 from foxglove_ws_client import FoxgloveTestClient  # noqa: E402
+from harness import ROS2RUN, Proc, Procs  # noqa: E402
 
 pytest.importorskip("foxglove")
 pytest.importorskip("websockets")
@@ -854,12 +854,12 @@ def test_a_node_log_line_of_any_severity_from_any_thread_never_raises(monkeypatc
     import threading
 
     rclpy = pytest.importorskip("rclpy")
-    from dlo_common.testing import reserved_domain
     from dlo_viz import foxglove_bridge_node as module
+    from harness import reserved_domain
 
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     context = rclpy.Context()
-    with reserved_domain() as domain:  # dlo_common.testing: no other test or graph on this machine uses it meanwhile
+    with reserved_domain() as domain:  # harness: no other test or graph on this machine uses it meanwhile
         rclpy.init(context=context, domain_id=domain)
         declare = module.declare_parameters
         monkeypatch.setattr(module, "declare_parameters", lambda n, specs: {**declare(n, specs), "port": 0, "stats_period": 0.0})
