@@ -55,6 +55,7 @@ GRAPH = (
 
 SLOW = (  # each about 3 s or more: a training, a long simulation, evaluation or video render
     "ros_ws/src/dlo_policy/test/test_perturbations.py",
+    "ros_ws/src/dlo_policy/test/test_randomise.py",
     "tests/test_golden_training.py",
     "ros_ws/src/dlo_policy/test/test_train.py::test_a_signal_stops_the_run_at_an_episode_end_with_a_checkpoint_there_and_the_resumed_run_is_the_whole_one",
     "ros_ws/src/dlo_policy/test/test_train.py::test_a_signal_before_the_first_step_leaves_a_checkpoint_at_step_0_and_the_resumed_run_is_the_whole_one",

@@ -170,14 +170,20 @@ def env_module(config: RunConfig) -> Any:
     return importlib.import_module(config.env_module)
 
 
-def make_env(config: RunConfig, num_envs: Optional[int] = None, seed: Optional[int] = None) -> Any:
+TRAINING_ONLY = ("randomise",)  # env options only a training env gets (domain randomisation): evaluations run without
+
+
+def make_env(config: RunConfig, num_envs: Optional[int] = None, seed: Optional[int] = None, training: bool = False) -> Any:
     """The run's environment (its env module, modalities and options): one env, or with `num_envs` a
-    vector env; seeded with `seed` (default: the run's seed)."""
+    vector env; seeded with `seed` (default: the run's seed). Without `training` the options of
+    TRAINING_ONLY are left out: every evaluation, test and robustness point of a run trained with
+    `env_options.randomise` runs on the task without it."""
     module = env_module(config)
     seed = config.seed if seed is None else seed
+    options = {k: v for k, v in config.env_options.items() if training or k not in TRAINING_ONLY}
     if num_envs is None:
-        return module.make_env(modalities=config.modalities, seed=seed, **config.env_options)
-    return module.make_vec_env(num_envs, modalities=config.modalities, seed=seed, **config.env_options)
+        return module.make_env(modalities=config.modalities, seed=seed, **options)
+    return module.make_vec_env(num_envs, modalities=config.modalities, seed=seed, **options)
 
 
 def check_env_options(config: RunConfig) -> None:

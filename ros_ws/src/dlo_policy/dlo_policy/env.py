@@ -48,12 +48,19 @@ Options (keywords of both entry points):
                           action (the policy node runs the same one), physics families through the SimConfig ranges,
                           camera families through the camera that renders (the vision assumes the nominal one). Their
                           noise is drawn per episode from the episode's seed (the same in any batch and in the graph)
+    randomise=None        domain randomisation for training (dlo_policy.perturbations.parse_ranges): {name: [low, high]}
+                          or text "observation_delay=0:2,friction=0.02:1.2"; every episode takes each family's
+                          magnitude uniformly from its range, from the episode's seed (reproducible, the same in any
+                          batch); a physics range replaces the training range, a camera family renders each env
+                          through a camera of its own. A family is in perturbations or here, not both. dlo-train
+                          builds only its training env with it (evaluation and test run without: config.make_env)
 
 Info: every step carries "n_held" and "mean_held_index"; an env whose episode ended in this step
 has "outcome" (name; paper-text rule), "outcome_code", "outcome_authors" (name; the authors'-code
 rule, ``dlo_sim.task``), "time_at_end", "how_far", "episode_return",
 "episode_length", "episode_seed", "unstable" (the simulator had to reset it; the episode is cut and
-counted as truncated), and, in the vector env, "final_obs" (the last observation of that episode,
+counted as truncated), "randomised" (with ``randomise`` only: {family: the magnitude the episode ran under},
+physics families as the simulator drew them), and, in the vector env, "final_obs" (the last observation of that episode,
 the returned one is already the next episode's first). Vector infos follow gymnasium's
 dict-of-arrays layout with "_key" masks.
 """
@@ -96,6 +103,7 @@ def check_options(options) -> None:
         "contact_radius",
         "start_pose",
         "perturbations",
+        "randomise",
     )
     unknown = sorted(set(options) - set(known))
     if unknown:
@@ -109,6 +117,14 @@ def check_options(options) -> None:
         parse_modalities(options["without"])
     if "perturbations" in options:
         perturbation_families.parse(options["perturbations"])
+    if "randomise" in options:
+        ranges = perturbation_families.parse_ranges(options["randomise"], options.get("perturbations"))
+        physics = perturbation_families.of_side(ranges, perturbation_families.PHYSICS)
+        if physics and options.get("physics_seed", -1) >= 0:
+            raise ValueError(
+                f"randomise: {', '.join(physics)} cannot be drawn per episode with physics_seed "
+                f"{options['physics_seed']} (one physics draw for every episode): leave one of them out"
+            )
     if "task_rules" in options:
         task.check_task_rules(options["task_rules"])
     if "vision_source" in options:
@@ -155,12 +171,14 @@ class CableFollowingVecEnv(VectorEnv):
         contact_radius=None,
         start_pose=None,
         perturbations=None,
+        randomise=None,
     ):
         check_options(
             {
                 "single_particle_grip": single_particle_grip,
                 "physics_seed": physics_seed,
                 "vision_source": vision_source,
+                **({} if randomise is None else {"randomise": randomise, "perturbations": perturbations}),
                 **({} if carry_law is None else {"carry_law": carry_law}),
                 **({} if contact_radius is None else {"contact_radius": contact_radius}),
                 **({} if start_pose is None else {"start_pose": start_pose}),
@@ -178,9 +196,13 @@ class CableFollowingVecEnv(VectorEnv):
         if physics_seed >= 0:
             sim_config = dataclasses.replace(sim_config or SimConfig(), physics_seed=physics_seed)
         self.perturbations = perturbation_families.parse(perturbations)  # {family: magnitude}, those that are on
-        sim_config = perturbation_families.sim_config(self.perturbations, sim_config)
-        rendering, self.vision_camera = perturbation_families.cameras(
-            self.perturbations, TopCamera.covering_workspace(int(camera_resolution))
+        self.randomise = perturbation_families.parse_ranges(randomise, self.perturbations)  # {family: (low, high)}
+        sim_config = perturbation_families.sim_config(self.perturbations, sim_config, self.randomise)
+        camera = TopCamera.covering_workspace(int(camera_resolution))
+        # a randomised camera family: every env renders through its own camera (set per episode, _start_episodes)
+        self.camera_per_env = bool(perturbation_families.of_side(self.randomise, perturbation_families.CAMERA))
+        rendering, self.vision_camera = (
+            (camera, camera) if self.camera_per_env else perturbation_families.cameras(self.perturbations, camera)
         )
         self.num_envs = int(num_envs)
         self.modalities = parse_modalities(modalities)
@@ -199,6 +221,7 @@ class CableFollowingVecEnv(VectorEnv):
             end_particles=end_particles,
             config=sim_config,
             camera=rendering,
+            **({"camera_per_env": True} if self.camera_per_env else {}),
             render=vision_source == "image" and any(by_name(m).renders for m in self._observed()),
             task_rules=task_rules,
         )
@@ -209,7 +232,10 @@ class CableFollowingVecEnv(VectorEnv):
         self.noise_rng = np.random.default_rng(self.default_seed)
         self.last_observation = None
         # the observation and action families (dlo_policy.perturbations.Perturber), as the policy node runs them
-        self.perturber = perturbation_families.Perturber(self.perturbations, self.modalities, self.without, self.num_envs)
+        self.perturber = perturbation_families.Perturber(
+            self.perturbations, self.modalities, self.without, self.num_envs, ranges=self.randomise
+        )
+        self.randomised = [None] * self.num_envs  # randomise: each env's episode magnitudes (info "randomised")
 
     # ------------------------------------------------------------------ gymnasium API
     def reset(self, *, seed=None, options=None):
@@ -258,10 +284,35 @@ class CableFollowingVecEnv(VectorEnv):
         """Reset the simulator and the task tracker of ``env_ids`` with the next episode seeds."""
         seeds = self.next_seed + np.arange(len(env_ids))
         self.next_seed += len(env_ids)
+        if self.camera_per_env:
+            self._set_cameras(env_ids, seeds)
         self.task.reset(seeds, env_ids)
         self.episode_seed[env_ids] = seeds
         if self.perturber.active:
             self.perturber.start(env_ids, seeds)
+        if self.randomise:
+            self._note_randomised(env_ids, seeds)
+
+    def _set_cameras(self, env_ids, seeds):
+        """Each env's rendering camera for its new episode: the fixed camera families with its randomised ones."""
+        offsets, yaws = [], []
+        for seed in seeds:
+            m = {**self.perturbations, **perturbation_families.randomised(self.randomise, int(seed))}
+            offsets.append((0.0, 0.001 * m.get("camera_offset", 0.0)))
+            yaws.append(np.radians(m.get("camera_yaw", 0.0)))
+        self.sim.set_camera(env_ids, offsets, yaws)
+
+    def _note_randomised(self, env_ids, seeds):
+        """The randomised magnitudes of the new episodes in ``env_ids`` (physics ones as the simulator drew them)."""
+        params = self.sim.params
+        for i, seed in zip(env_ids, seeds, strict=True):
+            drawn = perturbation_families.randomised(self.randomise, int(seed))
+            for name in self.randomise:
+                f = perturbation_families.family(name)
+                if f.side == perturbation_families.PHYSICS:
+                    value = params[f.sim_param][i]
+                    drawn[name] = int(value) if f.integer else float(value)
+            self.randomised[int(i)] = {name: drawn[name] for name in self.randomise}
 
     def _observed(self) -> tuple:
         """The modalities the observation computes (selected and not ablated), in registry order."""
@@ -288,6 +339,8 @@ class CableFollowingVecEnv(VectorEnv):
             "episode_seed": self.episode_seed.copy(),
             "unstable": unstable.copy(),
         }
+        if self.randomise:
+            values["randomised"] = np.array([dict(r) if r is not None else None for r in self.randomised], dtype=object)
         info = dict(values)
         info.update({"_" + key: done.copy() for key in values})
         return info

@@ -10,6 +10,10 @@ Groups (paper, Results):
                  trained without them (V+K, T+K)
     sensitivity  tactile noise none / partial / full with K (All) and without K (T+V), against no
                  tactile input (V+K, V); "none" is the env's default, so it reuses All and T+V
+Ours (only when named in --groups):
+    robust       All with domain randomisation ("All robust": env_options.randomise = grid.ROBUST_RANGES,
+                 each episode's delays, calibration, actuator, false detections and cable drawn from
+                 ranges up to about twice the shipped policy's tolerances; docs/RESULTS.md#robustness-envelope)
 Runs are started seed by seed (all configurations of the first seed, then of the second, ...).
 A run whose directory has done.json is skipped, so re-running the command (or adding `--resume`,
 which says the same) continues an interrupted grid. Stopping the driver (Ctrl-C, SIGTERM, even SIGKILL)
@@ -25,7 +29,7 @@ checkpoint there resumes from it.
 Ray (`--ray-address HOST:PORT`, or `auto` on a cluster node): each run is a Ray task reserving
 `--threads` CPUs on some node of an existing cluster. It trains in a temporary directory on that
 node, sends its result files back (config.yaml, eval.csv, done.json, best.json, test*.json,
-policy.pt, best_policy.pt, train.log; not checkpoint.pt with its replay buffer) and the driver
+randomised.csv, policy.pt, best_policy.pt, train.log; not checkpoint.pt with its replay buffer) and the driver
 writes them under OUT: no shared storage. A run whose worker or node is lost is started again from
 its first step on another worker, at most `--retries` times; the report at the end names the
 retried runs. A partial local run (checkpoint under OUT) also starts from its first step there.
@@ -38,9 +42,9 @@ failed / retried, ETA from the runs finished so far) goes to stderr (`--no-progr
 
 `dlo-experiments --out RUNS --collect RESULTS` trains nothing: it copies the small files of every
 finished run under RUNS (done.json present; config.yaml, eval.csv, done.json, best.json, test*.json,
-never checkpoints, replay buffers, policies or bags) into RESULTS with the same layout, copying a
-file only when it differs, and prints the run directories it added or updated: the run record
-under results/ that docs/RESULTS.md cites.
+randomised.csv of a randomised run; never checkpoints, replay buffers, policies or bags) into RESULTS with
+the same layout, copying a file only when it differs, and prints the run directories it added or updated:
+the run record under results/ that docs/RESULTS.md cites.
 
 `--dry-run` lists the runs and estimates the wall time from a short calibration measured now, on
 this machine, under its current load: `CALIBRATION_STEPS` SAC steps (env step + one gradient
@@ -78,7 +82,7 @@ from tqdm import tqdm
 from . import rundir
 from .cli import check_override_keys
 from .config import ConfigError, RunConfig, check_env_options, make_env
-from .grid import GROUPS, RunSpec, experiment_grid, run_config
+from .grid import EXTRA_GROUPS, GROUPS, RunSpec, experiment_grid, run_config
 from .rundir import CHECKPOINT_FILE, DONE_FILE, EVAL_FILE, LOG_FILE, run_status
 from .train import (
     Trainer,
@@ -510,7 +514,7 @@ def calibrate(config: RunConfig, steps: int = CALIBRATION_STEPS) -> Calibration:
     from .sac import SAC  # noqa: PLC0415
 
     set_threads(config.train.num_threads)
-    env = make_env(config)
+    env = make_env(config, training=True)
     sac_config = dataclasses.replace(config.sac, learning_starts=config.sac.batch_size)
     agent = SAC(
         env.observation_space.shape[0],
@@ -617,8 +621,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--out", type=Path, required=True, help="results directory (one subdirectory per run)")
     parser.add_argument(
         "--groups",
-        default="single,pairs,ablation,sensitivity",
-        help=f"comma-separated subset of {','.join(GROUPS)} (default: all)",
+        default=",".join(GROUPS),
+        help=f"comma-separated subset of {','.join(GROUPS + EXTRA_GROUPS)} (default: the paper's, {','.join(GROUPS)})",
     )
     parser.add_argument(
         "--labels", help="only these configuration labels (comma-separated), e.g. All,V,T,K; a run directory's name works too"

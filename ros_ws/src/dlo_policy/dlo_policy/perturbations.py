@@ -33,6 +33,16 @@ The noise of an environment comes from a generator of its own, seeded per episod
 (``episode_rng``), and each control step draws the same block of numbers whichever families are on: the same
 episode gives the same noise in a batch of any size and in the graph (the policy node reads the episode's seed
 from ``/dlo/task/state``), and a magnitude scales the same draws (common random numbers across a grid).
+
+Domain randomisation (training): a *randomisation* maps families to ranges, ``{"observation_delay": [0, 2],
+"friction": [0.02, 1.2]}``, as text ``observation_delay=0:2,friction=0.02:1.2`` (:func:`parse_ranges`: the gym env's
+option ``randomise``, dlo-train's ``env_options.randomise``). Every episode takes each family's magnitude uniformly
+from its range (an integer family: each whole number alike): an observation, action or camera family from the
+episode's own generator (:func:`randomised`, seeded from the episode's seed on a stream of its own, one uniform per
+registered family whatever is randomised: the same episode gets the same magnitudes in any batch and whichever
+other families are randomised), a physics family by the simulator's own per-episode draw, its range replacing the
+training range (``dlo_sim.rope``). A family is either fixed (``perturbations``) or randomised, not both; with no
+randomisation nothing is drawn.
 """
 
 from __future__ import annotations
@@ -50,6 +60,7 @@ OBSERVATION, ACTION, PHYSICS, CAMERA = "observation", "action", "physics", "came
 SIDES = (OBSERVATION, ACTION, PHYSICS, CAMERA)
 CONTROL_STEP = 0.08  # s, one action (dlo_sim.config: 8 x 0.01 s)
 STREAM = 0x9E37  # mixed into each episode's seed: the perturbation noise is a stream of its own
+RANDOMISE_STREAM = 0x5EED  # mixed into each episode's seed: its randomised magnitudes, another stream
 NORMALS = 6  # standard normals each control step draws (x_G, y_G, theta_T, y_T, theta_V, y_V)
 UNIFORMS = 5  # uniforms each control step draws (dropout, false visible, its q_V, theta_V, y_V)
 
@@ -73,6 +84,7 @@ class Family:
     integer: bool = False
     training: Optional[tuple] = None  # physics: the SimConfig range the policies are trained on
     sim_range: str = ""  # physics: the SimConfig field it sets
+    sim_param: str = ""  # physics: the simulator's per-episode parameter it is (dlo_sim.RopeSim.params)
 
     def __post_init__(self):
         if self.side not in SIDES:
@@ -116,7 +128,8 @@ def _physics(name, unit, perturbs, grid, sim_range, low, high=math.inf, integer=
     from dlo_sim.config import SimConfig  # the training ranges: what a policy has seen
 
     training = tuple(getattr(SimConfig, sim_range))
-    return Family(name, unit, PHYSICS, perturbs, grid, None, low, high, integer, training, sim_range)
+    sim_param = "num_particles" if sim_range == "num_particles_range" else sim_range[: -len("_range")]
+    return Family(name, unit, PHYSICS, perturbs, grid, None, low, high, integer, training, sim_range, sim_param)
 
 
 FAMILIES = (
@@ -277,20 +290,7 @@ def parse(value) -> dict:
     family's pair as ``name=low:high``). ValueError in one line for an unknown family or a bad magnitude."""
     if value is None:
         return {}
-    if isinstance(value, str):
-        text = value.strip()
-        items = {}
-        for part in filter(None, (p.strip() for p in text.split(","))):
-            name, sep, magnitude = part.partition("=")
-            if not sep:
-                raise ValueError(f"perturbations: expected {FORMS}, got {value!r}")
-            name = name.strip()
-            if name in items:
-                raise ValueError(f"perturbations: {name} given twice in {value!r}")
-            items[name] = magnitude.strip().split(":") if ":" in magnitude else magnitude.strip()
-        value = items
-    if not isinstance(value, Mapping):
-        raise ValueError(f"perturbations: expected {FORMS} or a mapping, got {value!r}")
+    value = _mapping(value, "perturbations", FORMS)
     checked = {}
     for name, magnitude in value.items():
         f = family(str(name))
@@ -298,6 +298,84 @@ def parse(value) -> dict:
         if not f.is_off(m):
             checked[f.name] = m
     return {f.name: checked[f.name] for f in FAMILIES if f.name in checked}
+
+
+def _mapping(value, what: str, forms: str) -> Mapping:
+    """A setting's text ``name=value,name=low:high`` (or a mapping, as it is) -> {name: value or [low, high]}."""
+    if isinstance(value, str):
+        items = {}
+        for part in filter(None, (p.strip() for p in value.strip().split(","))):
+            name, sep, magnitude = part.partition("=")
+            if not sep:
+                raise ValueError(f"{what}: expected {forms}, got {value!r}")
+            name = name.strip()
+            if name in items:
+                raise ValueError(f"{what}: {name} given twice in {value!r}")
+            items[name] = magnitude.strip().split(":") if ":" in magnitude else magnitude.strip()
+        value = items
+    if not isinstance(value, Mapping):
+        raise ValueError(f"{what}: expected {forms} or a mapping, got {value!r}")
+    return value
+
+
+RANGE_FORMS = "name=low:high pairs joined by ',' (e.g. observation_delay=0:2,friction=0.02:1.2), '' for none"
+
+
+def parse_ranges(value, fixed: Optional[Mapping] = None) -> dict:
+    """A randomisation -> {family: (low, high)}, in registry order (module docstring).
+
+    ``value``: None, '' or {} (none); a mapping {name: [low, high]}; or text ``name=low:high,...``. ``fixed``: the
+    fixed perturbations given beside it (a family may be in one of them only). ValueError in one line, prefixed
+    ``randomise:``, for an unknown family (with the likely one), a value that is not a range, an end the family does
+    not take or low > high."""
+    if value is None:
+        return {}
+    value = _mapping(value, "randomise", RANGE_FORMS)
+    checked = {}
+    for name, pair in value.items():
+        try:
+            f = family(str(name))
+        except ValueError as error:
+            raise ValueError(f"randomise: {error}") from None
+        if isinstance(pair, str) or not isinstance(pair, (list, tuple)) or len(pair) != 2:
+            raise ValueError(
+                f"randomise: {f.name}: expected a range [low, high] (as text {f.name}=low:high), got {pair!r}"
+                " (a fixed magnitude is a perturbation: env_options.perturbations)"
+            )
+        try:
+            low, high = (f.check(v) for v in pair)
+        except ValueError as error:
+            raise ValueError(f"randomise: {error} (in the range {list(pair)!r})") from None
+        if low > high:
+            raise ValueError(f"randomise: {f.name}: expected low <= high, got [{low:g}, {high:g}]")
+        checked[f.name] = (low, high)
+    both = [name for name in checked if name in parse(fixed)] if fixed else []
+    if both:
+        raise ValueError(f"randomise: {', '.join(both)} also fixed in perturbations: give a family in one of them only")
+    return {f.name: checked[f.name] for f in FAMILIES if f.name in checked}
+
+
+def range_text(ranges: Mapping) -> str:
+    """A randomisation as :func:`parse_ranges` reads it back (``observation_delay=0:2,friction=0.02:1.2``)."""
+    return ",".join(f"{name}={low:g}:{high:g}" for name, (low, high) in parse_ranges(ranges).items())
+
+
+def randomised(ranges: Mapping, seed: int) -> dict:
+    """The magnitudes the episode with this seed takes from a (parsed) randomisation, for its observation, action
+    and camera families (a physics family is drawn by the simulator, from its range: :func:`sim_config`): uniform
+    in [low, high], an integer family each whole number alike. One uniform per registered family from the
+    episode's own generator, whatever is randomised."""
+    u = np.random.default_rng([RANDOMISE_STREAM, int(seed)]).random(len(FAMILIES))
+    drawn = {}
+    for k, f in enumerate(FAMILIES):
+        if f.name not in ranges or f.side == PHYSICS:
+            continue
+        low, high = ranges[f.name]
+        if f.integer:
+            drawn[f.name] = int(low + min(int(u[k] * (high - low + 1)), high - low))
+        else:
+            drawn[f.name] = float(low + u[k] * (high - low))
+    return drawn
 
 
 def text(setting: Mapping) -> str:
@@ -315,10 +393,11 @@ def of_side(setting: Mapping, *sides: str) -> dict:
 
 
 # ---------------------------------------------------------------------------------------------- physics, camera
-def sim_config(setting: Mapping, config=None):
-    """``config`` (a dlo_sim.SimConfig, default SimConfig()) with the physics families' ranges; ``config`` itself
-    (possibly None) when none is on."""
-    physics = of_side(setting, PHYSICS)
+def sim_config(setting: Mapping, config=None, ranges: Optional[Mapping] = None):
+    """``config`` (a dlo_sim.SimConfig, default SimConfig()) with the physics families' ranges (of a setting, a
+    magnitude or a pair, and of a parsed randomisation ``ranges``); ``config`` itself (possibly None) when none is
+    on."""
+    physics = {**of_side(setting, PHYSICS), **of_side(ranges or {}, PHYSICS)}
     if not physics:
         return config
     from dlo_sim.config import SimConfig
@@ -352,46 +431,10 @@ def wrap_line_angle(angle):
     return np.pi / 2 - np.mod(np.pi / 2 - np.asarray(angle), np.pi)
 
 
-class _Episode:
-    """One environment's perturbation state within an episode."""
+class _Magnitudes:
+    """The observation and action families' constants of one setting (what an episode runs under)."""
 
-    def __init__(self, seed: int, bias_length: float):
-        self.rng = episode_rng(seed)
-        direction = self.rng.uniform(0.0, 2.0 * np.pi)  # the first draw of the episode, whatever is on
-        self.bias = bias_length * np.array([np.cos(direction), np.sin(direction)])
-        self.observations: list = []  # observation_delay: the last d + 1 observations
-        self.actions: list = []  # action_delay: the last d + 1 actions
-        self.closure: Optional[float] = None  # closure_lag: the applied closure command a2
-
-
-class Perturber:
-    """The observation and action families of a setting over ``num_envs`` environments (gym env, policy node).
-
-    ``start(env_ids, seeds)`` begins new episodes; ``observe(obs, env_ids)`` perturbs one control step's
-    observations (N', D) of those envs (all by default) and ``act(actions)`` the actions (N, 3) of every env, in
-    float64, returning float32. ``modalities``/``without``: the observation's layout (dlo_policy.observation);
-    a family whose modality is not observed (or ablated) does nothing. ``active``: any family of these sides on
-    (else the caller need not call it: nothing would change)."""
-
-    def __init__(self, setting: Mapping, modalities, without=(), num_envs: int = 1):
-        from dlo_perception.camera import WORKSPACE_HALF_WIDTH
-        from dlo_perception.tactile import Y_LIMIT
-        from dlo_perception.vision import SEARCH_HALF_WIDTH
-
-        from dlo_policy.observation import observation_labels, parse_modalities
-
-        self.setting = of_side(parse(setting), OBSERVATION, ACTION)
-        self.observes = bool(of_side(self.setting, OBSERVATION))
-        self.acts = bool(of_side(self.setting, ACTION))
-        self.active = self.observes or self.acts
-        present = parse_modalities(modalities)
-        ablated = parse_modalities(without) if without else ()
-        labels = observation_labels(present)
-        seen = set(observation_labels([m for m in present if m not in ablated])) if len(ablated) < len(present) else set()
-        self.column = {label: i for i, label in enumerate(labels) if label in seen}
-        self.limits = {"x_G": WORKSPACE_HALF_WIDTH, "y_G": WORKSPACE_HALF_WIDTH, "y_T": Y_LIMIT, "y_V": SEARCH_HALF_WIDTH}
-        self.episodes: list = [None] * int(num_envs)
-        s = self.setting
+    def __init__(self, s: Mapping):
         self.obs_delay = int(s.get("observation_delay", 0))
         self.action_delay = int(s.get("action_delay", 0))
         self.gain = float(s.get("velocity_gain", 1.0))
@@ -408,10 +451,58 @@ class Perturber:
         self.dropout = float(s.get("vision_dropout", 0.0))
         self.false_visible = float(s.get("vision_false_visible", 0.0))
 
+
+class _Episode:
+    """One environment's perturbation state within an episode: its magnitudes ``m`` (_Magnitudes)."""
+
+    def __init__(self, seed: int, m: _Magnitudes):
+        self.m = m
+        self.rng = episode_rng(seed)
+        direction = self.rng.uniform(0.0, 2.0 * np.pi)  # the first draw of the episode, whatever is on
+        self.bias = m.bias_length * np.array([np.cos(direction), np.sin(direction)])
+        self.observations: list = []  # observation_delay: the last d + 1 observations
+        self.actions: list = []  # action_delay: the last d + 1 actions
+        self.closure: Optional[float] = None  # closure_lag: the applied closure command a2
+
+
+class Perturber:
+    """The observation and action families of a setting over ``num_envs`` environments (gym env, policy node).
+
+    ``start(env_ids, seeds)`` begins new episodes; ``observe(obs, env_ids)`` perturbs one control step's
+    observations (N', D) of those envs (all by default) and ``act(actions)`` the actions (N, 3) of every env, in
+    float64, returning float32. ``modalities``/``without``: the observation's layout (dlo_policy.observation);
+    a family whose modality is not observed (or ablated) does nothing. ``ranges``: a randomisation
+    (:func:`parse_ranges`), its observation and action families drawn per episode (:func:`randomised`) on top of
+    the fixed ``setting``. ``active``: any family of these sides on or randomised (else the caller need not call
+    it: nothing would change)."""
+
+    def __init__(self, setting: Mapping, modalities, without=(), num_envs: int = 1, ranges: Optional[Mapping] = None):
+        from dlo_perception.camera import WORKSPACE_HALF_WIDTH
+        from dlo_perception.tactile import Y_LIMIT
+        from dlo_perception.vision import SEARCH_HALF_WIDTH
+
+        from dlo_policy.observation import observation_labels, parse_modalities
+
+        self.setting = of_side(parse(setting), OBSERVATION, ACTION)
+        self.ranges = of_side(parse_ranges(ranges, self.setting), OBSERVATION, ACTION)
+        self.observes = bool(of_side({**self.setting, **self.ranges}, OBSERVATION))
+        self.acts = bool(of_side({**self.setting, **self.ranges}, ACTION))
+        self.active = self.observes or self.acts
+        present = parse_modalities(modalities)
+        ablated = parse_modalities(without) if without else ()
+        labels = observation_labels(present)
+        seen = set(observation_labels([m for m in present if m not in ablated])) if len(ablated) < len(present) else set()
+        self.column = {label: i for i, label in enumerate(labels) if label in seen}
+        self.limits = {"x_G": WORKSPACE_HALF_WIDTH, "y_G": WORKSPACE_HALF_WIDTH, "y_T": Y_LIMIT, "y_V": SEARCH_HALF_WIDTH}
+        self.episodes: list = [None] * int(num_envs)
+        self.fixed = _Magnitudes(self.setting)
+
     def start(self, env_ids: Iterable[int], seeds: Iterable[int]) -> None:
-        """New episodes in ``env_ids`` with these episode seeds: fresh generators, empty delay lines."""
+        """New episodes in ``env_ids`` with these episode seeds: fresh generators, empty delay lines, and the
+        randomised families' magnitudes of each episode."""
         for i, seed in zip(np.asarray(env_ids).reshape(-1), np.asarray(seeds).reshape(-1)):
-            self.episodes[int(i)] = _Episode(int(seed), self.bias_length)
+            m = _Magnitudes({**self.setting, **randomised(self.ranges, int(seed))}) if self.ranges else self.fixed
+            self.episodes[int(i)] = _Episode(int(seed), m)
 
     def _episode(self, i: int) -> _Episode:
         episode = self.episodes[i]
@@ -429,9 +520,10 @@ class Perturber:
         for row, i in enumerate(ids):
             episode = self._episode(i)
             measured = self._measure(out[row], episode)
-            if self.obs_delay:
+            delay = episode.m.obs_delay
+            if delay:
                 if not episode.observations:
-                    episode.observations = [measured] * (self.obs_delay + 1)
+                    episode.observations = [measured] * (delay + 1)
                 else:
                     episode.observations = episode.observations[1:] + [measured]
                 measured = episode.observations[0]
@@ -444,8 +536,9 @@ class Perturber:
         z = episode.rng.standard_normal(NORMALS)
         u = episode.rng.random(UNIFORMS)
         o = o.copy()
-        col, sigma = self.column, self.sigma
-        if self.bias_length or sigma["x_G"]:
+        col, m = self.column, episode.m
+        sigma = m.sigma
+        if m.bias_length or sigma["x_G"]:
             for k, label in enumerate(("x_G", "y_G")):
                 if label in col:
                     o[col[label]] += episode.bias[k] + sigma["x_G"] * z[k]
@@ -461,9 +554,9 @@ class Perturber:
                     o[theta] = wrap_line_angle(o[theta] + sigma["theta_V"] * z[4])
                 if sigma["y_V"]:
                     o[y] += sigma["y_V"] * z[5]
-                if u[0] < self.dropout:
+                if u[0] < m.dropout:
                     o[[v, q, theta, y]] = 0.0
-            elif u[1] < self.false_visible:
+            elif u[1] < m.false_visible:
                 o[v], o[q] = 1.0, u[2]
                 o[theta] = (u[3] - 0.5) * np.pi
                 o[y] = (2.0 * u[4] - 1.0) * self.limits["y_V"]
@@ -481,19 +574,20 @@ class Perturber:
         out = np.array(a, dtype=np.float64).reshape(len(self.episodes), 3)
         for i in range(len(self.episodes)):
             episode = self._episode(i)
+            m = episode.m
             command = out[i].copy()
-            if self.action_delay:
+            if m.action_delay:
                 if not episode.actions:
-                    episode.actions = [command] * (self.action_delay + 1)
+                    episode.actions = [command] * (m.action_delay + 1)
                 else:
                     episode.actions = episode.actions[1:] + [command]
                 command = episode.actions[0].copy()
-            if self.gain != 1.0:
-                command[:2] = np.clip(self.gain * command[:2], -1.0, 1.0)
-            if episode.closure is None or self.closure_rate == 1.0:
+            if m.gain != 1.0:
+                command[:2] = np.clip(m.gain * command[:2], -1.0, 1.0)
+            if episode.closure is None or m.closure_rate == 1.0:
                 episode.closure = command[2]
             else:
-                episode.closure += self.closure_rate * (command[2] - episode.closure)
+                episode.closure += m.closure_rate * (command[2] - episode.closure)
             command[2] = episode.closure
             out[i] = command
         return out.astype(np.float32).reshape(a.shape)

@@ -9,6 +9,8 @@
     test.json        the held-out test of best_policy.pt (dlo-evaluate's JSON); test_without_X.json:
                      the same with modality X blanked
     done.json        the completion marker, with the run's summary
+    randomised.csv   with env_options.randomise only: one row per training episode, the magnitudes it ran under
+                     (RANDOMISED_COLUMNS, then one column per randomised family; dlo_policy.train)
     tb/              TensorBoard event files
     train.log        stdout and stderr of a run that dlo-experiments started
     .lock            held (flock) by the one process training into the directory; holds its pid
@@ -42,6 +44,8 @@ POLICY_FILE = "policy.pt"
 TEST_FILE = "test.json"
 TEST_PATTERN = "test*.json"  # test.json and every test_without_X.json
 DONE_FILE = "done.json"
+RANDOMISED_FILE = "randomised.csv"
+RANDOMISED_COLUMNS = ("step", "episode", "episode_seed")  # then the randomised families, in registry order
 TB_DIR = "tb"
 LOG_FILE = "train.log"
 LOCK_FILE = ".lock"
@@ -76,9 +80,9 @@ def lock(run_dir: Path):
 
 
 # a run's record, a few kB: what dlo-experiments --collect copies (and test*.json)
-RECORD_FILES = (CONFIG_FILE, EVAL_FILE, DONE_FILE, BEST_FILE)
+RECORD_FILES = (CONFIG_FILE, EVAL_FILE, DONE_FILE, BEST_FILE, RANDOMISED_FILE)  # (randomised.csv: where it exists)
 # what a run on a Ray worker sends back (and test*.json before done.json): never checkpoint.pt (replay buffer)
-RESULT_FILES = (CONFIG_FILE, EVAL_FILE, BEST_FILE, BEST_POLICY_FILE, POLICY_FILE, LOG_FILE, DONE_FILE)
+RESULT_FILES = (CONFIG_FILE, EVAL_FILE, BEST_FILE, RANDOMISED_FILE, BEST_POLICY_FILE, POLICY_FILE, LOG_FILE, DONE_FILE)
 
 OUTCOMES = ("hold_the_end", "stop_before", "reach_end_but_drop", "drop_before")  # paper-text rule (dlo_sim.task)
 AUTHORS_SUFFIX = "_authors"
@@ -226,3 +230,26 @@ class EvalLog:
     def append(self, rows: list[dict[str, Any]]) -> None:
         with self.path.open("a", newline="") as f:
             csv.DictWriter(f, fieldnames=EVAL_COLUMNS).writerows(rows)
+
+
+class RandomisedLog:
+    """randomised.csv of a run trained with env_options.randomise: one row per finished training episode (the env
+    step it ended at, its index, its seed, each randomised family's magnitude); on resume only the rows up to the
+    checkpoint step are kept (the episodes after it run again, with the same magnitudes)."""
+
+    def __init__(self, run_dir: Path, families: list, resume_step: Optional[int]):
+        self.path = Path(run_dir) / RANDOMISED_FILE
+        self.columns = [*RANDOMISED_COLUMNS, *families]
+        kept: list[dict[str, str]] = []
+        if resume_step is not None and self.path.exists():
+            with self.path.open(newline="") as f:
+                kept = [row for row in csv.DictReader(f) if int(row["step"]) <= resume_step]
+        with self.path.open("w", newline="") as f:
+            writer = csv.DictWriter(f, fieldnames=self.columns)
+            writer.writeheader()
+            writer.writerows(kept)
+
+    def append(self, step: int, episode: int, seed: int, magnitudes: dict) -> None:
+        with self.path.open("a", newline="") as f:
+            row = {"step": step, "episode": episode, "episode_seed": seed, **magnitudes}
+            csv.DictWriter(f, fieldnames=self.columns).writerow(row)

@@ -55,8 +55,15 @@ TensorBoard (`tensorboard --logdir runs`): tb/ in the run directory holds event 
 env steps: train/episode_return and train/episode_length per training episode; loss/critic,
 loss/actor, loss/alpha and speed/steps_per_s averaged over every TB_EVERY steps; every evaluation's
 columns (eval/..., eval_without_T/... for the ablation): both rules' outcome fractions, reward,
-time at end, how far, and the learner health (alpha, entropy, q_value, saturated). Logging changes
-nothing in the run (no random draws); a resumed run appends to the same directory.
+time at end, how far, and the learner health (alpha, entropy, q_value, saturated); with
+`env_options.randomise`, randomised/<family> per training episode. Logging changes nothing in the run (no
+random draws); a resumed run appends to the same directory.
+
+Domain randomisation (`env_options.randomise`, e.g. `env_options.randomise=observation_delay=0:2,friction=0.02:1.2`;
+`dlo_policy.perturbations`): only the training env draws each episode's magnitudes (from the episode's seed:
+a resumed run draws the same); evaluations and the held-out test run without it, on the paper's task. The ranges
+are in config.yaml, and randomised.csv has one row per training episode: the env step it ended at, its index
+and seed, and each randomised family's magnitude.
 """
 
 from __future__ import annotations
@@ -265,7 +272,7 @@ class Trainer:
         self.device = resolve_device(config.train.device)
         taichi_runtime.select(config.train.sim_arch)
 
-        self.env = make_env(config)
+        self.env = make_env(config, training=True)
         self.eval_env = make_env(config, config.train.eval_episodes, seed=config.train.eval_seed)
         self.best: Optional[dict[str, Any]] = None
         self.best_policy_state: Optional[dict[str, Any]] = None
@@ -303,6 +310,10 @@ class Trainer:
         self.recent_returns: list[float] = []  # the last 10 training episodes' returns, for the progress bar
         self.tb = TensorBoardLog(out_dir / TB_DIR)
         self.episode_length = 0
+        ranges = getattr(self.env, "randomise", None) or getattr(getattr(self.env, "vec", None), "randomise", None)
+        self.randomised_log = (
+            rundir.RandomisedLog(out_dir, list(ranges), self.agent.num_env_steps if resume else None) if ranges else None
+        )
 
     def wall_time(self) -> float:
         return self.log.wall_time_offset + time.perf_counter() - self.started
@@ -360,6 +371,10 @@ class Trainer:
             self.recent_returns = (self.recent_returns + [self.episode_return])[-10:]
             self.tb.episode(step, self.episode_return, self.episode_length)
             self.episode_return, self.episode_length = 0.0, 0
+            if self.randomised_log is not None and result.info.get("randomised"):
+                drawn = result.info["randomised"]
+                self.randomised_log.append(step, agent.num_episodes - 1, int(result.info["episode_seed"]), drawn)
+                self.tb.randomised(step, drawn)
         if step % self.config.train.eval_every == 0:
             self.evaluate()
             self.bar.set_status(progress_status(self.last_eval, self.recent_returns, agent.alpha))
@@ -504,6 +519,11 @@ class TensorBoardLog:
         if self.writer is not None:
             self.writer.add_scalar("train/episode_return", episode_return, step)
             self.writer.add_scalar("train/episode_length", length, step)
+
+    def randomised(self, step: int, magnitudes: dict) -> None:
+        if self.writer is not None:
+            for name, value in magnitudes.items():
+                self.writer.add_scalar(f"randomised/{name}", value, step)
 
     def evaluation(self, row: dict[str, Any]) -> None:
         if self.writer is None:

@@ -605,7 +605,8 @@ def test_help_describes_the_grid_and_every_option(capsys):
     for text in (
         "Overrides (key=value) apply to every run, e.g. train.eval_every=500.",
         "--out OUT results directory (one subdirectory per run)",
-        "--groups GROUPS comma-separated subset of single,pairs,ablation,sensitivity (default: all)",
+        "--groups GROUPS comma-separated subset of single,pairs,ablation,sensitivity,robust (default: the paper's, "
+        "single,pairs,ablation,sensitivity)",
         "--labels LABELS only these configuration labels (comma-separated), e.g. All,V,T,K; a run directory's name works too",
         "--seeds SEEDS seeds per configuration (default 3)",
         "--first-seed FIRST_SEED seeds are first-seed .. first-seed + seeds - 1",

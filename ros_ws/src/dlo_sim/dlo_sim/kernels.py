@@ -42,7 +42,7 @@ THREAD_POOL_GRAIN = 512  # loop items Taichi 1.7 hands one CPU thread at the lea
 class RopeKernels:
     """All Taichi state of ``num_envs`` ropes + grippers, and the kernels that advance and draw them."""
 
-    def __init__(self, num_envs: int, cfg, camera):
+    def __init__(self, num_envs: int, cfg, camera, camera_per_env: bool = False):
         init_taichi()
         self.num_envs = num_envs
         # Taichi 1.7's CPU thread pool gives a thread work only in runs of >= 512 loop items, so a
@@ -66,6 +66,12 @@ class RopeKernels:
         self.cam_rotated = yaw != 0.0
         self.cam_turn = (math.cos(yaw), math.sin(yaw))
         self.cam_size = (int(camera.height), int(camera.width))
+        # compile-time: off compiles today's kernel; on, each env's camera is moved (cam_shift [m], world x, y) and
+        # turned (cam_yaw: cos, sin) from ``camera`` by its own amount (per-episode camera randomisation)
+        self.cam_per_env = bool(camera_per_env)
+        self.cam_shift = ti.Vector.field(2, ti.f32, num_envs)
+        self.cam_yaw = ti.Vector.field(2, ti.f32, num_envs)
+        self.cam_yaw.fill(ti.Vector([1.0, 0.0]))
 
         shape = (num_envs, P_MAX)
         self.x = ti.Vector.field(3, ti.f32, shape)  # m, positions (predicted during a sub-step)
@@ -466,14 +472,21 @@ class RopeKernels:
 
     # ---------------------------------------------------------------- rendering
     @ti.func
-    def project(self, p):
-        """World point [m] -> (u, v) pixel coordinates and metres-to-pixels scale at its depth."""
+    def project(self, e, p):
+        """World point [m] -> (u, v) pixel coordinates in env e's camera and metres-to-pixels scale at its depth."""
         depth = self.cam_pos[2] - p.z
         dx = p.x - self.cam_pos[0]
         dy = p.y - self.cam_pos[1]
         if ti.static(self.cam_rotated):  # the camera turned about its optical axis (TopCamera.yaw)
             turned_x = self.cam_turn[0] * dx + self.cam_turn[1] * dy
             dy = self.cam_turn[0] * dy - self.cam_turn[1] * dx
+            dx = turned_x
+        if ti.static(self.cam_per_env):  # env e's own camera: moved, then turned about its axis
+            dx -= self.cam_shift[e].x
+            dy -= self.cam_shift[e].y
+            turn = self.cam_yaw[e]
+            turned_x = turn.x * dx + turn.y * dy
+            dy = turn.x * dy - turn.y * dx
             dx = turned_x
         u = self.cam_c[0] + self.cam_f[0] * dx / depth
         v = self.cam_c[1] - self.cam_f[1] * dy / depth
@@ -504,13 +517,13 @@ class RopeKernels:
         """Top view of env e into ``image[e]`` (H, W), which must hold background (0): cable
         capsules 255, the top finger's footprint 128 over them."""
         for i in range(self.n[e] - 1):
-            a, sa = self.project(self.x[e, i])
-            b, sb = self.project(self.x[e, i + 1])
+            a, sa = self.project(e, self.x[e, i])
+            b, sb = self.project(e, self.x[e, i + 1])
             self.draw_capsule(image, e, a, b, PARTICLE_RADIUS * sa, PARTICLE_RADIUS * sb, IMAGE_CABLE)
         g = self.gripper[e]
         top = g.z + FINGER_AXIS_OFFSET
-        a, s = self.project(ti.Vector([g.x, g.y - FINGER_HALF_LENGTH, top]))
-        b, _ = self.project(ti.Vector([g.x, g.y + FINGER_HALF_LENGTH, top]))
+        a, s = self.project(e, ti.Vector([g.x, g.y - FINGER_HALF_LENGTH, top]))
+        b, _ = self.project(e, ti.Vector([g.x, g.y + FINGER_HALF_LENGTH, top]))
         self.draw_capsule(image, e, a, b, FINGER_RADIUS * s, FINGER_RADIUS * s, IMAGE_GRIPPER)
 
     # ---------------------------------------------------------------- the one kernel

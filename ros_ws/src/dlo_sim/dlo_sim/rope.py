@@ -51,14 +51,17 @@ class Snapshot:
 class RopeSim:
     """Batched Taichi cable simulator. Positions in metres (world frame, z up), time step 0.01 s."""
 
-    def __init__(self, num_envs: int, config: SimConfig | None = None, camera: TopCamera | None = None):
+    def __init__(
+        self, num_envs: int, config: SimConfig | None = None, camera: TopCamera | None = None, camera_per_env: bool = False
+    ):
         if int(num_envs) < 1:
             raise ValueError(f"num_envs must be >= 1, got {num_envs}")
         self.num_envs = int(num_envs)
         self.config = config if config is not None else SimConfig()
         self.config.validate()
         self.camera = camera if camera is not None else TopCamera.covering_workspace(128)
-        self._k = RopeKernels(self.num_envs, self.config, self.camera)
+        self.camera_per_env = bool(camera_per_env)  # each env renders through its own camera: set_camera
+        self._k = RopeKernels(self.num_envs, self.config, self.camera, self.camera_per_env)
         n = self.num_envs
         self._params = {
             "stretch": np.zeros(n, np.float32),
@@ -118,6 +121,19 @@ class RopeSim:
         k.advance(still, cfg.settle_steps)
         k.active.fill(1)
         self._unstable[ids] = False
+
+    def set_camera(self, env_ids, offsets, yaws) -> None:
+        """The cameras ``env_ids`` render through from now on (``camera_per_env`` only): ``camera`` moved by
+        ``offsets`` (K, 2) [m] in world x, y and turned by ``yaws`` (K,) [rad] about its optical axis."""
+        if not self.camera_per_env:
+            raise ValueError("set_camera: this simulator renders through one camera (camera_per_env=False)")
+        ids = self._env_ids(env_ids)
+        shift, turn = self._k.cam_shift.to_numpy(), self._k.cam_yaw.to_numpy()
+        shift[ids] = np.asarray(offsets, np.float32).reshape(len(ids), 2)
+        yaws = np.asarray(yaws, np.float64).reshape(len(ids))
+        turn[ids] = np.stack([np.cos(yaws), np.sin(yaws)], axis=1)
+        self._k.cam_shift.from_numpy(shift.astype(np.float32))
+        self._k.cam_yaw.from_numpy(turn.astype(np.float32))
 
     def step(self, actions) -> None:
         """One action: ``SUBSTEPS_PER_ACTION`` (8) steps of 0.01 s with the same ``actions`` (N, 3)."""
