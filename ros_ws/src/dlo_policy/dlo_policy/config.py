@@ -293,17 +293,27 @@ def _coerce(value: Any, annotation: Any, key: str) -> Any:
             return None
         return _coerce(value, next(a for a in args if a is not type(None)), key)
     if origin is tuple:
-        if not isinstance(value, (list, tuple)):
-            raise ConfigError(f"{key}: expected a list, got {value!r}")
-        if len(args) == 2 and args[1] is Ellipsis:
-            return tuple(_coerce(v, args[0], key) for v in value)
-        if len(value) != len(args):
-            raise ConfigError(f"{key}: expected {len(args)} values, got {value!r}")
-        return tuple(_coerce(v, a, key) for v, a in zip(value, args))
+        return _coerce_tuple(value, args, key)
     if origin is dict:
         if not isinstance(value, dict):
             raise ConfigError(f"{key}: expected a mapping, got {value!r}")
         return dict(value)
+    return _coerce_scalar(value, annotation, key)
+
+
+def _coerce_tuple(value: Any, args: tuple, key: str) -> tuple:
+    """A list (or tuple) as ``tuple[X, ...]`` or ``tuple[X, Y, ...]`` of a fixed length, each item checked."""
+    if not isinstance(value, (list, tuple)):
+        raise ConfigError(f"{key}: expected a list, got {value!r}")
+    if len(args) == 2 and args[1] is Ellipsis:
+        return tuple(_coerce(v, args[0], key) for v in value)
+    if len(value) != len(args):
+        raise ConfigError(f"{key}: expected {len(args)} values, got {value!r}")
+    return tuple(_coerce(v, a, key) for v, a in zip(value, args))
+
+
+def _coerce_scalar(value: Any, annotation: Any, key: str) -> Any:
+    """``value`` as a bool, int, float (also from YAML's string '1e-3') or str field; any other type as it is."""
     if annotation is bool:
         if not isinstance(value, bool):
             raise ConfigError(f"{key}: expected true or false, got {value!r}")
