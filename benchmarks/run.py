@@ -66,6 +66,12 @@ BENCHMARKS = {  # in the order "all" runs them: cheapest first
         "each hop of one control step (state, poses, command)",
         ("--episodes", "1"),
     ),
+    "composed": Benchmark(
+        "bench_composed.py",
+        "the step-locked graph in one process (--composed): closed-loop steps/s, same episodes",
+        "the same graph with a process per node (rounds A B, B A)",
+        ("--episodes", "2", "--rounds", "1"),
+    ),
     "viz": Benchmark(
         "bench_viz.py",
         "live view: Foxglove bridge latency and CPU; video frames/s",

@@ -32,9 +32,11 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 
-from .bag import BagError, BagWriteError, qos_from_profile, subscription_qos
+from .errors import BagError
 from .playback import import_message_class
+from .qos import qos_from_profile, subscription_qos
 from .recording import TASK_TOPIC, Recorder, RecordSummary, default_output, topic_selected
+from .writer import BagWriteError
 
 PARAMETERS = (
     ("output", "", "Bag directory to create (must not exist). Empty: bags/rosbag2_<date-time> in the working directory."),
@@ -78,8 +80,8 @@ EXIT_CODES = (
 class RecorderNode(Node):
     """Thin node around :class:`dlo_bag.recording.Recorder`."""
 
-    def __init__(self, stop: ShutdownRequest | None = None) -> None:
-        super().__init__("recorder")
+    def __init__(self, stop: ShutdownRequest | None = None, **options) -> None:
+        super().__init__("recorder", **options)
         self.stop = stop
         p = declare_parameters(self, PARAMETERS)
         self.namespace = p["namespace"] or "/"
@@ -233,6 +235,14 @@ class RecorderNode(Node):
         return summary
 
 
+def exit_status(summary: RecordSummary, rc: int = 0) -> int:
+    """The recorder's exit status once its bag is closed (EXIT_CODES): 3 when the recording failed, else ``rc`` (a
+    bad parameter or output), else 1 when messages were dropped, else 0."""
+    if summary.failure:
+        return EXIT_RECORDING_FAILED
+    return rc or (EXIT_DROPPED if summary.dropped else 0)
+
+
 def main(args: list[str] | None = None) -> int:
     answered = handle_help("dlo_bag", PARAMETERS, __doc__, args, EXIT_CODES)
     if answered is not None:
@@ -259,10 +269,7 @@ def main(args: list[str] | None = None) -> int:
         rc = EXIT_BAD_PARAMETER
     finally:
         if node is not None:
-            summary = node.finish()
-            if summary.failure:
-                rc = EXIT_RECORDING_FAILED
-            rc = rc or (EXIT_DROPPED if summary.dropped else 0)
+            rc = exit_status(node.finish(), rc)
         shut_down(node)  # the bag is closed: a middleware teardown that hangs is cut (exit 1, stacks on stderr)
         stop.restore()
     return rc

@@ -9,7 +9,7 @@ Standard library only (the launch file imports it on a real ROS 2 install, the l
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from decimal import Decimal
 from pathlib import Path
 
@@ -33,7 +33,9 @@ class NodeSpec:
     values typed as the node reads them (bool, int, float, str, list of float); ``remappings``: ``(from, to)``;
     ``ready_line``: the line it prints once it is ready; the launcher waits for it before it starts the nodes after
     it (the sim: once it found itself alone on the domain; the Foxglove bridge: its URL, printed first), the launch
-    file for the sim's."""
+    file for the sim's. ``plugin``: ``module:Class``, the class the executable runs, which builds the node in a process
+    of its own or, given ``cli_args`` (these ``ros_args()``), next to the others in one (``--composed``,
+    :mod:`dlo_bringup.composed`)."""
 
     name: str
     package: str
@@ -41,6 +43,19 @@ class NodeSpec:
     parameters: tuple = ()
     remappings: tuple = ()
     ready_line: str = ""
+    plugin: str = ""
+
+    def to_dict(self) -> dict:
+        """The record as JSON values (``--composed`` hands the graph to its process so)."""
+        return {field.name: getattr(self, field.name) for field in fields(self)}
+
+    @classmethod
+    def from_dict(cls, values: dict) -> NodeSpec:
+        """The record :meth:`to_dict` gave, read back from JSON (lists become tuples, list values stay lists)."""
+        values = dict(values)
+        values["parameters"] = tuple((name, value) for name, value in values.get("parameters", ()))
+        values["remappings"] = tuple((source, target) for source, target in values.get("remappings", ()))
+        return cls(**values)
 
     def ros_args(self) -> list[str]:
         """Its command-line arguments: ``--ros-args -p name:=value ... -r from:=to ...``."""
@@ -112,13 +127,15 @@ def graph_nodes(o: GraphOptions, logs: Path | None = None) -> list[NodeSpec]:
     ]
     if o.record:
         sim.append(("wait_for_recorder", "recorder"))  # the first episode is recorded whole
-    nodes = [NodeSpec("sim", "dlo_sim", "sim_node", tuple(sim), remap, ready_line=SIM_READY)]
+    nodes = [NodeSpec("sim", "dlo_sim", "sim_node", tuple(sim), remap, SIM_READY, "dlo_sim.sim_node:SimNode")]
     if o.record:
         recorder = [("output", o.record)]
         recorder.append(("namespace", prefix) if prefix else ("record_clock", True))
         if logs is not None:
             recorder.append(("summary_file", str(logs / RECORDER_SUMMARY_FILE)))
-        nodes.append(NodeSpec("recorder", "dlo_bag", "recorder_node", tuple(recorder), remap))
+        nodes.append(
+            NodeSpec("recorder", "dlo_bag", "recorder_node", tuple(recorder), remap, plugin="dlo_bag.recorder_node:RecorderNode")
+        )
     if o.foxglove:
         nodes.append(
             NodeSpec(
@@ -127,6 +144,7 @@ def graph_nodes(o: GraphOptions, logs: Path | None = None) -> list[NodeSpec]:
                 "foxglove_bridge",
                 (("port", int(o.foxglove)), ("address", "127.0.0.1"), ("topics", f"{prefix}/dlo,{prefix}/clock")),
                 ready_line=FOXGLOVE_READY,
+                plugin="dlo_viz.foxglove_bridge_node:FoxgloveBridgeNode",
             )
         )
     nodes.append(
@@ -136,9 +154,19 @@ def graph_nodes(o: GraphOptions, logs: Path | None = None) -> list[NodeSpec]:
             "tactile_node",
             (("tactile_noise", _tactile_noise(o.tactile_noise)), ("seed", seed)),
             remap,
+            plugin="dlo_perception.tactile_node:TactileNode",
         )
     )
-    nodes.append(NodeSpec("vision", "dlo_perception", "vision_node", (("vision_source", o.vision_source),), remap))
+    nodes.append(
+        NodeSpec(
+            "vision",
+            "dlo_perception",
+            "vision_node",
+            (("vision_source", o.vision_source),),
+            remap,
+            plugin="dlo_perception.vision_node:VisionNode",
+        )
+    )
     policy = [("policy", o.policy)]
     if o.checkpoint:
         policy.append(("checkpoint", o.checkpoint))
@@ -148,5 +176,7 @@ def graph_nodes(o: GraphOptions, logs: Path | None = None) -> list[NodeSpec]:
         policy += [("train", True), ("train_out", o.train_out), ("seed", seed)]
     if o.train_config:
         policy.append(("train_config", o.train_config))
-    nodes.append(NodeSpec("policy", "dlo_policy", "policy_node", tuple(policy), remap))
+    nodes.append(
+        NodeSpec("policy", "dlo_policy", "policy_node", tuple(policy), remap, plugin="dlo_policy.policy_node:PolicyNode")
+    )
     return nodes

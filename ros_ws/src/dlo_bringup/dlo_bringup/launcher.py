@@ -148,6 +148,53 @@ class Child:
             self.proc.send_signal(sig)
 
 
+class ComposedProcess:
+    """The one process of ``--composed`` (:mod:`dlo_bringup.composed`): its output in ``log`` (split into the nodes'
+    logs by a :class:`dlo_bringup.composed_logs.LogSplitter`), the nodes' exit statuses in ``status_file``."""
+
+    def __init__(self, proc: subprocess.Popen, log: Path, status_file: Path, splitter):
+        self.proc, self.log, self.status_file, self.splitter = proc, log, status_file, splitter
+        self.sent: set = set()
+        self._report = None
+
+    def report(self) -> dict | None:
+        """What the process wrote on its nodes once it ended (``ended_by``, ``status``, ``rc``), None while it runs
+        or when it wrote nothing (killed)."""
+        if self._report is None and self.proc.poll() is not None:
+            try:
+                self._report = json.loads(self.status_file.read_text())
+            except (OSError, ValueError):
+                self._report = {}
+        return self._report or None
+
+    def signal(self, sig: int) -> None:
+        """``sig`` once (every node of it gets it: one SIGINT stops them all) while it runs."""
+        if sig not in self.sent and self.proc.poll() is None:
+            self.sent.add(sig)
+            self.proc.send_signal(sig)
+
+
+class ComposedNode(Child):
+    """A node of the ``--composed`` process, as the launcher sees a node's process: running while the process runs,
+    then the status the process gave it (the process's own when it reported none: killed, or its teardown cut)."""
+
+    def __init__(self, name: str, process: ComposedProcess, log: Path):
+        super().__init__(name, process.proc, log)
+        self.process = process
+
+    @property
+    def status(self) -> int | None:
+        rc = Child.status.fget(self)
+        report = self.process.report() if rc is not None else None
+        if report is None or self.name not in report["status"]:
+            return rc
+        status = report["status"][self.name]
+        return rc if status == 0 and rc != report["rc"] else status  # (0, but the teardown was cut: its 1)
+
+    def signal(self, sig: int) -> None:
+        self.process.signal(sig)
+
+
 class Launcher:
     def __init__(self, options: GraphOptions):
         self.o = options
@@ -157,6 +204,7 @@ class Launcher:
         self.problems = 0  # failures reported: the temp logs stay
         self.monitor = None
         self.clock_child = None
+        self.composed: ComposedProcess | None = None  # --composed: the one process of every node
         self.lock_fd = None
         root = repository_root()
         self.root = root
@@ -226,6 +274,34 @@ class Launcher:
         self.say(f"[launch] {spec.name} (pid {proc.pid}) -> {log}")
         return child
 
+    def start_composed(self, specs) -> list[ComposedNode]:
+        """--composed: every node of ``specs`` in one process (dlo_bringup.composed), which builds them in their
+        order; a view of each node, as its process would be, its lines in its own log."""
+        from dlo_bringup.composed_logs import LogSplitter
+
+        graph, status = self.logs / "composed_graph.json", self.logs / "composed_status.json"
+        graph.write_text(json.dumps([spec.to_dict() for spec in specs], indent=1) + "\n")
+        status.unlink(missing_ok=True)
+        log = self.logs / "composed.log"
+        logs = {spec.name: self.logs / f"{spec.name}.log" for spec in specs}
+        for path in logs.values():
+            path.write_text("")
+        with open(log, "w") as out:
+            proc = subprocess.Popen(
+                [*self.prefix, sys.executable, "-m", "dlo_bringup.composed", str(graph), str(status)],
+                stdout=out,
+                stderr=subprocess.STDOUT,
+                stdin=subprocess.DEVNULL,
+                env=self.env,
+                pass_fds=self.inherited_fds(),
+            )
+        self.composed = ComposedProcess(proc, log, status, LogSplitter(log, logs).start())
+        self.say(f"[launch] {', '.join(logs)}: one process (pid {proc.pid}, --composed) -> {log}")
+        for name, path in logs.items():
+            self.children.append(ComposedNode(name, self.composed, path))
+            self.say(f"[launch] {name} (pid {proc.pid}) -> {path}")
+        return self.children
+
     def wait_for_line(self, child: Child, line: str, limit: float) -> None:
         """Until ``child`` has printed ``line``, ended, or ``limit`` s passed, or the launcher is interrupted."""
         deadline = time.monotonic() + limit
@@ -291,6 +367,11 @@ class Launcher:
                 self.warn(f"[launch] {child.name} did not stop within {STOP_LIMIT:g} s of SIGINT: killing it")
                 child.signal(signal.SIGKILL)
                 child.proc.wait()
+        if self.composed is not None:
+            self.composed.splitter.stop()  # (every line in the nodes' logs)
+            report = self.composed.report()
+            if report is not None:  # a node it never built is no child, as when it would have had a process
+                self.children = [c for c in self.children if c.name in report["status"]]
 
     # ---- the run ----------------------------------------------------------------------------------------------
     def choose_domain(self) -> int:
@@ -346,11 +427,12 @@ class Launcher:
 
     def supervise(self, specs, outcomes: Path) -> int:
         """Start the graph, watch it, stop it: the exit status before the recording's is looked at."""
-        sim = self.start(specs[0])
+        composed = self.o.composed == "true"
+        sim = self.start_composed(specs)[0] if composed else self.start(specs[0])
         self.wait_for_line(sim, specs[0].ready_line, SIM_START_LIMIT)
         if sim.running() and not self.check_interrupt():
             for spec in specs[1:]:
-                child = self.start(spec)
+                child = self.child(spec.name) if composed else self.start(spec)  # (--composed: built in turn)
                 if spec.ready_line:  # (the Foxglove bridge: its URL is printed before the rest starts)
                     self.wait_for_line(child, spec.ready_line, FOXGLOVE_START_LIMIT)
                 if spec.name == "foxglove":
@@ -361,11 +443,12 @@ class Launcher:
                 self.start_monitor([spec.name for spec in specs])
         failed = None
         while sim.running() and not self.check_interrupt() and failed is None:
-            failed = next((c for c in self.children[1:] if not c.running()), None)
+            failed = self.ended_early()
             if self.monitor is not None:
                 self.monitor.tick()
             if failed is None:
                 time.sleep(POLL)
+        failed = failed or (self.ended_early() if composed else None)  # (its nodes end together)
         self.stop_graph()
         if self.monitor is not None:
             self.monitor.report_episodes()  # those that finished while the graph stopped
@@ -393,6 +476,15 @@ class Launcher:
         )
         self.show_log_end(sim)
         return EXIT_USAGE if sim.status == 2 else EXIT_NODE_FAILED
+
+    def ended_early(self) -> Child | None:
+        """The node (not the sim) that has ended while the graph runs; --composed: the one whose end ended the
+        process, as it reported (the others only stopped with it)."""
+        if self.composed is None:
+            return next((c for c in self.children[1:] if not c.running()), None)
+        report = self.composed.report()
+        ended_by = report.get("ended_by") if report else None
+        return next((c for c in self.children[1:] if c.name == ended_by), None)
 
     def show_foxglove_url(self, child: Child) -> None:
         text = child.log.read_text(errors="replace") if child.log.exists() else ""

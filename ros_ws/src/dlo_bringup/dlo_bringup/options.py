@@ -84,6 +84,14 @@ OPTIONS = (
         "",
         "node logs and the outcome file go here, and stay (default: a new temp dir, removed at the end unless the run failed)",
     ),
+    (
+        "composed",
+        "[true|false]",
+        "",
+        "every node in one process on one executor (ROS 2 composition, dlo_bringup.composed; alone = true): the "
+        "same nodes, parameters, lines, exit codes and bag, the same episodes step for step, without a process "
+        "and a DDS hop per node (faster: python benchmarks/run.py composed)",
+    ),
     ("status-period", "S", "10", "seconds between status lines while the graph runs (default 10; 0 = none)"),
     (
         "domain-id",
@@ -100,10 +108,12 @@ OPTIONS = (
         "then share a domain deliberately (with --domain-id)",
     ),
 )
-LAUNCHER_ONLY = ("status-period", "domain-id")  # ros2 launch: ROS_DOMAIN_ID from the environment, its own output
+# ros2 launch: ROS_DOMAIN_ID from the environment, its own output, a process per node
+LAUNCHER_ONLY = ("composed", "status-period", "domain-id")
 OPTIONAL_VALUE = {
     "single-particle-grip": (re.compile(r"(true|false)"), "true"),  # alone: this value
     "foxglove": (re.compile(r"[0-9]+"), str(FOXGLOVE_PORT)),
+    "composed": (re.compile(r"(true|false)"), "true"),
 }
 POLICIES = ("sac", "tactile_reactive", "oracle", "random")
 CONTACT_RADIUS_MAX = 0.006  # m (dlo_sim: above 4.25 mm the fingers pinch the cable)
@@ -136,6 +146,7 @@ class GraphOptions:
     record: str = ""
     foxglove: str = ""  # "" = no bridge, else its port
     logs: str = ""
+    composed: str = ""  # "true": every node in one process
     status_period: str = "10"
     domain_id: str = ""
     namespace: str = ""  # without slashes at either end

@@ -55,8 +55,8 @@ def tactile_noise_of(values: dict):
 class TactileNode(Node):
     """Fits the held cable line in the gripper frame (dlo_perception.tactile) for every step."""
 
-    def __init__(self):
-        super().__init__("tactile_node")
+    def __init__(self, **options):
+        super().__init__("tactile_node", **options)
         p = declare_parameters(self, PARAMETERS)
         self.tactile_noise = noise_setting(tactile_noise_of(p))
         self.sigma = noise_sigma(self.tactile_noise)

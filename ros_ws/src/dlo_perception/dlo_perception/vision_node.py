@@ -56,8 +56,8 @@ PARAMETERS = (
 class VisionNode(Node):
     """Distils O_V = [v_V, q_V, theta_V, y_V] from the camera image (dlo_perception.vision)."""
 
-    def __init__(self):
-        super().__init__("vision_node")
+    def __init__(self, **options):
+        super().__init__("vision_node", **options)
         p = declare_parameters(self, PARAMETERS)
         self.camera_position = tuple(p["camera_position"])  # three numbers (declare_parameters checks)
         self.camera = None

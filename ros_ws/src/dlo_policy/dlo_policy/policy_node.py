@@ -232,8 +232,8 @@ def policy_record(
 class PolicyNode(Node):
     """Closes the loop: observations in, one gripper command per control step out."""
 
-    def __init__(self):
-        super().__init__("policy_node")
+    def __init__(self, **options):
+        super().__init__("policy_node", **options)
         p = declare_parameters(self, PARAMETERS)
         if p["train"] and p["policy"] != "sac":
             raise ParameterError("parameter 'train': online training needs policy:=sac")

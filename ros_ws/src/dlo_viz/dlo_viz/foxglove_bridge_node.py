@@ -35,8 +35,9 @@ import sys
 import time
 from pathlib import Path
 
-from dlo_bag.bag import BagError, qos_from_profile, subscription_qos
+from dlo_bag.errors import BagError
 from dlo_bag.playback import import_message_class
+from dlo_bag.qos import qos_from_profile, subscription_qos
 from dlo_common.node_util import NodeStartError, ParameterError, declare_parameters
 from dlo_common.params import Param
 from rclpy.event_handler import SubscriptionEventCallbacks
@@ -95,8 +96,8 @@ PARAMETERS = (
 class FoxgloveBridgeNode(Node):
     """Thin node: discovery and raw subscriptions around :class:`FoxgloveBridge`."""
 
-    def __init__(self) -> None:
-        super().__init__("foxglove_bridge")
+    def __init__(self, **options) -> None:
+        super().__init__("foxglove_bridge", **options)
         self._name = self.get_name()  # for lines after the node is destroyed (the SDK's threads may still log)
         p = declare_parameters(self, PARAMETERS)
         if p["nice"]:
