@@ -108,6 +108,13 @@ def check_options(options) -> None:
     unknown = sorted(set(options) - set(known))
     if unknown:
         raise ValueError(f"unknown option(s) {', '.join(unknown)}; known: {', '.join(known)}")
+    _check_observation_options(options)
+    _check_variant_options(options)
+    _check_sim_options(options)
+
+
+def _check_observation_options(options) -> None:
+    """tactile_noise, without, perturbations and randomise (not a physics family with a fixed physics_seed)."""
     if "tactile_noise" in options:
         try:
             noise_sigma(options["tactile_noise"])
@@ -125,6 +132,10 @@ def check_options(options) -> None:
                 f"randomise: {', '.join(physics)} cannot be drawn per episode with physics_seed "
                 f"{options['physics_seed']} (one physics draw for every episode): leave one of them out"
             )
+
+
+def _check_variant_options(options) -> None:
+    """The task rules and the authors' variants: vision_source, single_particle_grip, physics_seed."""
     if "task_rules" in options:
         task.check_task_rules(options["task_rules"])
     if "vision_source" in options:
@@ -134,6 +145,10 @@ def check_options(options) -> None:
     seed = options.get("physics_seed", -1)
     if isinstance(seed, bool) or not isinstance(seed, int) or seed < -1:
         raise ValueError(f"physics_seed: expected an integer >= 0 (or -1: drawn per episode), got {seed!r}")
+
+
+def _check_sim_options(options) -> None:
+    """carry_law, start_pose, contact_radius and the integer options (horizon, end_particles, camera_resolution)."""
     if "carry_law" in options and options["carry_law"] not in CARRY_LAWS:
         raise ValueError(f"carry_law: expected one of {', '.join(CARRY_LAWS)}, got {options['carry_law']!r}")
     if "start_pose" in options and options["start_pose"] not in START_POSES:
