@@ -687,41 +687,15 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     if threading.current_thread() is threading.main_thread():  # SIGTERM stops the runs like Ctrl-C does
         signal.signal(signal.SIGTERM, _interrupt)
     if args.collect is not None:
-        if not args.out.is_dir():
-            return _usage_error(f"--collect: no directory {args.out}")
-        for directory in collect_results(args.out, args.collect):
-            print(directory, flush=True)
-        return 0
-    for name in ("threads", "seeds"):
-        if getattr(args, name) < 1:
-            return _usage_error(f"--{name} must be at least 1")
-    if args.jobs is not None and args.jobs < 1 or args.retries < 0 or args.gpus_per_run < 0:
-        return _usage_error("--jobs must be at least 1, --retries and --gpus-per-run at least 0")
-    if args.gpus_per_run and not args.ray_address:
-        return _usage_error("--gpus-per-run is for --ray-address (local runs use train.device)")
+        return _collect(args)
+    problem = _argument_problem(args)
+    if problem:
+        return _usage_error(problem)
     if args.ray_address:
         import_ray()
-    cores = available_cores()
-    jobs = args.jobs or max(1, cores // args.threads)
-    if not args.ray_address and not args.dry_run and jobs * args.threads > cores:
-        print(
-            f"dlo-experiments: {jobs} jobs x {args.threads} threads > {cores} cores; using {max(1, cores // args.threads)} jobs",
-            file=sys.stderr,
-        )
-        jobs = max(1, cores // args.threads)
+    jobs = _local_jobs(args)
     try:
-        groups = [g.strip() for g in args.groups.split(",") if g.strip()]
-        specs = experiment_grid(groups, range(args.first_seed, args.first_seed + args.seeds))
-        if args.labels:
-            wanted = wanted_labels(args.labels, specs, ",".join(groups))
-            specs = [s for s in specs if s.label in wanted]
-        check_override_keys(args.overrides)
-        configs = [run_config(s, args.config, args.overrides, args.steps, args.threads) for s in specs]
-        if not checkpoint_every_given(args.config, args.overrides):  # a short grid's runs can be resumed too
-            for config in configs:
-                config.train.checkpoint_every = default_checkpoint_every(config.train.total_steps)
-        for config in configs:
-            check_env_options(config)
+        specs, configs = _grid_configs(args)
     except (ConfigError, ValueError) as error:
         return _usage_error(str(error))
     statuses = [run_status(s.directory(args.out)) for s in specs]
@@ -741,6 +715,64 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         return 0
     if not tasks:
         return 0
+    return _run_grid(args, tasks, jobs)
+
+
+def _collect(args) -> int:
+    """--collect: copy the small files of the runs under --out into the record (one line per run directory)."""
+    if not args.out.is_dir():
+        return _usage_error(f"--collect: no directory {args.out}")
+    for directory in collect_results(args.out, args.collect):
+        print(directory, flush=True)
+    return 0
+
+
+def _argument_problem(args) -> Optional[str]:
+    """The usage error of a bad --threads, --seeds, --jobs, --retries or --gpus-per-run, or None."""
+    for name in ("threads", "seeds"):
+        if getattr(args, name) < 1:
+            return f"--{name} must be at least 1"
+    if args.jobs is not None and args.jobs < 1 or args.retries < 0 or args.gpus_per_run < 0:
+        return "--jobs must be at least 1, --retries and --gpus-per-run at least 0"
+    if args.gpus_per_run and not args.ray_address:
+        return "--gpus-per-run is for --ray-address (local runs use train.device)"
+    return None
+
+
+def _local_jobs(args) -> int:
+    """How many runs at once on this machine: --jobs, else as many as the cores hold at --threads each (a local
+    grid asking more than the cores is cut down, with a line saying so)."""
+    cores = available_cores()
+    jobs = args.jobs or max(1, cores // args.threads)
+    if not args.ray_address and not args.dry_run and jobs * args.threads > cores:
+        print(
+            f"dlo-experiments: {jobs} jobs x {args.threads} threads > {cores} cores; using {max(1, cores // args.threads)} jobs",
+            file=sys.stderr,
+        )
+        jobs = max(1, cores // args.threads)
+    return jobs
+
+
+def _grid_configs(args) -> tuple[list, list]:
+    """The grid's run specs (its groups, seeds and --labels) and their checked configurations; ConfigError or
+    ValueError for a bad group, label, override or env option."""
+    groups = [g.strip() for g in args.groups.split(",") if g.strip()]
+    specs = experiment_grid(groups, range(args.first_seed, args.first_seed + args.seeds))
+    if args.labels:
+        wanted = wanted_labels(args.labels, specs, ",".join(groups))
+        specs = [s for s in specs if s.label in wanted]
+    check_override_keys(args.overrides)
+    configs = [run_config(s, args.config, args.overrides, args.steps, args.threads) for s in specs]
+    if not checkpoint_every_given(args.config, args.overrides):  # a short grid's runs can be resumed too
+        for config in configs:
+            config.train.checkpoint_every = default_checkpoint_every(config.train.total_steps)
+    for config in configs:
+        check_env_options(config)
+    return specs, configs
+
+
+def _run_grid(args, tasks: list, jobs: int) -> int:
+    """Run ``tasks`` on the Ray cluster or here with ``jobs`` at once, then the report; the exit status."""
     progress: Optional[GridProgress] = None
     try:
         if args.ray_address:
