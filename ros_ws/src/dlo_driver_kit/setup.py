@@ -8,6 +8,8 @@ setup(
     name=package_name,
     version="0.1.0",
     packages=find_packages(exclude=["test"]),
+    # the shipped policy's robustness envelope, read by dlo-driver-check beside its module (dlo_driver_kit.envelope)
+    package_data={package_name: ["shipped_envelope.json"]},
     data_files=[
         ("share/ament_index/resource_index/packages", ["resource/" + package_name]),
         ("share/" + package_name, ["package.xml"]),

@@ -55,6 +55,23 @@ so one defect fails one rule:
   (``dlo_perception.cloud``: fields x, y, z, held, FLOAT32, little endian, 16 bytes a point), or
   ``/dlo/tactile/pose``.
 
+After the rules, against the shipped policy's robustness envelope (:mod:`dlo_driver_kit.envelope`, packaged with
+this module; :func:`envelope_lines`), one line each, "within" or "beyond the shipped policy's 80% tolerance of" the
+perturbation family it amounts to (or "not compared" and why, without the envelope); they change no exit status:
+
+- latency: control steps the measured velocity lags each change of the commanded velocity (the move and lead-in
+  phases; :func:`response_delay`: the part of the change not yet made, summed over the steps after it; 0 when the
+  step after the state a command answers runs at it), the median, against ``action_delay``;
+- rate jitter: std and 95th percentile of the deviation of the period between states (by arrival); the latency
+  plus that percentile in steps against ``action_delay`` again;
+- speed: the moves' measured speed over the commanded (as 'obey' measures it) against ``velocity_gain``;
+- closure lag: the first-order time constant with which the closure follows the close/open commands, on top of the
+  latency, against ``closure_lag``;
+- image noise: ``dlo_perception.vision`` on the images of the hold-still phase (the camera at vision_node's default
+  position): the std of y_V and theta_V and the share of images losing (or finding) the cable, against
+  ``vision_offset_noise``, ``vision_angle_noise``, ``vision_dropout`` (``vision_false_visible``). It needs no
+  ground truth: nothing moves, so any spread is the camera's and the segmentation's.
+
 The rules are plain functions of a :class:`Recording` (no rclpy: testable without ROS); the node
 that makes the recording is :func:`record`. Exit status: 0 every rule passed (or was skipped),
 1 a rule failed, no driver answered within ``--timeout`` or another node commands the driver,
@@ -73,13 +90,24 @@ from collections import Counter
 from dataclasses import dataclass, field
 
 import numpy as np
+from dlo_common import taichi_runtime  # noqa: F401 (before the image noise imports Taichi: its banner stays off stdout)
 from dlo_common.console import console_main
 from dlo_common.topics import SERVICES, message_class, select
 from dlo_common.topics import topic as topic_record
 from dlo_perception.cloud import FIELD_NAMES, FLOAT32, POINT_STEP, unpack_particles
 from dlo_perception.sync import format_stamp
 from dlo_sim.command import MAX_SPEED
-from dlo_sim.config import DT, IMAGE_BACKGROUND, IMAGE_CABLE, IMAGE_GRIPPER, SUBSTEPS_PER_ACTION, WORKSPACE_HALF_WIDTH
+from dlo_sim.config import (
+    DT,
+    GRIPPER_HEIGHT,
+    IMAGE_BACKGROUND,
+    IMAGE_CABLE,
+    IMAGE_GRIPPER,
+    SUBSTEPS_PER_ACTION,
+    WORKSPACE_HALF_WIDTH,
+)
+
+from dlo_driver_kit import envelope as shipped
 
 RULES = ("rate", "stamps", "sync", "camera", "obey", "invalid", "stale", "workspace", "touch")
 CONTROL_RATE = 1.0 / (DT * SUBSTEPS_PER_ACTION)  # Hz, one command per 0.08 s
@@ -178,6 +206,7 @@ class StateSample:
     y: float
     closure: float
     stamp_ns: int | None = None
+    z: float = GRIPPER_HEIGHT  # m
 
     def __post_init__(self):
         if self.stamp_ns is None:
@@ -195,6 +224,7 @@ class ImageSample:
     stamp_ns: int = 0
     values: tuple = ()  # the distinct pixel values of a mono8 image (empty for other encodings)
     wall: float | None = None  # arrival time [s] (None: unknown)
+    pixels: np.ndarray | None = None  # (height, width) uint8 of a mono8 image (None: not kept), for the image noise
 
 
 @dataclass
@@ -494,14 +524,10 @@ def check_obey(rec: Recording, s: Settings) -> Result:
     parts, problems = [], []
     for phase in schedule(s):
         if phase.kind == "move":
-            dt = [(a, b, getattr(b, clock) - getattr(a, clock)) for a, b in steps_in(rec, phase.name)]
-            pairs = [(a, b, t) for a, b, t in dt if 0.5 * period <= t <= 2 * period]
-            if len(pairs) < 2:
-                problems.append(
-                    f"{phase.name}: {len(pairs)} usable step(s) (states missing, or not half to twice a period apart)"
-                )
+            v, usable = phase_velocity(rec, phase, clock, period)
+            if v is None:
+                problems.append(f"{phase.name}: {usable} usable step(s) (states missing, or not half to twice a period apart)")
                 continue
-            v = np.median([[(b.x - a.x) / t, (b.y - a.y) / t] for a, b, t in pairs], axis=0)
             want = np.asarray(phase.command[:2])
             speed, target = float(np.linalg.norm(v)), float(np.linalg.norm(want))
             # the angle between the unit vectors: any commanded speed > 0 is judged alike, however small
@@ -523,6 +549,16 @@ def check_obey(rec: Recording, s: Settings) -> Result:
     if problems:
         return Result("obey", "FAIL", "; ".join(problems) + timed)
     return Result("obey", "PASS", ", ".join(parts) + f" (commanded {s.speed:g} m/s; closure 1, 0{timed})")
+
+
+def phase_velocity(rec: Recording, phase: Phase, clock: str, period: float) -> tuple:
+    """(median velocity (vx, vy) [m/s] over the steps run under ``phase``'s command, usable steps), timed by
+    ``clock`` over steps half to twice ``period`` apart; (None, usable) with fewer than 2 usable steps."""
+    dt = [(a, b, getattr(b, clock) - getattr(a, clock)) for a, b in steps_in(rec, phase.name)]
+    pairs = [(a, b, t) for a, b, t in dt if 0.5 * period <= t <= 2 * period]
+    if len(pairs) < 2:
+        return None, len(pairs)
+    return np.median([[(b.x - a.x) / t, (b.y - a.y) / t] for a, b, t in pairs], axis=0), len(pairs)
 
 
 def check_invalid(rec: Recording, s: Settings) -> Result:
@@ -741,6 +777,241 @@ def format_results(results: list[Result]) -> str:
     return "\n".join(f"{r.status} {r.rule:<9} {r.reason}" for r in results)
 
 
+# ---------------------------------------------------------------------------------------- against the shipped policy
+RESPONSE_WINDOW = 5  # steps after a change of command over which the response is followed
+RESPONSE_MIN_STEPS = 3  # a change followed for fewer steps (its episode ended) is not judged
+STILL_IMAGES_MIN = 5  # images of the hold-still phase needed to estimate the image noise
+
+
+def valid_command(command) -> bool:
+    """A command the driver must execute (finite, speed and closure in range): what the responses are timed on."""
+    return (
+        command is not None
+        and all(math.isfinite(v) for v in command)
+        and math.hypot(command[0], command[1]) <= MAX_SPEED
+        and 0.0 <= command[2] <= 1.0
+    )
+
+
+def response_delay(levels, before, after) -> float:
+    """Control steps a response lags behind its command: the sum, over the steps after the change, of the part of
+    the change from ``before`` to ``after`` not yet made (``levels``: the quantity per step, a velocity or a
+    closure). A response d steps late counts d; a first-order lag of rate r per step (1 - r) / r."""
+    levels, before, after = (np.atleast_1d(np.asarray(v, dtype=float)) for v in (levels, before, after))
+    span = after - before
+    done = np.clip(((levels.reshape(len(levels), -1) - before) @ span) / float(span @ span), 0.0, 1.0)
+    return float(np.sum(1.0 - done))
+
+
+def _by_step(rec: Recording) -> dict:
+    return {(x.episode, x.step): x for x in rec.states}
+
+
+def _changes(rec: Recording, s: Settings, kinds: tuple):
+    """(phase, episode, k0) for each phase of ``kinds`` with a valid command and each episode it answered: k0 the
+    first state of that episode it answered (the command changed there, or the episode started with it)."""
+    for phase in schedule(s):
+        if phase.kind not in kinds or not valid_command(phase.command):
+            continue
+        firsts = {}
+        for (episode, step), name in rec.answered.items():
+            if name == phase.name and step < firsts.get(episode, math.inf):
+                firsts[episode] = step
+        for episode, k0 in sorted(firsts.items()):
+            yield phase, episode, k0
+
+
+def motion_latency(rec: Recording, s: Settings) -> list[float]:
+    """Command-to-state latency [control steps] of each change of the commanded velocity (the move and lead-in
+    phases): how many steps the gripper's measured velocity lags the command answering state k0 (0: the step
+    k0 -> k0 + 1 already runs at it, as in the simulator and the gym env). The velocity before is the step into k0
+    (at rest at an episode's start), the velocity after the mean of the last two steps followed."""
+    states, clock = _by_step(rec), motion_clock(rec)
+    period = typical_period(rec, clock)
+    delays = []
+    for phase, episode, k0 in _changes(rec, s, ("move", "lead")):
+
+        def velocity(k):
+            a, b = states.get((episode, k)), states.get((episode, k + 1))
+            t = None if a is None or b is None else getattr(b, clock) - getattr(a, clock)
+            return None if t is None or not 0.5 * period <= t <= 2 * period else ((b.x - a.x) / t, (b.y - a.y) / t)
+
+        levels = []
+        for k in range(k0, k0 + RESPONSE_WINDOW):
+            v = velocity(k) if rec.answered.get((episode, k)) == phase.name else None
+            if v is None:
+                break
+            levels.append(v)
+        before = (0.0, 0.0) if k0 == 0 else velocity(k0 - 1)
+        if len(levels) < RESPONSE_MIN_STEPS or before is None:
+            continue
+        after = np.mean(levels[-2:], axis=0)
+        change = np.asarray(phase.command[:2]) - np.asarray(before)
+        if np.linalg.norm(after - before) < 0.25 * np.linalg.norm(change):  # it did not follow: 'obey' says so
+            continue
+        delays.append(response_delay(levels, before, after))
+    return delays
+
+
+def closure_delays(rec: Recording, s: Settings) -> list[tuple[float, int]]:
+    """(control steps the measured closure lags, steps followed) for each change of the commanded closure (the
+    close and open phases), as motion_latency: from the closure of state k0 to the commanded one, over the states
+    k0 + 1, k0 + 2, ... the phase answered."""
+    states, delays = _by_step(rec), []
+    for phase, episode, k0 in _changes(rec, s, ("closure",)):
+        levels = []
+        for k in range(k0, k0 + 2 * RESPONSE_WINDOW):
+            after = states.get((episode, k + 1))
+            if rec.answered.get((episode, k)) != phase.name or after is None:
+                break
+            levels.append(after.closure)
+        start, target = states.get((episode, k0)), phase.command[2]
+        if len(levels) < RESPONSE_MIN_STEPS or start is None or abs(target - start.closure) < 0.25:
+            continue
+        delays.append((response_delay(levels, start.closure, target), len(levels)))
+    return delays
+
+
+def lag_time_constant(steps: float, followed: int, period: float) -> float:
+    """The first-order time constant [s] whose response, followed over ``followed`` control steps of ``period`` s,
+    lags ``steps`` (the closure lag of dlo_policy.perturbations: rate r = 1 - exp(-period / tau) per step lags
+    (1 - r) / r (1 - (1 - r)^followed) over them); inf when it lags at least ``followed`` (no response seen)."""
+    if steps <= 0:
+        return 0.0
+    if steps >= followed:
+        return math.inf
+    low, high = 1e-12, 1.0  # the lag falls as the rate rises
+
+    def lag(rate):
+        return (1.0 - rate) / rate * (1.0 - (1.0 - rate) ** followed)
+
+    for _ in range(100):
+        middle = 0.5 * (low + high)
+        low, high = (middle, high) if lag(middle) > steps else (low, middle)
+    return -period / math.log(1.0 - 0.5 * (low + high))
+
+
+def rate_jitter(rec: Recording) -> tuple:
+    """(std, 95th percentile of |period - median period|) of the arrival times between consecutive steps [s], over
+    the whole check (the steps from a new episode's state 0 left out, as 'rate'); (None, None) with < 3 steps."""
+    steps = [(a, b) for a, b in zip(rec.states, rec.states[1:]) if b.episode == a.episode and b.step == a.step + 1]
+    gaps = np.array([b.wall - a.wall for a, b in steps if a.step > 0] or [b.wall - a.wall for a, b in steps])
+    if len(gaps) < 3:
+        return None, None
+    return float(np.std(gaps)), float(np.percentile(np.abs(gaps - np.median(gaps)), 95))
+
+
+def velocity_gain(rec: Recording, s: Settings) -> float | None:
+    """Measured speed / commanded speed, the median over the move phases ('obey''s velocities); None if none."""
+    clock = motion_clock(rec)
+    period = typical_period(rec, clock)
+    gains = []
+    for phase in schedule(s):
+        if phase.kind == "move":
+            v, _ = phase_velocity(rec, phase, clock, period)
+            if v is not None:
+                gains.append(float(np.linalg.norm(v)) / math.hypot(*phase.command[:2]))
+    return float(np.median(gains)) if gains else None
+
+
+def image_noise(rec: Recording) -> dict | None:
+    """What the vision computation (dlo_perception.vision, as vision_node runs it, camera at its default position)
+    reads from the images of the hold-still phase, where neither gripper nor cable moves: ``images`` judged,
+    ``visible`` of them, the std of y_V [m] and theta_V [rad] over the visible ones (the image noise a camera adds
+    on top of the simulator's clean render). None with fewer than STILL_IMAGES_MIN still mono8 images."""
+    window = phase_window(rec, "idle")
+    if window is None or not rec.infos:
+        return None
+    states = {x.stamp_ns: x for x in rec.states if window[0] <= x.wall <= window[1]}
+    info = rec.infos[-1]
+    still = [
+        (im, states[im.stamp_ns])
+        for im in rec.images
+        if im.pixels is not None and im.stamp_ns in states and im.pixels.shape == (info.height, info.width)
+    ]
+    if len(still) < STILL_IMAGES_MIN:
+        return None
+    from dlo_perception.camera import TopCamera
+    from dlo_perception.vision import visual_pose
+
+    camera = TopCamera.from_camera_info(info.width, info.height, info.k, TopCamera.position)
+    by_z = {}
+    for im, x in still:  # one batch per gripper height (one in practice)
+        by_z.setdefault(x.z, []).append((im, x))
+    visible, ys, angles = 0, [], []
+    for z, group in by_z.items():
+        pose = visual_pose(np.stack([im.pixels for im, _ in group]), camera, np.array([[x.x, x.y] for _, x in group]), z)
+        visible += int(np.sum(pose.visible))
+        ys += list(pose.y[pose.visible])
+        angles += list(pose.angle[pose.visible])
+    spread = len(ys) >= 2
+    return {
+        "images": len(still),
+        "visible": visible,
+        "y_std": float(np.std(ys)) if spread else None,
+        "angle_std": float(np.std(angles)) if spread else None,
+    }
+
+
+def steps_text(value: float) -> str:
+    return f"{value:.1f} step{'' if round(value, 1) == 1 else 's'}"
+
+
+def envelope_lines(rec: Recording, s: Settings, envelope: dict | None, why: str = "") -> list[str]:
+    """The driver's measured timing, actuation and image noise, each against the shipped policy's 80% tolerance of
+    the perturbation family it amounts to (dlo_driver_kit.envelope); a line for what could not be measured."""
+    lines = []
+    period = 1.0 / s.rate
+    delays = motion_latency(rec, s)
+    latency = float(np.median(delays)) if delays else None
+    if latency is None:
+        lines.append("latency: not measured (no change of the commanded velocity followed for 3 steps of one episode)")
+    else:
+        text = (
+            f"latency {steps_text(latency)} (command to state: median of {len(delays)} changes of command, "
+            f"largest {max(delays):.1f})"
+        )
+        lines.append(shipped.compare(envelope, "action_delay", latency, text, "steps of delay", why))
+    std, p95 = rate_jitter(rec)
+    if std is None:
+        lines.append("rate jitter: not measured (fewer than 3 consecutive steps)")
+    else:
+        late = (latency or 0.0) + p95 / period
+        text = (
+            f"rate jitter {std * 1e3:.1f} ms (std of the period between states; 95% within {p95 * 1e3:.1f} ms = "
+            f"{p95 / period:.2f} steps; latency with it {late:.2f} steps)"
+        )
+        lines.append(shipped.compare(envelope, "action_delay", late, text, "steps of delay", why))
+    gain = velocity_gain(rec, s)
+    if gain is not None:
+        lines.append(shipped.compare_gain(envelope, gain, f"speed {gain:.2f}x the commanded (median of the moves)", why))
+    closure = closure_delays(rec, s)
+    if closure:
+        delay, followed = min(closure, key=lambda c: abs(c[0] - float(np.median([d for d, _ in closure]))))
+        lag = max(delay - (latency or 0.0), 0.0)  # the closure's own lag, on top of the command's latency
+        tau = lag_time_constant(lag, followed - round(latency or 0.0), period)
+        text = f"closure lag {tau:.2f} s (first-order time constant: the closure follows {lag:.1f} steps after the motion)"
+        lines.append(shipped.compare(envelope, "closure_lag", tau, text, "s", why))
+    noise = image_noise(rec)
+    if noise is None:
+        lines.append(f"image noise: not estimated (fewer than {STILL_IMAGES_MIN} mono8 images while holding still)")
+    else:
+        seen = f"over {noise['images']} images holding still, the cable seen in {noise['visible']}"
+        if noise["y_std"] is not None:
+            text = f"image noise {noise['y_std'] * 1e3:.1f} mm on y_V (std {seen})"
+            lines.append(shipped.compare(envelope, "vision_offset_noise", noise["y_std"] * 1e3, text, "mm", why))
+            text = f"image noise {math.degrees(noise['angle_std']):.1f} deg on theta_V (std {seen})"
+            lines.append(shipped.compare(envelope, "vision_angle_noise", math.degrees(noise["angle_std"]), text, "deg", why))
+        mostly = noise["visible"] >= noise["images"] / 2
+        flicker = (noise["images"] - noise["visible"] if mostly else noise["visible"]) / noise["images"]
+        family = "vision_dropout" if mostly else "vision_false_visible"
+        what = "lost" if mostly else "reported"
+        count = round(flicker * noise["images"])
+        text = f"detection flicker {flicker:.0%} (the cable {what} in {count} of {noise['images']} still images)"
+        lines.append(shipped.compare(envelope, family, flicker, text, "", why))
+    return lines
+
+
 # ---------------------------------------------------------------------------------------- ROS part
 class CheckError(RuntimeError):
     """The check cannot run (one line for the user)."""
@@ -794,6 +1065,7 @@ def record(s: Settings, namespace: str, timeout: float, log=print) -> Recording 
                 float(msg.y),
                 float(msg.closure),
                 stamp_ns(msg),
+                float(msg.z),
             )
             rec.states.append(sample)
             i = current["index"]
@@ -807,11 +1079,11 @@ def record(s: Settings, namespace: str, timeout: float, log=print) -> Recording 
             rec.last_command_wall = time.monotonic()
 
         def on_image(msg):
-            values = ()
+            values, pixels = (), None
             if msg.encoding == "mono8":  # the pixel values vision_node will see (row padding left out)
                 data = np.frombuffer(bytes(msg.data), np.uint8)
                 if msg.step >= msg.width and data.size == msg.height * msg.step:
-                    data = data.reshape(msg.height, msg.step)[:, : msg.width]
+                    data = pixels = data.reshape(msg.height, msg.step)[:, : msg.width].copy()
                 values = tuple(int(v) for v in np.unique(data))
             rec.images.append(
                 ImageSample(
@@ -824,6 +1096,7 @@ def record(s: Settings, namespace: str, timeout: float, log=print) -> Recording 
                     stamp_ns(msg),
                     values,
                     time.monotonic(),
+                    pixels,
                 )
             )
 
@@ -910,8 +1183,10 @@ def main(argv=None) -> int:
         "topic contract, rule by rule: " + ", ".join(RULES) + ". It sends commands to "
         "/dlo/gripper/cmd (the gripper moves about 0.6 m): nothing else may command the driver meanwhile.",
         epilog="Try it on the simulator first: 'ros2run dlo_sim sim_node --ros-args -p mode:=real_time &' then "
-        "'dlo-driver-check' (9/9; docs/WRITE_YOUR_DRIVER.md). Exit status: 0 every rule passed, 1 a rule "
-        "failed, no driver answered or another node commands the driver, 2 bad usage, 130 interrupted.",
+        "'dlo-driver-check' (9/9; docs/WRITE_YOUR_DRIVER.md). After the rules it compares the driver's latency, rate "
+        "jitter, speed, closure lag and image noise with the shipped policy's robustness envelope (lines only). Exit "
+        "status: 0 every rule passed, 1 a rule failed, no driver answered or another node commands the driver, 2 bad "
+        "usage, 130 interrupted.",
     )
     parser.add_argument("--namespace", default="", help="topics under /NS/dlo/... (as launch_graph.sh --namespace)")
     parser.add_argument("--timeout", type=float, default=10.0, help="s to wait for the driver's first state (10)")
@@ -973,6 +1248,13 @@ def main(argv=None) -> int:
     print(format_results(results))
     failed = [r.rule for r in results if not r.passed]
     print(f"{len(results) - len(failed)}/{len(results)} rules passed" + (f"; failed: {', '.join(failed)}" if failed else ""))
+    envelope, why = shipped.load()
+    print(
+        "Against the shipped policy's robustness envelope (what it tolerates before it holds the end in fewer than 80% "
+        "of the episodes; docs/RESULTS.md#robustness-envelope):"
+    )
+    for line in envelope_lines(rec, settings, envelope, why):
+        print(f"  {line}")
     return 1 if failed else 0
 
 

@@ -2,7 +2,8 @@
 
     python dlo_driver_kit_broken_driver.py FAULT [--ros-args ...]
 
-FAULT is one of FAULTS: the reference mock driver (dlo_driver_kit.mock_driver_node) with one defect.
+FAULT is one of FAULTS: the reference mock driver (dlo_driver_kit.mock_driver_node) with one defect; or one of
+LATE_FAULTS: the mock driver, late.
 """
 
 from __future__ import annotations
@@ -31,6 +32,11 @@ FAULTS = {
     "image_float_stamp": "sync",  # the image stamp passed through float seconds (off by up to ~0.2 us)
     "state_offset": "sync",  # the state stamped 1 ms after its image and cloud ("latency compensation")
     "stamps_per_episode": "stamps",  # every message stamped with the time since its episode began
+}
+# fault -> its command-to-state latency [control steps]: drivers that keep every rule of the contract but are late,
+# which dlo-driver-check reports against the shipped policy's tolerance
+LATE_FAULTS = {
+    "one_step_late": 1,  # each tick executes the command that was the latest one tick before
 }
 
 
@@ -85,6 +91,20 @@ def broken_driver(fault: str):
             super().__init__()
             self.states_published = 0
             break_publishers(self, fault)
+
+        pending = None  # one_step_late: the command held back for one tick
+
+        def on_tick(self):
+            if fault == "one_step_late":  # the latest command acts one tick later: a step of latency
+                latest, self.command, self.pending = self.command, self.pending, self.command
+                super().on_tick()
+                self.command = latest
+                return
+            super().on_tick()
+
+        def on_reset(self, request, response):
+            self.pending = None
+            return super().on_reset(request, response)
 
         def on_command(self, msg):
             if fault == "accepts_invalid" and int(msg.episode) == self.episode:
@@ -184,8 +204,8 @@ def to_float64(cloud):
 
 
 def main() -> int:
-    if len(sys.argv) < 2 or sys.argv[1] not in FAULTS:
-        print(f"usage: {sys.argv[0]} FAULT [--ros-args ...], FAULT one of {sorted(FAULTS)}", file=sys.stderr)
+    if len(sys.argv) < 2 or sys.argv[1] not in {**FAULTS, **LATE_FAULTS}:
+        print(f"usage: {sys.argv[0]} FAULT [--ros-args ...], FAULT one of {sorted({**FAULTS, **LATE_FAULTS})}", file=sys.stderr)
         return 2
     fault = sys.argv.pop(1)
     args = list(sys.argv)

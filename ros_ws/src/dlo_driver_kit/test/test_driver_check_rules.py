@@ -984,6 +984,8 @@ def test_help_describes_every_option_and_the_exit_status(capsys):
         "--skip RULE do not judge this rule (repeatable): one of rate, stamps,",
         "Exit status: 0 every rule passed, 1 a rule failed, no driver answered or another node commands "
         "the driver, 2 bad usage, 130 interrupted.",
+        "After the rules it compares the driver's latency, rate jitter, speed, closure lag and image noise with the "
+        "shipped policy's robustness envelope (lines only).",
     ):
         assert phrase in text, phrase
 
