@@ -154,7 +154,7 @@ _DDS_SHM_BEFORE: list[set[str]] = []  # the session's snapshot of Fast DDS's /de
 
 def pytest_sessionstart(session):
     try:
-        from dlo_common.testing import dds_shm_entries
+        from harness import dds_shm_entries
     except ImportError:  # pytest without scripts/env.sh: nothing of ours to clean up after
         return
     _DDS_SHM_BEFORE.append(dds_shm_entries())
@@ -163,7 +163,7 @@ def pytest_sessionstart(session):
 @pytest.hookimpl(trylast=True)  # after pytest's own, which tears down the fixtures an interrupt left set up
 def pytest_sessionfinish(session, exitstatus):
     if _DDS_SHM_BEFORE:
-        from dlo_common.testing import remove_orphaned_dds_shm
+        from harness import remove_orphaned_dds_shm
 
         remove_orphaned_dds_shm(_DDS_SHM_BEFORE[0])
 

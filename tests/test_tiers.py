@@ -16,7 +16,7 @@ import sys
 import time
 
 import pytest
-from dlo_common.testing import exited
+from harness import exited
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 _spec = importlib.util.spec_from_file_location("dlo_test_tiers", ROOT / "conftest.py")
@@ -87,7 +87,8 @@ def test_markers_are_put_on_tests_when_only_ros_ws_is_collected():
 
 def inner_pytest(tmp_path, workers, **env_vars) -> subprocess.Popen:
     """pytest on ``tmp_path/test_inner.py`` with the root conftest (its SIGTERM handling), ``env_vars`` set."""
-    env = dict(os.environ, **env_vars, PYTHONPATH=f"{ROOT}{os.pathsep}{os.environ.get('PYTHONPATH', '')}")
+    path = os.pathsep.join([str(ROOT), str(ROOT / "tests" / "support"), os.environ.get("PYTHONPATH", "")])  # + the harness
+    env = dict(os.environ, **env_vars, PYTHONPATH=path)
     return subprocess.Popen(
         [
             sys.executable,
@@ -187,11 +188,11 @@ def test_fixtures_are_torn_down_before_the_shared_memory_clean_up_of_the_session
     (tmp_path / "test_inner.py").write_text(
         "import os\n"
         "import pytest\n"
-        "import dlo_common.testing\n\n"
+        "import harness\n\n"
         "def note(what):\n"
         "    with open(os.environ['ORDER_LOG'], 'a') as f:\n"
         "        f.write(what + '\\n')\n\n"
-        "dlo_common.testing.remove_orphaned_dds_shm = lambda before: note('clean-up')\n\n"
+        "harness.remove_orphaned_dds_shm = lambda before: note('clean-up')\n\n"
         "@pytest.fixture(scope='session')\n"
         "def resource():\n"
         "    yield\n"

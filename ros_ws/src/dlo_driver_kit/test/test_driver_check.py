@@ -19,7 +19,6 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # --import-mode=importlib
 
-from dlo_common.testing import ROS2RUN, Procs, reserved_domain  # noqa: E402
 from dlo_driver_kit.driver_check import (  # noqa: E402
     RULES,
     CloudSample,
@@ -36,6 +35,7 @@ from dlo_driver_kit.driver_check import (  # noqa: E402
 )
 from dlo_driver_kit_broken_driver import FAULTS  # noqa: E402
 from dlo_sim.task import TASK_RULES  # noqa: E402
+from harness import ROS2RUN, Procs, reserved_domain  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 CHECK = [sys.executable, "-m", "dlo_driver_kit.driver_check"]
@@ -366,7 +366,7 @@ def test_the_workspace_has_one_millimetre_of_slack(beyond, status):
 
 def test_analyze_of_a_driver_bag_says_it_has_no_task_state(tmp_path, capsys):
     from dlo_bag import analysis
-    from dlo_bag.bag import BagWriter
+    from dlo_bag.writer import BagWriter
     from dlo_msgs.msg import GripperState
     from rclpy.serialization import serialize_message
 
