@@ -36,8 +36,10 @@ Fewer than two held particles (no contact, as the tactile reading): not visible,
 from dataclasses import dataclass
 
 import numpy as np
-import taichi as ti
 from dlo_common import taichi_runtime  # before taichi: no "[Taichi] version" banner on stdout (see there)
+
+# isort: split
+import taichi as ti
 
 from dlo_perception.camera import TopCamera
 from dlo_perception.vision_source import DEFAULT_VISION_SOURCE, VISION_SOURCES, check_vision_source  # noqa: F401

@@ -8,8 +8,10 @@ Per-environment arrays are padded to ``P_MAX`` particles; loops stop at ``n[e]``
 
 import math
 
-import taichi as ti
 from dlo_common.taichi_runtime import init as init_taichi  # before taichi: no "[Taichi] version" banner (see there)
+
+# isort: split
+import taichi as ti
 
 from .config import (
     DT,
