@@ -831,7 +831,7 @@ def motion_latency(rec: Recording, s: Settings) -> list[float]:
     delays = []
     for phase, episode, k0 in _changes(rec, s, ("move", "lead")):
 
-        def velocity(k):
+        def velocity(k, episode=episode):
             a, b = states.get((episode, k)), states.get((episode, k + 1))
             t = None if a is None or b is None else getattr(b, clock) - getattr(a, clock)
             return None if t is None or not 0.5 * period <= t <= 2 * period else ((b.x - a.x) / t, (b.y - a.y) / t)
@@ -1033,6 +1033,29 @@ def check_alone(node, topic: str) -> None:
         rclpy.spin_once(node, timeout_sec=0.05)
 
 
+def _image_sample(msg, stamp: int) -> ImageSample:
+    """What the check keeps of an image (stamped ``stamp`` [ns]), received now: its layout and, for mono8, the pixel
+    values vision_node will see (row padding left out) and the pixels."""
+    values, pixels = (), None
+    if msg.encoding == "mono8":  # the pixel values vision_node will see (row padding left out)
+        data = np.frombuffer(bytes(msg.data), np.uint8)
+        if msg.step >= msg.width and data.size == msg.height * msg.step:
+            data = pixels = data.reshape(msg.height, msg.step)[:, : msg.width].copy()
+        values = tuple(int(v) for v in np.unique(data))
+    return ImageSample(
+        int(msg.width),
+        int(msg.height),
+        msg.encoding,
+        int(msg.step),
+        len(msg.data),
+        msg.header.frame_id,
+        stamp,
+        values,
+        time.monotonic(),
+        pixels,
+    )
+
+
 def record(s: Settings, namespace: str, timeout: float, log=print) -> Recording | None:
     """Run the schedule against the driver on the current ROS domain; None when no state arrives
     within ``timeout`` s."""
@@ -1079,26 +1102,7 @@ def record(s: Settings, namespace: str, timeout: float, log=print) -> Recording 
             rec.last_command_wall = time.monotonic()
 
         def on_image(msg):
-            values, pixels = (), None
-            if msg.encoding == "mono8":  # the pixel values vision_node will see (row padding left out)
-                data = np.frombuffer(bytes(msg.data), np.uint8)
-                if msg.step >= msg.width and data.size == msg.height * msg.step:
-                    data = pixels = data.reshape(msg.height, msg.step)[:, : msg.width].copy()
-                values = tuple(int(v) for v in np.unique(data))
-            rec.images.append(
-                ImageSample(
-                    int(msg.width),
-                    int(msg.height),
-                    msg.encoding,
-                    int(msg.step),
-                    len(msg.data),
-                    msg.header.frame_id,
-                    stamp_ns(msg),
-                    values,
-                    time.monotonic(),
-                    pixels,
-                )
-            )
+            rec.images.append(_image_sample(msg, stamp_ns(msg)))
 
         def on_info(msg):
             rec.infos.append(InfoSample(int(msg.width), int(msg.height), tuple(msg.k), msg.header.frame_id))
