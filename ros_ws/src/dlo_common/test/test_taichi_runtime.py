@@ -5,6 +5,8 @@ import os
 import subprocess
 import sys
 
+import pytest
+
 PROBE = """
 import json, os, sys
 import dlo_common, dlo_common.taichi_runtime as runtime
@@ -138,3 +140,13 @@ def test_starting_taichi_prints_nothing_on_stdout():
     result = subprocess.run([sys.executable, "-c", QUIET_PROBE], capture_output=True, text=True, timeout=300, env=env)
     assert result.returncode == 0, result.stderr
     assert "[Taichi] Starting on arch=x64" in result.stderr and "Starting on arch" not in result.stdout
+
+
+@pytest.mark.parametrize("module", ["dlo_perception.vision", "dlo_sim.kernels"])
+def test_the_modules_that_import_taichi_import_the_runtime_first(module):
+    """Importing taichi prints "[Taichi] version ..." on stdout unless dlo_common.taichi_runtime came first: the
+    two library modules that import taichi themselves keep that order (an import sort once put taichi first)."""
+    env = {k: v for k, v in os.environ.items() if k != "ENABLE_TAICHI_HEADER_PRINT"}
+    result = subprocess.run([sys.executable, "-c", f"import {module}"], capture_output=True, text=True, timeout=300, env=env)
+    assert result.returncode == 0, result.stderr
+    assert result.stdout == "", result.stdout
