@@ -28,8 +28,10 @@ process prints them, and ``[composed] building NAME`` / ``[composed] built NAME 
 building, so that :class:`dlo_bringup.composed_logs.LogSplitter` splits this process's output into the nodes' logs.
 
 Executor: rclpy's EventsExecutor (Jazzy's rclpy >= 7.1.4; else the SingleThreadedExecutor), single-threaded in C++:
-measured on the step-locked graph, 2.7 ms of CPU per control step against 4.9 ms with the SingleThreadedExecutor,
-whose wait set is rebuilt in Python on every wait (benchmarks/bench_composed.py). One thread is what a step-locked
+measured on the step-locked graph, 2.2 ms of CPU per control step against 4.3 ms with the SingleThreadedExecutor,
+whose wait set is rebuilt in Python on every wait (benchmarks/bench_composed.py). It spins in
+``spin_until_future_complete`` (no Python between two callbacks); the future is done when a node's callback ended it
+or, set by a watcher thread, when a signal or a node asked for the stop. One thread is what a step-locked
 graph needs: one thing at a time is ready, each node matches its inputs by stamp, so the order of callbacks does
 not change an episode, and a second Python thread would only contend for the GIL.
 """
@@ -41,6 +43,7 @@ import inspect
 import json
 import signal
 import sys
+import threading
 import time
 import traceback
 from pathlib import Path
@@ -49,7 +52,8 @@ from dlo_bringup.composed_logs import BUILDING, BUILT, RUNNER
 
 SIGNAL = "signal"  # ended_by: SIGINT or SIGTERM
 EXECUTORS = ("events", "single_threaded")  # rclpy's EventsExecutor (the default), its SingleThreadedExecutor
-SPIN_TIMEOUT = 0.1  # s: the longest the spin loop waits before it looks whether it was asked to stop
+SPIN_TIMEOUT = 0.1  # s: the longest the executor waits for work before the spin loop looks at the context
+WATCH_PERIOD = 0.05  # s: how often the watcher thread looks for a stop request
 SIM = "sim"  # the spec whose end is the graph's end; stopped, its status is 130 (sim_node's interrupted_rc)
 RECORDER = "recorder"  # drains and closes its bag; not interrupted while it does (its process only notes signals)
 
@@ -92,6 +96,8 @@ class Graph:
         self.status: dict = {}  # spec name -> exit status
         self.ended_by = None  # the spec name whose end (or failure) ended the graph, or SIGNAL
         self.raised = None  # (spec name, what a callback of that node raised)
+        self.ended = None  # a Future, done when the spin is to end
+        self.ending = threading.Lock()
         self.stops = StopRequests()  # SIGINT / SIGTERM (node_main's promises 3-5)
         self.asked = ShutdownRequest()  # a node's own request to stop (the recorder's after a write error)
 
@@ -135,10 +141,26 @@ class Graph:
                 return callback(*args)
             except BaseException as error:  # noqa: BLE001 - SystemExit, a SecondInterrupt: the node's end too
                 self.raised = (name, error)
-                self.ended.set_result(name)  # (the executor returns after this callback)
+                self.end()  # (the executor returns after this callback)
                 return None
 
         return guarded
+
+    def end(self) -> None:
+        """The spin ends (once; from a callback or the watcher thread)."""
+        with self.ending:
+            if not self.ended.done():
+                self.ended.set_result(True)
+
+    def watch(self) -> None:
+        """(a thread of its own while the nodes spin) Ends the spin once a signal or a node asks for the stop. The
+        EventsExecutor's spin_until_future_complete returns at its timeout only when no callback is ready, which
+        is never while the graph runs; a signal handler, which runs between two lines of a callback, must not call
+        into the executor."""
+        while not self.ended.done():
+            if self.stops.requested or self.asked.is_set():
+                self.end()
+            time.sleep(WATCH_PERIOD)
 
     def spin(self) -> None:
         """Spin every node on one executor until the graph ends (``ended_by``)."""
@@ -146,19 +168,24 @@ class Graph:
         import rclpy.task
 
         self.executor = make_executor(self.executor_kind)
-        self.ended = rclpy.task.Future(executor=self.executor)  # done when a callback ended its node
+        self.ended = rclpy.task.Future(executor=self.executor)  # done: the spin ends
         for name, node in self.nodes.items():
             for entity in (*node.subscriptions, *node.timers, *node.services):
                 entity.callback = self.guard(name, entity.callback)
             self.executor.add_node(node)
+        watcher = threading.Thread(target=self.watch, name="composed_watch", daemon=True)
+        watcher.start()
         try:
             with self.stops.interruptible("spin"):
-                while rclpy.ok() and not self.stops.requested and not self.asked.is_set() and self.raised is None:
+                while rclpy.ok() and not self.ended.done():
                     self.executor.spin_until_future_complete(self.ended, timeout_sec=SPIN_TIMEOUT)
         except KeyboardInterrupt:  # a second signal that found this loop running, not a node's callback
             pass
         except BaseException as error:  # noqa: BLE001 - a callback made later (the recorder's): as a guarded one's
             self.raised = self.raised or (self.owner(error), error)
+        finally:
+            self.end()
+            watcher.join()
         if self.raised is not None:
             name, error = self.raised
             self.status[name] = self.failure_status(name, error, "spin")
