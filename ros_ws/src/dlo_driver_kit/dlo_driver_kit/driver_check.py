@@ -27,7 +27,8 @@ so one defect fails one rule:
   (optional for a driver: without it, an episode start is judged only if the driver starts one);
 - ``sync``: every state's exact stamp (to the nanosecond) is carried by the step's other inputs:
   an image and the tactile source (particle cloud or tactile pose), as the perception and policy
-  nodes match them; a clock read separately for each message fails it. The message carrying a
+  nodes match them, and any other topic with a driver's part in ``dlo_common.topics`` the driver
+  publishes (e.g. a modality added there); a clock read separately for each message fails it. The message carrying a
   state's stamp must also be that step's: it arrives with the state (within half a control period;
   a cloud stamped with the previous step's stamp arrives a period after the state it matches, and
   the nodes would then pair a state with the next step's touch). An input the driver does not
@@ -260,6 +261,9 @@ class Recording:
     tactile_stamps: list = field(default_factory=list)  # stamp [ns] of each tactile pose received
     tactile_walls: list = field(default_factory=list)  # its arrival time [s] (empty: unknown)
     last_command_wall: float | None = None
+    # a driver topic of the registry without a recorder here (a modality added later): {topic: ([stamp ns], [arrival
+    # s])}, judged by 'sync' as the image is (a rule of its own for it: add a recorder and a check)
+    others: dict = field(default_factory=dict)
     reset: str | None = None  # the episode start the checker asked for: None not asked (no /dlo/sim/reset),
     # "started" (the service said so), else what went wrong
 
@@ -689,6 +693,9 @@ def check_sync(rec: Recording, s: Settings) -> Result:
         "particle cloud": [c.wall for c in rec.clouds],
         "tactile pose": rec.tactile_walls,
     }
+    for name, (stamps, arrivals) in rec.others.items():
+        inputs.append((f"{name} message", stamps))
+        walls[f"{name} message"] = arrivals
     present = [(name, stamps) for name, stamps in inputs if stamps]
     absent = [("image", "camera")] if not rec.images else []  # an input never published is another rule's
     absent += [("tactile source", "touch")] if not rec.clouds and not rec.tactile_stamps else []
@@ -1117,9 +1124,16 @@ def record(s: Settings, namespace: str, timeout: float, log=print) -> Recording 
             ),
             "tactile": lambda m: (rec.tactile_stamps.append(stamp_ns(m)), rec.tactile_walls.append(time.monotonic())),
         }
+
+        def on_other(name, msg):  # a driver topic without a recorder of its own: its stamps for 'sync'
+            stamps, arrivals = rec.others.setdefault(name, ([], []))
+            stamps.append(stamp_ns(msg))
+            arrivals.append(time.monotonic())
+
         for t in DRIVER_TOPICS:  # what a driver may publish, each with its recorder (one per driver topic)
+            handler = handlers.get(t.key, lambda m, name=t.name: on_other(name, m))
             node.create_subscription(
-                message_class(t.type), prefix + t.name, handlers[t.key], latched if t.rate == "latched" else QUEUE_DEPTH
+                message_class(t.type), prefix + t.name, handler, latched if t.rate == "latched" else QUEUE_DEPTH
             )
 
         deadline = time.monotonic() + timeout

@@ -14,8 +14,9 @@ import math
 import numpy as np
 import pytest
 import rclpy
+from dlo_common.topics import Topic
 from dlo_driver_kit import driver_check
-from dlo_driver_kit.driver_check import RULES, CheckError, Settings, evaluate, schedule
+from dlo_driver_kit.driver_check import DRIVER_TOPICS, RULES, CheckError, Settings, evaluate, schedule
 from dlo_msgs.msg import GripperState, TactilePose
 from dlo_msgs.srv import ResetEpisode
 from dlo_perception.cloud import particle_cloud
@@ -51,12 +52,16 @@ class FakeRos:
 
     ``reset``: 'ok', 'refused', 'none' (a None response), 'silent' (never answers), None (no service);
     ``others``: [(from, to, name)]: another node publishes the command topic from..to (fake seconds after start);
-    ``state_topic`` etc. follow ``prefix``; ``padding``: bytes of row padding (value 7) in each image."""
+    ``state_topic`` etc. follow ``prefix``; ``padding``: bytes of row padding (value 7) in each image; ``extra``:
+    (topic, steps late): a TactilePose on one more topic each step, stamped with the state's stamp of that many
+    steps before."""
 
-    def __init__(self, prefix="", driver=True, reset="ok", others=(), padding=0, listens_after=0.0, image_size_ok=True):
+    def __init__(
+        self, prefix="", driver=True, reset="ok", others=(), padding=0, listens_after=0.0, image_size_ok=True, extra=None
+    ):
         self.t0 = self.now = 1000.0
         self.prefix, self.driver, self.reset_mode, self.others = prefix, driver, reset, list(others)
-        self.padding, self.listens_after, self.image_size_ok = padding, listens_after, image_size_ok
+        self.padding, self.listens_after, self.image_size_ok, self.extra = padding, listens_after, image_size_ok, extra
         self.subs, self.commands, self.resets, self.futures = {}, [], [], []
         self.states_sent = []
         self.init_calls, self.shutdowns, self.destroyed = [], 0, 0
@@ -139,6 +144,11 @@ class FakeRos:
         self.publish("/dlo/camera/image", image)
         self.publish("/dlo/rope/particles", cloud)
         self.publish("/dlo/tactile/pose", touch)
+        if self.extra:
+            name, late = self.extra
+            extra = TactilePose()
+            extra.header.stamp.sec, extra.header.stamp.nanosec = divmod(self.stamp_ns - late * int(PERIOD * 1e9), 1_000_000_000)
+            self.publish(name, extra)
         self.states_sent.append((self.now, state))
         self.publish("/dlo/gripper/state", state)
         self.step += 1
@@ -325,7 +335,7 @@ def test_a_good_driver_is_answered_step_by_step_through_the_schedule_and_passes_
     assert qos["/dlo/camera/camera_info"].durability == DurabilityPolicy.TRANSIENT_LOCAL
     assert qos["/dlo/camera/camera_info"].depth == 1
     assert {t: q for t, q in qos.items() if t != "/dlo/camera/camera_info"} == dict.fromkeys(
-        ["/dlo/rope/particles", "/dlo/gripper/state", "/dlo/camera/image", "/dlo/tactile/pose"], 100
+        [t.name for t in DRIVER_TOPICS if t.rate != "latched"], 100
     )
 
 
@@ -342,20 +352,30 @@ def test_a_namespace_prefixes_every_topic_and_the_service(fake_ros):
         ros = fake_ros(prefix="/robot1")
         rec, lines = run_record(ros, namespace=namespace)
         assert ros.command_topic == "/robot1/dlo/gripper/cmd"
-        assert set(ros.node.qos) == {
-            f"/robot1{t}"
-            for t in (
-                "/dlo/rope/particles",
-                "/dlo/gripper/state",
-                "/dlo/camera/image",
-                "/dlo/camera/camera_info",
-                "/dlo/tactile/pose",
-            )
-        }
+        assert set(ros.node.qos) == {f"/robot1{t.name}" for t in DRIVER_TOPICS}
         assert "of /robot1/dlo/gripper/state;" in lines[0] and rec.reset == "started"
     ros = fake_ros()
     rec, _ = run_record(ros, namespace="/")
     assert ros.command_topic == "/dlo/gripper/cmd" and rec.reset == "started"
+
+
+def test_a_driver_topic_without_a_recorder_here_is_recorded_and_judged_by_sync(fake_ros, monkeypatch):
+    """A topic with a driver's part that the checker has no recorder of its own for (a modality added to
+    dlo_common.topics) does not crash it: its stamps and arrivals are recorded and 'sync' judges them as it judges
+    the image's: every state's exact stamp, in the state's step."""
+    wrist = Topic("/dlo/wrist/force", "dlo_msgs/msg/TactilePose", "sim_node", "observation", "made up", key="w", driver="x")
+    monkeypatch.setattr(driver_check, "DRIVER_TOPICS", DRIVER_TOPICS + (wrist,))
+    ros = fake_ros(extra=(wrist.name, 0))
+    rec, _ = run_record(ros)
+    assert ros.node.qos[wrist.name] == driver_check.QUEUE_DEPTH
+    stamps, arrivals = rec.others[wrist.name]
+    assert stamps[-1] == rec.states[-1].stamp_ns and arrivals[-1] == rec.states[-1].wall
+    results = {r.rule: r for r in evaluate(rec, Settings())}
+    assert {rule: r.status for rule, r in results.items()} == dict.fromkeys(RULES, "PASS"), results
+    assert "a tactile pose and a /dlo/wrist/force message of its exact stamp" in results["sync"].reason
+    rec, _ = run_record(fake_ros(extra=(wrist.name, 1)))  # stamped with the step before: the nodes would mismatch
+    sync = next(r for r in evaluate(rec, Settings()) if r.rule == "sync")
+    assert sync.status == "FAIL" and "get the /dlo/wrist/force message carrying their stamp a step away" in sync.reason
 
 
 def test_no_driver_gives_none_after_the_timeout_and_a_driver_not_yet_listening_is_waited_for(fake_ros):
