@@ -326,3 +326,52 @@ def test_the_episode_plot_has_no_overlapping_texts(synthetic_bag):
             "signals over the episode (dotted: first step at the end, green = paper "
             "rule, purple = authors' rule; grey: gripper still)",
         ]
+
+
+def test_the_plots_observation_axes_come_from_the_registry(synthetic_bag, monkeypatch):
+    """The episode plot's observation series are the plot series of the registry's observation topics
+    (dlo_common.topics): the paper's with the closure (q_V) and on the angle (theta_T, theta_V) and offset axes
+    (y_T, y_V in mm); a topic added with a series of another unit gets an axis of its own with its values, with no
+    change to bag analysis; a unit the bag has no value of gets none."""
+    from types import SimpleNamespace
+
+    from dlo_bag.analysis import episode_figure, read_run
+    from dlo_common import topics
+
+    streams = read_run(synthetic_bag)[0]
+
+    def axes(fig) -> dict:
+        """{y label: {legend label: line}} of the signal axes."""
+        return {
+            ax.get_ylabel(): {ln.get_label(): ln for ln in ax.get_lines() if not ln.get_label().startswith("_")}
+            for ax in fig.axes[1:]
+        }
+
+    paper = axes(episode_figure(0, streams))
+    layout = ["closure [-]", "held particle\nindex [-]", "angle [rad]", "offset [mm]", "command\n[m/s]", "reward [-]"]
+    assert list(paper) == layout
+    assert list(paper["closure [-]"]) == ["c_G measured", "c_G commanded", "q_V vision"]
+    assert list(paper["angle [rad]"]) == ["θ_T tactile", "θ_V vision"]
+    assert list(paper["offset [mm]"]) == ["y_T tactile", "y_V vision"]
+    steps = sorted(streams["tactile"])
+    y_t = paper["offset [mm]"]["y_T tactile"]
+    np.testing.assert_allclose(y_t.get_ydata()[: len(steps)], [1000 * streams["tactile"][k].y for k in steps])
+
+    wrist = topics.Topic(
+        "/dlo/wrist/force",
+        "geometry_msgs/msg/WrenchStamped",
+        "sim_node",
+        "observation",
+        "made up for the test",
+        key="wrist",
+        plot=(topics.Series("wrench.force.x", "F_x", "N"), topics.Series("wrench.force.y", "F_y", "N")),
+    )
+    monkeypatch.setattr(topics, "TOPICS", topics.TOPICS + (wrist,))
+    assert list(axes(episode_figure(0, streams))) == layout  # no force in the bag: no force axis
+    force = {
+        k: SimpleNamespace(wrench=SimpleNamespace(force=SimpleNamespace(x=0.5 * k, y=-0.25 * k))) for k in streams["gripper"]
+    }
+    added = axes(episode_figure(0, {**streams, "wrist": force}))
+    assert list(added) == layout[:4] + ["[N]"] + layout[4:]
+    assert list(added["[N]"]) == ["F_x wrist", "F_y wrist"]
+    np.testing.assert_allclose(added["[N]"]["F_y wrist"].get_ydata(), [-0.25 * k for k in sorted(force)])

@@ -8,8 +8,9 @@ so the recomputed outcomes (paper-text rule, and the authors'-code rule from the
 ``held_indices_authors``) must equal the recorded ones (a mismatch is reported and exits 1).
 Plots (PNG, one per episode): the gripper path over the cable at the start and the end seen from
 the top (fixed end and first step at the end marked), and over the control steps one axis per
-unit: closure, angles [rad], offsets [mm], commanded velocities [m/s], reward; spans where nothing
-changes are shaded. Videos (``--video``, :mod:`dlo_bag.video`): one MP4 (or GIF) per episode,
+unit: closure, angles [rad], offsets [mm], commanded velocities [m/s], reward (the observations are the plot
+series of the registry's observation topics, ``dlo_common.topics``: a new unit gets an axis of its own); spans
+where nothing changes are shaded. Videos (``--video``, :mod:`dlo_bag.video`): one MP4 (or GIF) per episode,
 top camera + side view + signal strip, one frame per control step, real time by default; progress on
 stderr (one line per finished video with its path and the time it took; on a terminal a bar too).
 
@@ -232,17 +233,32 @@ def _plot_top_view(top, s, particles: dict) -> None:
     top.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False, borderaxespad=0)
 
 
+# How the plots show a unit of the observation topics' plot series (dlo_common.topics): its axis label and the scale
+# from the SI unit; a series of any other unit gets an axis "[unit]" of its own
+UNIT_AXES = {"rad": ("angle [rad]", 1.0), "m": ("offset [mm]", 1000.0)}
+
+
+def _observation_axes(s) -> dict:
+    """{unit: [(legend, values, line style)]} of the observation topics' plot series (``dlo_common.topics``), in
+    registry order; a unit none of whose series has a value in the bag is left out."""
+    axes = {}
+    for t in select("observation"):
+        for series in t.plot:
+            scale = UNIT_AXES.get(series.unit, ("", 1.0))[1]
+            legend = f"{series.name.replace('theta', 'θ')} {t.key}"
+            axes.setdefault(series.unit, []).append((legend, scale * s[series.name], {}))
+    return {unit: lines for unit, lines in axes.items() if any(np.isfinite(values).any() for _, values, _ in lines)}
+
+
 def _signal_axes_spec(s) -> list:
-    """The signals over the control steps, one axis per unit: [(y label, [(name, values, line style)])]."""
+    """The signals over the control steps, one axis per unit: [(y label, [(name, values, line style)])]; the
+    observations' from the registry (:func:`_observation_axes`: unitless ones with the closure)."""
     held_end = s["num_particles"] - 10
-    return [
+    observed = _observation_axes(s)
+    spec = [
         (
             "closure [-]",
-            [
-                ("c_G measured", s["closure"], {}),
-                ("c_G commanded", s["cmd_closure"], {"ls": "--"}),
-                ("q_V vision confidence", s["q_V"], {"alpha": 0.8}),
-            ],
+            [("c_G measured", s["closure"], {}), ("c_G commanded", s["cmd_closure"], {"ls": "--"}), *observed.pop("-", [])],
         ),
         (
             "held particle\nindex [-]",
@@ -253,8 +269,9 @@ def _signal_axes_spec(s) -> list:
                 ("end: n_c - 10", held_end, {"color": "k", "lw": 0.8, "ls": "--"}),
             ],
         ),
-        ("angle [rad]", [("θ_T tactile", s["theta_T"], {}), ("θ_V vision", s["theta_V"], {})]),
-        ("offset [mm]", [("y_T tactile", s["y_T_mm"], {}), ("y_V vision", s["y_V_mm"], {})]),
+    ]
+    spec += [(UNIT_AXES.get(unit, (f"[{unit}]",))[0], lines) for unit, lines in observed.items()]
+    return spec + [
         ("command\n[m/s]", [("v_x", s["cmd_vx"], {}), ("v_y", s["cmd_vy"], {})]),
         ("reward [-]", [("reward per step", s["reward"], {"drawstyle": "steps-mid"})]),
     ]
@@ -293,22 +310,22 @@ def _annotate_still_spans(ax, spans: list) -> None:
 def episode_figure(episode: int, streams: dict, summary: dict | None = None):
     """The episode plot (a matplotlib Figure): top view (cable at start and end, gripper path, fixed end,
     where the end was first reached) and, over the control steps, one axis per unit: closure [-], held
-    particle index, angles [rad], offsets [mm], commanded velocity [m/s], reward [-]; legends outside the
-    data. Matplotlib's constrained layout places the titles, tick labels and legends (no text overlaps
-    another axis' tick labels, whatever the data's extent)."""
+    particle index, angles [rad], offsets [mm] (and an axis for each other unit of the observation topics' plot
+    series, dlo_common.topics), commanded velocity [m/s], reward [-]; legends outside the data. Matplotlib's
+    constrained layout places the titles, tick labels and legends (no text overlaps another axis' tick labels,
+    whatever the data's extent)."""
     from matplotlib.figure import Figure
 
     from dlo_bag.episode_series import episode_series, still_spans
 
     s = episode_series(episode, streams)
     steps = s.steps
-    fig = Figure(figsize=(12.0, 13.5), dpi=90, layout="constrained")
+    axes_spec = _signal_axes_spec(s)  # signals over the control steps: one axis per unit
+    fig = Figure(figsize=(12.0, 13.5 * (2.2 + len(axes_spec)) / 8.2), dpi=90, layout="constrained")
     fig.suptitle(episode_title(episode, summary), fontsize=13)
-    grid = fig.add_gridspec(7, 1, height_ratios=[2.2, 1, 1, 1, 1, 1, 1])
+    grid = fig.add_gridspec(1 + len(axes_spec), 1, height_ratios=[2.2] + [1] * len(axes_spec))
     _plot_top_view(fig.add_subplot(grid[0]), s, streams.get("particles", {}))
 
-    # signals over the control steps: one axis per unit
-    axes_spec = _signal_axes_spec(s)
     spans = still_spans(s)
     axes = []
     for row, (label, lines) in enumerate(axes_spec):

@@ -1,17 +1,20 @@
 """One recorded episode as arrays over its control steps, for plots and videos (no rclpy).
 
 :func:`episode_series` turns the per-step messages of one episode (``dlo_bag.analysis.read_run``:
-{stream: {step: message}}) into numpy arrays indexed like ``steps``: closure, commands, distilled
-poses, reward, held particles, and where the end was reached under both outcome rules
-(``dlo_sim.task.at_end`` / ``at_end_authors``, the functions the task itself uses). A value a
-step lacks (e.g. no visual pose recorded) is NaN.
+{stream: {step: message}}) into numpy arrays indexed like ``steps``: closure, commands, reward, held
+particles, where the end was reached under both outcome rules (``dlo_sim.task.at_end`` /
+``at_end_authors``, the functions the task itself uses) and every ``plot`` series of the observation topics
+(``dlo_common.topics``: theta_T, y_T, q_V, theta_V, y_V, ..., under their names, in their SI units), so a
+modality added there is plotted with no change here. A value a step lacks (e.g. no visual pose recorded) is NaN.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from operator import attrgetter
 
 import numpy as np
+from dlo_common.topics import select
 from dlo_sim.task import at_end, at_end_authors
 
 CONTROL_PERIOD = 0.08  # s per control step (8 simulation steps of 0.01 s, docs/ARCHITECTURE.md#world)
@@ -32,8 +35,10 @@ class EpisodeSeries:
         return self.values[key]
 
 
-def _get(stream: dict, steps, attr, scale=1.0, dtype=float) -> np.ndarray:
-    return np.array([scale * getattr(stream[s], attr) if s in stream else np.nan for s in steps], dtype=dtype)
+def _get(stream: dict, steps, attr, dtype=float) -> np.ndarray:
+    """Field ``attr`` (dotted for a nested one) of each step's message of ``stream``, NaN where a step has none."""
+    get = attrgetter(attr)
+    return np.array([get(stream[s]) if s in stream else np.nan for s in steps], dtype=dtype)
 
 
 def episode_series(episode: int, streams: dict) -> EpisodeSeries:
@@ -42,8 +47,6 @@ def episode_series(episode: int, streams: dict) -> EpisodeSeries:
     gripper = streams.get("gripper", {})
     steps = np.array(sorted(set(task) | set(gripper)), dtype=int)
     command = streams.get("command", {})
-    tactile = streams.get("tactile", {})
-    vision = streams.get("vision", {})
     v = {
         "x": _get(gripper, steps, "x"),
         "y": _get(gripper, steps, "y"),
@@ -53,13 +56,7 @@ def episode_series(episode: int, streams: dict) -> EpisodeSeries:
         "cmd_vx": _get(command, steps, "vx"),
         "cmd_vy": _get(command, steps, "vy"),
         "cmd_closure": _get(command, steps, "closure"),
-        "theta_T": _get(tactile, steps, "angle"),
-        "y_T_mm": _get(tactile, steps, "y", 1000.0),
-        "contact_T": _get(tactile, steps, "contact"),
-        "theta_V": _get(vision, steps, "angle"),
-        "y_V_mm": _get(vision, steps, "y", 1000.0),
-        "q_V": _get(vision, steps, "confidence"),
-        "visible_V": _get(vision, steps, "visible"),
+        **{series.name: _get(streams.get(t.key, {}), steps, series.field) for t in select("observation") for series in t.plot},
         "reward": _get(task, steps, "reward"),
         "return": _get(task, steps, "episode_return"),
         "n_held": _get(task, steps, "n_held"),

@@ -5,7 +5,8 @@ into :class:`GraphOptions` (the settings of the sim the ``--policy sac`` checkpo
 Both ways in go through :func:`parse_args` and :func:`resolve`: a launch argument ``name:=value`` is the option
 ``--name value`` (:func:`argv_from_launch_arguments`). A bad option is a :class:`UsageError`, one line.
 
-Standard library only at import (``--help`` and a bad option work before the workspace is set up); the library
+No message package at import (``--help`` and a bad option work before the workspace is built): the option values
+come from their homes (the simulator's, the task's, the vision sources, the modality registry); the library
 checks (tactile noise, modalities, the checkpoint's run) are imported by :func:`resolve`.
 """
 
@@ -16,6 +17,7 @@ import re
 from dataclasses import dataclass, field, replace
 
 from dlo_perception.vision_source import DEFAULT_VISION_SOURCE, VISION_SOURCES
+from dlo_policy.modalities import names as modality_names  # the registry: --without's help
 from dlo_sim.config import START_POSES, SimConfig
 from dlo_sim.grip import CARRY_LAWS
 from dlo_sim.task import DEFAULT_TASK_RULES, TASK_RULES
@@ -30,7 +32,13 @@ OPTIONS = (
     ("rate-factor", "F", "1.0", "real_time: simulation speed relative to wall time (default 1.0)"),
     ("policy", "P", "sac", "sac (default: the shipped All policy), tactile_reactive, oracle or random"),
     ("checkpoint", "PATH", "", "policy file for --policy sac (default: the shipped policy)"),
-    ("without", "M", "", "test-time ablation: zero modality M (T or V) for the policy"),
+    (
+        "without",
+        "M",
+        "",
+        f"test-time ablation: zero modality M for the policy ({', '.join(modality_names()[:-1])} or {modality_names()[-1]}; "
+        "several joined by '+', e.g. T+V)",
+    ),
     ("train-out", "DIR", "", "learn online (SAC) while running; checkpoints and policy.pt go to DIR"),
     ("train-config", "YAML", "", "online training: dlo-train config file (SAC hyperparameters)"),
     (

@@ -18,6 +18,8 @@ A :class:`Topic` record:
     driver      what a robot driver that replaces sim_node does with it ("" = nothing; INTERFACES.md's
                 driver table)
     sim_only    the simulator publishes it and a robot cannot (ground truth, simulator internals)
+    plot        the values of its message that bag analysis plots over an episode (dlo_bag.analysis: one axis per
+                unit) and the interface doc lists when it has no hand-written line: one :class:`Series` each
 
 Plain data and the standard library only (no rclpy, no message imports until :func:`message_class`).
 """
@@ -42,6 +44,15 @@ RATES = ("step", "latched")
 
 
 @dataclass(frozen=True)
+class Series:
+    """One value of a topic's message, plotted over an episode by bag analysis (``dlo_bag.episode_series``)."""
+
+    field: str  # the message's field, dotted for a nested one ("wrench.force.x")
+    name: str  # the series' name: the symbol of the paper or of the observation entry it becomes ("theta_T")
+    unit: str  # its SI unit ("rad", "m", "N"; "-" for none): the plots put the series of one unit on one axis
+
+
+@dataclass(frozen=True)
 class Topic:
     """One topic of the graph (module docstring)."""
 
@@ -54,10 +65,13 @@ class Topic:
     rate: str = "step"
     driver: str = ""
     sim_only: bool = False
+    plot: tuple = ()  # (Series, ...)
 
     def __post_init__(self):
         if self.role not in ROLES or self.rate not in RATES:
             raise ValueError(f"{self.name}: role must be one of {sorted(ROLES)} and rate one of {RATES}")
+        if not all(isinstance(series, Series) for series in self.plot):
+            raise ValueError(f"{self.name}: plot must be Series records")
 
 
 @dataclass(frozen=True)
@@ -126,6 +140,7 @@ TOPICS = (
         "O_T: the held cable's angle and offset in the gripper frame",
         key="tactile",
         driver="publishes, **or** `/dlo/rope/particles` contact points",
+        plot=(Series("angle", "theta_T", "rad"), Series("y", "y_T", "m")),
     ),
     Topic(
         "/dlo/vision/pose",
@@ -134,6 +149,7 @@ TOPICS = (
         "observation",
         "O_V: the cable just right of the gripper, seen by the top camera",
         key="vision",
+        plot=(Series("confidence", "q_V", "-"), Series("angle", "theta_V", "rad"), Series("y", "y_V", "m")),
     ),
     Topic(
         "/dlo/gripper/cmd",

@@ -25,24 +25,55 @@ def test_lookup_by_key_or_name_and_a_clear_error():
         Topic("/dlo/x", "pkg/msg/X", "x_node", "nosuch", "x", key="x")
 
 
+# The paper's graph (docs/ARCHITECTURE.md#topics), in registry order: key, role, publisher, whether a robot driver
+# has a part in it, the plot series. A topic added to the registry (a new modality) leaves this pin as it is; one
+# lost, reordered or changed fails it.
+PAPER_GRAPH = (
+    ("clock", "clock", "sim_node", False, ()),
+    ("particles", "sensor", "sim_node", True, ()),
+    ("gripper", "state", "sim_node", True, ()),
+    ("image", "sensor", "sim_node", True, ()),
+    ("camera_info", "sensor", "sim_node", True, ()),
+    ("tactile", "observation", "tactile_node", True, ("theta_T", "y_T")),
+    ("vision", "observation", "vision_node", False, ("q_V", "theta_V", "y_V")),
+    ("command", "command", "policy_node", True, ()),
+    ("task", "task", "sim_node", False, ()),
+    ("markers", "visualisation", "sim_node", False, ()),
+    ("instance", "internal", "sim_node", False, ()),
+    ("policy_info", "provenance", "policy_node", False, ()),
+)
+
+
+def test_the_papers_graph_is_in_the_registry_in_order():
+    keys = {row[0] for row in PAPER_GRAPH}
+    found = [(t.key, t.role, t.publisher, bool(t.driver), tuple(s.name for s in t.plot)) for t in TOPICS if t.key in keys]
+    assert found == list(PAPER_GRAPH)
+
+
 def test_subsets_are_filters_of_the_registry():
-    assert [t.key for t in select("observation")] == ["tactile", "vision"]
-    assert {t.key for t in select(publisher="sim_node")} == {
-        "clock",
-        "particles",
-        "gripper",
-        "image",
-        "camera_info",
-        "task",
-        "markers",
-        "instance",
-    }
-    assert [t.name for t in select(exclude=("internal",))] == [t.name for t in TOPICS if t.key != "instance"]
+    for role in ROLES:
+        assert select(role) == tuple(t for t in TOPICS if t.role == role)
+    for publisher in {t.publisher for t in TOPICS}:
+        assert select(publisher=publisher) == tuple(t for t in TOPICS if t.publisher == publisher)
+    assert select("observation", "state") == tuple(t for t in TOPICS if t.role in ("observation", "state"))
+    assert select(exclude=("internal",)) == tuple(t for t in TOPICS if t.role != "internal")
     assert select() == TOPICS
     with pytest.raises(ValueError, match="unknown role"):
         select("nosuch")
-    # the driver's part: what a robot driver in sim_node's place publishes or obeys
-    assert {t.key for t in TOPICS if t.driver} == {"particles", "gripper", "image", "camera_info", "tactile", "command"}
+
+
+@pytest.mark.parametrize("record", [t for t in TOPICS if t.plot], ids=lambda t: t.key)
+def test_every_plot_series_is_a_number_of_its_message(record):
+    """Bag analysis reads each plot series' field from the topic's message (a dotted field: a nested one)."""
+    from operator import attrgetter
+
+    message = topics.message_class(record.type)()
+    for series in record.plot:
+        assert isinstance(attrgetter(series.field)(message), (int, float)), series
+        assert series.name and series.unit
+    assert len({s.name for t in TOPICS for s in t.plot}) == sum(len(t.plot) for t in TOPICS)  # names are unique
+    with pytest.raises(ValueError, match="plot must be Series"):
+        Topic("/dlo/x", "pkg/msg/X", "x_node", "observation", "x", key="x", plot=(("angle", "theta", "rad"),))
 
 
 def test_names_are_every_topic_and_service():

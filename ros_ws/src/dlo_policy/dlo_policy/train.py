@@ -91,6 +91,8 @@ from dlo_sim.task import DEFAULT_TASK_RULES, LEGACY_TASK_RULES, task_rules
 from . import rundir
 from .cli import check_override_keys
 from .config import ConfigError, RunConfig, TrainConfig, check_env_options, load_config, make_env, record_task_rules, save_config
+from .modalities import ALL_NAME
+from .modalities import names as modality_names
 from .rundir import BEST_POLICY_FILE, CHECKPOINT_FILE, CONFIG_FILE, EVAL_FILE, POLICY_FILE, TB_DIR, EvalLog
 
 if TYPE_CHECKING:
@@ -589,7 +591,9 @@ def build_parser() -> argparse.ArgumentParser:
         epilog="Overrides are key=value pairs on config keys (see config/sac_default.yaml), e.g.\n"
         "  sac.batch_size=256 train.eval_every=500 env_options.tactile_noise=partial",
     )
-    parser.add_argument("--modalities", help="All, or a '+'-joined subset of K, T, V (e.g. V+K); default All")
+    parser.add_argument(
+        "--modalities", help=f"{ALL_NAME}, or a '+'-joined subset of {', '.join(modality_names())} (e.g. V+K); default {ALL_NAME}"
+    )
     parser.add_argument("--seed", type=int, help="run seed (default 0)")
     parser.add_argument("--steps", type=int, help="total env steps (default 50000)")
     parser.add_argument("--out", type=Path, required=True, help="run directory")

@@ -1,6 +1,9 @@
 """dlo_policy.modalities: the one registry of the observation modalities.
 
-- every record is complete: labels, bounds, its topic in dlo_common.topics, a converter for its message;
+- every record is complete: labels, bounds, its topic in dlo_common.topics, a converter for its message (each
+  record of the registry, whatever it holds);
+- the paper's K, T, V are there, in that order, with their entries (a registry mistake fails here, a modality
+  added does not);
 - "All" is the paper's K+T+V, a named constant: a modality added to the registry does not join it;
 - a modality added to the registry alone reaches the observation vector, its bounds and the gym env;
 - checkpoints store the expanded modalities; one from before (none stored) still loads and its run's "All"
@@ -25,27 +28,40 @@ from sac_reach_env import ReachEnv  # noqa: E402
 TINY = dict(hidden_sizes=(16, 16), batch_size=8, learning_starts=100, buffer_size=200, observation_scaling="none")
 
 
-def test_every_record_is_complete():
-    assert names() == ("K", "T", "V") and [m.size for m in MODALITIES] == [3, 2, 4]
-    for m in MODALITIES:
-        assert by_name(m.name) is m and len(m.labels) == len(m.bounds) == m.size
-        assert all(low < high for low, high in m.bounds)
-        assert topic(m.topic).role in ("state", "observation") and m.message_type == topic(m.topic).type
-        reading = m.from_message(message_class(m.message_type)())  # a default message: zeros
-        assert m.columns(reading).shape == (1, m.size)
-    assert [m.input_key for m in MODALITIES] == ["gripper", "tactile", "vision"]
-    assert [m.renders for m in MODALITIES] == [False, False, True]
+@pytest.mark.parametrize("m", MODALITIES, ids=lambda m: m.name)
+def test_every_record_is_complete(m):
+    assert by_name(m.name) is m and len(m.labels) == len(m.bounds) == m.size
+    assert all(low < high for low, high in m.bounds)
+    assert topic(m.topic).role in ("state", "observation") and m.message_type == topic(m.topic).type
+    reading = m.from_message(message_class(m.message_type)())  # a default message: zeros
+    assert m.columns(reading).shape == (1, m.size)
+    assert len(set(names())) == len(MODALITIES) and len({m.title for m in MODALITIES}) == len(MODALITIES)
     with pytest.raises(KeyError, match="no modality 'X'"):
         by_name("X")
 
 
+# The paper's modalities (docs/ARCHITECTURE.md#observations): name, entries, topic's key, whether it needs the image
+PAPER_MODALITIES = (
+    ("K", ("x_G", "y_G", "c_G"), "gripper", False),
+    ("T", ("theta_T", "y_T"), "tactile", False),
+    ("V", ("v_V", "q_V", "theta_V", "y_V"), "vision", True),
+)
+
+
+def test_the_papers_k_t_v_in_their_order_and_sizes():
+    assert ALL == ("K", "T", "V") and tuple(n for n in names() if n in ALL) == ALL
+    assert [(m.name, m.labels, m.input_key, m.renders) for m in MODALITIES if m.name in ALL] == list(PAPER_MODALITIES)
+    assert observation_size("All") == 9 and observation_labels("All") == sum((row[1] for row in PAPER_MODALITIES), ())
+
+
 def test_all_is_the_papers_k_t_v_not_every_modality_known(monkeypatch):
     assert ALL == ("K", "T", "V") and parse_modalities("All") == parse_modalities("all") == ALL
+    known = names()
     monkeypatch.setattr(modalities, "MODALITIES", MODALITIES + (grip_twice(),))
-    assert names() == ("K", "T", "V", "G")
+    assert names() == (*known, "G")
     assert parse_modalities("All") == ("K", "T", "V")  # the shipped All policy keeps its meaning
     assert parse_modalities("G+K") == ("K", "G")
-    with pytest.raises(ValueError, match=r"subset of K, T, V, G or 'All'"):
+    with pytest.raises(ValueError, match=rf"subset of {', '.join(known)}, G or 'All'"):
         parse_modalities("X")
 
 
@@ -53,7 +69,7 @@ def test_the_launchers_without_check_reads_the_registry():
     assert without_problem("") is None and without_problem("T+V") is None and without_problem("K") is None
     for bad in ("X", "T+", "t", " T"):
         assert without_problem(bad) == (
-            f"--without must be empty or modalities joined by '+' (K, T, V), e.g. T or T+V, got '{bad}'"
+            f"--without must be empty or modalities joined by '+' ({', '.join(names())}), e.g. T or T+V, got '{bad}'"
         )
 
 

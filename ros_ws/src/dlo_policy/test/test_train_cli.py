@@ -11,6 +11,7 @@ import pytest
 import torch
 from dlo_policy import rundir, train
 from dlo_policy.config import ConfigError, load_config, save_config
+from dlo_policy.modalities import names
 from dlo_policy.sac import StepResult
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # --import-mode=importlib: sac_reach_env
@@ -102,7 +103,7 @@ def test_help_shows_the_protocol_the_options_and_the_override_examples(capsys):
     )
     flat = " ".join(out.split())
     for text in (
-        "--modalities MODALITIES All, or a '+'-joined subset of K, T, V (e.g. V+K); default All",
+        f"--modalities MODALITIES All, or a '+'-joined subset of {', '.join(names())} (e.g. V+K); default All",
         "--seed SEED run seed (default 0)",
         "--steps STEPS total env steps (default 50000)",
         "--out OUT run directory",

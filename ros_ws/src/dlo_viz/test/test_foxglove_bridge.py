@@ -100,7 +100,7 @@ def make_messages(ts) -> dict:
         mesh_use_embedded_materials=False,
     )
     roi = T["sensor_msgs/msg/RegionOfInterest"](x_offset=0, y_offset=0, height=0, width=0, do_rectify=False)
-    return {
+    made = {
         "/dlo/rope/particles": T["sensor_msgs/msg/PointCloud2"](
             header=header,
             height=1,
@@ -158,6 +158,32 @@ def make_messages(ts) -> dict:
         "/dlo/policy/info": T["std_msgs/msg/String"](data='{"policy": "sac", "modalities": "K+T+V"}'),
         "/clock": T["rosgraph_msgs/msg/Clock"](clock=T["builtin_interfaces/msg/Time"](sec=12, nanosec=345)),
     }
+    # a topic added to the registry later (a new modality): a message of its type with every field set
+    return {t.name: made[t.name] if t.name in made else sample_message(ts, t.type, header) for t in TOPICS}
+
+
+NUMPY_TYPES = {"float64": "<f8", "float32": "<f4", "int8": "i1", "uint8": "u1", "int16": "<i2", "uint16": "<u2"}
+NUMPY_TYPES.update({"int32": "<i4", "uint32": "<u4", "int64": "<i8", "uint64": "<u8", "byte": "u1", "char": "u1"})
+
+
+def sample_message(ts, msgtype: str, header):
+    """A message of ``msgtype`` from the typestore's field definitions, every field set: numbers 1, booleans true,
+    text "x", arrays of ones, sequences empty, nested messages alike (a header: ``header``)."""
+    from rosbags.interfaces import Nodetype
+
+    def value(kind, detail):
+        if kind == Nodetype.NAME:
+            return header if detail == "std_msgs/msg/Header" else sample_message(ts, detail, header)
+        if kind == Nodetype.BASE:
+            return {"bool": True, "string": "x"}.get(detail[0], 1.0 if detail[0].startswith("float") else 1)
+        (inner_kind, inner), count = detail
+        numeric = inner_kind == Nodetype.BASE and inner[0] in NUMPY_TYPES
+        if kind == Nodetype.ARRAY:
+            return np.ones(count, NUMPY_TYPES[inner[0]]) if numeric else [value(inner_kind, inner) for _ in range(count)]
+        return np.zeros(0, NUMPY_TYPES[inner[0]]) if numeric else []
+
+    _, fields = ts.fielddefs[msgtype]
+    return ts.types[msgtype](**{name: value(*desc) for name, desc in fields})
 
 
 def test_schemas_are_the_recorders_definitions(bridge, typestore, tmp_path):
