@@ -256,19 +256,34 @@ def test_help_and_bad_options():
     assert missing.returncode == 2 and "cannot read snapshot" in missing.stderr
 
 
-@pytest.mark.parametrize(
-    "topic",
-    [
-        "/dlo/gripper/state",
-        "/dlo/gripper/cmd",
-        "/dlo/camera/image",
-        "/dlo/camera/camera_info",
-        "/dlo/rope/particles",
-        "/dlo/tactile/pose",
-        "/dlo/vision/pose",
-        "/dlo/task/state",
-    ],
-)
+@pytest.mark.parametrize("topic", gen_interfaces.CONTRACT_TOPICS)
 def test_every_contract_topic_has_units_and_a_driver_rule(topic):
+    """Every topic of the contract (the registry's but the internal and provenance ones) has its values and what a
+    real robot does: hand-written, or from its record (a topic added to dlo_common.topics needs no line here)."""
     entry = gen_interfaces.semantics()[topic]
     assert entry["rate"] in ("step", "latched") and entry["units"] and entry["driver"]
+
+
+def test_a_topic_without_a_hand_written_line_is_documented_from_its_record(monkeypatch):
+    from dlo_common import topics
+
+    wrist = topics.Topic(
+        "/dlo/wrist/force",
+        "geometry_msgs/msg/WrenchStamped",
+        "sim_node",
+        "observation",
+        "the force the cable pulls the gripper with",
+        key="wrist",
+        driver="publishes (a wrist force sensor)",
+        plot=(topics.Series("wrench.force.x", "F_x", "N"), topics.Series("wrench.force.y", "F_y", "N")),
+    )
+    monkeypatch.setattr(topics, "TOPICS", topics.TOPICS + (wrist,))
+    entry = gen_interfaces.semantics()[wrist.name]
+    assert entry == {
+        "rate": "step",
+        "units": "the force the cable pulls the gripper with: `wrench.force.x` F_x [N], `wrench.force.y` F_y [N]",
+        "driver": "publishes (a wrist force sensor)",
+        "role": "publishes (a wrist force sensor)",
+    }
+    assert gen_interfaces.standard_messages().startswith("`rosgraph_msgs/Clock`, `sensor_msgs/PointCloud2`, `Image`")
+    assert gen_interfaces.standard_messages().endswith("`std_msgs/String` and `geometry_msgs/WrenchStamped`")

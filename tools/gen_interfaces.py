@@ -15,8 +15,9 @@ What is generated and from where:
 - message and service definitions: ros_ws/src/dlo_msgs/{msg,srv};
 - parameter tables: each node module's PARAMETERS declarations (dlo_common.params.markdown_table),
   for every ``*_node`` entry point in the packages' setup.py;
-- units and ranges: the TOPICS table below, with numbers taken from dlo_sim.config /
-  dlo_sim.command / dlo_sim.task constants.
+- units and ranges: the hand-written lines of ``semantics`` below, with numbers taken from dlo_sim.config /
+  dlo_sim.command / dlo_sim.task constants; a topic without one: its registry record's description and
+  ``plot`` series (field, name, unit), so a topic added to dlo_common.topics is documented with no line here.
 
 ``--check`` regenerates into memory and compares with the committed file: exit 1 and a diff
 summary when it is stale. Exit 2 on a usage error or when the graph could not be started.
@@ -68,7 +69,8 @@ def semantics() -> dict:
     ``rate``: "step" = one message per control step (the state of step k and everything computed
     from it), "latched" = published once, transient-local. ``driver``: what a real robot driver
     must do about the topic. Numbers come from the code's constants. A topic without a hand-written
-    entry shows its record's description as its units.
+    entry shows its record's description and plot series as its units (:func:`record_units`) and its record's
+    driver's part (or its publisher) as what a real robot does.
     """
     from dlo_perception.camera import TopCamera
     from dlo_perception.tactile import Y_LIMIT
@@ -150,12 +152,34 @@ def semantics() -> dict:
     for t in select():
         entry = {
             "rate": t.rate,
-            "units": t.description,
+            "units": record_units(t),
+            "driver": t.driver or ("simulation only: a driver publishes none" if t.sim_only else f"from `{t.publisher}`"),
             **({"role": t.driver} if t.driver else {}),
             **({"sim_only": True} if t.sim_only else {}),
         }
         entries[t.name] = {**entry, **prose.get(t.name, {})}
     return entries
+
+
+def record_units(t) -> str:
+    """A topic's values from its registry record alone: its description and its plot series, e.g. "the wrist's force:
+    `wrench.force.x` F_x [N], `wrench.force.y` F_y [N]"."""
+    series = ", ".join(f"`{s.field}` {s.name} [{s.unit}]" for s in t.plot)
+    return f"{t.description}: {series}" if series else t.description
+
+
+def standard_messages() -> str:
+    """The message types of the registry's topics that are not dlo_msgs, each package named once, in registry
+    order: "`rosgraph_msgs/Clock`, `sensor_msgs/PointCloud2`, `Image`, ... and `std_msgs/String`"."""
+    by_package: dict[str, list[str]] = {}
+    for t in select():
+        package, _, name = t.type.split("/")
+        if package != "dlo_msgs" and name not in by_package.setdefault(package, []):
+            by_package[package].append(name)
+    names = [
+        f"`{package}/{name}`" if i == 0 else f"`{name}`" for package, found in by_package.items() for i, name in enumerate(found)
+    ]
+    return ", ".join(names[:-1]) + " and " + names[-1] if len(names) > 1 else "".join(names)
 
 
 # ----------------------------------------------------------------------------------- live capture
@@ -705,8 +729,8 @@ def _topics_lines(model: dict, order: list, sem: dict, period: float) -> list[st
         + ". `recorder` runs only with "
         "`--record`; the Foxglove bridge (`--foxglove`) subscribes to a topic only while a client watches it and "
         "is not shown. `policy_node` subscribes to what its policy needs: with `policy:=oracle` also "
-        "`/dlo/rope/particles`, with `train:=true` also `/dlo/task/state`; without T or V in its modalities "
-        "(or `without:=`) not to that pose.\n"
+        "`/dlo/rope/particles`, with `train:=true` also `/dlo/task/state`; not to the topic of a modality it "
+        "does not observe (not in its modalities, or in `without:=`).\n"
     )
     return out
 
@@ -879,10 +903,9 @@ def _sim_only_lines(topics: dict, order: list, sem: dict) -> list[str]:
             add(f"| `{topic}` | {', '.join('`' + e['node'] + '`' for e in topics[topic]['publishers'])} | {s['driver']} |")
     add("")
     add(
-        "A driver publishes `/dlo/gripper/state`, `/dlo/camera/image` + `/dlo/camera/camera_info` and a tactile "
-        "source, and obeys `/dlo/gripper/cmd` (see the **Real robot** lines above); the perception and policy "
-        "nodes then run unchanged. Without `/dlo/task/state` there is no reward or outcome: run a trained policy, "
-        "judge episodes yourself (or from the camera).\n"
+        "A driver does with each topic what [A driver's interface](#a-drivers-interface) says (the **Real robot** "
+        "lines above); the perception and policy nodes then run unchanged. Without `/dlo/task/state` there is no "
+        "reward or outcome: run a trained policy, judge episodes yourself (or from the camera).\n"
     )
     return out
 
@@ -894,9 +917,7 @@ def _definitions_lines(definitions: list) -> list[str]:
     add("## Message definitions\n")
     add(
         "The project's own interfaces (`ros_ws/src/dlo_msgs`), with their comments (units in brackets). The "
-        "standard messages used are `sensor_msgs/PointCloud2`, `Image`, `CameraInfo`, "
-        "`visualization_msgs/MarkerArray`, `rosgraph_msgs/Clock` and `std_msgs/String` (layouts in the topic "
-        "details).\n"
+        f"standard messages used are {standard_messages()} (layouts in the topic details).\n"
     )
     for name, text in definitions:
         add(f"### `{name}`\n")
