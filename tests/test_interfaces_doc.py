@@ -268,8 +268,8 @@ def test_a_topic_without_a_hand_written_line_is_documented_from_its_record(monke
     from dlo_common import topics
 
     wrist = topics.Topic(
-        "/dlo/wrist/force",
-        "geometry_msgs/msg/WrenchStamped",
+        "/dlo/test/force",
+        "made_up_msgs/msg/WrenchStamped",
         "sim_node",
         "observation",
         "the force the cable pulls the gripper with",
@@ -286,4 +286,4 @@ def test_a_topic_without_a_hand_written_line_is_documented_from_its_record(monke
         "role": "publishes (a wrist force sensor)",
     }
     assert gen_interfaces.standard_messages().startswith("`rosgraph_msgs/Clock`, `sensor_msgs/PointCloud2`, `Image`")
-    assert gen_interfaces.standard_messages().endswith("`std_msgs/String` and `geometry_msgs/WrenchStamped`")
+    assert gen_interfaces.standard_messages().endswith(" and `made_up_msgs/WrenchStamped`")  # a package of its own

@@ -358,20 +358,20 @@ def test_the_plots_observation_axes_come_from_the_registry(synthetic_bag, monkey
     np.testing.assert_allclose(y_t.get_ydata()[: len(steps)], [1000 * streams["tactile"][k].y for k in steps])
 
     wrist = topics.Topic(
-        "/dlo/wrist/force",
+        "/dlo/test/force",
         "geometry_msgs/msg/WrenchStamped",
         "sim_node",
         "observation",
         "made up for the test",
-        key="wrist",
-        plot=(topics.Series("wrench.force.x", "F_x", "N"), topics.Series("wrench.force.y", "F_y", "N")),
+        key="test_force",
+        plot=(topics.Series("wrench.force.x", "G_x", "kN"), topics.Series("wrench.force.y", "G_y", "kN")),
     )
     monkeypatch.setattr(topics, "TOPICS", topics.TOPICS + (wrist,))
     assert list(axes(episode_figure(0, streams))) == layout  # no force in the bag: no force axis
     force = {
         k: SimpleNamespace(wrench=SimpleNamespace(force=SimpleNamespace(x=0.5 * k, y=-0.25 * k))) for k in streams["gripper"]
     }
-    added = axes(episode_figure(0, {**streams, "wrist": force}))
-    assert list(added) == layout[:4] + ["[N]"] + layout[4:]
-    assert list(added["[N]"]) == ["F_x wrist", "F_y wrist"]
-    np.testing.assert_allclose(added["[N]"]["F_y wrist"].get_ydata(), [-0.25 * k for k in sorted(force)])
+    added = axes(episode_figure(0, {**streams, "test_force": force}))
+    assert list(added) == layout[:4] + ["[kN]"] + layout[4:]  # a unit without a word: its axis says the unit
+    assert list(added["[kN]"]) == ["G_x test_force", "G_y test_force"]
+    np.testing.assert_allclose(added["[kN]"]["G_y test_force"].get_ydata(), [-0.25 * k for k in sorted(force)])

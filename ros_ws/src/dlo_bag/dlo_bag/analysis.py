@@ -235,7 +235,7 @@ def _plot_top_view(top, s, particles: dict) -> None:
 
 # How the plots show a unit of the observation topics' plot series (dlo_common.topics): its axis label and the scale
 # from the SI unit; a series of any other unit gets an axis "[unit]" of its own
-UNIT_AXES = {"rad": ("angle [rad]", 1.0), "m": ("offset [mm]", 1000.0)}
+UNIT_AXES = {"rad": ("angle [rad]", 1.0), "m": ("offset [mm]", 1000.0), "N": ("force [N]", 1.0), "N m": ("torque [N m]", 1.0)}
 
 
 def _observation_axes(s) -> dict:
