@@ -3,8 +3,9 @@
 
 Runs scripts/launch_graph.sh step-locked for the same episodes (seed, policy) twice per round, once with a process
 per node and once with --composed, the order swapped every round (A B, B A: the machine's load drifts). Each run is
-measured from outside, the same way for both: a probe node in this process subscribes to /dlo/task/state on the
-run's domain (best effort) and notes when each step first arrives. The loop rate is taken within episodes (resets
+measured from outside, the same way for both: a probe node in this process subscribes to /dlo/gripper/state (which
+the graph publishes anyway; it carries the episode and step) on the run's domain, best effort, and notes when each
+step first arrives. The loop rate is taken within episodes (resets
 and the first episode, which compiles the kernels, left out): the median step period, as benchmarks/bench_graph.py
 gives it, and the mean. Also each run's CPU time (all its processes, start-up included) and whether every run's
 episodes (outcomes.jsonl) are the same. Prints a JSON line last.
@@ -33,7 +34,7 @@ MODES = ("processes", "composed")
 
 
 class StepProbe:
-    """A node on ``domain`` that notes the wall time (time.monotonic) each (episode, step) of /dlo/task/state first
+    """A node on ``domain`` that notes the wall time (time.monotonic) each (episode, step) of /dlo/gripper/state first
     arrives, spun in a thread of its own until :meth:`close`."""
 
     def __init__(self, domain: int):
