@@ -14,7 +14,7 @@ import sys
 import time
 
 import pytest
-from dlo_common.params import Param, as_params, check_value, help_requested, markdown_table, params_yaml, renamed_names
+from dlo_common.params import Param, as_params, check_value, help_requested, markdown_table, params_yaml
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 ROS2RUN = str(ROOT / "scripts" / "ros2run")
@@ -69,14 +69,9 @@ def test_help_lists_every_parameter_and_starts_nothing(package, executable, modu
     assert out.startswith(f"usage: ros2run {package} {executable} [--ros-args"), out[:200]
     parameters = importlib.import_module(module).PARAMETERS
     for param in as_params(parameters):
-        if param.renamed_to:  # an old name: listed once, under "renamed", not as a parameter
-            assert f"\n  {param.name} (" not in out, param.name
-            continue
         assert f"\n  {param.name} ({param.type_name}, default " in out, param.name
         if param.range_text:
             assert f"range {param.range_text})" in out, param.name
-    for new, old in renamed_names(parameters).items():
-        assert f"\n  {', '.join(old)} -> {new}\n" in out, new
     listed = re.search(r"a params file with every default: (\S+)\):", out).group(1)  # the installed one
     assert listed.endswith(f"share/{package}/config/{executable}.yaml") and pathlib.Path(listed).is_file(), listed
     assert "[Taichi]" not in out + result.stderr  # no banner before the text

@@ -2,9 +2,9 @@
 (none, partial, full or a pair sigma_theta [rad], sigma_y [m]) as the gym env's option, the tactile
 node's parameter and ``launch_graph.sh --tactile-noise``, all read by
 ``dlo_perception.tactile.noise_setting``; a bad value is one line and exit 2 (the launcher's before
-anything starts); the node's old names (``noise``, ``sigma_theta``, ``sigma_y``) work for one release
-with a one-line notice naming the new one. (The launcher's custom pair reaching the node and the run
-header: tests/test_launch_feedback.py; outcome_table's old ``--noise``: dlo_bag test_outcome_text.py.)"""
+anything starts); the names the node's noise had before (``noise``, ``sigma_theta``, ``sigma_y``; never
+released) are unknown parameters like any other. (The launcher's custom pair reaching the node and the
+run header: tests/test_launch_feedback.py.)"""
 
 from __future__ import annotations
 
@@ -141,28 +141,20 @@ def start_tactile_node(own_groups, *settings: str) -> tuple[int, list[str]]:
         watchdog.cancel()
 
 
-ONE = "parameter 'noise' is now 'tactile_noise' (the old name works until the next release)"
-ALL = "parameters 'noise', 'sigma_theta', 'sigma_y' are now 'tactile_noise' (the old names work until the next release)"
-
-
 @pytest.mark.parametrize(
-    "settings,noise,notice",
+    "setting,noise",
     [
-        (["tactile_noise:=[0.1,0.001]"], "sigma_theta 0.1 rad, sigma_y 0.001 m", None),
-        (["tactile_noise:=0.1,0.001"], "sigma_theta 0.1 rad, sigma_y 0.001 m", None),
-        (["tactile_noise:=partial"], "partial (sigma_theta 0.25 rad, sigma_y 0.001 m)", None),
-        (["noise:=full"], "full (sigma_theta 0.5 rad, sigma_y 0.002 m)", ONE),
-        (["noise:=custom", "sigma_theta:=0.1", "sigma_y:=0.001"], "sigma_theta 0.1 rad, sigma_y 0.001 m", ALL),
-        (["noise:=custom"], "sigma_theta 0.0 rad, sigma_y 0.0 m", ONE),  # custom without sigmas: no noise, as before
+        ("tactile_noise:=[0.1,0.001]", "sigma_theta 0.1 rad, sigma_y 0.001 m"),
+        ("tactile_noise:=0.1,0.001", "sigma_theta 0.1 rad, sigma_y 0.001 m"),
+        ("tactile_noise:=partial", "partial (sigma_theta 0.25 rad, sigma_y 0.001 m)"),
     ],
-    ids=["pair", "pair-as-text", "preset", "old-noise", "old-custom-pair", "old-custom-alone"],
+    ids=["pair", "pair-as-text", "preset"],
 )
-def test_the_node_says_its_noise_and_old_names_give_one_notice(settings, noise, notice, own_groups):
-    rc, lines = start_tactile_node(own_groups, *settings)
+def test_the_node_says_its_noise(setting, noise, own_groups):
+    rc, lines = start_tactile_node(own_groups, setting)
     assert rc in (0, -signal.SIGINT), lines
     assert any(line.endswith(f"[tactile_node]: tactile noise: {noise}; seed 0") for line in lines), lines
-    warnings = [line for line in lines if line.startswith("[WARN]")]
-    assert [w.split("[tactile_node]: ", 1)[1] for w in warnings] == ([notice] if notice else []), lines
+    assert not [line for line in lines if line.startswith("[WARN]")], lines
 
 
 @pytest.mark.parametrize(
@@ -178,9 +170,17 @@ def test_the_node_refuses_a_bad_value_in_one_line(setting, line, own_groups):
     assert rc == 2 and lines == [f"[tactile_node] bad parameter: {line}"], lines
 
 
-def test_an_old_name_next_to_the_new_one_is_refused(own_groups):
-    rc, lines = start_tactile_node(own_groups, "tactile_noise:=full", "sigma_y:=0.001")
-    assert rc == 2, lines
-    assert lines[-1] == (
-        "[tactile_node] bad parameter: parameter 'sigma_y' is the old name of 'tactile_noise': set only 'tactile_noise'"
-    ), lines
+@pytest.mark.parametrize(
+    "settings,line",
+    [
+        (["noise:=full"], "unknown parameter 'noise'; did you mean 'tactile_noise'?"),
+        (["noise:=custom", "sigma_theta:=0.1", "sigma_y:=0.001"], "unknown parameter 'noise'; did you mean 'tactile_noise'?"),
+        (["tactile_noise:=full", "sigma_y:=0.001"], "unknown parameter 'sigma_y'; did you mean 'tactile_noise'?"),
+    ],
+    ids=["noise", "noise-custom-pair", "sigma-next-to-tactile-noise"],
+)
+def test_the_names_before_tactile_noise_are_unknown_parameters(settings, line, own_groups):
+    """The names of the unreleased version (noise, sigma_theta, sigma_y) are answered like any unknown
+    parameter: one line, exit 2, the closest declared name; the node does not start."""
+    rc, lines = start_tactile_node(own_groups, *settings)
+    assert rc == 2 and lines == [f"[tactile_node] {line}"], lines

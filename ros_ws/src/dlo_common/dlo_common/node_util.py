@@ -15,8 +15,6 @@ from dlo_common.params import (
     UnknownParameterError,
     as_params,
     check_value,
-    renamed_names,
-    renamed_notice,
     unknown_parameter,
 )
 
@@ -46,16 +44,8 @@ def declare_parameters(node: Any, specs: Sequence[Param | tuple[str, Any, str]])
     A value given for a parameter the node does not have (``-p nosuch:=1``, or a name in a params
     file section for this node) raises :class:`UnknownParameterError` naming the closest declared
     one, instead of being ignored; so a node declares all its parameters in this one call.
-
-    An old name (``Param(..., renamed_to=NEW)``) that was set is accepted for one release: one warning
-    line names the new name (for all the old names of one parameter together), its value is checked
-    as that Param declares it and returned under the old name (the node translates it); it is not
-    declared, and setting both an old name and the new one is a :class:`ParameterError`. Unset old
-    names are not in the returned dict.
     """
     params = as_params(specs)
-    old = {param.name: param for param in params if param.renamed_to}
-    params = [param for param in params if not param.renamed_to]
     declared: dict[str, Any] = {}
     for param in params:
         descriptor = ParameterDescriptor(
@@ -63,20 +53,10 @@ def declare_parameters(node: Any, specs: Sequence[Param | tuple[str, Any, str]])
         )
         default = list(param.default) if isinstance(param.default, tuple) else param.default
         declared[param.name] = node.declare_parameter(param.name, default, descriptor).value
-    overrides = getattr(node, "_parameter_overrides", {})  # rclpy: what -p / params files set for this node
-    for name in overrides:
-        if name not in old and not node.has_parameter(name) and not name.startswith("qos_overrides."):
+    for name in getattr(node, "_parameter_overrides", {}):  # rclpy: what -p / params files set for this node
+        if not node.has_parameter(name) and not name.startswith("qos_overrides."):
             raise unknown_parameter(name, declared)
-    renamed = {new: [name for name in names if name in overrides] for new, names in renamed_names(old.values()).items()}
-    for new, names in renamed.items():
-        if names:
-            node.get_logger().warning(renamed_notice(names, new))
-            if new in overrides:
-                raise ParameterError(f"parameter '{names[0]}' is the old name of '{new}': set only '{new}'")
-    values = {param.name: check_value(param, declared[param.name]) for param in params}
-    for names in renamed.values():
-        values.update({name: check_value(old[name], overrides[name].value) for name in names})
-    return values
+    return {param.name: check_value(param, declared[param.name]) for param in params}
 
 
 def require_bounds(

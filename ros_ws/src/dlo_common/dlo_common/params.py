@@ -6,8 +6,6 @@ A node module lists its parameters once, as a module-level ``PARAMETERS`` sequen
 - the checks when the node starts (:func:`check_value`, called by
   ``dlo_common.node_util.declare_parameters``): type of the default, range, choices, or the
   parameter's own ``check`` (a value that is a name or a pair of numbers, say);
-- old names kept for one release (``renamed_to``): accepted with a one-line notice naming the new
-  name (:func:`renamed_notice`), left out of the help's parameter list, the file and the tables;
 - the node's ``--help`` text (:func:`help_text`);
 - its parameters file ``config/<executable>.yaml`` (:func:`params_yaml`, ROS 2 ``--params-file``
   format, each description as a comment);
@@ -55,11 +53,6 @@ class Param:
     raising ValueError ("expected ..., got ...") for a bad one; it replaces the type and range checks.
     Then ``types`` names the ROS types it takes (e.g. ``string or double_array``) and ``accepts`` its
     range in words, for the help, the parameters file and the docs.
-
-    ``renamed_to``: this is the old name of that parameter, still accepted for one release: checked as
-    declared here, then :func:`dlo_common.node_util.declare_parameters` logs one line naming the new
-    name (:func:`renamed_notice`) and returns the value under the old name for the node to translate.
-    Not declared on the node, not in the help's parameter list, the parameters file or the tables.
     """
 
     name: str
@@ -73,7 +66,6 @@ class Param:
     check: Callable[[Any], Any] | None = None
     types: str = ""
     accepts: str = ""
-    renamed_to: str = ""
 
     @property
     def type_name(self) -> str:
@@ -191,26 +183,6 @@ def did_you_mean(name: str, known: Iterable[str]) -> str:
 def unknown_parameter(name: str, known: Iterable[str]) -> UnknownParameterError:
     """``unknown parameter 'nosuch'; did you mean 'noise'?`` (:func:`did_you_mean`)."""
     return UnknownParameterError(f"unknown parameter {name!r}" + did_you_mean(name, known))
-
-
-def renamed_notice(old_names: Sequence[str], new_name: str) -> str:
-    """The one line a node logs when it is given old names of a parameter: ``parameter 'noise' is now
-    'tactile_noise' (the old name works until the next release)``."""
-    names = ", ".join(f"'{name}'" for name in old_names)
-    several = len(old_names) > 1
-    return (
-        f"parameter{'s' if several else ''} {names} {'are' if several else 'is'} now '{new_name}' "
-        f"(the old name{'s work' if several else ' works'} until the next release)"
-    )
-
-
-def renamed_names(parameters: Iterable[Param | Sequence[Any]]) -> dict[str, list[str]]:
-    """new name -> its old names (``renamed_to``), in declaration order."""
-    renamed: dict[str, list[str]] = {}
-    for p in as_params(parameters):
-        if p.renamed_to:
-            renamed.setdefault(p.renamed_to, []).append(p.name)
-    return renamed
 
 
 def as_param(spec: Param | Sequence[Any]) -> Param:
@@ -365,8 +337,6 @@ def help_text(
         lines += [textwrap.fill(" ".join(summary.replace("``", "`").split()), width), ""]
     params_file = params_file or f"share/{package}/config/{executable}.yaml"
     lines.append(f"parameters (a params file with every default: {params_file}):")
-    renamed = renamed_names(params)
-    params = [p for p in params if not p.renamed_to]
     if not params:
         lines.append("  (none)")
     for p in params:
@@ -374,9 +344,6 @@ def help_text(
         head += f", range {p.range_text})" if p.range_text else ")"
         lines.append(head)
         lines += textwrap.wrap(" ".join(p.description.split()), width, initial_indent=" " * 6, subsequent_indent=" " * 6)
-    if renamed:
-        lines += ["", "renamed (the old names work until the next release, with a notice):"]
-        lines += [f"  {', '.join(old)} -> {new}" for new, old in renamed.items()]
     lines += ["", "Set one with '--ros-args -p NAME:=VALUE', several with '--ros-args --params-file FILE'."]
     if exit_codes:
         lines.append(f"Exit codes: {exit_codes}.")
@@ -388,13 +355,11 @@ def params_yaml(parameters: Iterable[Param | Sequence[Any]], header: str = "") -
 
     ``/**`` applies it to any node name. Each parameter is preceded by its description, then its
     type and range, as comments. A list parameter whose default is empty is written commented out (a ROS 2
-    parameters file cannot hold an empty array). Old names (``renamed_to``) are left out.
+    parameters file cannot hold an empty array).
     """
     lines = [f"# {line}".rstrip() for line in header.strip().splitlines()] if header.strip() else []
     lines += ["/**:", "  ros__parameters:"]
     for p in as_params(parameters):
-        if p.renamed_to:
-            continue
         for text in textwrap.wrap(" ".join(p.description.split()), 92):
             lines.append(f"    # {text}")
         lines.append(f"    # type {p.type_name}" + (f", range {p.range_text}" if p.range_text else ""))
@@ -407,15 +372,13 @@ def params_yaml(parameters: Iterable[Param | Sequence[Any]], header: str = "") -
 
 
 def markdown_table(parameters: Iterable[Param | Sequence[Any]]) -> str:
-    """The parameters as a Markdown table: name | type | default | range | description (old names left out)."""
+    """The parameters as a Markdown table: name | type | default | range | description."""
 
     def cell(text: str) -> str:
         return " ".join(str(text).split()).replace("|", "\\|")
 
     rows = ["| name | type | default | range | description |", "|---|---|---|---|---|"]
     for p in as_params(parameters):
-        if p.renamed_to:
-            continue
         rng = f"`{cell(p.range_text)}`" if p.range_text else ""
         rows.append(f"| `{p.name}` | {p.type_name} | `{cell(format_default(p.default))}` | {rng} | {cell(p.description)} |")
     return "\n".join(rows) + "\n"

@@ -18,8 +18,6 @@ from dlo_common.params import (
     help_text,
     markdown_table,
     params_yaml,
-    renamed_names,
-    renamed_notice,
     unexpected_arguments,
     unknown_parameter,
     yaml_problem,
@@ -206,8 +204,6 @@ LEVEL = Param(
     choices=("never",),
     at_least=5.0,
 )  # a check replaces choices and bounds
-OLD_LEVEL = Param("loudness", "low", "old name: level", choices=("low", "high"), renamed_to="level")
-OLD_PAIR = Param("low", 0.0, "old name: level", at_least=0.0, renamed_to="level")
 
 
 def test_a_parameter_with_its_own_check():
@@ -227,28 +223,6 @@ def test_a_parameter_with_its_own_check():
         markdown_table([LEVEL]).splitlines()[2]
         == '| `level` | string or double_array | `"low"` | `low \\| high \\| [a,b]` | how loud |'
     )
-
-
-def test_old_names_are_listed_once_and_left_out_of_the_file_and_the_tables():
-    params = [LEVEL, INT, OLD_LEVEL, OLD_PAIR]
-    assert renamed_names(params) == {"level": ["loudness", "low"]} and renamed_names([LEVEL, INT]) == {}
-    text = help_text("p", "e", params)
-    assert "\n  loudness (" not in text and "\n  low (" not in text and "\n  n (integer" in text
-    assert "\nrenamed (the old names work until the next release, with a notice):\n  loudness, low -> level\n" in text
-    assert "renamed" not in help_text("p", "e", [LEVEL, INT])
-    assert params_yaml(params) == params_yaml([LEVEL, INT]) and markdown_table(params) == markdown_table([LEVEL, INT])
-    assert "loudness" not in params_yaml(params) + markdown_table(params)
-    assert check_value(OLD_LEVEL, "high") == "high"  # an old name is checked as it was declared
-    with pytest.raises(ParameterError, match="parameter 'low': must be >= 0, got -1"):
-        check_value(OLD_PAIR, -1.0)
-
-
-def test_the_notice_for_old_names_names_the_new_one():
-    assert (
-        renamed_notice(["noise"], "tactile_noise")
-        == "parameter 'noise' is now 'tactile_noise' (the old name works until the next release)"
-    )
-    assert renamed_notice(["a", "b"], "c") == "parameters 'a', 'b' are now 'c' (the old names work until the next release)"
 
 
 def _problem(text: str):

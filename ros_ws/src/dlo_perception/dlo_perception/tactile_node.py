@@ -2,8 +2,7 @@
 
 Its noise is ``tactile_noise``, read as the gym env and ``launch_graph.sh --tactile-noise`` read it
 (``dlo_perception.tactile.noise_setting``): ``none``, ``partial``, ``full`` or a pair
-``[sigma_theta,sigma_y]`` [rad, m]. The old parameters ``noise`` (with ``custom``), ``sigma_theta``
-and ``sigma_y`` work until the next release, with a one-line notice.
+``[sigma_theta,sigma_y]`` [rad, m].
 """
 
 from __future__ import annotations
@@ -23,7 +22,6 @@ from dlo_perception.sync import IncompleteSteps, StampSync, stamp_to_ns
 from dlo_perception.tactile import TACTILE_NOISE, noise_label, noise_setting, noise_sigma, tactile_pose
 
 INPUT_TIMEOUT = 1.0  # s, a step's particles and state not matched by stamp after this long are reported
-OLD_NOISE_NAMES = ("noise", "sigma_theta", "sigma_y")  # renamed tactile_noise; accepted until the next release
 PARAMETERS = (
     Param(
         "tactile_noise",
@@ -36,20 +34,7 @@ PARAMETERS = (
         accepts="none | partial | full | [sigma_theta,sigma_y]",
     ),
     Param("seed", 0, "seed of the noise generator", at_least=0),
-    Param("noise", "none", "old name: tactile_noise", choices=(*sorted(TACTILE_NOISE), "custom"), renamed_to="tactile_noise"),
-    Param("sigma_theta", 0.0, "old name: tactile_noise", at_least=0.0, renamed_to="tactile_noise"),
-    Param("sigma_y", 0.0, "old name: tactile_noise", at_least=0.0, renamed_to="tactile_noise"),
 )
-
-
-def tactile_noise_of(values: dict):
-    """The node's noise setting from its checked parameters: ``tactile_noise``, or what the old names
-    given instead meant (``noise``: a preset or ``custom``, then the pair ``sigma_theta``, ``sigma_y``,
-    0 when not given; the sigmas alone did nothing)."""
-    if not any(name in values for name in OLD_NOISE_NAMES):
-        return values["tactile_noise"]
-    old = values.get("noise", "none")
-    return (values.get("sigma_theta", 0.0), values.get("sigma_y", 0.0)) if old == "custom" else old
 
 
 class TactileNode(Node):
@@ -58,7 +43,7 @@ class TactileNode(Node):
     def __init__(self, **options):
         super().__init__("tactile_node", **options)
         p = declare_parameters(self, PARAMETERS)
-        self.tactile_noise = noise_setting(tactile_noise_of(p))
+        self.tactile_noise = noise_setting(p["tactile_noise"])
         self.sigma = noise_sigma(self.tactile_noise)
         self.get_logger().info(f"tactile noise: {noise_label(self.tactile_noise)}; seed {p['seed']}")
         self.rng = np.random.default_rng(p["seed"])

@@ -3,8 +3,8 @@
 A step the sim republishes (same stamp: nobody answered it) gets the SAME tactile reading, noise
 included; the next step gets a new draw; the reading carries the input's stamp; the generator is
 seeded by the ``seed`` parameter; ``tactile_noise:=none`` is the exact line fit of dlo_perception.tactile.
-Its noise parameter ``tactile_noise`` takes a preset or a pair in each ROS form; the old names ``noise``,
-``sigma_theta`` and ``sigma_y`` still work, with one notice.
+Its noise parameter ``tactile_noise`` takes a preset or a pair in each ROS form; the names it had before
+(``noise``, ``sigma_theta``, ``sigma_y``) are unknown parameters like any other.
 """
 
 import numpy as np
@@ -129,12 +129,9 @@ def test_no_noise_is_the_exact_line_fit_and_a_closed_gripper_has_none(make_node)
     feed(closed, 2, closure=1.0)  # noise scales with 1 - c_G
     assert (closed.publisher[0].angle, closed.publisher[0].y) == pytest.approx((exact.angle, exact.y), abs=1e-9)
     custom = make_node(tactile_noise=(0.0, 0.001), seed=1)
-    old = make_node(noise="custom", sigma_theta=0.0, sigma_y=0.001, seed=1)  # the old names: the same noise
-    for node in (custom, old):
-        feed(node, 2)
-        assert node.publisher[0].angle == pytest.approx(exact.angle, abs=1e-9)
-        assert node.publisher[0].y != pytest.approx(exact.y, abs=1e-7)
-    assert reading(custom.publisher[0]) == reading(old.publisher[0])
+    feed(custom, 2)
+    assert custom.publisher[0].angle == pytest.approx(exact.angle, abs=1e-9)
+    assert custom.publisher[0].y != pytest.approx(exact.y, abs=1e-7)
 
 
 def test_topics_and_parameter_defaults(make_node):
@@ -142,10 +139,8 @@ def test_topics_and_parameter_defaults(make_node):
     assert node.real_publisher.topic_name == "/dlo/tactile/pose"
     assert sorted(s.topic_name for s in node.subscriptions) == ["/dlo/gripper/state", "/dlo/rope/particles"]
     assert {name: node.get_parameter(name).value for name in ("tactile_noise", "seed")} == {"tactile_noise": "none", "seed": 0}
-    assert not any(node.has_parameter(name) for name in ("noise", "sigma_theta", "sigma_y"))  # old names: not declared
+    assert not any(node.has_parameter(name) for name in ("noise", "sigma_theta", "sigma_y"))  # the names before tactile_noise
     assert node.sigma == (0.0, 0.0)
-    custom = make_node(noise="custom")  # custom without sigmas: no noise
-    assert custom.sigma == (0.0, 0.0)
     default_seed = make_node(tactile_noise="full")
     feed(default_seed, 1)
     seeded = make_node(tactile_noise="full", seed=0)
@@ -161,35 +156,14 @@ def test_a_pair_in_each_ros_form(node_with, value, capfd):
     assert "tactile noise: sigma_theta 0.1 rad, sigma_y 0.001 m; seed 0" in capfd.readouterr().err
 
 
-def test_the_old_names_give_the_old_noise_and_one_notice(node_with, capfd):
-    assert node_with(tactile_noise="partial").sigma == (0.25, 0.001)
-    assert "now 'tactile_noise'" not in capfd.readouterr().err
-    for old, sigma in [
-        ({"noise": "full"}, (0.5, 0.002)),
-        ({"noise": "custom", "sigma_y": 0.001}, (0.0, 0.001)),
-        ({"noise": "custom", "sigma_theta": 0.2, "sigma_y": 0.0}, (0.2, 0.0)),
-        ({"sigma_y": 0.001}, (0.0, 0.0)),
-    ]:  # the sigmas without noise:=custom did nothing, as before
-        node = node_with(**old)
-        assert node.sigma == sigma, old
-        assert not node.has_parameter("noise")
-        notices = [line for line in capfd.readouterr().err.splitlines() if "now 'tactile_noise'" in line]
-        assert len(notices) == 1, (old, notices)
-        assert notices[0].startswith("[WARN]") and all(f"'{name}'" in notices[0] for name in old), notices
-
-
 @pytest.mark.parametrize(
     "overrides,message",
     [
         ({"tactile_noise": "loud"}, "parameter 'tactile_noise': expected none, partial, full or a pair"),
         ({"tactile_noise": [0.1, -0.001]}, "parameter 'tactile_noise': expected none, partial, full or a pair"),
         ({"tactile_noise": "custom"}, "parameter 'tactile_noise': expected none, partial, full or a pair"),
-        ({"noise": "loud"}, "parameter 'noise': expected one of ('full', 'none', 'partial', 'custom'), got 'loud'"),
-        ({"sigma_theta": -1.0}, "parameter 'sigma_theta': must be >= 0, got -1.0"),
-        (
-            {"tactile_noise": "full", "noise": "full"},
-            "parameter 'noise' is the old name of 'tactile_noise': set only 'tactile_noise'",
-        ),
+        ({"noise": "full"}, "unknown parameter 'noise'; did you mean 'tactile_noise'?"),
+        ({"tactile_noise": "full", "sigma_y": 0.001}, "unknown parameter 'sigma_y'; did you mean 'tactile_noise'?"),
     ],
 )
 def test_bad_noise_parameters_are_refused(node_with, overrides, message):
