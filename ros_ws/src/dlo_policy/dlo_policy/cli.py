@@ -34,17 +34,14 @@ def config_keys(cls: type = RunConfig, prefix: str = "") -> list[str]:
 
 
 def _known_key(key: str) -> bool:
-    """Whether `key` names a setting: a field of its section (or a name the section still upgrades, e.g.
-    sac.normalize_observations), or anything below a mapping (env_options.X: the env module checks those)."""
+    """Whether `key` names a setting: a field of its section, or anything below a mapping (env_options.X: the
+    env module checks those)."""
     cls: Any = RunConfig
     parts = key.split(".")
     for depth, part in enumerate(parts):
-        fields = {field.name for field in dataclasses.fields(cls)}
-        names = set(cls.upgrade({part: None})) if hasattr(cls, "upgrade") else {part}
-        if not names <= fields:
+        if part not in {field.name for field in dataclasses.fields(cls)}:
             return False
-        (name,) = names if len(names) == 1 else (part,)
-        hint = typing.get_type_hints(cls).get(name)
+        hint = typing.get_type_hints(cls).get(part)
         if depth == len(parts) - 1:
             return True
         if dataclasses.is_dataclass(hint):

@@ -76,15 +76,6 @@ class SACConfig:
             f"one of {', '.join(OBSERVATION_SCALINGS)}",
         )
 
-    @classmethod
-    def upgrade(cls, data: dict[str, Any]) -> dict[str, Any]:
-        """Config dicts of older versions: `normalize_observations: bool` became `observation_scaling`."""
-        data = dict(data)
-        if "normalize_observations" in data:
-            legacy = data.pop("normalize_observations")
-            data.setdefault("observation_scaling", "running" if legacy else "none")
-        return data
-
 
 OBSERVATION_SCALINGS = ("running", "frozen", "bounds", "none")
 
@@ -267,8 +258,6 @@ def _set_dotted(data: dict[str, Any], key: str, value: Any) -> None:
 def _build(cls: type, data: Any, prefix: str) -> Any:
     if not isinstance(data, dict):
         raise ConfigError(f"{prefix.rstrip('.') or 'config'}: expected a mapping, got {data!r}")
-    if hasattr(cls, "upgrade"):
-        data = cls.upgrade(data)
     hints = typing.get_type_hints(cls)
     known = {f.name for f in dataclasses.fields(cls)}
     unknown = sorted(set(data) - known)

@@ -491,7 +491,10 @@ class SAC:
     def load(cls, path: str | Path, device: str | torch.device = "cpu") -> "SAC":
         """Rebuild an agent from `save` (everything) or `save_policy` (acting only) on `device`."""
         state = read_checkpoint(path)
-        values = SACConfig.upgrade(state["config"])
+        values = state["config"]
+        unknown = sorted(set(values) - {field.name for field in dataclasses.fields(SACConfig)})
+        if unknown:  # e.g. normalize_observations, a name from before observation_scaling (never released)
+            raise _not_a_policy_file(Path(path), f"unknown SAC config key(s) {', '.join(unknown)}")
         config = SACConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in values.items()})
         if config.observation_scaling == "bounds":  # the map comes from the saved normaliser state
             config = dataclasses.replace(config, observation_scaling="frozen")

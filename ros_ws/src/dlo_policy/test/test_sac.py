@@ -16,7 +16,7 @@ import pytest
 import torch
 from dlo_policy.config import SACConfig
 from dlo_policy.evaluate import evaluate_agent
-from dlo_policy.sac import SAC, frozen
+from dlo_policy.sac import SAC, CheckpointError, frozen
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # --import-mode=importlib: helper modules
 from sac_reach_env import ReachEnv, make_vec_env  # noqa: E402
@@ -223,18 +223,20 @@ def test_bounds_scaling_maps_the_observation_box_onto_minus_one_one_and_survives
     np.testing.assert_allclose(loaded.normalizer(corners).numpy(), agent.normalizer(corners).numpy())
 
 
-def test_checkpoints_of_the_boolean_normalize_observations_era_still_load(tmp_path):
+def test_a_checkpoint_whose_config_has_an_unknown_key_is_refused_in_one_line(tmp_path):
+    """A SAC config key the agent does not have (normalize_observations, the name observation_scaling had
+    before it was released) is refused with the file and the key, not a TypeError."""
     agent = filled_agent(observation_scaling="running")
     state = agent.state_dict(include_replay=False)
-    legacy = dict(state["config"])
-    del legacy["observation_scaling"]
-    legacy["normalize_observations"] = True
-    state["config"] = legacy
-    torch.save(state, tmp_path / "old.pt")
-    loaded = SAC.load(tmp_path / "old.pt")
-    assert loaded.config.observation_scaling == "running"
-    obs = np.random.default_rng(3).normal(size=(4, 9)).astype(np.float32)
-    np.testing.assert_array_equal(agent.predict(obs), loaded.predict(obs))
+    config = dict(state["config"])
+    del config["observation_scaling"]
+    config["normalize_observations"] = True
+    state["config"] = config
+    path = tmp_path / "old.pt"
+    torch.save(state, path)
+    with pytest.raises(CheckpointError) as raised:
+        SAC.load(path)
+    assert str(raised.value) == f"not a dlo-vitac policy file: {path} (unknown SAC config key(s) normalize_observations)"
 
 
 def test_diagnostics_leave_the_training_stream_untouched():

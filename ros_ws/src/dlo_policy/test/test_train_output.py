@@ -79,6 +79,7 @@ def test_a_wrong_key_is_answered_with_the_likely_one_before_torch_loads(tmp_path
         ("sak.batch_size=64", "sac.batch_size"),
         ("evl_every=3", "train.eval_every"),
         ("train.checkpoint_evry=9", "train.checkpoint_every"),
+        ("sac.normalize_observations=true", "sac.observation_scaling"),  # its name before it was released
     ],
 )
 def test_every_unknown_key_gets_a_suggestion_and_the_known_ones_pass(override, key, tmp_path, capsys):
@@ -87,8 +88,8 @@ def test_every_unknown_key_gets_a_suggestion_and_the_known_ones_pass(override, k
     from dlo_policy.cli import check_override_keys
 
     check_override_keys(
-        ["sac.normalize_observations=true", "env_options.anything=1", "train={eval_every: 5}", "seed=3", "label="]
-    )  # an old name still read, a free mapping, a section, top-level keys
+        ["sac.observation_scaling=none", "env_options.anything=1", "train={eval_every: 5}", "seed=3", "label="]
+    )  # a key of a section, a free mapping, a section, top-level keys
 
 
 def test_a_short_run_that_does_not_set_checkpoint_every_can_be_resumed(tmp_path):
