@@ -76,23 +76,13 @@ def test_list_shows_the_projects_executables_and_all_of_them_with_all(ros_env):
     assert bad.returncode == 2 and "unknown option '--bogus'" in bad.stderr
 
 
-OLD = "dlo_tools"  # the package that was split into dlo_bag, dlo_viz and dlo_driver_kit (CHANGELOG.md)
-
-
-def test_the_old_package_name_runs_each_executable_from_its_new_package_with_a_notice(ros_env):
-    for pkg, exe in (("dlo_bag", "dlo-bag-info"), ("dlo_viz", "foxglove_bridge"), ("dlo_driver_kit", "dlo-driver-check")):
-        res = run(ros_env, OLD, exe, "--help")
-        assert res.returncode == 0, res.stderr
-        assert "usage" in res.stdout.lower() or "parameters" in res.stdout.lower(), res.stdout
-        notice = [line for line in res.stderr.splitlines() if line.startswith("ros2run:")]
-        assert len(notice) == 1 and f"(use: ros2run {pkg} {exe})" in notice[0], res.stderr
-    listed = run(ros_env, OLD)
-    assert listed.returncode == 0
-    assert {"dlo_bag recorder_node", "dlo_viz foxglove_bridge", "dlo_driver_kit mock_driver_node"} <= set(
-        listed.stdout.splitlines()
-    )
-    missing = run(ros_env, OLD, "no_such_exe")
-    assert missing.returncode == 1 and "no executable 'no_such_exe' in dlo_bag, dlo_viz or dlo_driver_kit" in missing.stderr
+def test_the_package_name_before_the_split_is_a_package_like_any_unknown_one(ros_env):
+    """dlo_tools (split into dlo_bag, dlo_viz and dlo_driver_kit before any release) is not an alias: the
+    unknown-package answer, exit 1, naming the project's packages; nothing runs."""
+    res = run(ros_env, "dlo_tools", "dlo-bag-info", "--help")
+    assert res.returncode == 1 and res.stdout == "", res.stdout
+    assert res.stderr.splitlines()[0] == "ros2run: package 'dlo_tools' not found in AMENT_PREFIX_PATH", res.stderr
+    assert {"  dlo_bag", "  dlo_viz", "  dlo_driver_kit"} <= set(res.stderr.splitlines()), res.stderr
 
 
 def test_help_is_the_usage_line_and_no_arguments_a_usage_error(ros_env):
