@@ -21,17 +21,11 @@ Usage: python benchmarks/run.py sim -- [--seconds 2] [--repeats 3] [--batches 1 
 import argparse
 import json
 import os
-import sys
 import time
 
 import numpy as np
-
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-for pkg in ("dlo_sim", "dlo_perception"):
-    sys.path.insert(0, os.path.join(ROOT, "ros_ws", "src", pkg))
-
-from dlo_sim import RopeSim  # noqa: E402
-from dlo_sim.config import DT, SUBSTEPS_PER_ACTION  # noqa: E402
+from dlo_interface.simulator import make_simulator
+from dlo_interface.world import DT, SUBSTEPS_PER_ACTION
 
 MUJOCO_CABLE = """
 <mujoco model="cable">
@@ -53,7 +47,7 @@ MUJOCO_CABLE = """
 """
 
 
-def time_ours(sim: RopeSim, seconds: float, render: bool) -> tuple:
+def time_ours(sim, seconds: float, render: bool) -> tuple:
     """(env-steps per wall second, per CPU second) of ``RopeSim.step`` (+ ``render`` per action if asked)."""
     num_envs = sim.num_envs
     sim.reset(np.arange(num_envs))
@@ -103,7 +97,7 @@ def main() -> None:
 
     per_batch = {}
     for n in args.batches:
-        sim = RopeSim(n)
+        sim = make_simulator(n, "taichi").sim  # the Taichi rope (dlo_sim.RopeSim), built as the gym env builds it
         off = max(time_ours(sim, args.seconds, render=False) for _ in range(args.repeats))
         on = max(time_ours(sim, args.seconds, render=True) for _ in range(args.repeats))
         per_batch[n] = {

@@ -13,7 +13,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 from dlo_bag.analysis import recompute_episode
-from dlo_sim.task import OUTCOME_CODES
+from dlo_interface.task import OUTCOME_CODES
 
 SEEDS = (7001, 7005, 7006, 7007)
 LET_GO = np.array([0.0, 1.0, -1.0], dtype=np.float32)  # sideways, grip fully open (closure 0): it loses the cable

@@ -1,11 +1,11 @@
-"""Which gripper commands the simulator obeys (dlo_sim.command), at the boundaries: the speed limit per
+"""Which gripper commands the simulator obeys (dlo_interface.command), at the boundaries: the speed limit per
 axis, the closure range, the episode/step a command answers in both clock modes, and the throttled,
 counted rejection log."""
 
 import math
 
 import pytest
-from dlo_sim.command import MAX_SPEED, CommandError, RejectionLog, command_mismatch, command_to_action
+from dlo_interface.command import MAX_SPEED, CommandError, RejectionLog, command_mismatch, command_to_action
 
 
 @pytest.mark.parametrize("vx,vy", [(0.25, 0.0), (-0.25, 0.0), (0.0, 0.25), (0.0, -0.25), (0.25, -0.25)])

@@ -193,6 +193,13 @@ def test_banner_does_not_precede_one_line_errors(tmp_path):
     assert evaluate.returncode == 2 and evaluate.stdout == ""
     assert evaluate.stderr.strip().splitlines() == [f"dlo-evaluate: error: checkpoint {tmp_path / 'missing.pt'} not found"]
     banner = subprocess.run(
-        [sys.executable, "-c", "import dlo_sim.kernels, dlo_perception.vision"], capture_output=True, text=True, timeout=300
+        [
+            sys.executable,
+            "-c",
+            "from dlo_interface.simulator import simulator_factory; simulator_factory(); import dlo_perception.vision",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
     )
     assert banner.returncode == 0 and "[Taichi]" not in banner.stdout + banner.stderr

@@ -6,6 +6,9 @@ also inside functions; read with ``ast``, nothing is imported) must be declared 
 ``test/`` files), and the declared dependencies between the workspace's packages must form a DAG,
 so that colcon and rosdep can order a real install. The checker is run on scratch trees too, to
 show that it catches an undeclared import and a cycle.
+
+The simulator is a plug-in behind the contract package ``dlo_interface``: no module outside ``dlo_sim`` imports
+``dlo_sim`` (``test_nothing_outside_the_simulator_imports_it``), and the contract itself is pure Python.
 """
 
 from __future__ import annotations
@@ -111,6 +114,7 @@ def test_declared_dependencies_form_a_dag():
     assert dependency_cycle(SRC) == [], " -> ".join(dependency_cycle(SRC))
 
 
+ROOT_DIRS = ("tests", "tools", "benchmarks")  # besides ros_ws/src/*: where modules live that may not import the simulator
 TOOLS = ("dlo_bag", "dlo_viz", "dlo_driver_kit")  # the tool packages, on top of the graph's own packages
 # who may depend on a tool package (any tag): dlo_viz serves bags' schemas, the driver kit's tests analyse a bag;
 # dlo_bringup starts the graph, the recorder and the Foxglove bridge with it
@@ -129,8 +133,8 @@ def test_node_helpers_live_in_the_base_package():
 
 def test_the_tool_packages_sit_on_top_of_the_graph():
     """The expected DAG: dlo_bag (bag I/O, recorder, playback, analysis) and dlo_driver_kit (driver template
-    and checker) need only msgs, common, perception and sim to run (their tests: also dlo_policy, dlo_bag);
-    dlo_viz (live view) needs dlo_bag; no package of
+    and checker) need only msgs, common, the contract (interface) and perception to run, not the simulator (their
+    tests: also dlo_policy, dlo_bag, and the sim node as a process); dlo_viz (live view) needs dlo_bag; no package of
     the graph itself depends on a tool package, and nothing but the launch package dlo_bringup depends on dlo_viz
     or dlo_driver_kit."""
     pkgs = packages(SRC)
@@ -139,11 +143,11 @@ def test_the_tool_packages_sit_on_top_of_the_graph():
     for tool in TOOLS:
         users = {name for name, deps in dlo_deps.items() if tool in deps}
         assert users <= TOOL_USERS[tool], f"{sorted(users - TOOL_USERS[tool])} depend on {tool}"
-    core = {"dlo_msgs", "dlo_common", "dlo_perception", "dlo_sim"}
+    core = {"dlo_msgs", "dlo_common", "dlo_interface", "dlo_perception"}
     assert dlo_deps["dlo_bag"] == core | {"dlo_policy"}  # dlo_policy: <test_depend> only (a bag of a policy's run)
     assert "dlo_policy" not in set().union(*(pkgs["dlo_bag"][1][t] for t in RUN_TAGS))
-    assert dlo_deps["dlo_driver_kit"] == core | {"dlo_bag"}  # <test_depend> only
-    assert "dlo_bag" not in set().union(*(pkgs["dlo_driver_kit"][1][t] for t in RUN_TAGS))
+    assert dlo_deps["dlo_driver_kit"] == core | {"dlo_bag", "dlo_sim"}  # <test_depend> only
+    assert not {"dlo_bag", "dlo_sim"} & set().union(*(pkgs["dlo_driver_kit"][1][t] for t in RUN_TAGS))
     assert dlo_deps["dlo_viz"] == {"dlo_msgs", "dlo_common", "dlo_bag"}
 
 
@@ -154,6 +158,89 @@ def test_the_launch_package_sits_on_top_of_everything():
     dlo_deps = {name: {d for d in set().union(*deps.values()) if d in pkgs} for name, (_, deps) in pkgs.items()}
     assert dlo_deps["dlo_bringup"] == set(pkgs) - {"dlo_bringup", "dlo_driver_kit"}
     assert not [name for name, deps in dlo_deps.items() if "dlo_bringup" in deps]
+
+
+def simulator_imports(path: pathlib.Path) -> list[int]:
+    """Lines of one Python file that import dlo_sim: import statements (also inside functions),
+    ``importlib.import_module("dlo_sim...")`` / ``__import__`` with a literal name, and ``python -c CODE``
+    argument lists whose CODE does."""
+    lines = []
+    code = re.compile(r"(^|[;\n]\s*)(import|from)\s+dlo_sim\b")
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.Import) and any(a.name.split(".")[0] == "dlo_sim" for a in node.names):
+            lines.append(node.lineno)
+        elif isinstance(node, ast.ImportFrom) and node.level == 0 and (node.module or "").split(".")[0] == "dlo_sim":
+            lines.append(node.lineno)
+        elif isinstance(node, ast.Call) and getattr(node.func, "attr", getattr(node.func, "id", "")) in (
+            "import_module",
+            "__import__",
+        ):
+            first = node.args[0] if node.args else None
+            if isinstance(first, ast.Constant) and str(first.value).split(".")[0] == "dlo_sim":
+                lines.append(node.lineno)
+        elif isinstance(node, (ast.List, ast.Tuple)):
+            items = [e.value if isinstance(e, ast.Constant) else None for e in node.elts]
+            for flag, text in zip(items, items[1:]):
+                if flag == "-c" and isinstance(text, str) and code.search(text):
+                    lines.append(node.lineno)
+    return sorted(lines)
+
+
+def modules_outside_the_simulator(root: pathlib.Path = ROOT) -> list[pathlib.Path]:
+    """Every Python file of the product (ros_ws/src/*/ but dlo_sim, their tests included), tests/, tools/ and
+    benchmarks/."""
+    src = root / "ros_ws" / "src"
+    files = [p for d in sorted(src.iterdir()) if d.is_dir() and d.name != "dlo_sim" for p in sorted(d.rglob("*.py"))]
+    files += [p for name in ROOT_DIRS if (root / name).is_dir() for p in sorted((root / name).rglob("*.py"))]
+    files += sorted(root.glob("*.py"))
+    skip = {"build", "install", "log", "__pycache__"}
+    return [p for p in files if not skip & set(p.relative_to(root).parts)]
+
+
+def test_nothing_outside_the_simulator_imports_it():
+    """The simulator is a plug-in: a driver, perception, the policy (its gym env gets the simulator as a backend,
+    ``dlo_interface.simulator``), bag analysis, the launcher, the tools and the benchmarks depend on the contract
+    ``dlo_interface``. The rule covers tests/ too: the graph tests start the simulator as a process (``ros2 run
+    dlo_sim sim_node``, a package name, not an import) and read the contract for its rules; only the simulator's
+    own tests (ros_ws/src/dlo_sim/test) import it. A generator that loads every node module by its entry point
+    (tools/gen_node_configs.py, tools/gen_interfaces.py) names no package."""
+    offenders = [f"{p.relative_to(ROOT)}:{line}" for p in modules_outside_the_simulator() for line in simulator_imports(p)]
+    assert offenders == []
+
+
+def test_the_simulator_import_check_sees_each_kind_of_import(tmp_path):
+    """The check on scratch files: an import statement, one inside a function, import_module with a literal name
+    and a ``python -c`` string are found; the package's name as a process to run, or the contract, are not."""
+    cases = {
+        "plain.py": ("from dlo_sim.episode import TaskSim\n", [1]),
+        "late.py": ("def f():\n    import dlo_sim.kernels\n", [2]),
+        "dynamic.py": ("import importlib\nimportlib.import_module('dlo_sim.rope')\n", [2]),
+        "child.py": ("import sys\nARGS = [sys.executable, '-c', 'import os; import dlo_sim.kernels']\n", [2]),
+        "process.py": ("CMD = ['ros2', 'run', 'dlo_sim', 'sim_node']\nfrom dlo_interface.task import RULES\n", []),
+    }
+    for name, (text, lines) in cases.items():
+        (tmp_path / name).write_text(text)
+        assert simulator_imports(tmp_path / name) == lines, name
+    (tmp_path / "ros_ws" / "src" / "dlo_sim" / "dlo_sim").mkdir(parents=True)
+    (tmp_path / "ros_ws" / "src" / "dlo_sim" / "dlo_sim" / "rope.py").write_text("import dlo_sim.kernels\n")
+    (tmp_path / "ros_ws" / "src" / "dlo_bag" / "dlo_bag").mkdir(parents=True)
+    (tmp_path / "ros_ws" / "src" / "dlo_bag" / "dlo_bag" / "video.py").write_text("import dlo_sim\n")
+    (tmp_path / "tools").mkdir()
+    (tmp_path / "tools" / "gen.py").write_text("from dlo_sim import RopeSim\n")
+    found = [str(p.relative_to(tmp_path)) for p in modules_outside_the_simulator(tmp_path) if simulator_imports(p)]
+    assert found == ["ros_ws/src/dlo_bag/dlo_bag/video.py", "tools/gen.py", "child.py", "dynamic.py", "late.py", "plain.py"]
+
+
+def test_the_contract_is_pure_python():
+    """dlo_interface depends on no other dlo_* package and its modules import only the standard library, numpy,
+    themselves and (inside the functions that build messages) sensor_msgs: no Taichi, no rclpy, no simulator."""
+    import sys
+
+    pkgs = packages(SRC)
+    assert not {d for d in set().union(*pkgs["dlo_interface"][1].values()) if d.startswith("dlo_")}
+    allowed = set(sys.stdlib_module_names) | {"numpy", "dlo_interface", "sensor_msgs"}
+    for path in sorted((SRC / "dlo_interface" / "dlo_interface").glob("*.py")):
+        assert imported_packages(path) <= allowed, f"{path.name}: {sorted(imported_packages(path) - allowed)}"
 
 
 def test_every_python_package_is_on_the_environment():

@@ -33,8 +33,8 @@ def synthetic_bag(tmp_path_factory):
         pytest.skip("source scripts/env.sh first")
     from dlo_bag.typestore import make_typestore
     from dlo_bag.writer import BagWriter
-    from dlo_perception.cloud import pack_particles
-    from dlo_sim.task import EpisodeTracker
+    from dlo_interface.cloud import pack_particles
+    from dlo_interface.task import EpisodeTracker
 
     ts = make_typestore()
     T = ts.types

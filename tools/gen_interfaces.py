@@ -15,8 +15,8 @@ What is generated and from where:
 - message and service definitions: ros_ws/src/dlo_msgs/{msg,srv};
 - parameter tables: each node module's PARAMETERS declarations (dlo_common.params.markdown_table),
   for every ``*_node`` entry point in the packages' setup.py;
-- units and ranges: the hand-written lines of ``semantics`` below, with numbers taken from dlo_sim.config /
-  dlo_sim.command / dlo_sim.task constants; a topic without one: its registry record's description and
+- units and ranges: the hand-written lines of ``semantics`` below, with numbers taken from dlo_interface.world /
+  dlo_interface.command / dlo_interface.task constants; a topic without one: its registry record's description and
   ``plot`` series (field, name, unit), so a topic added to dlo_common.topics is documented with no line here.
 
 ``--check`` regenerates into memory and compares with the committed file: exit 1 and a diff
@@ -72,11 +72,11 @@ def semantics() -> dict:
     entry shows its record's description and plot series as its units (:func:`record_units`) and its record's
     driver's part (or its publisher) as what a real robot does.
     """
-    from dlo_perception.camera import TopCamera
+    from dlo_interface.camera import IMAGE_BACKGROUND, IMAGE_CABLE, IMAGE_GRIPPER, TopCamera
+    from dlo_interface.command import MAX_SPEED
+    from dlo_interface.task import END_PARTICLES, HORIZON
+    from dlo_interface.world import FIXED_END, GRIPPER_HEIGHT, WORKSPACE_HALF_WIDTH
     from dlo_perception.tactile import Y_LIMIT
-    from dlo_sim.command import MAX_SPEED
-    from dlo_sim.config import FIXED_END, GRIPPER_HEIGHT, IMAGE_BACKGROUND, IMAGE_CABLE, IMAGE_GRIPPER, WORKSPACE_HALF_WIDTH
-    from dlo_sim.task import END_PARTICLES, HORIZON
 
     w = WORKSPACE_HALF_WIDTH
     cam = TopCamera.covering_workspace()
@@ -957,9 +957,9 @@ def _deviation_lines(model: dict) -> list[str]:
 
 
 def render(model: dict, sem: dict, params: list, definitions: list) -> str:
-    from dlo_perception.camera import TopCamera
-    from dlo_sim.config import DT, FIXED_END, GRIPPER_HEIGHT, SUBSTEPS_PER_ACTION, WORKSPACE_HALF_WIDTH
-    from dlo_sim.task import HORIZON
+    from dlo_interface.camera import TopCamera
+    from dlo_interface.task import HORIZON
+    from dlo_interface.world import DT, FIXED_END, GRIPPER_HEIGHT, SUBSTEPS_PER_ACTION, WORKSPACE_HALF_WIDTH
 
     period = DT * SUBSTEPS_PER_ACTION
     topics = model["topics"]
@@ -998,11 +998,13 @@ def mermaid_graph(topics: dict, order: list) -> str:
 
 
 def sim_defaults() -> dict:
-    """name -> default of the sim node's declared parameters."""
-    from dlo_common.params import as_params
-    from dlo_sim.sim_node import PARAMETERS
+    """name -> default of the sim node's declared parameters (its module found as every node's is, by entry point)."""
+    import importlib
 
-    return {p.name: p.default for p in as_params(PARAMETERS)}
+    from dlo_common.params import as_params
+
+    module = next(module for _, exe, module in node_executables() if exe == "sim_node")
+    return {p.name: p.default for p in as_params(importlib.import_module(module).PARAMETERS)}
 
 
 def anchor(title: str) -> str:
@@ -1130,7 +1132,7 @@ def generate(snapshot: dict, log=print) -> str:
         log(f"[gen_interfaces] warning: rate {line}")
     state = snapshot.get("samples", {}).get("/dlo/gripper/state", {})
     if state.get("observed_s"):
-        from dlo_sim.config import DT, SUBSTEPS_PER_ACTION
+        from dlo_interface.world import DT, SUBSTEPS_PER_ACTION
 
         hz, configured = state["count"] / state["observed_s"], 1.0 / (DT * SUBSTEPS_PER_ACTION)
         log(

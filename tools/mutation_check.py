@@ -7,7 +7,7 @@ the mutant is *killed* when they fail (or hang past the time limit), *survived* 
 The live tree is never written: other work can go on in it meanwhile.
 
     tools/mutation_check.sh                       # every module of tools/mutation.toml
-    tools/mutation_check.sh --module dlo_sim.task --module dlo_sim.command
+    tools/mutation_check.sh --module dlo_interface.task --module dlo_interface.command
     tools/mutation_check.sh --list                # the mutants, nothing run
     tools/mutation_check.sh --fresh               # forget earlier verdicts
 

@@ -24,5 +24,9 @@ setup(
         "console_scripts": [
             "sim_node = dlo_sim.sim_node:main",
         ],
+        # the simulator backend the gym env steps (dlo_interface.simulator): env option simulator=taichi
+        "dlo_interface.simulators": [
+            "taichi = dlo_sim.episode:TaskSim",
+        ],
     },
 )

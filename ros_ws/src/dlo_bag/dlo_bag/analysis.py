@@ -3,7 +3,7 @@
     dlo-analyze BAG [--plots DIR] [--json FILE] [--video DIR [--video-format gif]]
 
 The per-step task inputs (held particle indices, n_c, L_c) recorded on ``/dlo/task/state`` are
-fed through the same ``dlo_sim.task.EpisodeTracker`` the sim node and the gym environment use,
+fed through the same ``dlo_interface.task.EpisodeTracker`` the sim node and the gym environment use,
 so the recomputed outcomes (paper-text rule, and the authors'-code rule from the recorded
 ``held_indices_authors``) must equal the recorded ones (a mismatch is reported and exits 1).
 Plots (PNG, one per episode): the gripper path over the cable at the start and the end seen from
@@ -37,9 +37,9 @@ from pathlib import Path
 import numpy as np
 from dlo_common.console import console_main
 from dlo_common.topics import select, topic
-from dlo_perception.cloud import unpack_particles
+from dlo_interface.cloud import unpack_particles
+from dlo_interface.task import OUTCOME_NAMES, EpisodeTracker, recorded_task_rules
 from dlo_perception.sync import stamp_to_ns
-from dlo_sim.task import OUTCOME_NAMES, EpisodeTracker, recorded_task_rules
 
 from dlo_bag.errors import EXIT_BAD_BAG, EXIT_NO_TASK_STATE, EXIT_USAGE, BagError, NotABagError
 from dlo_bag.info import bag_info

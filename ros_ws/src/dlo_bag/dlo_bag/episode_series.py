@@ -2,7 +2,7 @@
 
 :func:`episode_series` turns the per-step messages of one episode (``dlo_bag.analysis.read_run``:
 {stream: {step: message}}) into numpy arrays indexed like ``steps``: closure, commands, reward, held
-particles, where the end was reached under both outcome rules (``dlo_sim.task.at_end`` /
+particles, where the end was reached under both outcome rules (``dlo_interface.task.at_end`` /
 ``at_end_authors``, the functions the task itself uses) and every ``plot`` series of the observation topics
 (``dlo_common.topics``: theta_T, y_T, q_V, theta_V, y_V, ..., under their names, in their SI units), so a
 modality added there is plotted with no change here. A value a step lacks (e.g. no visual pose recorded) is NaN.
@@ -15,9 +15,7 @@ from operator import attrgetter
 
 import numpy as np
 from dlo_common.topics import select
-from dlo_sim.task import at_end, at_end_authors
-
-CONTROL_PERIOD = 0.08  # s per control step (8 simulation steps of 0.01 s, docs/ARCHITECTURE.md#world)
+from dlo_interface.task import at_end, at_end_authors
 
 
 @dataclass

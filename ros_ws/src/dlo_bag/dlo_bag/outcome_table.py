@@ -4,7 +4,7 @@ and the health notes read from the nodes' logs. Pure text processing (no rclpy).
 (dlo_bringup.launcher) prints them; dlo-analyze prints the table for a bag.
 
 Each JSON line is one finished episode as ``sim_node`` writes it (``summary_file``): episode, seed,
-outcome and outcome_authors (dlo_sim.task, both rules), episode_return, episode_length [steps],
+outcome and outcome_authors (dlo_interface.task, both rules), episode_return, episode_length [steps],
 time_at_end [steps], how_far [particles].
 """
 
@@ -13,8 +13,8 @@ from __future__ import annotations
 import json
 import re
 
+from dlo_interface.task import LEGACY_TASK_RULES, OUTCOME_NAMES, OUTCOME_NONE, recorded_task_rules
 from dlo_perception.tactile import noise_label
-from dlo_sim.task import LEGACY_TASK_RULES, OUTCOME_NAMES, OUTCOME_NONE, recorded_task_rules
 
 OUTCOMES = [name for code, name in sorted(OUTCOME_NAMES.items()) if code != OUTCOME_NONE]
 SHIPPED = "the shipped All policy"
@@ -43,7 +43,7 @@ def episode_line(e: dict, done: int = 0, total: int = 0) -> str:
 
 def outcome_table(episodes) -> str:
     """Per-episode lines and the fraction of each outcome under both rules (paper text, authors'
-    code: dlo_sim.task), as fixed-width text."""
+    code: dlo_interface.task), as fixed-width text."""
     lines = [
         f"{'episode':>7} {'seed':>6}  {'outcome (paper rule)':<20} {'authors rule':<20} {'return':>8} "
         f"{'time at end [steps]':>19} {'from end':>8}"

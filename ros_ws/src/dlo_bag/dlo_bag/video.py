@@ -21,10 +21,10 @@ import time
 from pathlib import Path
 
 import numpy as np
-from dlo_perception.cloud import unpack_particles
-from dlo_sim.config import FINGER_AXIS_OFFSET, FINGER_RADIUS, FIXED_END
+from dlo_interface.cloud import unpack_particles
+from dlo_interface.world import CONTROL_PERIOD, FINGER_AXIS_OFFSET, FINGER_RADIUS, FIXED_END
 
-from .episode_series import CONTROL_PERIOD, episode_series
+from .episode_series import episode_series
 
 FORMATS = ("mp4", "gif")
 REALTIME_FPS = 1.0 / CONTROL_PERIOD  # 12.5 frames per second = one control step per frame

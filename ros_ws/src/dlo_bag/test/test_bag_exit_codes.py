@@ -46,7 +46,7 @@ def test_a_bad_option_is_exit_2_in_every_tool(tool, tmp_path, capsys):
 
 def _task_bag(path, recorded_outcome=None, recorded_return_offset=0.0):
     """A bag of one finished 3-step episode (a short cable held near its end, then dropped at step 2)
-    whose recorded outcome and return are what dlo_sim.task gives, or ``recorded_outcome`` instead, and
+    whose recorded outcome and return are what dlo_interface.task gives, or ``recorded_outcome`` instead, and
     the return plus ``recorded_return_offset``."""
     held = {0: [1, 2], 1: [28, 29], 2: []}
     states = {

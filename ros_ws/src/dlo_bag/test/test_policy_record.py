@@ -85,7 +85,7 @@ def write_bag(path: Path, records=(), episodes: int = 1, split: int = 0) -> Path
     """A small bag written by the recorder's own logic (dlo_bag.recording.Recorder): ``records`` on the policy topic
     first (as the latched message arrives), then ``episodes`` short episodes of task and gripper states whose
     outcomes come from the task module (so dlo-analyze recomputes them without a mismatch)."""
-    from dlo_sim.task import EpisodeTracker
+    from dlo_interface.task import EpisodeTracker
 
     ts = make_typestore()
     T = ts.types

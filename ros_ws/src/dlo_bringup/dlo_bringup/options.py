@@ -16,11 +16,12 @@ import os
 import re
 from dataclasses import dataclass, field, replace
 
+from dlo_interface.grip import CARRY_LAWS
+from dlo_interface.sim_config import MAX_CONTACT_RADIUS, SimConfig
+from dlo_interface.task import DEFAULT_TASK_RULES, TASK_RULES
+from dlo_interface.world import START_POSES
 from dlo_perception.vision_source import DEFAULT_VISION_SOURCE, VISION_SOURCES
 from dlo_policy.modalities import names as modality_names  # the registry: --without's help
-from dlo_sim.config import START_POSES, SimConfig
-from dlo_sim.grip import CARRY_LAWS
-from dlo_sim.task import DEFAULT_TASK_RULES, TASK_RULES
 
 HELP_HINT = "(options: scripts/launch_graph.sh --help)"
 FOXGLOVE_PORT = 8765  # --foxglove without a port
@@ -124,7 +125,6 @@ OPTIONAL_VALUE = {
     "composed": (re.compile(r"(true|false)"), "true"),
 }
 POLICIES = ("sac", "tactile_reactive", "oracle", "random")
-CONTACT_RADIUS_MAX = 0.006  # m (dlo_sim: above 4.25 mm the fingers pinch the cable)
 
 
 class UsageError(Exception):
@@ -215,9 +215,9 @@ def check(o: GraphOptions) -> None:
     _one_of("start-pose", o.start_pose, tuple(START_POSES))
     _one_of("vision-source", o.vision_source, VISION_SOURCES)
     if o.contact_radius and not (
-        re.fullmatch(r"[0-9]*[.]?[0-9]+", o.contact_radius) and 0 < float(o.contact_radius) <= CONTACT_RADIUS_MAX
+        re.fullmatch(r"[0-9]*[.]?[0-9]+", o.contact_radius) and 0 < float(o.contact_radius) <= MAX_CONTACT_RADIUS
     ):
-        raise UsageError(f"--contact-radius must be a number in (0, {CONTACT_RADIUS_MAX}] m, got '{o.contact_radius}'")
+        raise UsageError(f"--contact-radius must be a number in (0, {MAX_CONTACT_RADIUS}] m, got '{o.contact_radius}'")
     if o.policy not in POLICIES:
         raise UsageError(f"--policy must be one of {', '.join(POLICIES)}, got '{o.policy}'")
     if o.checkpoint and not os.path.isfile(o.checkpoint):

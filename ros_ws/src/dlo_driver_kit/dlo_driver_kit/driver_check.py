@@ -11,7 +11,7 @@ records what the driver publishes and judges it rule by rule (docs/ARCHITECTURE.
 guide docs/WRITE_YOUR_DRIVER.md). The rules are what the unchanged graph needs to run a step:
 tactile_node, vision_node and policy_node match a step's inputs by their exact header stamp
 (``dlo_perception.sync.StampSync``), vision_node reads mono8 segmentation images only and
-needs camera_info first, tactile_node reads the particle cloud layout of ``dlo_perception.cloud``,
+needs camera_info first, tactile_node reads the particle cloud layout of ``dlo_interface.cloud``,
 and the policy answers a stamp it has seen before as a republished step. A driver that passes
 them all runs the graph; a failed rule names the property and the numbers. Every rule prints one
 line ``PASS``/``FAIL``/``SKIP``, its name and the measured numbers; each rule judges one property,
@@ -53,7 +53,7 @@ so one defect fails one rule:
 - ``workspace``: every reported gripper position lies in ``|x|, |y| <= --workspace`` (+ 1 mm),
   also while commanded at full speed towards the corner (+x, +y);
 - ``touch``: a tactile source exists: ``/dlo/rope/particles`` in the layout tactile_node reads
-  (``dlo_perception.cloud``: fields x, y, z, held, FLOAT32, little endian, 16 bytes a point), or
+  (``dlo_interface.cloud``: fields x, y, z, held, FLOAT32, little endian, 16 bytes a point), or
   ``/dlo/tactile/pose``.
 
 After the rules, against the shipped policy's robustness envelope (:mod:`dlo_driver_kit.envelope`, packaged with
@@ -95,23 +95,16 @@ from dlo_common import taichi_runtime  # noqa: F401 (before the image noise impo
 from dlo_common.console import console_main
 from dlo_common.topics import SERVICES, message_class, select
 from dlo_common.topics import topic as topic_record
-from dlo_perception.cloud import FIELD_NAMES, FLOAT32, POINT_STEP, unpack_particles
+from dlo_interface.camera import IMAGE_BACKGROUND, IMAGE_CABLE, IMAGE_GRIPPER
+from dlo_interface.cloud import FIELD_NAMES, FLOAT32, POINT_STEP, unpack_particles
+from dlo_interface.command import MAX_SPEED
+from dlo_interface.world import CONTROL_PERIOD, GRIPPER_HEIGHT, WORKSPACE_HALF_WIDTH
 from dlo_perception.sync import format_stamp
-from dlo_sim.command import MAX_SPEED
-from dlo_sim.config import (
-    DT,
-    GRIPPER_HEIGHT,
-    IMAGE_BACKGROUND,
-    IMAGE_CABLE,
-    IMAGE_GRIPPER,
-    SUBSTEPS_PER_ACTION,
-    WORKSPACE_HALF_WIDTH,
-)
 
 from dlo_driver_kit import envelope as shipped
 
 RULES = ("rate", "stamps", "sync", "camera", "obey", "invalid", "stale", "workspace", "touch")
-CONTROL_RATE = 1.0 / (DT * SUBSTEPS_PER_ACTION)  # Hz, one command per 0.08 s
+CONTROL_RATE = 1.0 / CONTROL_PERIOD  # Hz, one command per 0.08 s
 RATE_TOLERANCE = 0.2  # relative
 SPEED_TOLERANCE = 0.2  # relative
 ANGLE_TOLERANCE = 15.0  # deg
@@ -307,7 +300,7 @@ def acting(rec: Recording, episode: int, step: int, react: int) -> set:
     """The phases whose commands may move the gripper from state ``step`` of ``episode`` to the next one: those
     answering that state and the ``react`` states before it in the same episode (None for a state no command
     answered). A new episode starts without a command: a driver acts only on commands answering its current
-    episode (``dlo_sim.command.command_mismatch``), so the step from a new episode's state 0 runs under the command
+    episode (``dlo_interface.command.command_mismatch``), so the step from a new episode's state 0 runs under the command
     answering state 0 (or none, holding), whatever answered the previous episode's last states. A driver whose
     episodes end every few steps (the sim under the authors' task rules, moved sideways) is judged on these steps."""
     return {rec.answered.get((episode, step - back)) for back in range(min(react, step) + 1)}
@@ -353,7 +346,7 @@ def judged_states(rec: Recording) -> list:
 
 
 def cloud_layout_problem(msg) -> str | None:
-    """What keeps tactile_node from reading this PointCloud2 (``dlo_perception.cloud``), or None."""
+    """What keeps tactile_node from reading this PointCloud2 (``dlo_interface.cloud``), or None."""
     fields = [(f.name, int(f.offset), int(f.datatype), int(f.count)) for f in msg.fields]
     want = [(name, 4 * i, FLOAT32, 1) for i, name in enumerate(FIELD_NAMES)]
     if fields != want or msg.is_bigendian:
@@ -938,7 +931,7 @@ def image_noise(rec: Recording) -> dict | None:
     ]
     if len(still) < STILL_IMAGES_MIN:
         return None
-    from dlo_perception.camera import TopCamera
+    from dlo_interface.camera import TopCamera
     from dlo_perception.vision import visual_pose
 
     camera = TopCamera.from_camera_info(info.width, info.height, info.k, TopCamera.position)

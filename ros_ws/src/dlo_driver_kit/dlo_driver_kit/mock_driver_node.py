@@ -12,13 +12,13 @@ to change are marked ``# ROBOT:``. It does what the rest of the graph relies on 
   real tactile sensor's driver publishes ``/dlo/tactile/pose`` itself). All messages of one state
   carry the same stamp: the time the state was measured;
 - obeys ``/dlo/gripper/cmd`` (vx, vy [m/s], |v| <= 0.25; closure [0, 1]) when it answers the
-  current episode and a step not older than ``command_timeout`` (``dlo_sim.command``, the sim's rules);
+  current episode and a step not older than ``command_timeout`` (``dlo_interface.command``, the sim's rules);
 - rejects invalid commands (NaN/inf, speed or closure out of range): the gripper stops and holds
   its closure, with a warning at most once a second per cause (with the count);
 - stops the gripper (and holds the closure) when the last command is older than ``command_timeout``;
-- keeps the gripper inside the workspace |x|, |y| <= 0.3 m (``dlo_sim.config.WORKSPACE_HALF_WIDTH``):
+- keeps the gripper inside the workspace |x|, |y| <= 0.3 m (``dlo_interface.world.WORKSPACE_HALF_WIDTH``):
   commanded beyond it, it stops at the boundary;
-- has the gripper's force limit the policy relies on (the sim's finite grip, ``dlo_sim.grip.stall_firm_grip``):
+- has the gripper's force limit the policy relies on (the sim's finite grip, ``dlo_interface.grip.stall_firm_grip``):
   a firm grip (closure >= 0.9) carries the cable points between the fingers but does not pull one
   further from the fixed end than its rest length along the cable: at the end of the cable, closed
   firmly, the gripper stalls (back it still moves, and sideways it swings about the fixed end until
@@ -47,30 +47,29 @@ import numpy as np
 from builtin_interfaces.msg import Time
 from dlo_common.node_util import declare_parameters
 from dlo_common.params import Param
-from dlo_msgs.msg import GripperCommand, GripperState
-from dlo_msgs.srv import ResetEpisode
-from dlo_perception.camera import CAMERA_FRAME, TopCamera, camera_info
-from dlo_perception.cloud import particle_cloud
-from dlo_sim.command import CommandError, RejectionLog, command_mismatch, command_to_action
-from dlo_sim.config import (
-    DT,
+from dlo_interface.camera import CAMERA_FRAME, TopCamera, camera_info
+from dlo_interface.cloud import particle_cloud
+from dlo_interface.command import CommandError, RejectionLog, command_mismatch, command_to_action
+from dlo_interface.grip import carried_fraction, stall_firm_grip
+from dlo_interface.sim_config import SimConfig
+from dlo_interface.world import (
+    CONTROL_PERIOD,
     FINGER_RADIUS,
     FIXED_END,
     GRIPPER_HEIGHT,
     GRIPPER_START_BEHIND,
     MAX_DISPLACEMENT,
     REST_SPACING,
-    SUBSTEPS_PER_ACTION,
     WORKSPACE_HALF_WIDTH,
-    SimConfig,
 )
-from dlo_sim.grip import carried_fraction, stall_firm_grip
+from dlo_msgs.msg import GripperCommand, GripperState
+from dlo_msgs.srv import ResetEpisode
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 
 MODES = ("real_time", "step_locked")
-CONTROL_RATE = 1.0 / (DT * SUBSTEPS_PER_ACTION)  # Hz: one command per 0.08 s, like the sim
+CONTROL_RATE = 1.0 / CONTROL_PERIOD  # Hz: one command per 0.08 s, like the sim
 FINGER_REACH = FINGER_RADIUS + REST_SPACING  # m, a point this close to the gripper centre (in x-y) is in contact
 CABLE_RADIUS = 0.008  # m, drawn width
 START_CLOSURE = 0.7  # closure at the start of an episode (sliding grip)
@@ -113,7 +112,7 @@ def touching(cable: np.ndarray, gripper) -> np.ndarray:
 def kinematic_move(gripper, cable: np.ndarray, vx: float, vy: float, closure: float, dt: float):
     """Move the mock gripper with (vx, vy) [m/s] for ``dt`` s at ``closure`` -> (its new x, y [m], the cable).
 
-    Stopped at the workspace boundary, and by the sim's force limit (``dlo_sim.grip.stall_firm_grip``, per
+    Stopped at the workspace boundary, and by the sim's force limit (``dlo_interface.grip.stall_firm_grip``, per
     sub-step of at most SUBSTEP as in the sim): a firm grip carries the points between the fingers (the
     grip law's carried fraction 1) but never beyond their rest length from the fixed end. A lighter grip
     slides over the cable and leaves it where it is."""
@@ -196,7 +195,7 @@ class MockDriver(Node):
         # ROBOT: replace this with your hardware call: send the velocity and the closure to the controller (and
         # enforce the workspace there too, and a force/torque limit: closed firmly (closure >= 0.9) on a taut
         # cable, the gripper must stall or stop, not drag the cable on). Here: integrate, stop at the workspace
-        # boundary, and stall as the sim does (dlo_sim.grip.stall_firm_grip).
+        # boundary, and stall as the sim does (dlo_interface.grip.stall_firm_grip).
         self.gripper, self.cable = kinematic_move(self.gripper, self.cable, vx, vy, closure, dt)
         self.closure = float(closure)
 

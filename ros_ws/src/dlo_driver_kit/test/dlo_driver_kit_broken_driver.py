@@ -192,7 +192,7 @@ def to_rgb8(image):
 
 
 def to_float64(cloud):
-    from dlo_perception.cloud import unpack_particles
+    from dlo_interface.cloud import unpack_particles
     from sensor_msgs.msg import PointField
 
     positions, held = unpack_particles(cloud)

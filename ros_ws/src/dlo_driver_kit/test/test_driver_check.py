@@ -34,7 +34,7 @@ from dlo_driver_kit.driver_check import (  # noqa: E402
     schedule,
 )
 from dlo_driver_kit_broken_driver import FAULTS  # noqa: E402
-from dlo_sim.task import TASK_RULES  # noqa: E402
+from dlo_interface.task import TASK_RULES  # noqa: E402
 from harness import ROS2RUN, Procs, reserved_domain  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
@@ -242,7 +242,7 @@ print(json.dumps({"moved_x": moved_x, "first": first, "episode": r.episode, "see
 
 
 def test_mock_driver_reset_service_starts_the_next_episode_at_the_start_pose(procs, ros_env):
-    from dlo_sim.config import FIXED_END, GRIPPER_START_BEHIND
+    from dlo_interface.world import FIXED_END, GRIPPER_START_BEHIND
 
     driver = procs("mock", [str(ROS2RUN), "dlo_driver_kit", "mock_driver_node"])
     driver.wait_line("real_time driver at", timeout=60)
@@ -562,7 +562,7 @@ def test_the_camera_rule_wants_what_vision_node_reads(encoding, values, expected
 
 
 def test_the_touch_rule_wants_the_cloud_layout_tactile_node_reads():
-    from dlo_perception.cloud import particle_cloud
+    from dlo_interface.cloud import particle_cloud
     from sensor_msgs.msg import PointField
 
     points, held = [[0.0, 0.0, 0.1], [0.004, 0.0, 0.1]], [False, True]

@@ -17,9 +17,9 @@ import rclpy
 from dlo_common.topics import Topic
 from dlo_driver_kit import driver_check
 from dlo_driver_kit.driver_check import DRIVER_TOPICS, RULES, CheckError, Settings, evaluate, schedule
+from dlo_interface.cloud import particle_cloud
 from dlo_msgs.msg import GripperState, TactilePose
 from dlo_msgs.srv import ResetEpisode
-from dlo_perception.cloud import particle_cloud
 from rclpy.qos import DurabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 from sensor_msgs.msg import CameraInfo, Image

@@ -168,7 +168,7 @@ def test_finite_means_every_coordinate_finite():
 
 
 def test_a_cloud_with_another_point_step_or_too_few_bytes_for_its_rows_is_unreadable():
-    from dlo_perception.cloud import particle_cloud
+    from dlo_interface.cloud import particle_cloud
 
     cloud = particle_cloud([[0.0, 0.0, 0.1]] * 4, [False] * 4)
     cloud.width, cloud.height = 2, 2

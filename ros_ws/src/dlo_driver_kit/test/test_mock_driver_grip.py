@@ -1,6 +1,6 @@
 """The driver template's force limit (no ROS graph): mock_driver_node moves its kinematic gripper with
 ``kinematic_move``, which stalls a firm grip on the taut mock cable as the sim does
-(``dlo_sim.grip.stall_firm_grip``, the sim's rule, not a copy of it):
+(``dlo_interface.grip.stall_firm_grip``, the sim's rule, not a copy of it):
 
 - driven along the cable to its end with a sliding grip, then closed firmly (closure >= 0.9) and
   commanded on at full speed, the gripper stays at the end of the cable (before: it drove on to
@@ -15,8 +15,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from dlo_driver_kit.mock_driver_node import CONTROL_RATE, kinematic_move, mock_cable, touching
-from dlo_sim.command import MAX_SPEED
-from dlo_sim.config import WORKSPACE_HALF_WIDTH
+from dlo_interface.command import MAX_SPEED
+from dlo_interface.world import WORKSPACE_HALF_WIDTH
 
 PERIOD = 1.0 / CONTROL_RATE
 CABLE = mock_cable(0.2, 0.02)

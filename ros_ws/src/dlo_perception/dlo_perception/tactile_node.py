@@ -13,11 +13,11 @@ import numpy as np
 from dlo_common.node_util import declare_parameters
 from dlo_common.params import Param
 from dlo_common.topics import topic
+from dlo_interface.cloud import unpack_particles
 from dlo_msgs.msg import GripperState, TactilePose
 from rclpy.node import Node
 from sensor_msgs.msg import PointCloud2
 
-from dlo_perception.cloud import unpack_particles
 from dlo_perception.sync import IncompleteSteps, StampSync, stamp_to_ns
 from dlo_perception.tactile import TACTILE_NOISE, noise_label, noise_setting, noise_sigma, tactile_pose
 

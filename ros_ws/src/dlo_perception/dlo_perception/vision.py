@@ -40,12 +40,10 @@ from dlo_common import taichi_runtime  # before taichi: no "[Taichi] version" ba
 
 # isort: split
 import taichi as ti
+from dlo_interface.camera import IMAGE_CABLE, IMAGE_GRIPPER, TopCamera
 
-from dlo_perception.camera import TopCamera
 from dlo_perception.vision_source import DEFAULT_VISION_SOURCE, VISION_SOURCES, check_vision_source  # noqa: F401
 
-IMAGE_CABLE = 255  # pixel value of the cable in the rendered top view
-IMAGE_GRIPPER = 128  # pixel value of the gripper
 GRIPPER_MARGIN_PIXELS = 4  # columns searched for gripper pixels beyond the occlusion radius
 OCCLUSION_RADIUS = 0.0125 + 0.002  # m, finger radius + 2 mm: the gripper hides x <= x_G + this
 SEARCH_HALF_WIDTH = 0.03  # m, |y - y_G| window in which the strand must enter

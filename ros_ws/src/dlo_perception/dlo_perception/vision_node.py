@@ -16,13 +16,13 @@ import numpy as np
 from dlo_common.node_util import declare_parameters
 from dlo_common.params import Param
 from dlo_common.topics import topic
+from dlo_interface.camera import TopCamera
+from dlo_interface.cloud import unpack_particles
 from dlo_msgs.msg import GripperState, VisualPose
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 
-from dlo_perception.camera import TopCamera
-from dlo_perception.cloud import unpack_particles
 from dlo_perception.sync import PENDING_DEPTH, IncompleteSteps, StampSync, stamp_to_ns
 from dlo_perception.vision import DEFAULT_VISION_SOURCE, VISION_SOURCES, visual_pose, visual_pose_particles
 

@@ -190,9 +190,9 @@ rclpy = pytest.importorskip("rclpy")
 
 def test_tactile_node_reports_a_state_stamped_apart_from_its_cloud(context, monkeypatch):
     import numpy as np
+    from dlo_interface.cloud import particle_cloud
     from dlo_msgs.msg import GripperState
     from dlo_perception import tactile_node as module
-    from dlo_perception.cloud import particle_cloud
 
     init = rclpy.node.Node.__init__
     monkeypatch.setattr(rclpy.node.Node, "__init__", lambda self, *a, **k: init(self, *a, **{"context": context, **k}))

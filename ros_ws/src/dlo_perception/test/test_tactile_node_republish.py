@@ -17,7 +17,7 @@ from dlo_perception import tactile_node as tactile_node_module  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 
 DECLARE = tactile_node_module.declare_parameters  # the original: every node gets only its own overrides
-from dlo_perception.cloud import particle_cloud  # noqa: E402
+from dlo_interface.cloud import particle_cloud  # noqa: E402
 from dlo_perception.tactile import tactile_pose  # noqa: E402
 
 

@@ -6,7 +6,7 @@ walked, where following stops, what is padding, and the line fit."""
 
 import numpy as np
 import pytest
-from dlo_perception.camera import TopCamera
+from dlo_interface.camera import TopCamera
 from dlo_perception.vision import (
     CONFIDENCE_LENGTH,
     ENTRY_BAND,

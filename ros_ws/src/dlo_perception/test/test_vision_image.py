@@ -13,7 +13,7 @@ pixels pushing the start, the patch's edges, the image's borders, gaps, strands 
 
 import numpy as np
 import pytest
-from dlo_perception.camera import TopCamera
+from dlo_interface.camera import TopCamera
 from dlo_perception.vision import (
     CABLE_RADIUS,
     CONFIDENCE_LENGTH,

@@ -55,7 +55,7 @@ def test_a_replay_whose_images_come_before_their_states_is_processed_whole(conte
     late; each topic is resent on its own): here every image comes before the first gripper state. With a deep queue
     (replaying) every frame is still matched and processed; at the live depth the newest 32 are (the older stamps
     are dropped as superseded)."""
-    from dlo_perception.camera import camera_info
+    from dlo_interface.camera import camera_info
     from dlo_perception.vision_node import DEFAULT_CAMERA
 
     node = vision_node(context, monkeypatch, **({} if depth is None else {"queue_depth": depth}))
@@ -91,7 +91,7 @@ def step_messages(pixels, sec, nanosec, *, encoding="mono8", padding=0, stamp_of
 
 @pytest.mark.parametrize("padding", [0, 3])
 def test_the_pose_is_the_image_s_reading_with_its_stamp_in_the_gripper_frame(context, monkeypatch, padding):
-    from dlo_perception.camera import camera_info
+    from dlo_interface.camera import camera_info
     from dlo_perception.vision import visual_pose
     from dlo_perception.vision_node import DEFAULT_CAMERA
 
@@ -120,7 +120,7 @@ def test_the_pose_is_the_image_s_reading_with_its_stamp_in_the_gripper_frame(con
 
 
 def test_without_camera_info_or_with_a_colour_image_no_pose_and_a_line_says_why(context, monkeypatch):
-    from dlo_perception.camera import camera_info
+    from dlo_interface.camera import camera_info
     from dlo_perception.vision_node import DEFAULT_CAMERA
 
     pixels = draw([held_then_bent(0.0)], GRIPPER)
@@ -152,8 +152,8 @@ def test_a_state_stamped_apart_from_its_image_is_reported_once_a_second(context,
     """A driver whose image is stamped 0.4 us after its state: no step matches; about one error a second naming
     the state's step (not the image's, which comes later), the image's stamps nearby and the state's stamp
     (dlo_perception.sync.IncompleteSteps)."""
+    from dlo_interface.camera import camera_info
     from dlo_perception import vision_node as module
-    from dlo_perception.camera import camera_info
 
     pixels = draw([held_then_bent(0.0)], GRIPPER)
     node = vision_node(context, monkeypatch)

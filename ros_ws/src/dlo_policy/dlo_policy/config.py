@@ -198,7 +198,7 @@ def record_task_rules(config: RunConfig, rules: str) -> RunConfig:
     """``config`` with ``env_options.task_rules`` set to ``rules`` if the cable env's options do not name
     them: a new run records the default it trains on (so that a later change of the default never
     changes what its config means); a run directory from before the option existed reads as the
-    rules it was trained on (``dlo_sim.task.LEGACY_TASK_RULES``)."""
+    rules it was trained on (``dlo_interface.task.LEGACY_TASK_RULES``)."""
     if config.env_module == CABLE_ENV and "task_rules" not in config.env_options:
         config.env_options = {**config.env_options, "task_rules": rules}
     return config

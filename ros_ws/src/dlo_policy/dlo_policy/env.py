@@ -1,13 +1,15 @@
 """Gymnasium environments of the cable-following benchmark (paper's task, our Taichi simulator).
 
 ``make_vec_env(num_envs, modalities, seed, **options)``: a ``gymnasium.vector.VectorEnv`` running
-N environments batched in ONE ``dlo_sim.RopeSim``, with same-step auto-reset of finished envs.
+N environments batched in ONE simulator, with same-step auto-reset of finished envs. The simulator is a backend
+of ``dlo_interface.simulator`` (option ``simulator``; default the Taichi rope of ``dlo_sim``): this module
+imports none.
 ``make_env(modalities, seed, **options)``: a single ``gymnasium.Env`` (passes ``check_env``).
 
 Action: [-1, 1]^3 = [dx, dy, c] (dx, dy x 0.0025 m per 0.01 s step, closure c = (a2 + 1) / 2),
 held for one control step of 8 x 0.01 s. Observation: ``dlo_policy.observation`` (the modalities of
 ``dlo_policy.modalities``, K, T, V in that order, each read from the simulator by its record's
-``observe``). Reward, ending and outcomes: ``dlo_sim.task``. An episode ends when the cable is
+``observe``). Reward, ending and outcomes: ``dlo_interface.task``. An episode ends when the cable is
 dropped (terminated) or after ``horizon`` control steps (truncated).
 
 Seeds: ``reset(seed=s)`` starts env i on episode seed s + i; every later episode (auto-reset or
@@ -22,20 +24,20 @@ Options (keywords of both entry points):
     horizon=150           control steps per episode
     end_particles=10      "at the end" = holding one of the last this-many particles
     task_rules="authors_code"  "authors_code" | "paper_text": the held set, reward and termination the
-                          episode uses, and the held set the tactile input is fitted to (dlo_sim.task;
-                          default dlo_sim.task.DEFAULT_TASK_RULES, docs/FIDELITY.md)
+                          episode uses, and the held set the tactile input is fitted to (dlo_interface.task;
+                          default dlo_interface.task.DEFAULT_TASK_RULES, docs/FIDELITY.md)
     camera_resolution=128 top-view image size [px]
-    sim_config=None       a dlo_sim.SimConfig
+    sim_config=None       a dlo_interface.sim_config.SimConfig
     single_particle_grip=False  true: the grip carries ONE particle, the held one nearest the finger axis
-                          (never particle 0), as the authors' code did (dlo_sim.grip, docs/FIDELITY.md
+                          (never particle 0), as the authors' code did (dlo_interface.grip, docs/FIDELITY.md
                           row 5); false: every held particle (or what a given sim_config says)
     carry_law="paper"     "paper": the paper's grip law on the held set (and the finite grip); "authors": their
                           carry law, one particle moved by the whole displacement above c 0.5, cancelled
-                          beyond 10 mm from a neighbour (dlo_sim.grip, docs/FIDELITY.md rows 5-6)
-    contact_radius=0.004  m, the cable's contact half-thickness (dlo_sim.SimConfig); above 0.00425 (half the
-                          finger gap) the fingers pinch the cable, as Flex's 5 mm collision distance does
+                          beyond 10 mm from a neighbour (dlo_interface.grip, docs/FIDELITY.md rows 5-6)
+    contact_radius=0.004  m, the cable's contact half-thickness (dlo_interface.sim_config.SimConfig); above 0.00425
+                          (half the finger gap) the fingers pinch the cable, as Flex's 5 mm collision distance does
     start_pose="ours"     "ours": the gripper starts 5 mm behind the fixed end, at its height; "authors": 8 mm
-                          behind and 2.25 mm lower, as their Picker.reset (dlo_sim.config.START_POSES)
+                          behind and 2.25 mm lower, as their Picker.reset (dlo_interface.world.START_POSES)
     vision_source="image" "image": V from the rendered top view (what a camera gives); "particles": the
                           paper's simplified scalars, by the authors' index walk on the task rules' held set
                           (dlo_perception.vision.visual_pose_particles, docs/FIDELITY.md row 11); no rendering
@@ -54,10 +56,12 @@ Options (keywords of both entry points):
                           batch); a physics range replaces the training range, a camera family renders each env
                           through a camera of its own. A family is in perturbations or here, not both. dlo-train
                           builds only its training env with it (evaluation and test run without: config.make_env)
+    simulator="taichi"    the simulator backend: a name registered in the entry point group dlo_interface.simulators
+                          (dlo_interface.simulator; "taichi": dlo_sim's rope) or, in code, a factory of one
 
 Info: every step carries "n_held" and "mean_held_index"; an env whose episode ended in this step
 has "outcome" (name; paper-text rule), "outcome_code", "outcome_authors" (name; the authors'-code
-rule, ``dlo_sim.task``), "time_at_end", "how_far", "episode_return",
+rule, ``dlo_interface.task``), "time_at_end", "how_far", "episode_return",
 "episode_length", "episode_seed", "unstable" (the simulator had to reset it; the episode is cut and
 counted as truncated), "randomised" (with ``randomise`` only: {family: the magnitude the episode ran under},
 physics families as the simulator drew them), and, in the vector env, "final_obs" (the last observation of that episode,
@@ -71,13 +75,14 @@ import dataclasses
 
 import gymnasium
 import numpy as np
-from dlo_perception.camera import TopCamera
+from dlo_interface import task
+from dlo_interface.camera import TopCamera
+from dlo_interface.grip import CARRY_LAWS
+from dlo_interface.sim_config import MAX_CONTACT_RADIUS, SimConfig
+from dlo_interface.simulator import DEFAULT_SIMULATOR, check_simulator, simulator_factory
+from dlo_interface.world import START_POSES
 from dlo_perception.tactile import noise_sigma
 from dlo_perception.vision_source import DEFAULT_VISION_SOURCE, check_vision_source
-from dlo_sim import task
-from dlo_sim.config import MAX_CONTACT_RADIUS, START_POSES, SimConfig
-from dlo_sim.episode import TaskSim
-from dlo_sim.grip import CARRY_LAWS
 from gymnasium.vector import AutoresetMode, VectorEnv
 
 from dlo_policy import perturbations as perturbation_families
@@ -104,6 +109,7 @@ def check_options(options) -> None:
         "start_pose",
         "perturbations",
         "randomise",
+        "simulator",
     )
     unknown = sorted(set(options) - set(known))
     if unknown:
@@ -148,7 +154,10 @@ def _check_variant_options(options) -> None:
 
 
 def _check_sim_options(options) -> None:
-    """carry_law, start_pose, contact_radius and the integer options (horizon, end_particles, camera_resolution)."""
+    """simulator, carry_law, start_pose, contact_radius and the integer options (horizon, end_particles,
+    camera_resolution)."""
+    if "simulator" in options:
+        check_simulator(options["simulator"])
     if "carry_law" in options and options["carry_law"] not in CARRY_LAWS:
         raise ValueError(f"carry_law: expected one of {', '.join(CARRY_LAWS)}, got {options['carry_law']!r}")
     if "start_pose" in options and options["start_pose"] not in START_POSES:
@@ -187,6 +196,7 @@ class CableFollowingVecEnv(VectorEnv):
         start_pose=None,
         perturbations=None,
         randomise=None,
+        simulator=DEFAULT_SIMULATOR,
     ):
         check_options(
             {
@@ -230,7 +240,7 @@ class CableFollowingVecEnv(VectorEnv):
         self.single_action_space = gymnasium.spaces.Box(-1.0, 1.0, (3,), dtype=np.float32)
         self.observation_space = gymnasium.vector.utils.batch_space(self.single_observation_space, self.num_envs)
         self.action_space = gymnasium.vector.utils.batch_space(self.single_action_space, self.num_envs)
-        self.task = TaskSim(
+        self.task = simulator_factory(simulator)(
             self.num_envs,
             horizon=horizon,
             end_particles=end_particles,
@@ -292,7 +302,7 @@ class CableFollowingVecEnv(VectorEnv):
         return observation, reward.astype(np.float64), terminated, truncated, info
 
     def close_extras(self, **kwargs):
-        """Nothing to release: the Taichi fields live as long as the process."""
+        """Nothing to release: the simulator's fields live as long as the process (the Taichi rope's do)."""
 
     # ------------------------------------------------------------------ internals
     def _start_episodes(self, env_ids):

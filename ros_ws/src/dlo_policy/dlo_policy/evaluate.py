@@ -27,7 +27,7 @@ from typing import Any, Callable, Optional, Sequence
 import numpy as np
 import torch
 from dlo_common.console import Progress, console_main
-from dlo_sim.task import DEFAULT_TASK_RULES, TASK_RULES
+from dlo_interface.task import DEFAULT_TASK_RULES, TASK_RULES
 
 from .cli import OneLineErrorParser
 from .config import RunConfig, make_env

@@ -30,10 +30,9 @@ from typing import Any, Callable
 
 import numpy as np
 from dlo_common.topics import topic as topic_record
-from dlo_perception.camera import WORKSPACE_HALF_WIDTH
+from dlo_interface.world import GRIPPER_HEIGHT, WORKSPACE_HALF_WIDTH
 from dlo_perception.tactile import Y_LIMIT, TactilePose, tactile_pose
 from dlo_perception.vision import SEARCH_HALF_WIDTH, VisualPose, visual_pose, visual_pose_particles
-from dlo_sim.config import GRIPPER_HEIGHT
 
 # The gripper's height as the simulator stores (float32) and publishes it: the vision node computes
 # O_V at the published gripper z, so the same value here keeps graph and env bit-identical.

@@ -22,10 +22,10 @@ Each family is applied in ONE place, by its ``side``:
   control steps before (an episode's first action until then); ``velocity_gain`` the gripper moves at this
   multiple of the commanded velocity (saturating at the 0.25 m/s limit); ``closure_lag`` the closure follows
   the command as a first-order lag of this time constant [s] (from the episode's first command).
-- ``physics`` (``dlo_sim.SimConfig`` ranges, drawn per episode by ``dlo_sim.rope``): ``friction``,
+- ``physics`` (``dlo_interface.sim_config.SimConfig`` ranges, drawn per episode by ``dlo_sim.rope``): ``friction``,
   ``stretch_stiffness``, ``bending_stiffness``, ``cable_length`` (particles, 4.3 mm apart) and ``particle_mass``
   [kg] fixed at the magnitude (a pair [low, high]: drawn uniformly per episode) instead of the training ranges.
-- ``camera`` (``dlo_perception.camera.TopCamera``): the image is rendered by a camera moved ``camera_offset``
+- ``camera`` (``dlo_interface.camera.TopCamera``): the image is rendered by a camera moved ``camera_offset``
   mm along world +y or turned ``camera_yaw`` degrees about its optical axis, while the vision computation assumes
   the nominal camera (an extrinsic calibration error).
 
@@ -55,10 +55,10 @@ from dataclasses import dataclass
 from typing import Any, Iterable, Mapping, Optional, Sequence
 
 import numpy as np
+from dlo_interface.world import CONTROL_PERIOD
 
 OBSERVATION, ACTION, PHYSICS, CAMERA = "observation", "action", "physics", "camera"
 SIDES = (OBSERVATION, ACTION, PHYSICS, CAMERA)
-CONTROL_STEP = 0.08  # s, one action (dlo_sim.config: 8 x 0.01 s)
 STREAM = 0x9E37  # mixed into each episode's seed: the perturbation noise is a stream of its own
 RANDOMISE_STREAM = 0x5EED  # mixed into each episode's seed: its randomised magnitudes, another stream
 NORMALS = 6  # standard normals each control step draws (x_G, y_G, theta_T, y_T, theta_V, y_V)
@@ -70,7 +70,7 @@ class Family:
     """One perturbation family (module docstring).
 
     ``off``: the magnitude that changes nothing (0; 1 for a gain); None for a physics family, whose nominal is
-    its training range ``training`` (dlo_sim.SimConfig). ``grid``: the magnitudes dlo-robustness evaluates.
+    its training range ``training`` (dlo_interface.sim_config.SimConfig). ``grid``: the magnitudes dlo-robustness evaluates.
     ``low``/``high``: the magnitudes it takes. ``integer``: whole numbers only (control steps, particles)."""
 
     name: str
@@ -125,7 +125,7 @@ class Family:
 
 
 def _physics(name, unit, perturbs, grid, sim_range, low, high=math.inf, integer=False):
-    from dlo_sim.config import SimConfig  # the training ranges: what a policy has seen
+    from dlo_interface.sim_config import SimConfig  # the training ranges: what a policy has seen
 
     training = tuple(getattr(SimConfig, sim_range))
     sim_param = "num_particles" if sim_range == "num_particles_range" else sim_range[: -len("_range")]
@@ -394,13 +394,13 @@ def of_side(setting: Mapping, *sides: str) -> dict:
 
 # ---------------------------------------------------------------------------------------------- physics, camera
 def sim_config(setting: Mapping, config=None, ranges: Optional[Mapping] = None):
-    """``config`` (a dlo_sim.SimConfig, default SimConfig()) with the physics families' ranges (of a setting, a
+    """``config`` (a dlo_interface.sim_config.SimConfig, default SimConfig()) with the physics families' ranges (of a setting, a
     magnitude or a pair, and of a parsed randomisation ``ranges``); ``config`` itself (possibly None) when none is
     on."""
     physics = {**of_side(setting, PHYSICS), **of_side(ranges or {}, PHYSICS)}
     if not physics:
         return config
-    from dlo_sim.config import SimConfig
+    from dlo_interface.sim_config import SimConfig
 
     changes = {}
     for name, m in physics.items():
@@ -439,7 +439,7 @@ class _Magnitudes:
         self.action_delay = int(s.get("action_delay", 0))
         self.gain = float(s.get("velocity_gain", 1.0))
         lag = float(s.get("closure_lag", 0.0))
-        self.closure_rate = 1.0 if lag == 0 else -math.expm1(-CONTROL_STEP / lag)
+        self.closure_rate = 1.0 if lag == 0 else -math.expm1(-CONTROL_PERIOD / lag)
         self.sigma = {
             "x_G": 0.001 * s.get("gripper_position_noise", 0.0),
             "theta_T": math.radians(s.get("tactile_angle_noise", 0.0)),
@@ -477,7 +477,7 @@ class Perturber:
     it: nothing would change)."""
 
     def __init__(self, setting: Mapping, modalities, without=(), num_envs: int = 1, ranges: Optional[Mapping] = None):
-        from dlo_perception.camera import WORKSPACE_HALF_WIDTH
+        from dlo_interface.world import WORKSPACE_HALF_WIDTH
         from dlo_perception.tactile import Y_LIMIT
         from dlo_perception.vision import SEARCH_HALF_WIDTH
 

@@ -34,11 +34,11 @@ import numpy as np
 from dlo_common.node_util import ParameterError, declare_parameters
 from dlo_common.params import Param
 from dlo_common.topics import message_class, topic
+from dlo_interface.cloud import unpack_particles
+from dlo_interface.command import action_to_command
+from dlo_interface.task import recorded_task_rules
 from dlo_msgs.msg import GripperCommand
-from dlo_perception.cloud import unpack_particles
 from dlo_perception.sync import IncompleteSteps, StampSync, stamp_to_ns
-from dlo_sim.command import action_to_command
-from dlo_sim.task import recorded_task_rules
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile
 from std_msgs.msg import String

@@ -29,9 +29,9 @@ import os
 from pathlib import Path
 from typing import Any, Optional
 
+from dlo_interface.sim_config import SimConfig
+from dlo_interface.task import LEGACY_TASK_RULES, recorded_task_rules
 from dlo_perception.vision_source import DEFAULT_VISION_SOURCE
-from dlo_sim.config import SimConfig
-from dlo_sim.task import LEGACY_TASK_RULES, recorded_task_rules
 
 from .config import RunConfig, load_config, record_task_rules
 
@@ -84,9 +84,9 @@ RECORD_FILES = (CONFIG_FILE, EVAL_FILE, DONE_FILE, BEST_FILE, RANDOMISED_FILE)  
 # what a run on a Ray worker sends back (and test*.json before done.json): never checkpoint.pt (replay buffer)
 RESULT_FILES = (CONFIG_FILE, EVAL_FILE, BEST_FILE, RANDOMISED_FILE, BEST_POLICY_FILE, POLICY_FILE, LOG_FILE, DONE_FILE)
 
-OUTCOMES = ("hold_the_end", "stop_before", "reach_end_but_drop", "drop_before")  # paper-text rule (dlo_sim.task)
+OUTCOMES = ("hold_the_end", "stop_before", "reach_end_but_drop", "drop_before")  # paper-text rule (dlo_interface.task)
 AUTHORS_SUFFIX = "_authors"
-OUTCOMES_AUTHORS = tuple(name + AUTHORS_SUFFIX for name in OUTCOMES)  # authors'-code rule (dlo_sim.task)
+OUTCOMES_AUTHORS = tuple(name + AUTHORS_SUFFIX for name in OUTCOMES)  # authors'-code rule (dlo_interface.task)
 EVAL_COLUMNS = (
     "step",
     "tested_without",
@@ -148,7 +148,7 @@ def read_config(run_dir: Path) -> RunConfig:
 
 def read_trained_config(run_dir: Path) -> RunConfig:
     """config.yaml read as the run was trained: a run from before task_rules existed was trained on the
-    paper-text rules (dlo_sim.task.LEGACY_TASK_RULES) and reads so."""
+    paper-text rules (dlo_interface.task.LEGACY_TASK_RULES) and reads so."""
     return record_task_rules(read_config(run_dir), LEGACY_TASK_RULES)
 
 

@@ -15,8 +15,8 @@ Every policy is called as ``policy(observation, env) -> actions (N, 3)`` on a ba
 from __future__ import annotations
 
 import numpy as np
-from dlo_sim.config import FIXED_END
-from dlo_sim.task import held_statistics
+from dlo_interface.task import held_statistics
+from dlo_interface.world import FIXED_END
 
 from dlo_policy.observation import observation_labels
 

@@ -15,9 +15,9 @@ tested input set of one evaluation sees the same episodes). Each evaluation appe
     episodes         evaluation episodes
     eval_seed        seed of the evaluation's first episode (the others follow it)
     hold_the_end, stop_before, reach_end_but_drop, drop_before   outcome fractions (sum to 1),
-                     paper-text rule (dlo_sim.task)
+                     paper-text rule (dlo_interface.task)
     hold_the_end_authors, stop_before_authors, reach_end_but_drop_authors, drop_before_authors
-                     the same under the authors'-code rule (dlo_sim.task)
+                     the same under the authors'-code rule (dlo_interface.task)
     episode_reward   mean undiscounted episode reward
     time_at_end      mean steps spent at the end of the cable
     how_far          mean how-far-it-goes metric reported by the env
@@ -86,7 +86,7 @@ import numpy as np
 import yaml
 from dlo_common import taichi_runtime
 from dlo_common.console import EXIT_INTERRUPTED, Progress, console_main
-from dlo_sim.task import DEFAULT_TASK_RULES, LEGACY_TASK_RULES, task_rules
+from dlo_interface.task import DEFAULT_TASK_RULES, LEGACY_TASK_RULES, task_rules
 
 from . import rundir
 from .cli import check_override_keys

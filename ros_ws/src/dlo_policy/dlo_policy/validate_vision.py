@@ -28,8 +28,8 @@ FIELDS = ("visible", "confidence", "angle", "y")
 
 def collect_poses(num_envs: int, rounds: int, steps: int, seed: int) -> tuple[dict, dict]:
     """(from the image, ground truth): each field of FIELDS over every sampled state, concatenated."""
+    from dlo_interface.world import GRIPPER_HEIGHT
     from dlo_perception.vision import visual_pose, visual_pose_ground_truth
-    from dlo_sim.config import GRIPPER_HEIGHT
 
     from .env import make_vec_env
     from .scripted import OracleFollow, RandomPolicy

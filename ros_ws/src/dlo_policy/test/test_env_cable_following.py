@@ -111,8 +111,8 @@ def test_single_particle_grip_option_reaches_the_simulator_and_a_bad_value_is_a_
     """env_options.single_particle_grip (docs/FIDELITY.md row 5): off by default; on, the env's simulator
     runs the single-particle grip (dlo_sim test_rope_physics / test_kernel_rules test what it does), also
     with a sim_config of one's own; anything but true or false is refused before a simulator is built."""
+    from dlo_interface.sim_config import SimConfig
     from dlo_policy.config import ConfigError, check_env_options, load_config
-    from dlo_sim import SimConfig
 
     assert make_env("K", seed=0).sim.config.single_particle_grip is False
     env = make_vec_env(1, "K", seed=0, sim_config=SimConfig(damping=3.0), single_particle_grip=True)
@@ -129,8 +129,8 @@ def test_physics_seed_option_reaches_the_simulator_and_a_bad_value_is_a_one_line
     """env_options.physics_seed (docs/FIDELITY.md row 8): absent or -1, physics drawn per episode; >= 0, the
     env's simulator gives every episode the physics of that seed (test_rope_physics tests what it does), also
     with a sim_config of one's own; anything else is refused before a simulator is built."""
+    from dlo_interface.sim_config import SimConfig
     from dlo_policy.config import ConfigError, check_env_options, load_config
-    from dlo_sim import SimConfig
 
     assert make_env("K", seed=0).sim.config.physics_seed == -1
     env = make_vec_env(1, "K", seed=0, sim_config=SimConfig(damping=3.0), physics_seed=3)
@@ -151,8 +151,8 @@ def test_fidelity_lever_options_reach_the_simulator_and_bad_values_are_one_line_
     """env_options carry_law, contact_radius and vision_source (docs/FIDELITY.md): absent, today's physics and the
     image; given, the simulator's config carries them (a particles-source env renders nothing); anything else is
     refused with one line before a simulator is built."""
+    from dlo_interface.sim_config import SimConfig
     from dlo_policy.config import ConfigError, check_env_options, load_config
-    from dlo_sim import SimConfig
 
     plain = make_vec_env(1, "V", seed=0)
     assert (plain.sim.config.carry_law, plain.sim.config.contact_radius, plain.vision_source) == ("paper", 0.004, "image")
@@ -193,8 +193,8 @@ def test_the_authors_start_pose_starts_8_mm_behind_and_2_25_mm_lower_and_the_ima
     """start_pose=authors (their Picker.reset): the gripper starts 8 mm behind the fixed end and 2.25 mm below it and
     moves in that plane; the image source reads V at the gripper's own height, as the vision node does with the
     published gripper z."""
+    from dlo_interface.world import FIXED_END, GRIPPER_HEIGHT
     from dlo_perception.vision import visual_pose
-    from dlo_sim.config import FIXED_END, GRIPPER_HEIGHT
 
     env = make_vec_env(1, "V", seed=0, start_pose="authors")
     observation, _ = env.reset(seed=0)

@@ -244,9 +244,9 @@ def test_physics_families_fix_each_episode_beyond_the_training_ranges():
 
 
 def test_camera_families_move_the_camera_that_renders_not_the_one_the_vision_assumes():
-    from dlo_perception.camera import TopCamera
+    from dlo_interface.camera import TopCamera
+    from dlo_interface.world import FINGER_AXIS_OFFSET
     from dlo_perception.vision import IMAGE_GRIPPER, visual_pose
-    from dlo_sim.config import FINGER_AXIS_OFFSET
 
     env = make_vec_env(2, seed=SEED, perturbations={"camera_offset": 20.0, "camera_yaw": 10.0})
     observation, _ = env.reset(seed=SEED)
@@ -268,7 +268,7 @@ def test_camera_families_move_the_camera_that_renders_not_the_one_the_vision_ass
 
 
 def test_top_camera_yaw_round_trips_and_turns_the_view():
-    from dlo_perception.camera import TopCamera
+    from dlo_interface.camera import TopCamera
 
     camera = dataclasses.replace(TopCamera.covering_workspace(128), yaw=math.radians(90))
     points = np.array([[0.1, 0.0, 0.1], [0.0, 0.05, 0.1]])

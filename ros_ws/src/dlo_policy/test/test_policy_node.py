@@ -314,7 +314,7 @@ def feed_moving(node, step, episode=3, seed=70):
 def test_perturbations_delay_what_the_policy_sees_and_what_it_commands(make_node):
     """observation_delay and action_delay in the node: the policy sees the observation of one step before (the
     episode's first at its start), the command carries its action of one step before; a new episode starts afresh."""
-    from dlo_sim.command import action_to_command
+    from dlo_interface.command import action_to_command
 
     policy = CountingPolicy()
     node = make_node(act=policy, perturbations="observation_delay=1,action_delay=1")
@@ -337,8 +337,8 @@ def test_perturbations_delay_what_the_policy_sees_and_what_it_commands(make_node
 def test_perturbation_noise_in_the_node_is_the_env_perturber_of_the_episode_seed(make_node):
     """The node's noise is dlo_policy.perturbations.Perturber's, started on the seed /dlo/task/state carries (as
     the gym env starts it on the episode's seed): the same numbers, step by step."""
+    from dlo_interface.command import action_to_command
     from dlo_policy.perturbations import Perturber
-    from dlo_sim.command import action_to_command
 
     setting = "gripper_position_noise=2,vision_angle_noise=5,tactile_offset_noise=1,closure_lag=0.1"
     policy = CountingPolicy()

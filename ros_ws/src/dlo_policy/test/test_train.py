@@ -13,11 +13,11 @@ from pathlib import Path
 import pytest
 import torch
 import yaml
+from dlo_interface.task import DEFAULT_TASK_RULES, LEGACY_TASK_RULES
 from dlo_policy import config as config_module
 from dlo_policy import evaluate, rundir, train
 from dlo_policy.config import ConfigError, load_config
 from dlo_policy.sac import SAC
-from dlo_sim.task import DEFAULT_TASK_RULES, LEGACY_TASK_RULES
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # --import-mode=importlib: helper modules
 
@@ -530,7 +530,7 @@ def make_vec_env(num_envs, modalities="All", seed=0, task_rules=None, **options)
 
 def test_a_run_from_before_task_rules_resumes_on_the_rules_it_was_trained_on(tmp_path, monkeypatch):
     """dlo-train: "the task rules are always recorded: a new run's are the default, an older run resumed
-    keeps paper_text" (dlo_sim.task.LEGACY_TASK_RULES), in config.yaml and in the env it trains on."""
+    keeps paper_text" (dlo_interface.task.LEGACY_TASK_RULES), in config.yaml and in the env it trains on."""
     (tmp_path / "audit_rules_env.py").write_text(RULES_ENV)
     monkeypatch.syspath_prepend(str(tmp_path))
     env_module = importlib.import_module("audit_rules_env")

@@ -1,12 +1,11 @@
 """Taichi particle-rope simulator of a cable with a two-finger tactile gripper, and its ROS 2 sim node.
 
-``RopeSim`` is imported on first use, so the pure-numpy modules (``dlo_sim.task``,
-``dlo_sim.command``) load without starting Taichi.
+The reference simulator of the contract ``dlo_interface`` (its world, task, grip law, camera and commands):
+``dlo_sim.episode.TaskSim`` is registered as the simulator backend ``taichi`` (``dlo_interface.simulator``).
+``RopeSim`` is imported on first use, so importing the package starts no Taichi.
 """
 
-from .config import SimConfig
-
-__all__ = ["RopeSim", "SimConfig"]
+__all__ = ["RopeSim"]
 
 
 def __getattr__(name):

@@ -7,10 +7,10 @@ step (physics, reward, ending) is the same code in-process and in the graph.
 from __future__ import annotations
 
 import numpy as np
+from dlo_interface.task import DEFAULT_TASK_RULES, END_PARTICLES, HORIZON, EpisodeTracker, held_mask_authors, held_statistics
+from dlo_interface.task import task_rules as task_rules_record
 
 from dlo_sim.rope import RopeSim, Snapshot
-from dlo_sim.task import DEFAULT_TASK_RULES, END_PARTICLES, HORIZON, EpisodeTracker, held_mask_authors, held_statistics
-from dlo_sim.task import task_rules as task_rules_record
 
 
 class TaskSim:
@@ -21,7 +21,7 @@ class TaskSim:
     launch for the task and reusable by the observation; ``n_held`` and ``mean_held_index`` (N,)
     are its held statistics (n_h, p_i); ``held_authors`` (N, P_MAX), ``n_held_authors`` and
     ``mean_held_index_authors`` (N,) the same for the authors' narrower held set (the second outcome
-    definition). ``task_rules`` (``dlo_sim.task.TASK_RULES``) says which of the two the task's reward,
+    definition). ``task_rules`` (``dlo_interface.task.TASK_RULES``) says which of the two the task's reward,
     termination and the tactile input use: ``held_task`` is that mask.
     """
 

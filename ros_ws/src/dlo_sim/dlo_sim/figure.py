@@ -5,7 +5,8 @@ Usage: python -m dlo_sim.figure [--seed 3] [--out docs/img/dlo_sim_initial_cable
 
 import argparse
 
-from .config import FINGER_CLEARANCE, FINGER_RADIUS
+from dlo_interface.world import FINGER_CLEARANCE, FINGER_RADIUS
+
 from .rope import RopeSim
 
 

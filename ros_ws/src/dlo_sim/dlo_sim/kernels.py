@@ -12,8 +12,10 @@ from dlo_common.taichi_runtime import init as init_taichi  # before taichi: no "
 
 # isort: split
 import taichi as ti
-
-from .config import (
+from dlo_interface.camera import IMAGE_CABLE, IMAGE_GRIPPER
+from dlo_interface.grip import AUTHORS_MAX_NEIGHBOUR_DISTANCE, GRIP_SLIP_STRAIN  # dlo_interface.grip states the rules in numpy
+from dlo_interface.task import AUTHORS_HELD_ABOVE, AUTHORS_HELD_DISTANCE, AUTHORS_HELD_HALF_WIDTH
+from dlo_interface.world import (
     DT,
     FINGER_AXIS_OFFSET,
     FINGER_HALF_LENGTH,
@@ -21,8 +23,6 @@ from .config import (
     FIXED_END,
     GRAVITY,
     GRIPPER_HEIGHT,
-    IMAGE_CABLE,
-    IMAGE_GRIPPER,
     MAX_DISPLACEMENT,
     NOMINAL_INVERSE_MASS,
     P_MAX,
@@ -31,8 +31,6 @@ from .config import (
     START_POSES,
     WORKSPACE_HALF_WIDTH,
 )
-from .grip import AUTHORS_MAX_NEIGHBOUR_DISTANCE, GRIP_SLIP_STRAIN  # dlo_sim.grip states the rules in numpy
-from .task import AUTHORS_HELD_ABOVE, AUTHORS_HELD_DISTANCE, AUTHORS_HELD_HALF_WIDTH
 
 HELD_DISTANCE = PARTICLE_RADIUS + FINGER_RADIUS + REST_SPACING  # m, held rule (docs/ARCHITECTURE.md#constants)
 MAX_CORRECTION = 0.25 * REST_SPACING  # m, per sub-step cap on a particle's direct-solve correction
@@ -136,7 +134,7 @@ class RopeKernels:
 
     @ti.func
     def single_grip_particle(self, e, g):
-        """The single-particle grip's particle (``dlo_sim.grip.single_grip_particle``): the held one
+        """The single-particle grip's particle (``dlo_interface.grip.single_grip_particle``): the held one
         nearest the finger axis in x, never particle 0, ties to the lower index; -1 if none is held."""
         chosen = -1
         nearest = 0.0
@@ -150,8 +148,8 @@ class RopeKernels:
 
     @ti.func
     def authors_grip_particle(self, e, g):
-        """The authors' carry law's particle (``dlo_sim.grip.authors_grip_particle``): in their narrow held set
-        (``dlo_sim.task.held_mask_authors``), the one nearest the finger axis in x, never particle 0, ties to
+        """The authors' carry law's particle (``dlo_interface.grip.authors_grip_particle``): in their narrow held set
+        (``dlo_interface.task.held_mask_authors``), the one nearest the finger axis in x, never particle 0, ties to
         the lower index; -1 if that set is empty."""
         chosen = -1
         nearest = 0.0
@@ -250,7 +248,7 @@ class RopeKernels:
         fixed end stops the gripper: the part of the sub-step motion ``dg`` [m] that would take a
         held particle beyond its rest length along the cable from the fixed end is removed (it may
         still move sideways or back). This is the robot's force limit; a lighter grip slides instead.
-        ``dlo_sim.grip.stall_firm_grip`` is the same rule in numpy (test_kernel_rules checks they agree)."""
+        ``dlo_interface.grip.stall_firm_grip`` is the same rule in numpy (test_kernel_rules checks they agree)."""
         anchor = self.x[e, 0]
         for i in range(1, self.n[e]):
             if self.carry[e, i] >= 1.0:

@@ -18,9 +18,10 @@ import warnings
 from dataclasses import dataclass
 
 import numpy as np
-from dlo_perception.camera import TopCamera
+from dlo_interface.camera import TopCamera
+from dlo_interface.sim_config import SimConfig
+from dlo_interface.world import DT, P_MAX, PARTICLE_MASS, REST_SPACING, SUBSTEPS_PER_ACTION
 
-from .config import DT, P_MAX, PARTICLE_MASS, REST_SPACING, SUBSTEPS_PER_ACTION, SimConfig
 from .kernels import RopeKernels
 
 PARAM_KEYS = ("stretch", "bending", "friction", "num_particles", "particle_mass")

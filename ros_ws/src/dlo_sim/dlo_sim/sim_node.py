@@ -36,10 +36,15 @@ from builtin_interfaces.msg import Time
 from dlo_common.node_util import NodeStartError, declare_parameters
 from dlo_common.params import Param
 from dlo_common.topics import message_class, select, topic
+from dlo_interface.camera import CAMERA_FRAME, TopCamera, camera_info
+from dlo_interface.cloud import particle_cloud
+from dlo_interface.command import CommandError, RejectionLog, command_mismatch, command_to_action, hold_action
+from dlo_interface.grip import CARRY_LAWS
+from dlo_interface.sim_config import MAX_CONTACT_RADIUS, SimConfig
+from dlo_interface.task import DEFAULT_TASK_RULES, HORIZON, TASK_RULES
+from dlo_interface.world import CONTROL_PERIOD, FINGER_CLEARANCE, FINGER_HALF_LENGTH, FINGER_RADIUS, START_POSES
 from dlo_msgs.msg import GripperCommand, GripperState, TaskState
 from dlo_msgs.srv import ResetEpisode
-from dlo_perception.camera import CAMERA_FRAME, TopCamera, camera_info
-from dlo_perception.cloud import particle_cloud
 from geometry_msgs.msg import Point
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile
@@ -48,20 +53,7 @@ from sensor_msgs.msg import Image
 from std_msgs.msg import String
 from visualization_msgs.msg import Marker, MarkerArray
 
-from dlo_sim.command import CommandError, RejectionLog, command_mismatch, command_to_action, hold_action
-from dlo_sim.config import (
-    DT,
-    FINGER_CLEARANCE,
-    FINGER_HALF_LENGTH,
-    FINGER_RADIUS,
-    MAX_CONTACT_RADIUS,
-    START_POSES,
-    SUBSTEPS_PER_ACTION,
-    SimConfig,
-)
 from dlo_sim.episode import TaskSim
-from dlo_sim.grip import CARRY_LAWS
-from dlo_sim.task import DEFAULT_TASK_RULES, HORIZON, TASK_RULES
 
 # the parameters that decide what an episode is (the task and the physics), published with the instance record
 SETTINGS = (
@@ -76,7 +68,7 @@ SETTINGS = (
     "start_pose",
     "camera_resolution",
 )
-CONTROL_PERIOD_NS = int(round(DT * SUBSTEPS_PER_ACTION * 1e9))  # 0.08 s of simulation time per action
+CONTROL_PERIOD_NS = int(round(CONTROL_PERIOD * 1e9))  # 0.08 s of simulation time per action
 MODES = ("step_locked", "real_time")
 PARAMETERS = (
     Param("mode", "step_locked", f"clock mode, one of {MODES}", choices=MODES),
@@ -174,7 +166,7 @@ class SimNode(Node):
         self.previous_final = None  # (episode, step) of the last state of the previous episode
         self.closing_since = None  # step_locked, last episode done: waiting for the answer to its final state
         self.rejections = RejectionLog(interval=1.0)
-        self.period_wall = DT * SUBSTEPS_PER_ACTION / p["rate_factor"]
+        self.period_wall = CONTROL_PERIOD / p["rate_factor"]
 
         qos = QoSProfile(depth=10)
         latched = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
@@ -231,7 +223,7 @@ class SimNode(Node):
         )
 
         if p["mode"] == "real_time":
-            self.create_timer(DT * SUBSTEPS_PER_ACTION / p["rate_factor"], self.on_real_time_tick)
+            self.create_timer(CONTROL_PERIOD / p["rate_factor"], self.on_real_time_tick)
         self.create_timer(0.05, self.on_watchdog)
         self.get_logger().info(
             f"{p['mode']} simulation, seed {p['seed']}, task rules {p['task_rules']}, "

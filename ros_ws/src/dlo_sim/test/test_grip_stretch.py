@@ -10,8 +10,8 @@ fixed end. Before, a gripper pulling away at c = 1 stretched the cable 3.4x, one
 
 import numpy as np
 import pytest
+from dlo_interface.world import REST_SPACING
 from dlo_sim import RopeSim
-from dlo_sim.config import REST_SPACING
 
 
 @pytest.fixture(scope="module")

@@ -1,14 +1,14 @@
 """The Taichi kernel's own copies of the physics rules, checked against their definitions (issue 14):
 
 - the grip law: the inverse mass and carried fraction the kernel gives the particles between the
-  fingers equal ``dlo_sim.grip`` for closures across [0, 1]; every other particle keeps w_nom and is
+  fingers equal ``dlo_interface.grip`` for closures across [0, 1]; every other particle keeps w_nom and is
   not carried; the pinned particle 0 is kinematic;
 - the held rule (docs/ARCHITECTURE.md#constants) at its boundaries: the extent along the finger includes the
   capsule's rounded ends (|dy| <= half-length + radius), the distance to the lower finger's axis
   (inclusive, in float32), and "above the lower finger", measured from a gripper away from y = 0 too;
 - finite grip: a firm grip on a taut cable stalls the gripper, a sliding grip slides along it, and
   a gripped cable is not stretched; the kernel's stall rule gives the displacement
-  ``dlo_sim.grip.stall_firm_grip`` (its numpy statement, used by the driver template) gives, on
+  ``dlo_interface.grip.stall_firm_grip`` (its numpy statement, used by the driver template) gives, on
   taut, slack, curved and random cables under firm, sliding and no grips; motion ending exactly at the
   taut reach is not stalled, and the removed direction is a unit vector even for a 1.5e-9 m offset; the
   kernel's slip rule moves exactly the carried particles beyond their reach back onto it.
@@ -20,8 +20,8 @@ compilation in tools/mutation_check.sh.
 import numpy as np
 import pytest
 import taichi as ti
-from dlo_sim import RopeSim
-from dlo_sim.config import (
+from dlo_interface.grip import carried_fraction, inverse_mass, stall_firm_grip
+from dlo_interface.world import (
     FINGER_AXIS_OFFSET,
     FINGER_HALF_LENGTH,
     FINGER_RADIUS,
@@ -31,7 +31,7 @@ from dlo_sim.config import (
     PARTICLE_RADIUS,
     REST_SPACING,
 )
-from dlo_sim.grip import carried_fraction, inverse_mass, stall_firm_grip
+from dlo_sim import RopeSim
 
 HELD_DISTANCE = PARTICLE_RADIUS + FINGER_RADIUS + REST_SPACING  # docs/ARCHITECTURE.md#constants
 F32 = np.float32
@@ -236,11 +236,11 @@ def test_the_numpy_stall_rule_equals_the_kernel_on_these_states(sim):
 
 def test_single_particle_grip_kernel_choice_equals_the_numpy_rule():
     """SimConfig.single_particle_grip (docs/FIDELITY.md row 5): at every 0.01 s step the kernel gives the
-    grip law (inverse mass, carried fraction) to exactly the particle ``dlo_sim.grip.single_grip_particle``
+    grip law (inverse mass, carried fraction) to exactly the particle ``dlo_interface.grip.single_grip_particle``
     names from the held set at the step's start: the held particle nearest the finger axis in x, never
     particle 0; every other particle keeps w_nom and is not carried."""
-    from dlo_sim import SimConfig
-    from dlo_sim.grip import single_grip_particle
+    from dlo_interface.grip import single_grip_particle
+    from dlo_interface.sim_config import SimConfig
 
     single = RopeSim(1, SimConfig(single_particle_grip=True))
     rng = np.random.default_rng(17)
@@ -325,7 +325,7 @@ def test_a_firm_grip_is_not_stalled_by_motion_that_ends_exactly_at_the_taut_reac
 def test_a_firm_grip_stall_removes_all_outward_motion_even_for_a_tiny_horizontal_offset(sim):
     """The direction of the removed motion is the unit horizontal vector from the fixed end to the particle for
     any offset longer than the rule's 1e-9 m guard: a particle 1.5e-9 m beside the vertical through the fixed end
-    (and beyond its reach above it) stops all motion away from it, as in dlo_sim.grip.stall_firm_grip."""
+    (and beyond its reach above it) stops all motion away from it, as in dlo_interface.grip.stall_firm_grip."""
     positions = np.array([[0.0, 0.0, 0.0], [1.5e-9, 0.0, 2.0 * REST_SPACING]], np.float32)
     dg = (2.0**-12, 2.0**-13, 0.0)
     got = kernel_stall(sim, positions, [0.0, 1.0], dg)
@@ -361,17 +361,17 @@ def test_held_rule_is_relative_to_the_gripper_and_its_distance_bound_is_inclusiv
 
 @pytest.fixture(scope="module")
 def authors_sim():
-    from dlo_sim import SimConfig
+    from dlo_interface.sim_config import SimConfig
 
     return RopeSim(1, SimConfig(carry_law="authors"))
 
 
 def test_authors_carry_law_kernel_choice_equals_the_numpy_rule(authors_sim):
     """SimConfig.carry_law = "authors" (docs/FIDELITY.md rows 5-6): at every 0.01 s step the kernel carries
-    exactly the particle ``dlo_sim.grip.authors_grip_particle`` names (their narrow held set, nearest the
+    exactly the particle ``dlo_interface.grip.authors_grip_particle`` names (their narrow held set, nearest the
     finger axis in x, never particle 0; none at c <= 0.5), moved by the WHOLE displacement (carry 1) with
     the grip law's inverse mass; every other particle keeps w_nom and is not carried."""
-    from dlo_sim.grip import authors_grip_particle
+    from dlo_interface.grip import authors_grip_particle
 
     rng = np.random.default_rng(23)
     carried = none = 0
@@ -409,7 +409,7 @@ def _kernel_cancel(k: ti.template(), dg: ti.types.vector(3, ti.f32)) -> ti.types
 def test_authors_cancel_equals_the_numpy_rule_and_cuts_at_ten_millimetres(authors_sim):
     """The authors' stretch limit: the sub-step motion is cancelled (0) when it would take the carried particle
     more than 10 mm from particle i - 1 or i + 1, kept otherwise; the kernel equals ``grip.authors_cancel``."""
-    from dlo_sim.grip import AUTHORS_MAX_NEIGHBOUR_DISTANCE, authors_cancel
+    from dlo_interface.grip import AUTHORS_MAX_NEIGHBOUR_DISTANCE, authors_cancel
 
     assert AUTHORS_MAX_NEIGHBOUR_DISTANCE == pytest.approx(0.01)
     n = 20

@@ -2,18 +2,11 @@
 
 import numpy as np
 import pytest
-from dlo_sim import RopeSim, SimConfig
-from dlo_sim.config import (
-    FIXED_END,
-    GRIPPER_HEIGHT,
-    IMAGE_CABLE,
-    IMAGE_GRIPPER,
-    MAX_DISPLACEMENT,
-    NOMINAL_INVERSE_MASS,
-    P_MAX,
-    REST_SPACING,
-)
-from dlo_sim.grip import carried_fraction, inverse_mass
+from dlo_interface.camera import IMAGE_CABLE, IMAGE_GRIPPER
+from dlo_interface.grip import carried_fraction, inverse_mass
+from dlo_interface.sim_config import SimConfig
+from dlo_interface.world import FIXED_END, GRIPPER_HEIGHT, MAX_DISPLACEMENT, NOMINAL_INVERSE_MASS, P_MAX, REST_SPACING
+from dlo_sim import RopeSim
 
 N = 8
 
@@ -297,7 +290,7 @@ def test_single_particle_grip_carries_one_particle_the_held_one_nearest_the_fing
     mid-cable and a firm grip, ONE particle gets the grip's inverse mass (0) and moves exactly with the
     finger: the held one nearest the finger axis in x, never particle 0; the other held particles keep
     w_nom and are not all carried along. Off (the default), every held particle is."""
-    from dlo_sim.grip import single_grip_particle
+    from dlo_interface.grip import single_grip_particle
 
     single = RopeSim(N, SimConfig(single_particle_grip=True))
     seeds = np.arange(N) + 30

@@ -25,9 +25,9 @@ import numpy as np
 import pytest
 
 rclpy = pytest.importorskip("rclpy")
+from dlo_interface.command import MAX_SPEED  # noqa: E402
 from dlo_msgs.msg import GripperCommand  # noqa: E402
 from dlo_sim import sim_node as sim_node_module  # noqa: E402
-from dlo_sim.command import MAX_SPEED  # noqa: E402
 from harness import LogLines, release_domains, reserve_domains  # noqa: E402
 
 RATE_FACTOR = 2.0  # wall seconds per step: 0.04 (so a command's age is not the 0.08 s default)

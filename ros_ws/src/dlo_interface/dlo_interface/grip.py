@@ -2,14 +2,15 @@
 
 ``w = max(2.25 w_nom - 2.5 w_nom max(c, 0.5), 0)``: c <= 0.5 leaves the particles free (w = w_nom),
 c >= 0.9 makes them kinematic (w = 0, held firmly), in between they slide with growing drag.
-Held particles are carried with the gripper in proportion ``1 - w / w_nom``. The Taichi kernel
-(``kernels.py``) mirrors this function.
+Held particles are carried with the gripper in proportion ``1 - w / w_nom``. This module states the rules in
+numpy, the contract a simulator implements and a driver reproduces; the reference simulator's Taichi kernel
+(``dlo_sim.kernels``) mirrors it.
 
-The finite grip's stall (README "finite grip"): a firm grip (c >= 0.9, the held particles fully
+The finite grip's stall (the dlo_sim README, "finite grip"): a firm grip (c >= 0.9, the held particles fully
 carried) may not pull a held particle further from the fixed end than its rest length along the
 cable (``taut_reach``); the part of the gripper's motion that would is removed
 (``stall_firm_grip``): the robot's force limit. The kernel (``RopeKernels.stall_firm_grip``) runs
-the same rule every sub-step; ``test/test_kernel_rules.py`` checks that the two agree. The driver
+the same rule every sub-step; ``dlo_sim/test/test_kernel_rules.py`` checks that the two agree. The driver
 template (``dlo_driver_kit.mock_driver_node``) uses this function for its kinematic gripper.
 
 The authors' single-particle grip (``SimConfig.single_particle_grip``, off by default;
@@ -17,11 +18,11 @@ docs/FIDELITY.md row 5): instead of every held particle, the grip law acts on ON
 nearest the finger axis measured along x (the direction of travel, |x_i - x_G|, as their
 ``action_space_sliding.py`` measures it), never the fixed end (particle 0), ties to the lower index,
 re-chosen every 0.01 s step from the held set at its start (``single_grip_particle``; the kernel's
-``RopeKernels.single_grip_particle`` runs the same rule, ``test/test_kernel_rules.py`` checks they agree).
+``RopeKernels.single_grip_particle`` runs the same rule, ``dlo_sim/test/test_kernel_rules.py`` checks they agree).
 
 The authors' carry law (``SimConfig.carry_law = "authors"``, off by default; SoftSlidingGym
 ``action_space_sliding.py`` Picker.step; docs/FIDELITY.md rows 5 and 6): above c = 0.5 ONE particle is
-carried, picked every 0.01 s step from the authors' narrow held set (``dlo_sim.task.held_mask_authors``:
+carried, picked every 0.01 s step from the authors' narrow held set (``dlo_interface.task.held_mask_authors``:
 under the ``authors_code`` task rules, the task's held set) nearest the finger axis in x, never particle 0
 (``authors_grip_particle``). It is moved by the WHOLE gripper displacement (the paper's law moves it by the
 fraction ``carried_fraction(c)``), then left to the constraints with inverse mass ``inverse_mass(c)``
@@ -35,7 +36,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .config import REST_SPACING
+from dlo_interface.world import REST_SPACING
 
 # a grip slips (c < 0.9) or stalls (c >= 0.9) once the straight line fixed end -> held particle exceeds
 # its rest length along the cable by this
@@ -71,9 +72,9 @@ def single_grip_particle(positions, held, gripper_x) -> int:
 
 def authors_grip_particle(positions, num_particles, gripper, c) -> int:
     """The one particle the authors' carry law moves (module docstring), -1 if none: c > 0.5 and, in
-    their narrow held set (``dlo_sim.task.held_mask_authors``), the one nearest the finger axis in x, never
+    their narrow held set (``dlo_interface.task.held_mask_authors``), the one nearest the finger axis in x, never
     particle 0, ties to the lower index. positions (P, 3), gripper (3,) [m]; float32 as the kernel."""
-    from .task import held_mask_authors
+    from dlo_interface.task import held_mask_authors
 
     if not c > 0.5:
         return -1

@@ -1,4 +1,5 @@
-"""Top-view pinhole camera model shared by the renderer (dlo_sim) and the vision distillation.
+"""The top-view camera: its pinhole model, its image encoding and its CameraInfo. Shared by the renderer of a
+simulator, a real camera's driver and the vision distillation.
 
 The camera hangs at ``position`` (world frame, metres) and looks straight down (-z). Its optical
 frame (REP-103 camera convention: x right, y down, z forward) has x along world +x and y along
@@ -13,7 +14,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-WORKSPACE_HALF_WIDTH = 0.3  # m, gripper workspace is x, y in [-0.3, 0.3]
+from dlo_interface.world import WORKSPACE_HALF_WIDTH
+
+# the image encoding of /dlo/camera/image (mono8): what the vision reads, a renderer draws and a camera driver delivers
+IMAGE_CABLE = 255  # pixel value of the cable in the top view
+IMAGE_GRIPPER = 128  # pixel value of the gripper (drawn over the cable)
+IMAGE_BACKGROUND = 0  # pixel value of everything else
 
 
 @dataclass(frozen=True)

@@ -49,7 +49,7 @@ from typing import Callable, Optional
 
 import numpy as np
 
-from dlo_sim.config import FINGER_AXIS_OFFSET
+from dlo_interface.world import FINGER_AXIS_OFFSET
 
 ALPHA_MOVE = 10.0
 ALPHA_END = 1.0 / 20.0

@@ -1,4 +1,4 @@
-"""dlo_sim.task on hand-made trajectories and hand-placed particles: rewards (also when only particle 0
+"""dlo_interface.task on hand-made trajectories and hand-placed particles: rewards (also when only particle 0
 or a single particle is held), held statistics of single and batched masks, episode end and outcomes
 under both rules (also at small indices), the authors' held set around a gripper at and away from the
 origin and at its exact boundaries, and trackers that are new, reset with nothing held, or reused
@@ -6,9 +6,9 @@ across episodes."""
 
 import numpy as np
 import pytest
-from dlo_sim import task
-from dlo_sim.config import FINGER_AXIS_OFFSET
-from dlo_sim.task import EpisodeTracker, classify_outcome, held_statistics, step_reward
+from dlo_interface import task
+from dlo_interface.task import EpisodeTracker, classify_outcome, held_statistics, step_reward
+from dlo_interface.world import FINGER_AXIS_OFFSET
 
 N_C, L_C = 40, 39 * 0.0043
 
@@ -323,9 +323,9 @@ def test_an_authors_code_tracker_rewards_each_step_from_the_previous_one():
 
 
 def test_task_rules_are_records_that_say_their_held_set_end_and_outcome_rule():
-    """dlo_sim.task.RULES: one record per variant; callers ask it (held set, drop, reward, outcome column) instead of
+    """dlo_interface.task.RULES: one record per variant; callers ask it (held set, drop, reward, outcome column) instead of
     comparing names; records of old runs and bags without the field read as the legacy rules, in one place."""
-    from dlo_sim import task as t
+    from dlo_interface import task as t
 
     paper, authors = t.task_rules("paper_text"), t.task_rules("authors_code")
     assert t.TASK_RULES == ("paper_text", "authors_code") and t.DEFAULT_TASK_RULES in t.RULES
@@ -342,7 +342,7 @@ def test_task_rules_are_records_that_say_their_held_set_end_and_outcome_rule():
 
 def test_no_module_compares_task_rule_names_outside_the_registry():
     """Task rules as records: no product module branches on a task-rule name (``== "authors_code"``); they ask the
-    record (dlo_sim.task)."""
+    record (dlo_interface.task)."""
     import pathlib
     import re
 

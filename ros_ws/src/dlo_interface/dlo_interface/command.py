@@ -11,7 +11,7 @@ import math
 
 import numpy as np
 
-from dlo_sim.config import DT, MAX_DISPLACEMENT
+from dlo_interface.world import CONTROL_PERIOD, DT, MAX_DISPLACEMENT
 
 MAX_SPEED = MAX_DISPLACEMENT / DT  # m/s, |vx|, |vy| limit (0.25)
 SPEED_TOLERANCE = 1e-6  # m/s, rounding allowance on the limit
@@ -58,7 +58,7 @@ def command_mismatch(
     cmd_episode: int,
     cmd_step: int,
     *,
-    period: float = 0.08,
+    period: float = CONTROL_PERIOD,
     command_timeout: float = 0.5,
     previous_final: tuple[int, int] | None = None,
 ) -> tuple[str, str] | None:

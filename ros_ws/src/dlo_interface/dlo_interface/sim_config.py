@@ -1,38 +1,17 @@
-"""Physical constants and the validated simulator configuration. SI units throughout.
+"""The simulator's settings: every tunable of the physics, validated on construction. SI units throughout.
 
-The geometric constants come from the authors' public SoftGym/Flex implementation
-(docs/ARCHITECTURE.md#constants). Where this XPBD rebuild needs its own numbers (sub-steps, compliances,
-damping, the contact radius), ``SimConfig`` holds them with the reason next to each.
+A run records them (its env options), the launcher and the sim node check them, the robustness perturbations
+widen their ranges; a simulator backend (``dlo_interface.simulator``) receives one. Where the XPBD rebuild
+needs its own numbers (sub-steps, compliances, damping, the contact radius), the reason stands next to each.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
-DT = 0.01  # s, one simulation step (one "env-step")
-SUBSTEPS_PER_ACTION = 8  # simulation steps per agent action (0.08 s)
-MAX_DISPLACEMENT = 0.0025  # m per step at |action| = 1 (0.25 m/s)
-P_MAX = 60  # particles per environment, padded
-PARTICLE_RADIUS = 0.008  # m, Flex interaction radius: held rule and rendered cable width
-REST_SPACING = 0.0043  # m, rest distance between consecutive particles
-FINGER_RADIUS = 0.0125  # m, capsule radius of each finger
-FINGER_HALF_LENGTH = 0.0075  # m, half-length of the capsule's axis segment (along gripper y)
-FINGER_CLEARANCE = 0.0085  # m, gap between the two finger surfaces
-GRIPPER_HEIGHT = 0.1  # m, height of the gripper centre (midway between the finger axes)
-FINGER_AXIS_OFFSET = FINGER_RADIUS + 0.5 * FINGER_CLEARANCE  # m, each finger's axis above/below the gripper centre
-FIXED_END = (-0.25, 0.0, 0.1)  # m, where particle 0 is pinned
-GRIPPER_START_BEHIND = 0.005  # m, the gripper starts this far behind (-x) the fixed end
-# SimConfig.start_pose: where the gripper starts, (behind the fixed end in -x, below it in -z) [m]. "authors": their
-# Picker.reset puts the lower finger's axis 8 mm behind and 19 mm below particle 0, the upper 14.5 mm above it
-# (SoftSlidingGym action_space_sliding.py:99): the gripper centre 8 mm behind and 2.25 mm below
-START_POSES = {"ours": (GRIPPER_START_BEHIND, 0.0), "authors": (0.008, 0.00225)}
-WORKSPACE_HALF_WIDTH = 0.3  # m, gripper x and y are clipped to [-0.3, 0.3]
-NOMINAL_INVERSE_MASS = 2.0  # 1/kg, w_nom (particle mass 0.5 kg)
-PARTICLE_MASS = 1.0 / NOMINAL_INVERSE_MASS  # kg, the nominal particle mass
-GRAVITY = 9.8  # m/s^2
-IMAGE_CABLE = 255  # pixel value of cable in the rendered top view
-IMAGE_GRIPPER = 128  # pixel value of the gripper (drawn over the cable)
-IMAGE_BACKGROUND = 0
+from dlo_interface.grip import CARRY_LAWS
+from dlo_interface.world import FINGER_CLEARANCE, GRIPPER_HEIGHT, P_MAX, PARTICLE_MASS, START_POSES
+
 # m, largest contact_radius. Above half the finger gap (FINGER_CLEARANCE / 2) a particle between the fingers is
 # pushed out by both every sub-step, with friction from both: a pinch, as Flex's collisionDistance 0.005 gives
 # (docs/FIDELITY.md). 6 mm keeps particles 3 apart at rest (12.9 mm) out of self-contact (SELF_EXCLUDE).
@@ -71,13 +50,13 @@ class SimConfig:
     max_speed: float = 20.0  # m/s, a faster particle flags the environment as exploded
     max_distance: float = 2.0  # m, |x|,|y|,|z| beyond this flags the environment as exploded
     # the authors' grip (docs/FIDELITY.md row 5), off by default: the grip law acts on ONE particle, the
-    # held one nearest the finger axis in x (never particle 0), re-chosen every 0.01 s step (dlo_sim.grip)
+    # held one nearest the finger axis in x (never particle 0), re-chosen every 0.01 s step (dlo_interface.grip)
     single_particle_grip: bool = False
     # the authors' one physics draw (docs/FIDELITY.md row 8), off (-1) by default: >= 0 gives every episode the
     # stretch, bending and friction drawn from this seed; the particle count and the start shape still come
     # from the episode's seed (their cached start configurations vary only those)
     physics_seed: int = -1
-    # how the grip carries the cable (dlo_sim.grip): "paper" (the paper's law, the finite grip) or "authors" (their
+    # how the grip carries the cable (dlo_interface.grip): "paper" (the paper's law, the finite grip) or "authors" (their
     # Picker: one particle from their narrow held set moved by the whole displacement above c 0.5, cancelled
     # beyond 10 mm from a neighbour; docs/FIDELITY.md rows 5-6), off ("paper") by default
     carry_law: str = "paper"
@@ -152,8 +131,8 @@ class SimConfig:
             raise ValueError(f"physics_seed must be an integer >= 0 (or -1: drawn per episode), got {self.physics_seed!r}")
         if self.start_pose not in START_POSES:
             raise ValueError(f"start_pose must be one of {', '.join(START_POSES)}, got {self.start_pose!r}")
-        if self.carry_law not in ("paper", "authors"):
-            raise ValueError(f"carry_law must be one of paper, authors, got {self.carry_law!r}")
+        if self.carry_law not in CARRY_LAWS:
+            raise ValueError(f"carry_law must be one of {', '.join(CARRY_LAWS)}, got {self.carry_law!r}")
         if not isinstance(self.single_particle_grip, bool):
             raise ValueError(f"single_particle_grip must be true or false, got {self.single_particle_grip!r}")
 

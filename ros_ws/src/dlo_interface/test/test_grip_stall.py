@@ -1,4 +1,4 @@
-"""dlo_sim.grip.stall_firm_grip, the finite grip's stall in numpy (no Taichi; the kernel's agreement with
+"""dlo_interface.grip.stall_firm_grip, the finite grip's stall in numpy (no Taichi; the kernel's agreement with
 it is test_kernel_rules.py::test_the_numpy_stall_rule_equals_the_kernel_on_these_states):
 
 - a firm grip (fully carried particles) on a taut cable: the motion away from the fixed end is removed,
@@ -9,8 +9,8 @@ it is test_kernel_rules.py::test_the_numpy_stall_rule_equals_the_kernel_on_these
 
 import numpy as np
 import pytest
-from dlo_sim.config import FIXED_END, REST_SPACING
-from dlo_sim.grip import GRIP_SLIP_STRAIN, carried_fraction, stall_firm_grip, taut_reach
+from dlo_interface.grip import GRIP_SLIP_STRAIN, carried_fraction, stall_firm_grip, taut_reach
+from dlo_interface.world import FIXED_END, REST_SPACING
 
 STEP = 0.0025 / 4  # m, the gripper's largest sub-step
 
@@ -86,9 +86,9 @@ def test_inputs_are_not_modified():
 
 
 def test_the_single_particle_grip_picks_the_held_particle_nearest_the_finger_never_the_fixed_end():
-    """dlo_sim.grip.single_grip_particle (docs/FIDELITY.md row 5): the held particle nearest the gripper in x,
+    """dlo_interface.grip.single_grip_particle (docs/FIDELITY.md row 5): the held particle nearest the gripper in x,
     the lower index on a tie, never particle 0; -1 when nothing but particle 0 (or nothing) is held."""
-    from dlo_sim.grip import single_grip_particle
+    from dlo_interface.grip import single_grip_particle
 
     x = np.array([[0.0, 0, 0], [0.25, 0, 0], [0.5, 0, 0], [0.75, 0, 0], [1.0, 0, 0]], np.float32)  # exact in binary
     held = np.array([True, True, True, True, False])

@@ -1,10 +1,10 @@
-"""dlo_sim.command: the policy's action <-> the command in SI units both ways, the hold action, the error
+"""dlo_interface.command: the policy's action <-> the command in SI units both ways, the hold action, the error
 each bad command raises, the texts of step mismatches and the rejection log's summaries (the gate's
 boundaries as the sim node applies them: tests/test_command_gate.py)."""
 
 import numpy as np
 import pytest
-from dlo_sim.command import (
+from dlo_interface.command import (
     MAX_SPEED,
     SPEED_TOLERANCE,
     CommandError,
