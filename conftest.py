@@ -82,6 +82,7 @@ SLOW = (  # each about 3 s or more: a training, a long simulation, evaluation or
     "ros_ws/src/dlo_policy/test/test_evaluate_scripted.py::test_the_same_episodes_as_run_episodes_seed_by_seed",
     "ros_ws/src/dlo_policy/test/test_evaluate_scripted.py::test_a_tiny_real_run_of_the_executable",
     "ros_ws/src/dlo_sim/test/test_rope_physics.py::test_reset_randomises_within_paper_ranges",
+    "ros_ws/src/dlo_policy/test/test_env_cable_following.py::test_the_env_steps_the_simulator_backend_it_is_given",
 )
 
 

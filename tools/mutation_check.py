@@ -41,7 +41,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-PACKAGES = ("dlo_common", "dlo_sim", "dlo_perception", "dlo_policy", "dlo_bag", "dlo_viz", "dlo_driver_kit")
+PACKAGES = ("dlo_common", "dlo_interface", "dlo_sim", "dlo_perception", "dlo_policy", "dlo_bag", "dlo_viz", "dlo_driver_kit")
 LOG_CALLS = {"debug", "info", "warning", "warn", "error", "fatal", "print", "exception"}
 
 # ---------------------------------------------------------------- mutation operators

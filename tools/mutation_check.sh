@@ -4,7 +4,7 @@
 # /tmp/dlo-mutation), runs that module's fast unit tests against it and prints the score per module
 # and every surviving mutant. Configuration: tools/mutation.toml. The live tree is never written.
 #   tools/mutation_check.sh                      # every module
-#   tools/mutation_check.sh --module dlo_sim.task --module dlo_sim.command
+#   tools/mutation_check.sh --module dlo_interface.task --module dlo_interface.command
 #   tools/mutation_check.sh --list               # the mutants only
 # Runs at low priority (nice 15) and one test process at a time. Exit 0 = every module >= target.
 set -euo pipefail

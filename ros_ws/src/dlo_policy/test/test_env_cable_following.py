@@ -218,3 +218,36 @@ def test_the_authors_start_pose_starts_8_mm_behind_and_2_25_mm_lower_and_the_ima
             np.array([at_default.visible[0], at_default.confidence[0], at_default.angle[0], at_default.y[0]], np.float32),
         )
     assert differs >= 1  # the height matters: read at the default height, V would differ
+
+
+def test_the_env_steps_the_simulator_backend_it_is_given():
+    """The env imports no simulator (tests/test_package_graph.py): by default it builds the backend registered as
+    ``taichi`` (dlo_sim's TaskSim, an entry point of dlo_interface.simulators); a factory given in its place is
+    called with the env's settings and stepped, with the same episodes for the same backend; an unknown name is a
+    one-line error before anything is built."""
+    from dlo_interface.simulator import simulator_factory
+    from dlo_policy.config import ConfigError, check_env_options, load_config
+
+    default = make_vec_env(2, "K+T", seed=4)
+    assert type(default.task).__module__ == "dlo_sim.episode" and type(default.task).__name__ == "TaskSim"
+    calls = []
+
+    def recording(num_envs, **options):
+        calls.append((num_envs, sorted(options)))
+        return simulator_factory("taichi")(num_envs, **options)
+
+    given = make_vec_env(2, "K+T", seed=4, simulator=recording)
+    assert calls == [(2, ["camera", "config", "end_particles", "horizon", "render", "task_rules"])]
+    actions = np.tile(np.array([[0.6, 0.1, 0.2]], np.float32), (2, 1))
+    for env in (default, given):
+        env.reset(seed=4)
+    for _ in range(3):
+        a, b = default.step(actions), given.step(actions)
+        assert np.array_equal(a[0], b[0]) and np.array_equal(a[1], b[1])
+    with pytest.raises(
+        ValueError, match=r"^simulator: no backend 'mujoco' registered in dlo_interface\.simulators; registered: "
+    ):
+        make_env("K", simulator="mujoco")
+    with pytest.raises(ConfigError, match=r"^env_options: simulator: no backend 'nope' registered"):
+        check_env_options(load_config(None, ["env_options.simulator=nope"]))
+    check_env_options(load_config(None, ["env_options.simulator=taichi"]))
