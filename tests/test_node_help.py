@@ -53,6 +53,7 @@ def test_gen_check_reports_a_drifted_file(tmp_path, monkeypatch, capsys):
     """--check fails when a declaration changed after the file was written (here: a default)."""
     package, executable, module = next(n for n in NODES if n[1] == "tactile_node")
     monkeypatch.setattr(gen, "config_path", lambda p, e, src=None: tmp_path / f"{e}.yaml")
+    monkeypatch.setattr(gen, "sac_defaults_path", lambda src=None: tmp_path / "sac_default.yaml")
     assert gen.main([]) == 0 and gen.main(["--check"]) == 0
     stale = tmp_path / f"{executable}.yaml"
     stale.write_text(stale.read_text().replace('tactile_noise: "none"', 'tactile_noise: "full"'))

@@ -1,10 +1,13 @@
 #!/usr/bin/env python3
-"""Write every node's parameters file ``ros_ws/src/<pkg>/config/<executable>.yaml`` from its declarations.
+"""Write every node's parameters file ``ros_ws/src/<pkg>/config/<executable>.yaml`` from its declarations,
+and dlo-train's defaults file ``ros_ws/src/dlo_policy/config/sac_default.yaml`` from ``dlo_policy.config``.
 
 The node executables are the console scripts of ``ros_ws/src/*/setup.py`` whose module ends in
 ``_node``; each module's ``PARAMETERS`` (dlo_common.params.Param records) is rendered with
 ``dlo_common.params.params_yaml`` (ROS 2 ``--params-file`` format, each description as a comment,
-every value at its default). The packages install the files to ``share/<pkg>/config/``.
+every value at its default). The training defaults are rendered by ``dlo_policy.config.defaults_yaml`` (every
+key of a run's configuration at its default, its description as a comment). The packages install the files to
+``share/<pkg>/config/``.
 
     python tools/gen_node_configs.py           # (re)write the files, name the ones that changed
     python tools/gen_node_configs.py --check   # exit 1 if a committed file differs from the declarations
@@ -52,6 +55,23 @@ def render(package: str, executable: str, module: str) -> str:
     return params_yaml(parameters, header)
 
 
+def sac_defaults_path(src: Path = SRC) -> Path:
+    return src / "dlo_policy" / "config" / "sac_default.yaml"
+
+
+def render_sac_defaults() -> str:
+    """dlo-train's defaults file, from dlo_policy.config (where each default is declared once)."""
+    from dlo_policy.config import defaults_yaml
+
+    return defaults_yaml()
+
+
+def generated() -> list[tuple[Path, str]]:
+    """(path, text) of every generated file."""
+    files = [(config_path(p, e), render(p, e, m)) for p, e, m in node_executables()]
+    return files + [(sac_defaults_path(), render_sac_defaults())]
+
+
 def _shown(path: Path) -> str:
     return str(path.relative_to(ROOT)) if path.is_relative_to(ROOT) else str(path)
 
@@ -63,9 +83,7 @@ def main(argv: list[str] | None = None) -> int:
     )
     args = parser.parse_args(argv)
     stale = []
-    for package, executable, module in node_executables():
-        path = config_path(package, executable)
-        text = render(package, executable, module)
+    for path, text in generated():
         if path.exists() and path.read_text() == text:
             continue
         stale.append(path)

@@ -5,6 +5,9 @@ what to train on (modalities, env options, seed). `load_config(path, overrides)`
 file shaped like `config/sac_default.yaml` and applies `key=value` overrides such as
 `sac.batch_size=256` or `env_options.tactile_noise=partial`. Unknown keys and values of the
 wrong type raise `ConfigError` naming the key.
+
+The defaults live here, once: each key is declared with its default and its description (`_key`), and
+`config/sac_default.yaml` is generated from them (`defaults_yaml`, written by tools/gen_node_configs.py).
 """
 
 from __future__ import annotations
@@ -23,37 +26,45 @@ class ConfigError(ValueError):
     """A configuration key is unknown or its value is invalid."""
 
 
+def _key(default: Any, doc: str) -> Any:
+    """A configuration key: its default and its description (the comment of config/sac_default.yaml)."""
+    return field(default=default, metadata={"doc": doc})
+
+
 @dataclass
 class SACConfig:
     """Soft Actor-Critic hyperparameters (defaults: the authors' agent, docs/ARCHITECTURE.md#constants)."""
 
-    hidden_sizes: tuple[int, ...] = (1024, 1024)
-    actor_lr: float = 1e-3
-    critic_lr: float = 1e-3
-    alpha_lr: float = 1e-4
-    alpha_betas: tuple[float, float] = (0.5, 0.999)
-    initial_alpha: float = 0.1
-    autotune_alpha: bool = True
-    target_entropy: Optional[float] = None  # None: -|A|
-    gamma: float = 0.99
-    tau: float = 0.01
-    policy_update_every: int = 2  # actor and alpha updates, in gradient steps
-    target_update_every: int = 2  # polyak updates of the target critics, in gradient steps
-    log_std_min: float = -10.0
-    log_std_max: float = 2.0
-    buffer_size: int = 100_000
-    batch_size: int = 128
-    learning_starts: int = 1000  # uniformly random actions and no updates before this env step
-    reward_scale: float = 50.0
-    # how observations are scaled before the networks (deviation from the authors: see
-    # config/sac_default.yaml): "running" mean/std z-scores updated every step; "frozen": the same,
-    # but fixed once learning starts; "bounds": a fixed affine map of the observation bounds onto
-    # [-1, 1]; "none": raw SI values (the authors' agent)
-    observation_scaling: str = "running"
-    # true: a transition that ends its episode by the horizon cut-off (truncated, not terminated) is
-    # stored as terminal (done = 1, no bootstrap), the authors' agent's quirk (docs/FIDELITY.md row 7)
-    # on every cut-off; false: cut-offs bootstrap
-    cutoff_as_terminal: bool = False
+    hidden_sizes: tuple[int, ...] = _key((1024, 1024), "MLP widths of the actor and of each of the twin critics")
+    actor_lr: float = _key(1e-3, "Adam learning rate of the actor")
+    critic_lr: float = _key(1e-3, "Adam learning rate of the twin critics")
+    alpha_lr: float = _key(1e-4, "temperature (entropy coefficient) learning rate")
+    alpha_betas: tuple[float, float] = _key((0.5, 0.999), "Adam betas of the temperature")
+    initial_alpha: float = _key(0.1, "initial temperature")
+    autotune_alpha: bool = _key(True, "automatic entropy tuning")
+    target_entropy: Optional[float] = _key(None, "null: -|A|")
+    gamma: float = _key(0.99, "discount factor")
+    tau: float = _key(0.01, "polyak factor of the target critics")
+    policy_update_every: int = _key(2, "actor + temperature update every N gradient steps")
+    target_update_every: int = _key(2, "target critic (polyak) update every N gradient steps")
+    log_std_min: float = _key(-10.0, "lower clip of the actor's log standard deviation")
+    log_std_max: float = _key(2.0, "upper clip of the actor's log standard deviation")
+    buffer_size: int = _key(100_000, "replay buffer capacity [transitions]")
+    batch_size: int = _key(128, "transitions per gradient step")
+    learning_starts: int = _key(1000, "uniform random actions and no updates before this env step")
+    reward_scale: float = _key(50.0, "rewards are multiplied by this inside the agent")
+    observation_scaling: str = _key(
+        "running",
+        "how observations are scaled before the networks: running (mean/std z-scores updated every step) | frozen "
+        "(the same, fixed once learning starts) | bounds (a fixed affine map of the observation bounds onto [-1, 1]) "
+        "| none (raw SI values: the authors had none; our SI observations span 1e-3 (y_T, m) to 1 (flags)). "
+        'docs/RESULTS.md "Training that holds its level" compares them.',
+    )
+    cutoff_as_terminal: bool = _key(
+        False,
+        "true: store horizon cut-offs (truncated, not terminated) as terminal, no bootstrap: the authors' agent's quirk "
+        "(docs/FIDELITY.md row 7); false: cut-offs bootstrap",
+    )
 
     def __post_init__(self) -> None:
         _require(
@@ -84,18 +95,22 @@ OBSERVATION_SCALINGS = ("running", "frozen", "bounds", "none")
 class TrainConfig:
     """Training and evaluation protocol (defaults: the paper's)."""
 
-    total_steps: int = 50_000
-    eval_every: int = 200
-    eval_episodes: int = 10
-    eval_seed: int = 1_000_000  # evaluations draw fresh episodes from seed eval_seed + 100,000 x run seed on (dlo_policy.train)
-    test_episodes: int = 100  # held-out test of the best evaluation's policy after training
-    test_seed: int = 5_000  # held-out test episodes: seeds test_seed .. test_seed + test_episodes - 1
-    eval_without: tuple[str, ...] = ()  # also evaluate with these modalities blanked (ablation), e.g. [T, V]
-    checkpoint_every: int = 5000
-    num_threads: int = 0  # torch threads; 0: all cores this process may use
-    progress: bool = True
-    device: str = "auto"  # SAC's device: auto (cuda if available), cpu or cuda
-    sim_arch: str = "cpu"  # the simulator's Taichi backend: cpu or cuda
+    total_steps: int = _key(50_000, "env steps of the run")
+    eval_every: int = _key(200, "env steps between evaluations")
+    eval_episodes: int = _key(10, "seeded episodes per evaluation, deterministic actions")
+    eval_seed: int = _key(
+        1_000_000,
+        "evaluations draw fresh episodes: evaluation k of run seed s uses seeds eval_seed + 100000 s + 10 k + (0..9), "
+        "never reused (dlo_policy.train)",
+    )
+    test_episodes: int = _key(100, "held-out test of the best evaluation's policy after training (test.json)")
+    test_seed: int = _key(5_000, "held-out test seeds test_seed .. test_seed + test_episodes - 1")
+    eval_without: tuple[str, ...] = _key((), "also evaluate with these modalities blanked (ablation), e.g. [T, V]")
+    checkpoint_every: int = _key(5000, "env steps between full checkpoints (replay buffer included)")
+    num_threads: int = _key(0, "torch threads; 0: every core this process may use")
+    progress: bool = _key(True, "tqdm progress bar")
+    device: str = _key("auto", "SAC's device: auto (cuda if available), cpu or cuda")
+    sim_arch: str = _key("cpu", "the simulator's Taichi backend: cpu or cuda")
 
     def __post_init__(self) -> None:
         for name in ("total_steps", "eval_every", "eval_episodes", "checkpoint_every", "test_episodes"):
@@ -126,11 +141,11 @@ def check_modalities(modalities: str, key: str = "modalities") -> tuple[str, ...
 class RunConfig:
     """One training run: what to train on, the agent, and the protocol."""
 
-    modalities: str = "All"
-    seed: int = 0
-    label: str = ""  # experiment name used by dlo-report to group seeds; empty: the modalities
-    env_module: str = "dlo_policy.env"  # a module providing make_env(...) and make_vec_env(num_envs, ...)
-    env_options: dict[str, Any] = field(default_factory=dict)
+    modalities: str = _key("All", "All, or a '+'-joined subset of K (kinematic), T (tactile), V (visual)")
+    seed: int = _key(0, "network init, exploration and training-episode seeds")
+    label: str = _key("", "experiment name dlo-report groups seeds by ('': the modalities)")
+    env_module: str = _key("dlo_policy.env", "provides make_env(modalities, seed, **env_options) and make_vec_env(num_envs, ...)")
+    env_options: dict[str, Any] = field(default_factory=dict, metadata={"doc": "passed to make_env / make_vec_env"})
     sac: SACConfig = field(default_factory=SACConfig)
     train: TrainConfig = field(default_factory=TrainConfig)
 
@@ -237,6 +252,46 @@ def load_config(
 
 def save_config(config: RunConfig, path: str | Path) -> None:
     Path(path).write_text(yaml.safe_dump(config.to_dict(), sort_keys=False))
+
+
+DEFAULTS_HEADER = """\
+dlo-train defaults: the authors' SAC (docs/ARCHITECTURE.md#constants) and the paper's protocol.
+Generated by tools/gen_node_configs.py from dlo_policy.config, where each default is declared once: do not edit
+here. Copy it and use the copy with `dlo-train --config FILE`; override any key on the command line, e.g.
+  dlo-train --out runs/x sac.batch_size=256 train.eval_every=500 env_options.tactile_noise=partial"""
+
+
+def defaults_yaml() -> str:
+    """config/sac_default.yaml: every key of `RunConfig` at its default, its description as a comment."""
+    lines = [f"# {line}".rstrip() for line in DEFAULTS_HEADER.splitlines()] + [""]
+    lines += _yaml_block(RunConfig(), "")
+    for section in ("sac", "train"):
+        lines += ["", f"{section}:"] + _yaml_block(getattr(RunConfig(), section), "  ")
+    return "\n".join(lines) + "\n"
+
+
+def _yaml_block(config: Any, indent: str) -> list[str]:
+    """The scalar keys of one dataclass, `key: value  # description`, the comments in one column."""
+    import textwrap  # noqa: PLC0415
+
+    rows = [
+        (f"{indent}{f.name}: {_yaml_value(getattr(config, f.name))}", f.metadata.get("doc", ""))
+        for f in dataclasses.fields(config)
+        if not dataclasses.is_dataclass(getattr(config, f.name))
+    ]
+    column = max(len(text) for text, _ in rows) + 2
+    lines = []
+    for text, doc in rows:
+        wrapped = textwrap.wrap(doc, 118 - column) or [""]
+        lines.append(f"{text.ljust(column)}# {wrapped[0]}" if doc else text)
+        lines += [f"{' ' * column}# {more}" for more in wrapped[1:]]
+    return lines
+
+
+def _yaml_value(value: Any) -> str:
+    """One value in YAML flow style, as `load_config` reads it back."""
+    text = yaml.safe_dump(_plain(value), default_flow_style=True, width=10_000).strip()
+    return text[: -len("...")].strip() if text.endswith("\n...") else text
 
 
 def _require(condition: bool, key: str, expectation: str) -> None:
