@@ -59,6 +59,7 @@ from dlo_interface.world import (
     GRIPPER_HEIGHT,
     GRIPPER_START_BEHIND,
     MAX_DISPLACEMENT,
+    PARTICLE_RADIUS,
     REST_SPACING,
     WORKSPACE_HALF_WIDTH,
 )
@@ -71,7 +72,7 @@ from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 MODES = ("real_time", "step_locked")
 CONTROL_RATE = 1.0 / CONTROL_PERIOD  # Hz: one command per 0.08 s, like the sim
 FINGER_REACH = FINGER_RADIUS + REST_SPACING  # m, a point this close to the gripper centre (in x-y) is in contact
-CABLE_RADIUS = 0.008  # m, drawn width
+CABLE_RADIUS = PARTICLE_RADIUS  # m, drawn width (as the sim renders the cable)
 START_CLOSURE = 0.7  # closure at the start of an episode (sliding grip)
 SUBSTEP = MAX_DISPLACEMENT / SimConfig().substeps  # m, the sim's largest gripper sub-step: the stall's resolution
 REPUBLISH_PERIOD = 0.25  # s, step_locked: republish an unanswered state this often

@@ -41,16 +41,17 @@ from dlo_common import taichi_runtime  # before taichi: no "[Taichi] version" ba
 # isort: split
 import taichi as ti
 from dlo_interface.camera import IMAGE_CABLE, IMAGE_GRIPPER, TopCamera
+from dlo_interface.world import FINGER_RADIUS, PARTICLE_RADIUS
 
 from dlo_perception.vision_source import DEFAULT_VISION_SOURCE, VISION_SOURCES, check_vision_source  # noqa: F401
 
 GRIPPER_MARGIN_PIXELS = 4  # columns searched for gripper pixels beyond the occlusion radius
-OCCLUSION_RADIUS = 0.0125 + 0.002  # m, finger radius + 2 mm: the gripper hides x <= x_G + this
+OCCLUSION_RADIUS = FINGER_RADIUS + 0.002  # m, finger radius + 2 mm: the gripper hides x <= x_G + this
 SEARCH_HALF_WIDTH = 0.03  # m, |y - y_G| window in which the strand must enter
 CONFIDENCE_LENGTH = 0.024  # m, dx giving q_V = 1
 TRACK_LENGTH = 0.043  # m, at most 10 particle spacings of the strand are followed
 ENTRY_BAND = 0.006  # m, ground truth: first particle beyond x_o lies within this band (> spacing)
-CABLE_RADIUS = 0.008  # m, drawn cable radius: the image strand ends this far past the last centre
+CABLE_RADIUS = PARTICLE_RADIUS  # m, drawn cable radius: the image strand ends this far past the last centre
 WALK_STEPS = 10  # particles, particles-source: how far each index walk goes (the authors' range(10))
 BACKTRACK = 0.25 * 0.008  # m, particles-source: the walk right stops where x falls back more than this
 
