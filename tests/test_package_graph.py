@@ -202,8 +202,10 @@ def test_nothing_outside_the_simulator_imports_it():
     ``dlo_interface.simulator``), bag analysis, the launcher, the tools and the benchmarks depend on the contract
     ``dlo_interface``. The rule covers tests/ too: the graph tests start the simulator as a process (``ros2 run
     dlo_sim sim_node``, a package name, not an import) and read the contract for its rules; only the simulator's
-    own tests (ros_ws/src/dlo_sim/test) import it. A generator that loads every node module by its entry point
-    (tools/gen_node_configs.py, tools/gen_interfaces.py) names no package."""
+    own tests (ros_ws/src/dlo_sim/test) import it. What loads every node by name, as ROS does, names no module in
+    code: the generators (each ``*_node`` entry point of the setup.py files: tools/gen_node_configs.py,
+    tools/gen_interfaces.py) and the launcher's one-process mode (each node's ``NodeSpec.plugin``, as ROS
+    composition loads components)."""
     offenders = [f"{p.relative_to(ROOT)}:{line}" for p in modules_outside_the_simulator() for line in simulator_imports(p)]
     assert offenders == []
 
