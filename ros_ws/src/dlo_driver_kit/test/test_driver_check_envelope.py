@@ -29,7 +29,7 @@ from dlo_driver_kit.driver_check import (  # noqa: E402
     response_delay,
 )
 from dlo_driver_kit.mock_driver_node import draw_cable, mock_cable  # noqa: E402
-from dlo_perception.camera import TopCamera  # noqa: E402
+from dlo_interface.camera import TopCamera  # noqa: E402
 from test_driver_check import CLOSURE_TAU, SLOW, complete_recording, ideal_recording, run_main  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[4]

@@ -244,9 +244,9 @@ def test_physics_families_fix_each_episode_beyond_the_training_ranges():
 
 
 def test_camera_families_move_the_camera_that_renders_not_the_one_the_vision_assumes():
-    from dlo_interface.camera import TopCamera
+    from dlo_interface.camera import IMAGE_GRIPPER, TopCamera
     from dlo_interface.world import FINGER_AXIS_OFFSET
-    from dlo_perception.vision import IMAGE_GRIPPER, visual_pose
+    from dlo_perception.vision import visual_pose
 
     env = make_vec_env(2, seed=SEED, perturbations={"camera_offset": 20.0, "camera_yaw": 10.0})
     observation, _ = env.reset(seed=SEED)
