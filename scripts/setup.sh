@@ -70,9 +70,11 @@ fi
 # ---- 4. build the workspace ---------------------------------------------------------------
 # Rebuild when a package's build inputs change (interfaces, manifests, setup files, shipped
 # policies, parameters files). Python sources need no rebuild: env.sh puts them on PYTHONPATH ahead of the install tree.
+# The hash of what was built lives in the workspace's own install tree (not in the venv: two clones sharing one
+# DLO_VENV each build their own workspace).
 src_hash=$(cd "$WS/src" && find . -type f \( -name '*.msg' -o -name '*.srv' -o -name 'CMakeLists.txt' \
   -o -name 'package.xml' -o -name 'setup.py' -o -name 'setup.cfg' -o -path '*/policies/*' -o -path '*/config/*' \) | sort | xargs sha256sum | sha256sum | cut -c1-16)
-if [ "$(cat "$STAMPS/workspace" 2>/dev/null)" != "$src_hash" ] || [ ! -d "$WS/install/dlo_msgs/lib" ]; then
+if [ "$(cat "$WS/install/.dlo-build-hash" 2>/dev/null)" != "$src_hash" ] || [ ! -d "$WS/install/dlo_msgs/lib" ]; then
   say "building ros_ws with colcon (log: ros_ws/log/latest_build)"
   (
     cd "$WS"
@@ -92,7 +94,7 @@ if [ "$(cat "$STAMPS/workspace" 2>/dev/null)" != "$src_hash" ] || [ ! -d "$WS/in
            "fix the package named above, then re-run scripts/setup.sh"; }
     grep -E "^Finished|^Failed" "$STAMPS/colcon.out" | sed 's/^/[setup]   /' || true
   )
-  echo "$src_hash" > "$STAMPS/workspace"
+  echo "$src_hash" > "$WS/install/.dlo-build-hash"
 else
   say "workspace up to date"
 fi
