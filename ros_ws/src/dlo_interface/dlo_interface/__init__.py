@@ -1,2 +1,2 @@
 """The contract of the dlo-vitac graph, pure Python (no Taichi, no rclpy): ``world``, ``sim_config``, ``command``,
-``task``, ``grip``, ``camera``, ``cloud`` and ``simulator`` (the README lists what each states)."""
+``task``, ``grip``, ``camera``, ``cloud``, ``perturbations`` and ``simulator`` (the README lists what each states)."""

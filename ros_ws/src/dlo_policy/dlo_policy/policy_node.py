@@ -53,18 +53,9 @@ POLICIES = ("sac", "tactile_reactive", "oracle", "random")
 
 def node_perturbations(value) -> dict:
     """The ``perturbations`` parameter (text, dlo_policy.perturbations.parse): the observation and action families
-    the node applies; ValueError in one line for anything else, physics and camera families included."""
-    if not isinstance(value, str):
-        raise ValueError(f"expected {perturbations.FORMS}, got {value!r}")
-    setting = perturbations.parse(value)
-    elsewhere = perturbations.of_side(setting, perturbations.PHYSICS, perturbations.CAMERA)
-    if elsewhere:
-        raise ValueError(
-            f"{', '.join(elsewhere)}: physics and camera perturbations belong to the simulator, not the "
-            f"policy node (here: {', '.join(perturbations.names(perturbations.OBSERVATION))}, "
-            f"{', '.join(perturbations.names(perturbations.ACTION))})"
-        )
-    return setting
+    the node applies; ValueError in one line for anything else, physics and camera families included (the sim
+    node's)."""
+    return perturbations.owned(value, "policy node")
 
 
 PARAMETERS = (

@@ -36,6 +36,7 @@ from builtin_interfaces.msg import Time
 from dlo_common.node_util import NodeStartError, declare_parameters
 from dlo_common.params import Param
 from dlo_common.topics import message_class, select, topic
+from dlo_interface import perturbations
 from dlo_interface.camera import CAMERA_FRAME, TopCamera, camera_info
 from dlo_interface.cloud import particle_cloud
 from dlo_interface.command import CommandError, RejectionLog, command_mismatch, command_to_action, hold_action
@@ -67,8 +68,18 @@ SETTINGS = (
     "contact_radius",
     "start_pose",
     "camera_resolution",
+    "perturbations",
 )
 CONTROL_PERIOD_NS = int(round(CONTROL_PERIOD * 1e9))  # 0.08 s of simulation time per action
+
+
+def node_perturbations(value) -> str:
+    """The ``perturbations`` parameter (text, dlo_interface.perturbations.parse): the physics and camera families the
+    node applies, as canonical text (recorded with the instance); ValueError in one line for anything else,
+    observation and action families included (the policy node's)."""
+    return perturbations.text(perturbations.owned(value, "simulator"))
+
+
 MODES = ("step_locked", "real_time")
 PARAMETERS = (
     Param("mode", "step_locked", f"clock mode, one of {MODES}", choices=MODES),
@@ -130,6 +141,16 @@ PARAMETERS = (
         "before the first episode (empty = do not wait)",
     ),
     Param("camera_resolution", 128, "top-view image width = height [px]", at_least=8),
+    Param(
+        "perturbations",
+        "",
+        "physics and camera perturbations (dlo_interface.perturbations, as the gym env's option), e.g. "
+        "'friction=0.6,camera_yaw=2': the physics ranges every episode draws from, the camera that renders "
+        "(camera_info stays the nominal camera's); empty = none",
+        check=node_perturbations,
+        types="string",
+        accepts="name=value pairs of physics and camera families joined by ','",
+    ),
     Param("publish_markers", True, "publish /dlo/markers for RViz/Foxglove"),
     Param("summary_file", "", "write the per-episode outcomes as JSON lines here (empty = off)"),
 )
@@ -206,20 +227,24 @@ class SimNode(Node):
             f"alone on ROS_DOMAIN_ID={os.environ.get('ROS_DOMAIN_ID') or '0'}: no other publisher "
             f"of {self.pub_gripper.topic_name}; building the simulation"
         )
-        self.camera = TopCamera.covering_workspace(p["camera_resolution"])
+        # the physics and camera perturbations as the gym env applies them: the physics ranges every episode draws
+        # from, and the camera that renders; camera_info stays the nominal camera's (what the vision assumes)
+        setting = perturbations.parse(p["perturbations"])
+        rendering, self.camera = perturbations.cameras(setting, TopCamera.covering_workspace(p["camera_resolution"]))
+        config = SimConfig(
+            single_particle_grip=p["single_particle_grip"],
+            physics_seed=p["physics_seed"],
+            carry_law=p["carry_law"],
+            contact_radius=p["contact_radius"],
+            start_pose=p["start_pose"],
+        )
         self.task = TaskSim(
             1,
             horizon=p["horizon"],
             render=True,
-            camera=self.camera,
+            camera=rendering,
             task_rules=p["task_rules"],
-            config=SimConfig(
-                single_particle_grip=p["single_particle_grip"],
-                physics_seed=p["physics_seed"],
-                carry_law=p["carry_law"],
-                contact_radius=p["contact_radius"],
-                start_pose=p["start_pose"],
-            ),
+            config=perturbations.sim_config(setting, config),
         )
 
         if p["mode"] == "real_time":
@@ -231,6 +256,7 @@ class SimNode(Node):
             f"{'the authors carry law, ' if p['carry_law'] == 'authors' else ''}"
             f"contact radius {p['contact_radius']} m, "
             f"{'one physics draw (seed %d), ' % p['physics_seed'] if p['physics_seed'] >= 0 else ''}"
+            f"{'perturbations %s, ' % p['perturbations'] if p['perturbations'] else ''}"
             f"{p['episodes'] or 'unlimited'} episodes of {p['horizon']} steps"
         )
 
