@@ -3,7 +3,8 @@ order, for given options. The launcher (:mod:`dlo_bringup.launcher`, ``scripts/l
 processes; the launch file (``launch/graph.launch.py``, ``ros2 launch dlo_bringup graph.launch.py``) turns the
 same records into ``launch_ros.actions.Node`` entries. Change the graph here, and both follow.
 
-Standard library only (the launch file imports it on a real ROS 2 install, the launcher before anything runs).
+Standard library and pure-Python dlo packages only (the launch file imports it on a real ROS 2 install, the launcher
+before anything runs).
 """
 
 from __future__ import annotations
@@ -97,6 +98,17 @@ def _tactile_noise(text: str):
     return text
 
 
+def _perturbations(o: GraphOptions, owner: str) -> list:
+    """The ``perturbations`` parameter of the node ``owner`` (a key of dlo_interface.perturbations.OWNERS): the
+    families of --perturbations it applies, as text; none when it owns none of them."""
+    if not o.perturbations:
+        return []
+    from dlo_interface import perturbations
+
+    mine = perturbations.of_side(perturbations.parse(o.perturbations), *perturbations.OWNERS[owner])
+    return [("perturbations", perturbations.text(mine))] if mine else []
+
+
 def graph_nodes(o: GraphOptions, logs: Path | None = None) -> list[NodeSpec]:
     """The graph's nodes for the resolved options ``o`` (:func:`dlo_bringup.options.resolve`), in the order they
     start: the sim first (nothing else starts before it has found itself alone on the domain), then the recorder
@@ -125,6 +137,7 @@ def graph_nodes(o: GraphOptions, logs: Path | None = None) -> list[NodeSpec]:
         ("contact_radius", float(o.contact_radius)),
         ("start_pose", o.start_pose),
     ]
+    sim += _perturbations(o, "simulator")
     if o.record:
         sim.append(("wait_for_recorder", "recorder"))  # the first episode is recorded whole
     nodes = [NodeSpec("sim", "dlo_sim", "sim_node", tuple(sim), remap, SIM_READY, "dlo_sim.sim_node:SimNode")]
@@ -176,6 +189,7 @@ def graph_nodes(o: GraphOptions, logs: Path | None = None) -> list[NodeSpec]:
         policy += [("train", True), ("train_out", o.train_out), ("seed", seed)]
     if o.train_config:
         policy.append(("train_config", o.train_config))
+    policy += _perturbations(o, "policy node")
     nodes.append(
         NodeSpec("policy", "dlo_policy", "policy_node", tuple(policy), remap, plugin="dlo_policy.policy_node:PolicyNode")
     )

@@ -16,6 +16,7 @@ import os
 import re
 from dataclasses import dataclass, field, replace
 
+from dlo_interface import perturbations
 from dlo_interface.grip import CARRY_LAWS
 from dlo_interface.sim_config import MAX_CONTACT_RADIUS, SimConfig
 from dlo_interface.task import DEFAULT_TASK_RULES, TASK_RULES
@@ -48,6 +49,15 @@ OPTIONS = (
         "none",
         "tactile noise (the tactile node's tactile_noise parameter): none (default), "
         "partial, full, or sigma_theta,sigma_y [rad, m] such as 0.1,0.001 (or [0.1,0.001])",
+    ),
+    (
+        "perturbations",
+        "P",
+        "",
+        "robustness perturbations, each off by default (python -m dlo_policy.perturbations lists them): name=value "
+        "pairs joined by ',', e.g. friction=0.6,observation_delay=1 (as the gym env's option); the sim node applies "
+        "the physics and camera families, the policy node the observation and action families (each its "
+        "perturbations parameter)",
     ),
     (
         "task-rules",
@@ -145,6 +155,7 @@ class GraphOptions:
     train_out: str = ""
     train_config: str = ""
     tactile_noise: str = "none"  # resolved: the node's -p form (dlo_perception.tactile.noise_parameter_value)
+    perturbations: str = ""  # checked: dlo_interface.perturbations.parse; split between the nodes by graph.py
     task_rules: str = ""
     single_particle_grip: str = ""  # "true" / "false"
     carry_law: str = ""
@@ -218,6 +229,11 @@ def check(o: GraphOptions) -> None:
         re.fullmatch(r"[0-9]*[.]?[0-9]+", o.contact_radius) and 0 < float(o.contact_radius) <= MAX_CONTACT_RADIUS
     ):
         raise UsageError(f"--contact-radius must be a number in (0, {MAX_CONTACT_RADIUS}] m, got '{o.contact_radius}'")
+    if o.perturbations:
+        try:
+            perturbations.parse(o.perturbations)
+        except ValueError as error:
+            raise UsageError(f"--perturbations: {error}") from None
     if o.policy not in POLICIES:
         raise UsageError(f"--policy must be one of {', '.join(POLICIES)}, got '{o.policy}'")
     if o.checkpoint and not os.path.isfile(o.checkpoint):

@@ -13,7 +13,7 @@ import pytest
 import yaml
 from dlo_bringup.graph import STOP_LIMIT, graph_nodes, ros_value
 from dlo_bringup.launcher import Launcher
-from dlo_bringup.options import GraphOptions, launch_arguments, parse_args, resolve
+from dlo_bringup.options import GraphOptions, UsageError, launch_arguments, parse_args, resolve
 from dlo_common.topics import names
 
 sys.path.insert(0, str(Path(__file__).parent))
@@ -38,6 +38,8 @@ CASES = {
             "V",
             "--tactile-noise",
             "0.1,0.001",
+            "--perturbations",
+            "observation_delay=1,friction=0.6,camera_yaw=2",
             "--task-rules",
             "paper_text",
             "--single-particle-grip",
@@ -64,6 +66,7 @@ CASES = {
             "policy": "random",
             "without": "V",
             "tactile_noise": "0.1,0.001",
+            "perturbations": "observation_delay=1,friction=0.6,camera_yaw=2",
             "task_rules": "paper_text",
             "single_particle_grip": "true",
             "carry_law": "authors",
@@ -148,6 +151,30 @@ def test_the_sim_starts_first_and_a_namespace_moves_every_topic_and_service(tmp_
         else:
             assert spec.remappings == tuple((name, "/robot1" + name) for name in names()), spec.name
     assert ("namespace", "/robot1") in specs[1].parameters  # the recorder records what is under it
+
+
+def test_one_perturbations_option_gives_each_node_the_families_it_owns():
+    """--perturbations: the sim node gets the physics and camera families, the policy node the observation and
+    action families (each node's perturbations parameter, dlo_interface.perturbations.OWNERS); a node that owns none
+    of them gets no parameter; a bad setting is one line naming the option."""
+    from dlo_interface.perturbations import owned
+
+    def given(argv):
+        return {
+            s.name: dict(s.parameters).get("perturbations")
+            for s in graph_nodes(resolve(parse_args(["--policy", "random", *argv])))
+        }
+
+    both = given(["--perturbations", "camera_yaw=2,action_delay=1,friction=0.6,observation_delay=1"])
+    assert both["sim"] == "friction=0.6,camera_yaw=2" and both["policy"] == "observation_delay=1,action_delay=1"
+    assert both["tactile"] is None and both["vision"] is None
+    assert owned(both["sim"], "simulator") and owned(both["policy"], "policy node")  # what each node's check takes
+    assert given(["--perturbations", "friction=0.6"])["policy"] is None
+    assert given(["--perturbations", "velocity_gain=0.9"])["sim"] is None
+    assert set(given([]).values()) == {None}
+    with pytest.raises(UsageError) as error:
+        parse_args(["--perturbations", "frction=0.6"])
+    assert str(error.value).startswith("--perturbations: unknown perturbation 'frction'; did you mean 'friction'?")
 
 
 def test_parameter_values_are_written_as_the_nodes_read_them():
