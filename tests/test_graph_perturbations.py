@@ -1,14 +1,20 @@
-"""Step-locked graph == in-process gym env, to the last bit, with observation- and action-side perturbations on.
+"""Step-locked graph == in-process gym env, to the last bit, with perturbations on (each family in the node that
+owns it: dlo_interface.perturbations.OWNERS).
 
-The policy node owns them in the graph (its ``perturbations`` parameter; the launcher passes none, so the nodes are
-started here one by one with scripts/ros2run, as launch_graph.sh starts them): the same Perturber as the env's option,
-its noise seeded from the episode's seed that /dlo/task/state carries. The shipped SAC policy acts; the episodes'
-returns, lengths and outcomes must equal the env's. Physics and camera families belong to the simulator and the
-vision, which take no such parameter yet (the env has them; dlo_policy.perturbations).
+- Observation and action families: the policy node's ``perturbations`` parameter, the same Perturber as the env's
+  option, its noise seeded from the episode's seed that /dlo/task/state carries.
+- Physics and camera families: the sim node's ``perturbations`` parameter, the same SimConfig ranges and the same
+  rendering camera as the env's option (dlo_interface.perturbations.sim_config, cameras), camera_info staying the
+  nominal camera's. A family the sim node ignored would give the env's episodes without it, which differ.
+
+The nodes are started here one by one with scripts/ros2run, as launch_graph.sh starts them. The shipped SAC policy
+acts; the episodes' returns, lengths and outcomes must equal the env's. A family given to the node that does not own
+it, or a bad setting, is one line and exit 2.
 """
 
 import json
 import pathlib
+import subprocess
 import sys
 
 import pytest
@@ -26,17 +32,23 @@ PERTURBATIONS = (
 )
 
 
+# a physics family beyond the training friction range (0.04-0.3) and a camera family, on the sim node
+SIM_PERTURBATIONS = "friction=0.6,camera_yaw=2"
+SIM_SEED, SIM_EPISODES = 7105, 3
+
+
 def node(package, executable, *parameters):
     return [str(ROS2RUN), package, executable, "--ros-args", *[a for p in parameters for a in ("-p", p)]]
 
 
-@pytest.fixture(scope="module")
-def graph_episodes(tmp_path_factory):
+def run_graph(outcomes, seed, episodes, sim_parameters=(), policy_parameters=()):
+    """The step-locked graph of the shipped policy (its training's sim settings) for ``episodes`` episodes from
+    ``seed``, with these extra parameters of the sim and the policy node: (settings, the sim's outcome lines, the
+    sim's output, the policy's output)."""
     from dlo_policy.policy_node import shipped_policy_path
     from dlo_policy.rundir import trained_sim_settings
 
     settings = trained_sim_settings(shipped_policy_path())
-    outcomes = tmp_path_factory.mktemp("graph_perturbed") / "outcomes.jsonl"
     env = package_test_env("dlo_policy", "policy_node")
     with Procs(env) as procs:
         sim = procs(
@@ -45,44 +57,118 @@ def graph_episodes(tmp_path_factory):
                 "dlo_sim",
                 "sim_node",
                 "mode:=step_locked",
-                f"seed:={SEED}",
-                f"episodes:={EPISODES}",
+                f"seed:={seed}",
+                f"episodes:={episodes}",
                 "min_subscribers:=3",
                 f"summary_file:={outcomes}",
                 f"task_rules:={settings['task_rules']}",
                 f"single_particle_grip:={str(settings['single_particle_grip']).lower()}",
+                *sim_parameters,
             ),
         )
         sim.wait_line("alone on ROS_DOMAIN_ID", timeout=120)  # it looks for another simulator first (as the launcher)
-        procs("tactile", node("dlo_perception", "tactile_node", f"seed:={SEED}"))
+        procs("tactile", node("dlo_perception", "tactile_node", f"seed:={seed}"))
         procs("vision", node("dlo_perception", "vision_node"))
-        policy = procs("policy", node("dlo_policy", "policy_node", "policy:=sac", f"perturbations:={PERTURBATIONS}"))
+        policy = procs("policy", node("dlo_policy", "policy_node", "policy:=sac", *policy_parameters))
         assert sim.wait(timeout=900) == 0, sim.output()[-3000:] + policy.output()[-2000:]
-        assert "perturbations observation_delay=1," in policy.output()
-    return settings, [json.loads(line) for line in outcomes.read_text().splitlines()]
+        sim_output, policy_output = sim.output(), policy.output()
+    return settings, [json.loads(line) for line in outcomes.read_text().splitlines()], sim_output, policy_output
+
+
+def shipped_env(settings, seed, perturbations=None):
+    from dlo_policy.env import make_env
+
+    return make_env(
+        "All",
+        seed=seed,
+        task_rules=settings["task_rules"],
+        single_particle_grip=settings["single_particle_grip"],
+        perturbations=perturbations,
+    )
+
+
+def env_returns(env, agent, seeds) -> list:
+    """The deterministic shipped policy's return in ``env`` on each of these episode seeds."""
+    returns = []
+    for seed in seeds:
+        observation, _ = env.reset(seed=seed)
+        done, info = False, {}
+        while not done:
+            observation, _, terminated, truncated, info = env.step(agent.predict(observation[None], deterministic=True)[0])
+            done = terminated or truncated
+        returns.append(info["episode_return"])
+    return returns
+
+
+@pytest.fixture(scope="module")
+def graph_episodes(tmp_path_factory):
+    outcomes = tmp_path_factory.mktemp("graph_perturbed") / "outcomes.jsonl"
+    settings, episodes, _, policy_output = run_graph(
+        outcomes, SEED, EPISODES, policy_parameters=(f"perturbations:={PERTURBATIONS}",)
+    )
+    assert "perturbations observation_delay=1," in policy_output
+    return settings, episodes
+
+
+@pytest.fixture(scope="module")
+def sim_perturbed_episodes(tmp_path_factory):
+    outcomes = tmp_path_factory.mktemp("graph_sim_perturbed") / "outcomes.jsonl"
+    settings, episodes, sim_output, _ = run_graph(
+        outcomes, SIM_SEED, SIM_EPISODES, sim_parameters=(f"perturbations:={SIM_PERTURBATIONS}",)
+    )
+    assert f"perturbations {SIM_PERTURBATIONS}," in sim_output  # its start line says what it runs under
+    return settings, episodes
 
 
 def test_perturbed_episodes_in_the_graph_equal_the_in_process_env(graph_episodes):
-    from dlo_policy.env import make_env
     from dlo_policy.policy_node import shipped_policy_path
     from dlo_policy.sac import SAC
 
     settings, episodes = graph_episodes
     agent = SAC.load(shipped_policy_path())
-    env = make_env(
-        "All",
-        seed=SEED,
-        task_rules=settings["task_rules"],
-        single_particle_grip=settings["single_particle_grip"],
-        perturbations=PERTURBATIONS,
-    )
+    env = shipped_env(settings, SEED, PERTURBATIONS)
     assert [e["seed"] for e in episodes] == list(range(SEED, SEED + EPISODES))
     plain_returns = [info["episode_return"] for info in replay_and_compare(env, agent, episodes)]
     # the perturbations did act: the unperturbed env gives other episodes
-    plain = make_env("All", seed=SEED, task_rules=settings["task_rules"], single_particle_grip=settings["single_particle_grip"])
-    observation, _ = plain.reset(seed=SEED)
-    done, info = False, {}
-    while not done:
-        observation, _, terminated, truncated, info = plain.step(agent.predict(observation[None], deterministic=True)[0])
-        done = terminated or truncated
-    assert info["episode_return"] != plain_returns[0]
+    assert env_returns(shipped_env(settings, SEED), agent, [SEED]) != plain_returns[:1]
+
+
+def test_physics_and_camera_perturbations_of_the_sim_node_equal_the_in_process_env(sim_perturbed_episodes):
+    """friction (physics: the SimConfig range every episode draws from) and camera_yaw (the camera that renders,
+    the vision assuming the nominal one) on the sim node: the graph's episodes are the env's with both families,
+    and the env's with either family left out are other episodes (so the graph applied each of them)."""
+    from dlo_policy.policy_node import shipped_policy_path
+    from dlo_policy.sac import SAC
+
+    settings, episodes = sim_perturbed_episodes
+    agent = SAC.load(shipped_policy_path())
+    seeds = list(range(SIM_SEED, SIM_SEED + SIM_EPISODES))
+    assert [e["seed"] for e in episodes] == seeds
+    replay_and_compare(shipped_env(settings, SIM_SEED, SIM_PERTURBATIONS), agent, episodes)
+    graph = [e["episode_return"] for e in episodes]
+    for family in ("friction", "camera_yaw"):  # the sim node ignoring either would equal the env without it
+        rest = ",".join(p for p in SIM_PERTURBATIONS.split(",") if not p.startswith(family + "="))
+        assert env_returns(shipped_env(settings, SIM_SEED, rest), agent, seeds) != graph, family
+
+
+@pytest.mark.parametrize(
+    "value, message",
+    [
+        (
+            "observation_delay=1",
+            "observation_delay: observation and action perturbations belong to the policy node, not the simulator "
+            "(here: friction, stretch_stiffness, bending_stiffness, cable_length, particle_mass, camera_offset, "
+            "camera_yaw)",
+        ),
+        ("frction=0.6", "unknown perturbation 'frction'; did you mean 'friction'?"),
+        ("camera_yaw=100", "camera_yaw: expected a number in [0, 90] (deg), got 100"),
+    ],
+)
+def test_a_perturbation_the_sim_node_does_not_own_or_cannot_read_is_one_line(value, message, tmp_path):
+    env = package_test_env("dlo_sim", "sim_node")  # skips without the workspace
+    result = subprocess.run(
+        node("dlo_sim", "sim_node", f"perturbations:={value}"), env=env, cwd=tmp_path, capture_output=True, text=True, timeout=300
+    )
+    assert result.returncode == 2 and "Traceback" not in result.stderr, result.stderr
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"[sim_node] bad parameter: parameter 'perturbations': {message}"), lines
