@@ -106,15 +106,18 @@ class TrainConfig:
     test_episodes: int = _key(100, "held-out test of the best evaluation's policy after training (test.json)")
     test_seed: int = _key(5_000, "held-out test seeds test_seed .. test_seed + test_episodes - 1")
     eval_without: tuple[str, ...] = _key((), "also evaluate with these modalities blanked (ablation), e.g. [T, V]")
-    checkpoint_every: int = _key(5000, "env steps between full checkpoints (replay buffer included)")
+    checkpoint_every: int = _key(
+        0, "env steps between full checkpoints (replay buffer included); 0: a tenth of the run, between 100 and 5,000"
+    )
     num_threads: int = _key(0, "torch threads; 0: every core this process may use")
     progress: bool = _key(True, "tqdm progress bar")
     device: str = _key("auto", "SAC's device: auto (cuda if available), cpu or cuda")
     sim_arch: str = _key("cpu", "the simulator's Taichi backend: cpu or cuda")
 
     def __post_init__(self) -> None:
-        for name in ("total_steps", "eval_every", "eval_episodes", "checkpoint_every", "test_episodes"):
+        for name in ("total_steps", "eval_every", "eval_episodes", "test_episodes"):
             _require(getattr(self, name) >= 1, f"train.{name}", ">= 1")
+        _require(self.checkpoint_every >= 0, "train.checkpoint_every", ">= 0 (0: a tenth of the run)")
         _require(self.num_threads >= 0, "train.num_threads", ">= 0")
         _require(self.device in ("auto", "cpu", "cuda") or self.device.startswith("cuda:"), "train.device", "auto, cpu or cuda")
         _require(self.sim_arch in ("cpu", "cuda"), "train.sim_arch", "cpu or cuda")

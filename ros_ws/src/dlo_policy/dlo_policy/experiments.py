@@ -88,7 +88,6 @@ from .train import (
     Trainer,
     TrainingInterrupted,
     available_cores,
-    checkpoint_every_given,
     default_checkpoint_every,
     run_trainer,
     set_threads,
@@ -763,8 +762,8 @@ def _grid_configs(args) -> tuple[list, list]:
         specs = [s for s in specs if s.label in wanted]
     check_override_keys(args.overrides)
     configs = [run_config(s, args.config, args.overrides, args.steps, args.threads) for s in specs]
-    if not checkpoint_every_given(args.config, args.overrides):  # a short grid's runs can be resumed too
-        for config in configs:
+    for config in configs:  # 0, the default: a tenth of the run, so that a short grid's runs can be resumed too
+        if config.train.checkpoint_every == 0:
             config.train.checkpoint_every = default_checkpoint_every(config.train.total_steps)
     for config in configs:
         check_env_options(config)

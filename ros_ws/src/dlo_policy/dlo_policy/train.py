@@ -35,7 +35,7 @@ for each of `train.eval_without`).
 The paper reports the best evaluation during training; the held-out test is the unbiased number.
 
 The run directory also holds config.yaml (resolved config), checkpoint.pt (everything, replay
-buffer included, at the first episode end after every `train.checkpoint_every` steps; unless set, a
+buffer included, at the first episode end after every `train.checkpoint_every` steps; 0, the default: a
 tenth of the run's steps, between 100 and 5,000, recorded in config.yaml), policy.pt (actor only, at the end) and
 done.json (completion marker with a summary; "sources": the git commit of every part of the run,
 {"commit", "dirty", "from_step"}, one per start or resume, "source" the first; dlo-experiments skips
@@ -83,14 +83,13 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Optional, Sequence
 
 import numpy as np
-import yaml
 from dlo_common import taichi_runtime
 from dlo_common.console import EXIT_INTERRUPTED, Progress, console_main
 from dlo_interface.task import DEFAULT_TASK_RULES, LEGACY_TASK_RULES, task_rules
 
 from . import rundir
 from .cli import check_override_keys
-from .config import ConfigError, RunConfig, TrainConfig, check_env_options, load_config, make_env, record_task_rules, save_config
+from .config import ConfigError, RunConfig, check_env_options, load_config, make_env, record_task_rules, save_config
 from .modalities import ALL_NAME
 from .modalities import names as modality_names
 from .rundir import BEST_POLICY_FILE, CHECKPOINT_FILE, CONFIG_FILE, EVAL_FILE, POLICY_FILE, TB_DIR, EvalLog
@@ -126,7 +125,7 @@ def evaluate_agent(*args: Any, **kwargs: Any) -> Any:
 
 EVAL_SEED_STRIDE = 100_000  # eval seeds of run seed s lie in eval_seed + [s, s + 1) * EVAL_SEED_STRIDE
 TB_EVERY = 100  # TensorBoard: losses and speed averaged over this many steps
-CHECKPOINT_EVERY_MAX = TrainConfig.checkpoint_every  # train.checkpoint_every unless set: a tenth of the run,
+CHECKPOINT_EVERY_MAX = 5000  # train.checkpoint_every 0 (the default): a tenth of the run,
 CHECKPOINT_EVERY_MIN = 100  # between these two (default_checkpoint_every)
 
 
@@ -178,28 +177,10 @@ def eval_seeds(config: RunConfig, evaluation: int) -> int:
 
 
 def default_checkpoint_every(total_steps: int) -> int:
-    """train.checkpoint_every of a run that does not set it: a tenth of its steps, at least
-    CHECKPOINT_EVERY_MIN, at most CHECKPOINT_EVERY_MAX (5,000, the config default), so that a short run
-    (1,500 steps: every 150) has checkpoints to resume from too."""
+    """train.checkpoint_every of a run that leaves it 0 (the default): a tenth of its steps, at least
+    CHECKPOINT_EVERY_MIN, at most CHECKPOINT_EVERY_MAX, so that a short run (1,500 steps: every 150) has
+    checkpoints to resume from too; a copy of config/sac_default.yaml keeps that default."""
     return min(CHECKPOINT_EVERY_MAX, max(CHECKPOINT_EVERY_MIN, math.ceil(total_steps / 10)))
-
-
-def checkpoint_every_given(config_file: Optional[Path], overrides: Sequence[str]) -> bool:
-    """Whether train.checkpoint_every is set by a key=value override or the --config file (both already
-    read by load_config: well-formed)."""
-    for override in overrides:
-        key, _, text = override.partition("=")
-        if key.strip() == "train.checkpoint_every":
-            return True
-        if key.strip() == "train":
-            section = yaml.safe_load(text)
-            if isinstance(section, dict) and "checkpoint_every" in section:
-                return True
-    if config_file is not None:
-        data = yaml.safe_load(Path(config_file).read_text())
-        section = data.get("train") if isinstance(data, dict) else None
-        return isinstance(section, dict) and "checkpoint_every" in section
-    return False
 
 
 class TrainingInterrupted(Exception):
@@ -381,7 +362,9 @@ class Trainer:
             self.evaluate()
             self.bar.set_status(progress_status(self.last_eval, self.recent_returns, agent.alpha))
         self.bar.update(1)  # after an evaluation at this step: its line shows it
-        self.checkpoint_due |= step % self.config.train.checkpoint_every == 0
+        self.checkpoint_due |= (
+            step % (self.config.train.checkpoint_every or default_checkpoint_every(self.config.train.total_steps)) == 0
+        )
         if self.checkpoint_due and ended:
             self.save_checkpoint()
         if self.stop.requested and ended:  # SIGINT / SIGTERM: stop here, at an episode boundary, checkpointed
@@ -628,7 +611,7 @@ def resolve_config(args: argparse.Namespace) -> RunConfig:
         "train.progress": False if args.no_progress else None,
     }
     config = load_config(source, args.overrides, {k: v for k, v in flags.items() if v is not None})
-    if not args.resume and not checkpoint_every_given(args.config, args.overrides):
+    if config.train.checkpoint_every == 0:
         config.train.checkpoint_every = default_checkpoint_every(config.train.total_steps)
     return config
 

@@ -39,4 +39,4 @@ def test_every_key_has_its_description_as_its_comment():
     text = defaults_yaml()
     assert all("#" in line for line in text.splitlines() if ":" in line and not line.endswith(":"))
     assert "  tau: 0.01                     # polyak factor of the target critics\n" in text
-    assert "sim_arch: cpu           # the simulator's Taichi backend: cpu or cuda\n" in text
+    assert "  sim_arch: cpu        # the simulator's Taichi backend: cpu or cuda\n" in text

@@ -118,3 +118,6 @@ def test_a_checkpoint_interval_that_is_set_is_kept(tmp_path):
     assert resolved("--steps", "1500", "--config", str(config_file)).train.checkpoint_every == 9
     config_file.write_text("train: {eval_every: 300}\n")
     assert resolved("--steps", "1500", "--config", str(config_file)).train.checkpoint_every == 150
+    shipped = Path(train.__file__).resolve().parents[1] / "config" / "sac_default.yaml"  # a user's copy of it
+    assert resolved("--steps", "1500", "--config", str(shipped)).train.checkpoint_every == 150
+    assert resolved("--steps", "1500", "train.checkpoint_every=0").train.checkpoint_every == 150
