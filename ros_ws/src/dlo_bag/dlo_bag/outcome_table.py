@@ -78,12 +78,14 @@ def run_header(
     mode: str = "",
     policy_line: str = "",
     train_out: str = "",
+    perturbations: str = "",
 ) -> str:
     """What produced the outcomes: policy (and the modalities it observes, from the policy node's start-up
     line ``policy_line``, e.g. 'policy sac on T+K+V without T'), checkpoint, ablation, tactile noise (a
     setting as ``dlo_perception.tactile.noise_setting`` reads it, '' = none; named by ``noise_label``: a
     preset with its numbers, a custom pair as numbers), clock mode, the task rules and the grip (finite, or
-    single-particle) the episodes ran under (from the episodes themselves) and their seeds."""
+    single-particle) the episodes ran under (from the episodes themselves), the robustness perturbations
+    (``perturbations``: the launcher's setting, named only when one is on) and their seeds."""
     observes = re.search(r" on ([A-Za-z+]+)", policy_line or "")
     described = f"policy {policy or '?'}" + (f" observing {observes.group(1)}" if observes else "")
     if policy == "sac":
@@ -103,6 +105,7 @@ def run_header(
         + (f"; mode {mode}" if mode else "")
         + f"; task rules {', '.join(rules) or LEGACY_TASK_RULES}"
         + f"; grip {', '.join(grips) or 'finite'}"
+        + (f"; perturbations {perturbations}" if perturbations else "")
         + f"; seeds {seeds} ({count})"
     )
 

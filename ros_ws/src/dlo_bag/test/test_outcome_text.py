@@ -54,6 +54,9 @@ def test_run_header_names_policy_checkpoint_ablation_noise_mode_and_seeds():
     single = [dict(EPISODE, single_particle_grip=True)]  # the sim node notes its grip in every episode
     assert "; grip single-particle; " in run_header(single, "sac")
     assert "; grip finite, single-particle; " in run_header(episodes[:1] + single, "sac")  # a mixed file: both
+    perturbed = run_header(episodes, "sac", perturbations="friction=0.6,observation_delay=1")
+    assert "; grip finite; perturbations friction=0.6,observation_delay=1; seeds " in perturbed
+    assert "perturbations" not in shipped  # none on: not named
     assert seed_ranges([]) == "none" and seed_ranges([2, 1, 3, 3]) == "1..3"
 
 

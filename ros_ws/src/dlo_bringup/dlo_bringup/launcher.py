@@ -537,7 +537,19 @@ class Launcher:
         except (OSError, ValueError) as error:
             print(f"[launch] cannot read {outcomes}: {error}", file=sys.stderr, flush=True)
         else:
-            self.say(run_header(episodes, o.policy, o.checkpoint, o.without, o.tactile_noise, o.mode, policy_line, o.train_out))
+            self.say(
+                run_header(
+                    episodes,
+                    o.policy,
+                    o.checkpoint,
+                    o.without,
+                    o.tactile_noise,
+                    o.mode,
+                    policy_line,
+                    o.train_out,
+                    o.perturbations,
+                )
+            )
             self.say(outcome_table(episodes))
         if not o.record:
             return rc
