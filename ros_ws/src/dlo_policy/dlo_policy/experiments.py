@@ -88,7 +88,7 @@ from .train import (
     Trainer,
     TrainingInterrupted,
     available_cores,
-    default_checkpoint_every,
+    resolve_checkpoint_every,
     run_trainer,
     set_threads,
 )
@@ -763,8 +763,7 @@ def _grid_configs(args) -> tuple[list, list]:
     check_override_keys(args.overrides)
     configs = [run_config(s, args.config, args.overrides, args.steps, args.threads) for s in specs]
     for config in configs:  # 0, the default: a tenth of the run, so that a short grid's runs can be resumed too
-        if config.train.checkpoint_every == 0:
-            config.train.checkpoint_every = default_checkpoint_every(config.train.total_steps)
+        resolve_checkpoint_every(config)
     for config in configs:
         check_env_options(config)
     return specs, configs

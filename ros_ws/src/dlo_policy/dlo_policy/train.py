@@ -183,6 +183,14 @@ def default_checkpoint_every(total_steps: int) -> int:
     return min(CHECKPOINT_EVERY_MAX, max(CHECKPOINT_EVERY_MIN, math.ceil(total_steps / 10)))
 
 
+def resolve_checkpoint_every(config: RunConfig) -> RunConfig:
+    """``config`` with train.checkpoint_every 0 (the default) replaced by default_checkpoint_every of its steps
+    (in place): what the run uses and records in config.yaml."""
+    if config.train.checkpoint_every == 0:
+        config.train.checkpoint_every = default_checkpoint_every(config.train.total_steps)
+    return config
+
+
 class TrainingInterrupted(Exception):
     """The run stopped on SIGINT / SIGTERM; `step`: the step of its checkpoint (None: none was written)."""
 
@@ -245,7 +253,7 @@ class Trainer:
             raise FileExistsError(f"{out_dir} already holds a run: pass --resume or choose another --out")
         out_dir.mkdir(parents=True, exist_ok=True)
         # the task rules are always recorded: a new run's are the default, an older run resumed keeps paper_text
-        config = record_task_rules(config, LEGACY_TASK_RULES if resume else DEFAULT_TASK_RULES)
+        config = resolve_checkpoint_every(record_task_rules(config, LEGACY_TASK_RULES if resume else DEFAULT_TASK_RULES))
         self.config = config
         # best_policy.pt is chosen by the outcome rule of the run's own task rules (module docstring)
         recorded = config.env_options.get("task_rules")  # recorded for the cable env (other envs: the paper rule)
@@ -362,9 +370,7 @@ class Trainer:
             self.evaluate()
             self.bar.set_status(progress_status(self.last_eval, self.recent_returns, agent.alpha))
         self.bar.update(1)  # after an evaluation at this step: its line shows it
-        self.checkpoint_due |= (
-            step % (self.config.train.checkpoint_every or default_checkpoint_every(self.config.train.total_steps)) == 0
-        )
+        self.checkpoint_due |= step % self.config.train.checkpoint_every == 0
         if self.checkpoint_due and ended:
             self.save_checkpoint()
         if self.stop.requested and ended:  # SIGINT / SIGTERM: stop here, at an episode boundary, checkpointed
@@ -611,9 +617,7 @@ def resolve_config(args: argparse.Namespace) -> RunConfig:
         "train.progress": False if args.no_progress else None,
     }
     config = load_config(source, args.overrides, {k: v for k, v in flags.items() if v is not None})
-    if config.train.checkpoint_every == 0:
-        config.train.checkpoint_every = default_checkpoint_every(config.train.total_steps)
-    return config
+    return resolve_checkpoint_every(config)
 
 
 def interrupted_line(stopped: TrainingInterrupted, out: Path) -> str:
