@@ -68,6 +68,24 @@ def test_env_sh_works_from_any_directory(tmp_path):
     assert result.stdout.strip().endswith("ok")
 
 
+def test_a_training_leaves_nothing_in_tmpdir(tmp_path):
+    """torch's compile cache (torchinductor_$USER, made by the first optimiser) goes under ~/.cache with the
+    other caches, not into TMPDIR: env.sh points TORCHINDUCTOR_CACHE_DIR there."""
+    tmp, home = tmp_path / "tmp", tmp_path / "home"
+    tmp.mkdir(), home.mkdir()
+    script = (
+        f"source {ROOT / 'scripts' / 'env.sh'} && python -c 'import torch; "
+        'torch.optim.Adam(torch.nn.Linear(2, 2).parameters()); print("ok")\''
+    )
+    env = {k: v for k, v in os.environ.items() if k not in ("TORCHINDUCTOR_CACHE_DIR", "XDG_CACHE_HOME")}
+    result = subprocess.run(
+        ["bash", "-c", script], capture_output=True, text=True, env={**env, "TMPDIR": str(tmp), "HOME": str(home)}, timeout=300
+    )
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.strip().endswith("ok")
+    assert sorted(p.name for p in tmp.iterdir()) == []
+
+
 def prerequisites_only(tmp_path, headers=True, tools=()):
     """A PATH holding a fake python3.11 (3.11 with venv; Python.h present or not), dirname and ``tools``:
     the set-up's first checks see a machine that lacks what is left out."""
