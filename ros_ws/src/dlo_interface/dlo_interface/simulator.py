@@ -2,7 +2,8 @@
 
 The gym environment (``dlo_policy.env``) does not import a simulator. It asks this module for a *factory*,
 
-    factory(num_envs, *, horizon, end_particles, task_rules, config, camera, render[, camera_per_env]) -> Simulator
+    factory(num_envs, *, horizon, end_particles, task_rules, move_spacing, config, camera, render[, camera_per_env])
+        -> Simulator
 
 and steps what it returns. A backend registers its factory as an entry point of the group ``ENTRY_POINT_GROUP``
 in its package's ``setup.py``; the reference backend, ``dlo_sim``'s Taichi rope, is registered as ``taichi``::
@@ -13,9 +14,11 @@ The env option ``simulator`` (``dlo-train env_options.simulator=NAME``) names th
 when it is not given; a factory (any callable) may be passed to the env in its place (tests, experiments).
 docs/ARCHITECTURE.md#simulator-backends says what a new backend must provide and how to plug it in.
 
-``Simulator`` and ``Physics`` state what the env, the observation modalities (``dlo_policy.modalities``), the
-scripted baselines and the evaluation read: the task's bookkeeping is ``dlo_interface.task.EpisodeTracker``,
-the same object for every backend, so rewards, episode ends and outcomes cannot differ between them.
+``task_rules`` and ``move_spacing`` are the task's (``dlo_interface.task``): the backend hands them to the
+``EpisodeTracker`` it builds. ``Simulator`` and ``Physics`` state what the env, the observation modalities
+(``dlo_policy.modalities``), the scripted baselines and the evaluation read: the task's bookkeeping is
+``dlo_interface.task.EpisodeTracker``, the same object for every backend, so rewards, episode ends and outcomes
+cannot differ between them.
 """
 
 from __future__ import annotations

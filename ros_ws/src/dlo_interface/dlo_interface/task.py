@@ -7,6 +7,10 @@ Reward per control step (n_h held particles, p_i their mean index, n_c particles
     R_end = ALPHA_END (p_i + END_REWARD_WINDOW - n_c)  if p_i > n_c - END_REWARD_WINDOW else 0
     R = FALL_PENALTY and the episode ends when n_h = 0.
 When nothing was held before the step (p_{t-1} < 0) there is no d_{t-1}: R_move = 0.
+Move spacing (``move_spacing``, env option / sim node parameter, off by default): > 0 replaces the cable's own
+particle spacing in d_t under either task rule, d_t = p_i move_spacing [m]; AUTHORS_MOVE_SPACING (4 mm) is the
+authors' fixed one (SoftSlidingGym ``rope_follow.py`` compute_reward: rope_length = segment x 0.004 m). 0 (the
+default): the cable's own, L_c / n_c (paper_text) or L_c / (n_c - 1) (authors_code). R_end is unchanged.
 
 Outcomes (codes equal dlo_msgs/TaskState.OUTCOME_*), decided when the episode ends, under two
 definitions that are both always computed (docs/ARCHITECTURE.md#task):
@@ -62,6 +66,9 @@ AUTHORS_HELD_HALF_WIDTH = 0.0075  # m, authors' held set: |y - y_G| below this (
 AUTHORS_HELD_DISTANCE = 0.0245  # m, authors' held set: distance to the lower finger's axis in x-z below this
 AUTHORS_HELD_ABOVE = 0.0125  # m, authors' held set: z above the lower finger's axis by more than this
 AUTHORS_END_WINDOW = 5  # authors' "at the end": (n_c - 1) - mean held index < this
+AUTHORS_MOVE_SPACING = 0.004  # m, the authors' fixed particle spacing of the move reward (module docstring)
+MAX_MOVE_SPACING = 0.01  # m, the largest move_spacing accepted (2.5 x theirs, 2.3 x our cables' longest spacing)
+DEFAULT_MOVE_SPACING = 0.0  # the cable's own spacing (module docstring)
 
 OUTCOME_NONE = 0
 OUTCOME_HOLD_THE_END = 1
@@ -88,20 +95,36 @@ def held_statistics(held_mask):
     return n_h.astype(np.int32), p_i, max_held_index
 
 
-def step_reward(prev_p_i, p_i, n_h, n_c, L_c):
+def check_move_spacing(value) -> float:
+    """``value`` as a float if it is a move spacing (module docstring): a number in [0, MAX_MOVE_SPACING] m, 0 = the
+    cable's own spacing; else ValueError with a one-line reason."""
+    if (
+        isinstance(value, bool)
+        or not isinstance(value, (int, float, np.integer, np.floating))
+        or not (0.0 <= float(value) <= MAX_MOVE_SPACING)
+    ):
+        raise ValueError(
+            f"move_spacing: expected a number in [0, {MAX_MOVE_SPACING}] m (0: the cable's own spacing, "
+            f"{AUTHORS_MOVE_SPACING}: the authors'), got {value!r}"
+        )
+    return float(value)
+
+
+def step_reward(prev_p_i, p_i, n_h, n_c, L_c, move_spacing=DEFAULT_MOVE_SPACING):
     """Reward of one control step (batched or scalar); see the module docstring."""
     prev_p_i, p_i = np.asarray(prev_p_i, dtype=np.float64), np.asarray(p_i, dtype=np.float64)
     n_c, L_c = np.asarray(n_c, dtype=np.float64), np.asarray(L_c, dtype=np.float64)
-    move = np.where(prev_p_i >= 0, ALPHA_MOVE * (p_i - prev_p_i) * L_c / n_c, 0.0)
+    moved = ALPHA_MOVE * (p_i - prev_p_i)
+    move = np.where(prev_p_i >= 0, moved * move_spacing if move_spacing > 0 else moved * L_c / n_c, 0.0)
     end = np.where(p_i > n_c - END_REWARD_WINDOW, ALPHA_END * (p_i + END_REWARD_WINDOW - n_c), 0.0)
     return np.where(np.asarray(n_h) > 0, move + end, FALL_PENALTY)
 
 
-def step_reward_authors(prev_p_a, p_a, n_h_a, n_c, L_c):
+def step_reward_authors(prev_p_a, p_a, n_h_a, n_c, L_c, move_spacing=DEFAULT_MOVE_SPACING):
     """Reward of one control step under the authors' task rules (module docstring), batched or scalar."""
     prev_p_a, p_a = np.asarray(prev_p_a, dtype=np.float64), np.asarray(p_a, dtype=np.float64)
     segments = np.asarray(n_c, dtype=np.float64) - 1.0
-    spacing = np.asarray(L_c, dtype=np.float64) / segments
+    spacing = move_spacing if move_spacing > 0 else np.asarray(L_c, dtype=np.float64) / segments
     move = np.where(prev_p_a >= 0, ALPHA_MOVE * (p_a - prev_p_a) * spacing, 0.0)
     end = np.where(p_a > segments - END_REWARD_WINDOW, ALPHA_END * (p_a + END_REWARD_WINDOW - segments), 0.0)
     return np.where(np.asarray(n_h_a) > 0, move + end, FALL_PENALTY)
@@ -115,7 +138,7 @@ class TaskRules:
     name           how configs, parameters and messages write it ("authors_code")
     authors_set    True: the authors' narrow held set (``held_mask_authors``); False: the physics' held set
     drop_at        the episode ends (a drop) when that set holds at most this many particles
-    reward         (previous mean index, mean index, n_held, n_c, L_c) of that set -> the step's reward
+    reward         (previous mean index, mean index, n_held, n_c, L_c, move_spacing) of that set -> the step's reward
     outcome_key    the evaluation column of the outcome rule that goes with it: what chooses a run's best policy
     """
 
@@ -235,13 +258,22 @@ class EpisodeTracker:
     after every control step. ``step`` returns (reward, terminated, truncated): terminated = dropped,
     truncated = horizon reached while holding. Finished episodes keep their ``outcome`` (paper
     text) and ``outcome_authors`` (authors' code) and metrics until the next ``reset`` of that
-    environment. ``p_i_authors``: mean index of ``held_mask_authors`` (-1 when it is empty).
+    environment. ``p_i_authors``: mean index of ``held_mask_authors`` (-1 when it is empty). ``move_spacing``: the
+    move reward's particle spacing [m], 0 = the cable's own (module docstring; ValueError for a bad one).
     """
 
-    def __init__(self, num_envs, horizon=HORIZON, end_particles=END_PARTICLES, task_rules=DEFAULT_TASK_RULES):
+    def __init__(
+        self,
+        num_envs,
+        horizon=HORIZON,
+        end_particles=END_PARTICLES,
+        task_rules=DEFAULT_TASK_RULES,
+        move_spacing=DEFAULT_MOVE_SPACING,
+    ):
         self.num_envs, self.horizon, self.end_particles = int(num_envs), int(horizon), int(end_particles)
         self.rules = _rules(task_rules)
         self.task_rules = self.rules.name
+        self.move_spacing = check_move_spacing(move_spacing)
         n = self.num_envs
         self.prev_p_i = np.full(n, -1.0)
         self.steps = np.zeros(n, np.int64)
@@ -279,6 +311,7 @@ class EpisodeTracker:
             rules.select(n_h, n_h_authors),
             n_c,
             L_c,
+            self.move_spacing,
         )
         end_now = at_end(max_held_index, n_c, self.end_particles)
         self.steps += 1
@@ -317,4 +350,5 @@ class EpisodeTracker:
             "episode_return": float(self.episode_return[env_id]),
             "episode_length": int(self.steps[env_id]),
             "task_rules": self.task_rules,
+            "move_spacing": self.move_spacing,
         }

@@ -322,6 +322,45 @@ def test_an_authors_code_tracker_rewards_each_step_from_the_previous_one():
     assert reward.tolist() == [0.0, 0.0] and not terminated.any()
 
 
+def test_move_spacing_replaces_the_cables_own_spacing_in_the_move_term_under_both_task_rules():
+    """move_spacing > 0 (the authors' fixed 4 mm): the move term is ALPHA_MOVE (p - p_prev) move_spacing under either
+    task rule, whatever the cable's length; 0 is the cable's own spacing, bit for bit what it was; the end term and
+    the fall penalty do not change. A tracker given one rewards with it and says it in its summary."""
+    n_c, L_c = 41, 40 * 0.0043  # 4.3 mm particles: the two spacings differ
+    for reward, own in ((task.step_reward, L_c / n_c), (task.step_reward_authors, L_c / (n_c - 1))):
+        assert reward(5.0, 7.0, 3, n_c, L_c, move_spacing=0.004) == pytest.approx(10 * 2 * 0.004)
+        assert reward(5.0, 7.0, 3, n_c, L_c, move_spacing=0.004) != pytest.approx(10 * 2 * own)
+        assert reward(5.0, 7.0, 3, n_c, L_c, move_spacing=0.0) == reward(5.0, 7.0, 3, n_c, L_c)
+        assert reward(5.0, 7.0, 3, n_c, L_c) == pytest.approx(10 * 2 * own)
+        # the end term is the same with either spacing: only the move term (here 10 x 1 particle) scales
+        with_end = reward(35.0, 36.0, 3, n_c, L_c, move_spacing=0.004) - reward(35.0, 36.0, 3, n_c, L_c)
+        assert with_end == pytest.approx(10 * (0.004 - own))
+        assert reward(10.0, -1.0, 0, n_c, L_c, move_spacing=0.004) == -0.5
+        assert reward(-1.0, 3.0, 2, n_c, L_c, move_spacing=0.004) == 0.0
+    batch = task.step_reward([1.0, 1.0], [2.0, 3.0], [2, 2], [30, 60], [0.12, 0.26], move_spacing=0.004)
+    assert batch == pytest.approx([10 * 0.004, 10 * 2 * 0.004])  # both cables: the same spacing
+    for rules in task.TASK_RULES:
+        spaced, plain = EpisodeTracker(1, task_rules=rules, move_spacing=0.004), EpisodeTracker(1, task_rules=rules)
+        for tracker in (spaced, plain):
+            tracker.reset(None, [3.0], [4], [n_c], [3.0])
+        rewards = [t.step([5.0], [3], [6], [n_c], [L_c], [5.0], [3])[0][0] for t in (spaced, plain)]
+        assert rewards[0] == pytest.approx(10 * 2 * 0.004) and rewards[0] != pytest.approx(rewards[1]), rules
+        assert (spaced.summary(0)["move_spacing"], plain.summary(0)["move_spacing"]) == (0.004, 0.0)
+
+
+@pytest.mark.parametrize("bad", [-0.001, float("nan"), float("inf"), 0.0101, True, "0.004", None])
+def test_a_bad_move_spacing_is_a_one_line_error(bad):
+    with pytest.raises(ValueError, match=r"^move_spacing: expected a number in \[0, 0\.01\] m \(0: the cable's own"):
+        task.check_move_spacing(bad)
+    with pytest.raises(ValueError, match="^move_spacing: "):
+        EpisodeTracker(1, move_spacing=bad)
+    assert (task.check_move_spacing(0), task.check_move_spacing(0.01), task.check_move_spacing(np.float64(0.004))) == (
+        0.0,
+        0.01,
+        0.004,
+    )
+
+
 def test_task_rules_are_records_that_say_their_held_set_end_and_outcome_rule():
     """dlo_interface.task.RULES: one record per variant; callers ask it (held set, drop, reward, outcome column) instead of
     comparing names; records of old runs and bags without the field read as the legacy rules, in one place."""

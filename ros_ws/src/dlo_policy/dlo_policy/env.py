@@ -26,6 +26,9 @@ Options (keywords of both entry points):
     task_rules="authors_code"  "authors_code" | "paper_text": the held set, reward and termination the
                           episode uses, and the held set the tactile input is fitted to (dlo_interface.task;
                           default dlo_interface.task.DEFAULT_TASK_RULES, docs/FIDELITY.md)
+    move_spacing=0.0      m, the particle spacing of the move reward under either task rule: 0 = the cable's own
+                          (L_c / n_c, or L_c / (n_c - 1) under authors_code); 0.004 = the authors' fixed 4 mm
+                          (their rope_length = segment x 0.004, dlo_interface.task, docs/FIDELITY.md); up to 0.01
     camera_resolution=128 top-view image size [px]
     sim_config=None       a dlo_interface.sim_config.SimConfig
     single_particle_grip=False  true: the grip carries ONE particle, the held one nearest the finger axis
@@ -101,6 +104,7 @@ def check_options(options) -> None:
         "camera_resolution",
         "sim_config",
         "task_rules",
+        "move_spacing",
         "single_particle_grip",
         "physics_seed",
         "vision_source",
@@ -141,9 +145,11 @@ def _check_observation_options(options) -> None:
 
 
 def _check_variant_options(options) -> None:
-    """The task rules and the authors' variants: vision_source, single_particle_grip, physics_seed."""
+    """The task rules and the authors' variants: move_spacing, vision_source, single_particle_grip, physics_seed."""
     if "task_rules" in options:
         task.check_task_rules(options["task_rules"])
+    if "move_spacing" in options:
+        task.check_move_spacing(options["move_spacing"])
     if "vision_source" in options:
         check_vision_source(options["vision_source"])
     if not isinstance(options.get("single_particle_grip", False), bool):
@@ -188,6 +194,7 @@ class CableFollowingVecEnv(VectorEnv):
         sim_config=None,
         autoreset=True,
         task_rules=task.DEFAULT_TASK_RULES,
+        move_spacing=task.DEFAULT_MOVE_SPACING,
         single_particle_grip=False,
         physics_seed=-1,
         vision_source=DEFAULT_VISION_SOURCE,
@@ -200,6 +207,7 @@ class CableFollowingVecEnv(VectorEnv):
     ):
         check_options(
             {
+                "move_spacing": move_spacing,
                 "single_particle_grip": single_particle_grip,
                 "physics_seed": physics_seed,
                 "vision_source": vision_source,
@@ -249,6 +257,7 @@ class CableFollowingVecEnv(VectorEnv):
             **({"camera_per_env": True} if self.camera_per_env else {}),
             render=vision_source == "image" and any(by_name(m).renders for m in self._observed()),
             task_rules=task_rules,
+            move_spacing=float(move_spacing),
         )
         self.sim, self.tracker = self.task.sim, self.task.tracker
         self.default_seed = int(seed)

@@ -189,6 +189,46 @@ def test_fidelity_lever_options_reach_the_simulator_and_bad_values_are_one_line_
     )
 
 
+def test_move_spacing_reaches_the_reward_and_bad_values_are_one_line_errors():
+    """env_options.move_spacing (docs/FIDELITY.md): absent or 0, the cable's own spacing; 0.004 (the authors'), the
+    same episodes (observations, ends) with the move term on 4 mm particles under either task rule: every step's
+    reward differs by ALPHA_MOVE x the mean held index gained x (4 mm - the cable's own spacing); anything else is
+    refused with one line before a simulator is built."""
+    from dlo_interface import task
+    from dlo_policy.config import ConfigError, check_env_options, load_config
+
+    actions = np.tile(np.array([[0.5, 0.0, 0.2]], np.float32), (2, 1))  # forward, sliding grip: it moves along
+    for rules in task.TASK_RULES:
+        plain, zero, spaced = (
+            make_vec_env(2, "K", seed=3, task_rules=rules, **options)
+            for options in ({}, {"move_spacing": 0}, {"move_spacing": 0.004})
+        )
+        assert (plain.tracker.move_spacing, zero.tracker.move_spacing, spaced.tracker.move_spacing) == (0.0, 0.0, 0.004)
+        for env in (plain, zero, spaced):
+            env.reset(seed=3)
+        gained = 0.0
+        for _ in range(6):
+            held = plain.task.mean_held_index_authors if rules == "authors_code" else plain.task.mean_held_index
+            before = held.copy()
+            a, b, c = plain.step(actions), zero.step(actions), spaced.step(actions)
+            assert np.array_equal(a[0], c[0]) and np.array_equal(a[2], c[2])  # the same episodes
+            assert np.array_equal(a[1], b[1])  # 0: the cable's own spacing, bit for bit
+            held = plain.task.mean_held_index_authors if rules == "authors_code" else plain.task.mean_held_index
+            n_c, L_c = plain.sim.num_particles, plain.sim.cable_length
+            own = L_c / (n_c - 1) if rules == "authors_code" else L_c / n_c
+            ended = a[2] | a[3]  # a drop (the fall penalty either way) or a new episode's first index
+            moved = np.where((before >= 0) & (held >= 0) & ~ended, held - before, 0.0)
+            assert c[1] - a[1] == pytest.approx(10 * moved * (0.004 - own), abs=1e-9), rules
+            gained += np.abs(moved).sum()
+        assert gained > 0, rules  # the gripper moved along the cable: the spacing showed
+    for bad in (-0.001, 0.02, float("nan"), "0.004", True):
+        with pytest.raises(ValueError, match=r"^move_spacing: expected a number in \[0, 0\.01\] m"):
+            make_env("K", move_spacing=bad)
+    with pytest.raises(ConfigError, match=r"^env_options: move_spacing: expected a number in \[0, 0\.01\] m"):
+        check_env_options(load_config(None, ["env_options.move_spacing=0.5"]))
+    check_env_options(load_config(None, ["env_options.move_spacing=0.004"]))
+
+
 def test_the_authors_start_pose_starts_8_mm_behind_and_2_25_mm_lower_and_the_image_is_read_at_that_height():
     """start_pose=authors (their Picker.reset): the gripper starts 8 mm behind the fixed end and 2.25 mm below it and
     moves in that plane; the image source reads V at the gripper's own height, as the vision node does with the
@@ -237,7 +277,7 @@ def test_the_env_steps_the_simulator_backend_it_is_given():
         return simulator_factory("taichi")(num_envs, **options)
 
     given = make_vec_env(2, "K+T", seed=4, simulator=recording)
-    assert calls == [(2, ["camera", "config", "end_particles", "horizon", "render", "task_rules"])]
+    assert calls == [(2, ["camera", "config", "end_particles", "horizon", "move_spacing", "render", "task_rules"])]
     actions = np.tile(np.array([[0.6, 0.1, 0.2]], np.float32), (2, 1))
     for env in (default, given):
         env.reset(seed=4)

@@ -7,7 +7,15 @@ step (physics, reward, ending) is the same code in-process and in the graph.
 from __future__ import annotations
 
 import numpy as np
-from dlo_interface.task import DEFAULT_TASK_RULES, END_PARTICLES, HORIZON, EpisodeTracker, held_mask_authors, held_statistics
+from dlo_interface.task import (
+    DEFAULT_MOVE_SPACING,
+    DEFAULT_TASK_RULES,
+    END_PARTICLES,
+    HORIZON,
+    EpisodeTracker,
+    held_mask_authors,
+    held_statistics,
+)
 from dlo_interface.task import task_rules as task_rules_record
 
 from dlo_sim.rope import RopeSim, Snapshot
@@ -22,7 +30,8 @@ class TaskSim:
     are its held statistics (n_h, p_i); ``held_authors`` (N, P_MAX), ``n_held_authors`` and
     ``mean_held_index_authors`` (N,) the same for the authors' narrower held set (the second outcome
     definition). ``task_rules`` (``dlo_interface.task.TASK_RULES``) says which of the two the task's reward,
-    termination and the tactile input use: ``held_task`` is that mask.
+    termination and the tactile input use: ``held_task`` is that mask. ``move_spacing``: the move reward's particle
+    spacing [m] (``dlo_interface.task``; 0, the default: the cable's own).
     """
 
     def __init__(
@@ -32,11 +41,14 @@ class TaskSim:
         end_particles: int = END_PARTICLES,
         render: bool = False,
         task_rules: str = DEFAULT_TASK_RULES,
+        move_spacing: float = DEFAULT_MOVE_SPACING,
         **sim_options,
     ):
         self.rules = task_rules_record(task_rules)
         self.sim = RopeSim(num_envs, **sim_options)
-        self.tracker = EpisodeTracker(self.sim.num_envs, horizon=horizon, end_particles=end_particles, task_rules=task_rules)
+        self.tracker = EpisodeTracker(
+            self.sim.num_envs, horizon=horizon, end_particles=end_particles, task_rules=task_rules, move_spacing=move_spacing
+        )
         self.task_rules = task_rules
         self.render = bool(render)
         self.state: Snapshot | None = None
