@@ -13,8 +13,12 @@ setup(
         ("share/" + package_name, ["package.xml"]),
         # the SAC defaults and the policy node's parameters file (tools/gen_node_configs.py)
         ("share/" + package_name + "/config", ["config/sac_default.yaml", "config/policy_node.yaml"]),
-        # the shipped All-modalities policy (actor + run config), used by policy_node by default
-        ("share/" + package_name + "/policies/all", sorted(glob("policies/all/*"))),
+        # the shipped policies, one directory each (actor + run config + README): policies/all, the All-modalities
+        # policy, is what policy_node runs by default; another is picked by name (--checkpoint shipped:NAME)
+        *[
+            ("share/" + package_name + "/" + d, sorted(glob(d + "/*")))
+            for d in sorted(p.rstrip("/") for p in glob("policies/*/"))
+        ],
     ],
     install_requires=["setuptools"],
     zip_safe=True,

@@ -33,7 +33,12 @@ OPTIONS = (
     ("mode", "MODE", "step_locked", "step_locked (default, deterministic) or real_time"),
     ("rate-factor", "F", "1.0", "real_time: simulation speed relative to wall time (default 1.0)"),
     ("policy", "P", "sac", "sac (default: the shipped All policy), tactile_reactive, oracle or random"),
-    ("checkpoint", "PATH", "", "policy file for --policy sac (default: the shipped policy)"),
+    (
+        "checkpoint",
+        "PATH",
+        "",
+        "policy file for --policy sac, or shipped:NAME, a shipped policy (default: shipped, the shipped All policy)",
+    ),
     (
         "without",
         "M",
@@ -236,7 +241,7 @@ def check(o: GraphOptions) -> None:
             raise UsageError(f"--perturbations: {error}") from None
     if o.policy not in POLICIES:
         raise UsageError(f"--policy must be one of {', '.join(POLICIES)}, got '{o.policy}'")
-    if o.checkpoint and not os.path.isfile(o.checkpoint):
+    if o.checkpoint and not checkpoint_file(o.checkpoint).is_file():
         raise UsageError(f"--checkpoint {o.checkpoint}: no such file")
     if not re.fullmatch(r"[0-9]+([.][0-9]+)?", o.status_period):
         raise UsageError(f"--status-period must be a number of seconds >= 0, got '{o.status_period}'")
@@ -285,16 +290,25 @@ def resolve(o: GraphOptions) -> GraphOptions:
     return o
 
 
+def checkpoint_file(checkpoint: str):
+    """The policy file ``--checkpoint`` names (a path; ``shipped``, ``shipped:NAME`` or ``""``: a shipped policy,
+    dlo_policy.rundir.checkpoint_path); UsageError naming the shipped policies for an unknown shipped name."""
+    from dlo_policy.rundir import checkpoint_path
+
+    try:
+        return checkpoint_path(checkpoint)
+    except ValueError as error:
+        raise UsageError(f"--checkpoint: {error}") from None
+
+
 def trained_settings(checkpoint: str) -> dict | None:
-    """The sim settings the policy file (``""``: the shipped policy) was trained under, as option text
-    (``{"task_rules": "authors_code", "single_particle_grip": "true", "contact_radius": "0.004", ...}``); None when
+    """The sim settings the policy file (a path, or ``shipped:NAME``; ``""``: the shipped policy) was trained under,
+    as option text (``{"task_rules": "authors_code", "single_particle_grip": "true", "contact_radius": "0.004", ...}``); None when
     no config.yaml is beside it. UsageError when the file or its run's config.yaml cannot be read."""
-    from pathlib import Path
-
     from dlo_policy.config import ConfigError
-    from dlo_policy.rundir import CONFIG_FILE, shipped_policy_path, trained_sim_settings
+    from dlo_policy.rundir import CONFIG_FILE, trained_sim_settings
 
-    path = Path(checkpoint) if checkpoint else shipped_policy_path()
+    path = checkpoint_file(checkpoint)
     if not path.is_file():
         raise UsageError(f"--checkpoint: checkpoint {path}: no such file")
     try:

@@ -60,3 +60,17 @@ def check_override_keys(overrides: Sequence[str]) -> None:
         key = key.strip()
         if sep and key and not _known_key(key):
             raise ConfigError(f"unknown key {key!r}{did_you_mean(key, config_keys())}")
+
+
+CHECKPOINT_HELP = "a policy file (policy.pt / checkpoint.pt of a dlo-train run directory), or shipped[:NAME] (a shipped policy)"
+
+
+def checkpoint_argument(spec: str):
+    """argparse ``type=`` of a ``--checkpoint``: the policy file a spec names (``dlo_policy.rundir.checkpoint_path``:
+    a path, ``shipped``, ``shipped:NAME``); an unknown shipped name is the parser's one-line error."""
+    from .rundir import checkpoint_path  # noqa: PLC0415
+
+    try:
+        return checkpoint_path(spec)
+    except ValueError as error:
+        raise argparse.ArgumentTypeError(str(error)) from None

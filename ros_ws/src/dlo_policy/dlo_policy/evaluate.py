@@ -1,8 +1,9 @@
 """Evaluation protocol: deterministic episodes on seeded environments -> outcome fractions + metrics.
 
 `dlo-evaluate --checkpoint PATH --episodes N --seed S [--json FILE] [--without T|V|K]` loads a
-checkpoint (or shipped policy) written by `dlo-train`, runs N episodes with seeds S .. S+N-1 in a
-vector env built from the run's saved config, prints the outcome table and optionally writes JSON.
+checkpoint written by `dlo-train` (or a shipped policy: `--checkpoint shipped`, `shipped:NAME`), runs N
+episodes with seeds S .. S+N-1 in a vector env built from the run's saved config, prints the outcome table
+and optionally writes JSON.
 `--without X` blanks modality X's observation entries (zeros) before the policy sees them: the
 paper's ablation of an agent trained with all inputs. A progress bar over the episodes goes to stderr
 when it is a terminal (`--progress` also elsewhere, as a plain line every tenth of the episodes; `--quiet`
@@ -29,7 +30,7 @@ import torch
 from dlo_common.console import Progress, console_main
 from dlo_interface.task import DEFAULT_TASK_RULES, TASK_RULES
 
-from .cli import OneLineErrorParser
+from .cli import CHECKPOINT_HELP, OneLineErrorParser, checkpoint_argument
 from .config import RunConfig, make_env
 from .modalities import by_name, names, parse_modalities
 from .rundir import AUTHORS_SUFFIX, CONFIG_FILE, OUTCOMES, read_trained_config
@@ -235,7 +236,7 @@ def format_table(result: EvalResult) -> str:
 def build_parser() -> argparse.ArgumentParser:
     parser = OneLineErrorParser(prog="dlo-evaluate", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     what = parser.add_mutually_exclusive_group(required=True)
-    what.add_argument("--checkpoint", type=Path, help="checkpoint.pt or policy.pt of a dlo-train run directory")
+    what.add_argument("--checkpoint", type=checkpoint_argument, help=CHECKPOINT_HELP)
     what.add_argument(
         "--policy",
         choices=SCRIPTED_POLICIES,

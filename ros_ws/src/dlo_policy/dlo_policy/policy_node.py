@@ -46,7 +46,14 @@ from std_msgs.msg import String
 from dlo_policy import perturbations
 from dlo_policy.modalities import ALL, ALL_NAME, by_name, names
 from dlo_policy.observation import build_observation, observation_size, parse_modalities
-from dlo_policy.rundir import CONFIG_FILE, SHIPPED_POLICY, read_trained_config, shipped_policy_path  # noqa: F401 (SHIPPED_POLICY: re-exported)
+from dlo_policy.rundir import (  # noqa: F401 (SHIPPED_POLICY, shipped_policy_path: re-exported)
+    CONFIG_FILE,
+    SHIPPED_POLICY,
+    checkpoint_path,
+    read_trained_config,
+    shipped_name,
+    shipped_policy_path,
+)
 
 POLICIES = ("sac", "tactile_reactive", "oracle", "random")
 
@@ -60,7 +67,11 @@ def node_perturbations(value) -> dict:
 
 PARAMETERS = (
     Param("policy", "sac", f"controller, one of {POLICIES}", choices=POLICIES),
-    Param("checkpoint", "", "dlo-train policy.pt / checkpoint.pt (empty = the shipped All policy)"),
+    Param(
+        "checkpoint",
+        "",
+        "dlo-train policy.pt / checkpoint.pt, or shipped:NAME (a shipped policy; empty or shipped = the shipped All policy)",
+    ),
     Param("modalities", "All", "observation modalities for policy=random (sac uses its training config)"),
     Param("without", "", "test-time ablation: zero these modalities, e.g. 'T' or 'V'"),
     Param("input_timeout", 1.0, "report an error when a step's inputs are incomplete after this long [s]", above=0.0),
@@ -123,7 +134,10 @@ def load_policy(kind: str, checkpoint: str, modalities: str, seed: int):
         from dlo_policy.evaluate import load_run_config
         from dlo_policy.sac import SAC, CheckpointError
 
-        path = Path(checkpoint) if checkpoint else shipped_policy_path()
+        try:
+            path = checkpoint_path(checkpoint)
+        except ValueError as error:  # an unknown shipped name, with the shipped ones
+            raise ParameterError(f"parameter 'checkpoint': {error}") from None
         if not path.exists():
             raise ParameterError(f"checkpoint {path} does not exist")
         try:
@@ -175,12 +189,12 @@ def policy_record(
     train_config: str = "",
 ) -> dict:
     """What drives the graph, as ``/dlo/policy/info`` carries it (JSON): ``policy`` (its kind), ``checkpoint`` (the
-    policy file's absolute path, None without one), ``sha256`` (of that file), ``shipped`` (the bundled All policy),
-    ``modalities`` and ``without`` ('+'-joined), and from the run config beside the file (or, learning online, the
-    ``train_config``) ``task_rules``, ``single_particle_grip`` and every ``env_options`` entry it names (e.g.
-    vision_source, carry_law, contact_radius), ``trained_label``; None where nothing says (a scripted policy: the
-    sim's own task rules are in its TaskState). A config that cannot be read leaves them None and says why in
-    ``config_error``."""
+    policy file's absolute path, None without one), ``sha256`` (of that file), ``shipped`` (whether the checkpoint
+    spec names a shipped policy: empty, ``shipped`` or ``shipped:NAME``), ``modalities`` and ``without``
+    ('+'-joined), and from the run config beside the file (or, learning online, the ``train_config``) ``task_rules``,
+    ``single_particle_grip`` and every ``env_options`` entry it names (e.g. vision_source, carry_law, contact_radius),
+    ``trained_label``; None where nothing says (a scripted policy: the sim's own task rules are in its TaskState). A
+    config that cannot be read leaves them None and says why in ``config_error``."""
     record = {
         "policy": kind,
         "checkpoint": None,
@@ -201,8 +215,8 @@ def policy_record(
             record["train_out"] = str(Path(train_out).resolve())
             config = load_config(train_config or None, values={"modalities": "+".join(modalities), "seed": seed})
         elif kind == "sac":
-            path = Path(checkpoint) if checkpoint else shipped_policy_path()
-            record.update(checkpoint=str(path.resolve()), sha256=file_sha256(path), shipped=not checkpoint)
+            path = checkpoint_path(checkpoint)
+            record.update(checkpoint=str(path.resolve()), sha256=file_sha256(path), shipped=shipped_name(checkpoint) is not None)
             if (path.parent / CONFIG_FILE).exists():
                 config = read_trained_config(path.parent)
     except (ValueError, OSError) as error:

@@ -21,6 +21,10 @@ nominal itself where the baseline is already below. `significant`: the same with
 
 A progress bar over the episodes goes to stderr on a terminal (a plain line every tenth elsewhere; `--quiet`: none);
 stdout carries the tolerance table and, last, one JSON line (out, points run and read, tolerances).
+
+`dlo-robustness compare A B [C ...] --out DIR` puts envelopes side by side, the first the reference: compare.png,
+compare.md, compare.json, each policy's tolerances and their ratios to the reference's, and issue 40's test
+(`dlo-robustness compare --help`; dlo_policy.robustness_compare).
 """
 
 from __future__ import annotations
@@ -37,7 +41,7 @@ from typing import Any, Optional, Sequence
 from dlo_common.console import Progress, console_main
 
 from . import perturbations as registry
-from .cli import OneLineErrorParser
+from .cli import CHECKPOINT_HELP, OneLineErrorParser, checkpoint_argument
 
 THRESHOLD = 0.8  # hold the end below this: the family's tolerance is passed
 Z95 = 1.959963984540054  # two-sided 95% normal quantile (Wilson interval)
@@ -165,12 +169,12 @@ def summarise(points: dict, baseline: dict, families: dict, header: dict, thresh
     return result
 
 
-def tolerance_text(family: registry.Family, tol: dict) -> str:
-    """A family's tolerance under one rule in words: 'below 1', '>= 0.8 up to 3 / below 0.5 (low side)'."""
+def tolerance_text(family: registry.Family, tol: dict, grid: Sequence) -> str:
+    """A family's tolerance under one rule in words, ``grid`` the magnitudes tried: 'above: 1.5', 'above: none up
+    to 3', 'below: below at the nominal', joined by '; '."""
     parts = []
     for side, m in tol.items():
         if m is None:
-            grid = [x for x in family.grid] if family.grid else []
             edge = max(grid) if side == "above" else min(grid)
             parts.append(f"{side}: none up to {edge:g}" if side == "above" else f"{side}: none down to {edge:g}")
         elif m == "baseline" or (family.off is not None and m == family.off):
@@ -180,18 +184,86 @@ def tolerance_text(family: registry.Family, tol: dict) -> str:
     return "; ".join(parts)
 
 
-def plot(summary: dict, path: Path) -> None:
-    """hold the end against magnitude, one panel per family, both rules with 95% bands, the threshold, the baseline."""
+def nominal_span(entry: dict) -> tuple:
+    """A family's nominal in robustness.json as (low, high): the off value twice, or a physics family's training range."""
+    return (entry["nominal"], entry["nominal"]) if entry["nominal"] is not None else tuple(entry["training_range"])
+
+
+def curve_parts(entry: dict, baseline: dict, key: str) -> tuple:
+    """A family's points under one rule (``key``: hold_the_end or hold_the_end_authors) as the two lines a figure
+    draws: the points outside the nominal joined through the unperturbed run at the nominal (a point, or both ends
+    of a physics family's training range), and those inside the training range on their own (often none)."""
+    low, high = nominal_span(entry)
+    points = sorted(entry["points"], key=lambda p: p["magnitude"])
+    below = [p for p in points if p["magnitude"] < low]
+    above = [p for p in points if p["magnitude"] > high]
+    inside = [p for p in points if low <= p["magnitude"] <= high]
+    nominal = [{"magnitude": x, key: baseline[key], key + "_ci95": baseline[key + "_ci95"]} for x in sorted({low, high})]
+    return below + nominal + above, inside
+
+
+def figure_panels(count: int):
+    """A figure of ``count`` family panels, four to a row: (figure, axes array, rows)."""
     import matplotlib  # noqa: PLC0415 (the figure only)
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt  # noqa: PLC0415
+
+    columns = 4
+    rows = max(1, math.ceil(count / columns))
+    fig, axes = plt.subplots(rows, columns, figsize=(4.0 * columns, 2.9 * rows), squeeze=False)
+    return fig, axes, rows
+
+
+def decorate_panel(ax, name: str, entry: dict, magnitudes: Sequence, threshold: float) -> None:
+    """A family's panel around its curves: the training range (or value), log x for a grid of factors with the
+    grid's ticks, the threshold dashed, the axes' limits, title and labels."""
     import matplotlib.ticker  # noqa: PLC0415
 
+    low, high = nominal_span(entry)
+    if entry["training_range"]:
+        if high > low:
+            ax.axvspan(low, high, color="0.88", zorder=0, label="training range")
+        else:
+            ax.axvline(low, color="0.7", lw=1.0, zorder=0, label="training value")
+    grid = sorted(set(magnitudes))
+    every = grid + [low, high]
+    if min(every) > 0 and max(every) / min(every) >= 20:  # a grid of factors: log x, its ticks
+        ax.set_xscale("log")
+        ax.set_xticks(grid, [f"{m:g}" for m in grid])
+        ax.xaxis.set_minor_locator(matplotlib.ticker.NullLocator())
+    ax.axhline(threshold, color="0.3", lw=0.8, ls="--")
+    ax.set_ylim(-0.03, 1.03)
+    ax.set_title(name, fontsize=9)
+    ax.set_xlabel(entry["unit"], fontsize=8)
+    ax.tick_params(labelsize=7)
+    ax.grid(alpha=0.3)
+
+
+def finish_figure(fig, axes, count: int, rows: int, title: str, path: Path) -> None:
+    """The unused panels off, the y labels, one legend and the title above the panels; saved to ``path``."""
+    import matplotlib.pyplot as plt  # noqa: PLC0415
+
+    for ax in list(axes.flat)[count:]:
+        ax.axis("off")
+    for ax in axes[:, 0]:
+        ax.set_ylabel("hold the end", fontsize=8)
+    handles = {}
+    for ax in axes.flat:
+        for handle, label in zip(*ax.get_legend_handles_labels()):
+            handles.setdefault(label, handle)
+    fig.legend(list(handles.values()), list(handles), loc="upper right", fontsize=8, ncol=len(handles))
+    fig.suptitle(title, fontsize=10, x=0.01, ha="left")
+    fig.tight_layout(rect=(0, 0, 1, 1 - 0.45 / (2.9 * rows)))  # the title and the legend above the panels
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def plot(summary: dict, path: Path) -> None:
+    """hold the end against magnitude, one panel per family, both rules with 95% bands, the threshold, the baseline."""
     names = list(summary["families"])
-    columns = 4
-    rows = max(1, math.ceil(len(names) / columns))
-    fig, axes = plt.subplots(rows, columns, figsize=(4.0 * columns, 2.9 * rows), squeeze=False)
+    fig, axes, rows = figure_panels(len(names))
     base = summary["baseline"]
     colours = {"paper": "tab:blue", "authors": "tab:orange"}
     for ax, name in zip(axes.flat, names):
@@ -199,13 +271,10 @@ def plot(summary: dict, path: Path) -> None:
         points = sorted(entry["points"], key=lambda p: p["magnitude"])
         # the unperturbed run sits at the nominal: a point (0, 1 for a gain, a physics family's one training value)
         # or, for a physics family drawn from a range, a segment over that range
-        low, high = (entry["nominal"], entry["nominal"]) if entry["nominal"] is not None else tuple(entry["training_range"])
+        low, high = nominal_span(entry)
         for rule, key in (("paper", "hold_the_end"), ("authors", "hold_the_end_authors")):
-            below = [p for p in points if p["magnitude"] < low]
-            above = [p for p in points if p["magnitude"] > high]
-            inside = [p for p in points if low <= p["magnitude"] <= high]
-            nominal = [{"magnitude": x, key: base[key], key + "_ci95": base[key + "_ci95"]} for x in sorted({low, high})]
-            for part in (below + nominal + above, inside):
+            outside, inside = curve_parts(entry, base, key)
+            for part in (outside, inside):
                 if not part:
                     continue
                 x = [p["magnitude"] for p in part]
@@ -227,43 +296,13 @@ def plot(summary: dict, path: Path) -> None:
                 )
             ax.plot([p["magnitude"] for p in points], [p[key] for p in points], "o", ms=3, color=colours[rule])
             ax.plot([low], [base[key]], "s", ms=4, color=colours[rule], mfc="white")
-        if entry["training_range"]:
-            if high > low:
-                ax.axvspan(low, high, color="0.88", zorder=0, label="training range")
-            else:
-                ax.axvline(low, color="0.7", lw=1.0, zorder=0, label="training value")
-        magnitudes = [p["magnitude"] for p in points] + [low, high]
-        if min(magnitudes) > 0 and max(magnitudes) / min(magnitudes) >= 20:  # a grid of factors: log x, its ticks
-            ax.set_xscale("log")
-            ax.set_xticks([p["magnitude"] for p in points], [f"{p['magnitude']:g}" for p in points])
-            ax.xaxis.set_minor_locator(matplotlib.ticker.NullLocator())
-        ax.axhline(summary["threshold"], color="0.3", lw=0.8, ls="--")
-        ax.set_ylim(-0.03, 1.03)
-        ax.set_title(name, fontsize=9)
-        ax.set_xlabel(entry["unit"], fontsize=8)
-        ax.tick_params(labelsize=7)
-        ax.grid(alpha=0.3)
-    for ax in list(axes.flat)[len(names) :]:
-        ax.axis("off")
-    for ax in axes[:, 0]:
-        ax.set_ylabel("hold the end", fontsize=8)
-    handles = {}
-    for ax in axes.flat:
-        for handle, label in zip(*ax.get_legend_handles_labels()):
-            handles.setdefault(label, handle)
-    fig.legend(list(handles.values()), list(handles), loc="upper right", fontsize=8, ncol=len(handles))
-    fig.suptitle(
+        decorate_panel(ax, name, entry, [p["magnitude"] for p in points], summary["threshold"])
+    title = (
         f"{summary['policy']}: hold the end under perturbation, one family at a time ({summary['episodes']} "
         f"episodes per point, seeds {summary['seed']}..{summary['seed'] + summary['episodes'] - 1}, 95% "
-        f"intervals; open square: unperturbed; dashed: {summary['threshold']:.0%})",
-        fontsize=10,
-        x=0.01,
-        ha="left",
+        f"intervals; open square: unperturbed; dashed: {summary['threshold']:.0%})"
     )
-    fig.tight_layout(rect=(0, 0, 1, 1 - 0.45 / (2.9 * rows)))  # the title and the legend above the panels
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    finish_figure(fig, axes, len(names), rows, title, path)
 
 
 def parse_grid(items: Sequence[str]) -> dict:
@@ -287,9 +326,13 @@ def parse_grid(items: Sequence[str]) -> dict:
 def build_parser() -> argparse.ArgumentParser:
     parser = OneLineErrorParser(prog="dlo-robustness", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument(
-        "--checkpoint", type=Path, help="policy.pt / checkpoint.pt of a dlo-train run directory (default: the shipped policy)"
+        "--checkpoint", type=checkpoint_argument, help=CHECKPOINT_HELP + " (default: shipped, the shipped All policy)"
     )
-    parser.add_argument("--name", help="the policy's directory under --out (default: shipped, or the run dir's name)")
+    parser.add_argument(
+        "--name",
+        help="the policy's directory under --out (default: shipped for the shipped All policy, shipped_NAME for "
+        "shipped:NAME, else the run dir's name)",
+    )
     parser.add_argument(
         "--family",
         action="append",
@@ -335,16 +378,29 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _policy_name(args, checkpoint: Path, shipped: Path) -> str:
+def _shipped_of(checkpoint: Path) -> Optional[str]:
+    """The name of the shipped policy ``checkpoint`` is, None if it is none."""
+    from .rundir import shipped_names, shipped_policy_path  # noqa: PLC0415
+
+    return next((n for n in shipped_names() if shipped_policy_path(n).resolve() == checkpoint.resolve()), None)
+
+
+def _policy_name(args, checkpoint: Path, shipped: Optional[str]) -> str:
+    from .rundir import SHIPPED_DEFAULT, SHIPPED_SPEC  # noqa: PLC0415
+
     if args.name:
         return args.name
-    if checkpoint.resolve() == shipped.resolve():
-        return "shipped"
+    if shipped is not None:
+        return SHIPPED_SPEC if shipped == SHIPPED_DEFAULT else f"{SHIPPED_SPEC}_{shipped}"
     return checkpoint.resolve().parent.name
 
 
 @console_main("dlo-robustness")
 def main(argv: Optional[Sequence[str]] = None) -> int:
+    if (sys.argv[1:] if argv is None else list(argv))[:1] == ["compare"]:
+        from .robustness_compare import main as compare  # noqa: PLC0415
+
+        return compare((sys.argv[1:] if argv is None else list(argv))[1:])
     args = build_parser().parse_args(argv)
     prog = "dlo-robustness: error:"
     if args.episodes < 1 or args.num_envs < 1 or args.threads < 1:
@@ -365,10 +421,9 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         return 2
     families = {name: grids.get(name, registry.family(name).grid) for name in registry.names() if name in chosen}
 
-    from .rundir import SHIPPED_POLICY, shipped_policy_path  # noqa: PLC0415
+    from .rundir import POLICY_FILE, SHIPPED_DIR, shipped_policy_path  # noqa: PLC0415
 
-    shipped = shipped_policy_path()
-    checkpoint = args.checkpoint or shipped
+    checkpoint = args.checkpoint or shipped_policy_path()
     if not checkpoint.is_file():
         print(f"{prog} checkpoint {checkpoint} does not exist", file=sys.stderr)
         return 2
@@ -387,9 +442,10 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         print(f"{prog} {error}", file=sys.stderr)
         return 2
     torch.set_num_threads(args.threads)
+    shipped = _shipped_of(checkpoint)
     name = _policy_name(args, checkpoint, shipped)
-    # the shipped policy by its place in the package (the installed copy's path is this machine's)
-    shown_checkpoint = f"shipped: dlo_policy/{SHIPPED_POLICY}" if checkpoint.resolve() == shipped.resolve() else str(checkpoint)
+    # a shipped policy by its place in the package (the installed copy's path is this machine's)
+    shown_checkpoint = f"shipped: dlo_policy/{SHIPPED_DIR}/{shipped}/{POLICY_FILE}" if shipped else str(checkpoint)
     out = args.out / name
     settings = {
         "checkpoint_sha256": file_sha256(checkpoint),
@@ -448,8 +504,8 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     for family_name, entry in summary["families"].items():
         f = registry.family(family_name)
         print(
-            f"{family_name:<24} {f.unit:<20} {tolerance_text(f, entry['tolerance']['paper']):<32} "
-            f"{tolerance_text(f, entry['tolerance']['authors'])}"
+            f"{family_name:<24} {f.unit:<20} {tolerance_text(f, entry['tolerance']['paper'], families[family_name]):<32} "
+            f"{tolerance_text(f, entry['tolerance']['authors'], families[family_name])}"
         )
     print(
         json.dumps(

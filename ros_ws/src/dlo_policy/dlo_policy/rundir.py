@@ -49,7 +49,10 @@ RANDOMISED_COLUMNS = ("step", "episode", "episode_seed")  # then the randomised 
 TB_DIR = "tb"
 LOG_FILE = "train.log"
 LOCK_FILE = ".lock"
-SHIPPED_POLICY = "policies/all/policy.pt"  # the bundled All policy, its run's config.yaml beside it
+SHIPPED_DIR = "policies"  # every shipped policy: policies/<name>/ (policy.pt, config.yaml, README.md)
+SHIPPED_DEFAULT = "all"  # the one taken when none is named
+SHIPPED_POLICY = f"{SHIPPED_DIR}/{SHIPPED_DEFAULT}/{POLICY_FILE}"  # the bundled All policy, its run's config.yaml beside it
+SHIPPED_SPEC = "shipped"  # a checkpoint spec "shipped" or "shipped:<name>" names a shipped policy
 
 
 class RunInUse(RuntimeError):
@@ -152,17 +155,49 @@ def read_trained_config(run_dir: Path) -> RunConfig:
     return record_task_rules(read_config(run_dir), LEGACY_TASK_RULES)
 
 
-def shipped_policy_path() -> Path:
-    """The bundled All-modalities policy: installed share dir first, then the source tree."""
+def _shipped_roots() -> list[Path]:
+    """Where shipped policies lie, first found first: the installed share dir's policies/, the source tree's."""
+    roots = []
     try:
         from ament_index_python.packages import get_package_share_directory
 
-        installed = Path(get_package_share_directory("dlo_policy")) / SHIPPED_POLICY
-        if installed.exists():
-            return installed
+        roots.append(Path(get_package_share_directory("dlo_policy")) / SHIPPED_DIR)
     except (ImportError, LookupError):
         pass
-    return Path(__file__).resolve().parents[1] / SHIPPED_POLICY
+    return roots + [Path(__file__).resolve().parents[1] / SHIPPED_DIR]
+
+
+def shipped_names() -> list[str]:
+    """The names of the shipped policies (the directories under policies/ that hold a policy.pt), sorted."""
+    return sorted({d.name for root in _shipped_roots() if root.is_dir() for d in root.iterdir() if (d / POLICY_FILE).is_file()})
+
+
+def shipped_policy_path(name: str = SHIPPED_DEFAULT) -> Path:
+    """The shipped policy ``name`` (policies/<name>/policy.pt; default the All policy): installed share dir first,
+    then the source tree. ValueError in one line, listing the shipped names, when there is none of that name."""
+    if name and "/" not in name and name not in (".", ".."):
+        for root in _shipped_roots():
+            if (root / name / POLICY_FILE).is_file():
+                return root / name / POLICY_FILE
+    raise ValueError(f"no shipped policy {name!r}; shipped: {', '.join(shipped_names()) or 'none'}")
+
+
+def shipped_name(spec) -> Optional[str]:
+    """The shipped policy a checkpoint spec names: ``""``/None and ``shipped`` the default, ``shipped:NAME`` NAME;
+    None for anything else (a file path)."""
+    spec = "" if spec is None else str(spec)
+    if spec in ("", SHIPPED_SPEC):
+        return SHIPPED_DEFAULT
+    prefix, sep, name = spec.partition(":")
+    return name if sep and prefix == SHIPPED_SPEC else None
+
+
+def checkpoint_path(spec) -> Path:
+    """A checkpoint as every command and node takes it (``--checkpoint``, the policy node's ``checkpoint``): a
+    policy file's path, or ``shipped`` / ``shipped:NAME`` (``""``: the default shipped policy). ValueError in one
+    line for an unknown shipped name; a path is returned as given (whether it exists is the caller's check)."""
+    name = shipped_name(spec)
+    return Path(spec) if name is None else shipped_policy_path(name)
 
 
 def trained_sim_settings(policy_file: Path) -> Optional[dict[str, Any]]:
