@@ -5,7 +5,9 @@ every rule's early end is in: the policy's own drops depend on the last bits of 
 arithmetic, a released cable falls on every machine) are turned into the TaskState messages the sim
 node would publish for them; dlo-analyze's ``recompute_episode`` must give the env's outcomes under
 both rules, return and length exactly, and a TaskState without ``task_rules`` (bags recorded before
-the field) reads as paper_text.
+the field) reads as paper_text. The same for episodes with the authors' 4 mm move spacing (``move_spacing``, recorded
+in the TaskState; without the field: 0, the cable's own spacing). A real bag of such a graph run:
+tests/test_graph_equals_env.py.
 """
 
 from types import SimpleNamespace
@@ -19,7 +21,7 @@ SEEDS = (7001, 7005, 7006, 7007)
 LET_GO = np.array([0.0, 1.0, -1.0], dtype=np.float32)  # sideways, grip fully open (closure 0): it loses the cable
 
 
-def task_states(env, act, seed, rules_field):
+def task_states(env, act, seed, rules_field, spacing_field=None):
     """{step: TaskState-like} of one env episode, as the sim node fills them, and the env's final info."""
     task = env.vec.task
     observation, _ = env.reset(seed=seed)
@@ -42,6 +44,8 @@ def task_states(env, act, seed, rules_field):
         )
         if rules_field is not None:
             fields["task_rules"] = rules_field
+        if spacing_field is not None:
+            fields["move_spacing"] = spacing_field
         return SimpleNamespace(**fields)
 
     states, step, done, info = {0: message(0, False, {})}, 0, False, {}
@@ -70,7 +74,14 @@ def episodes():
         env = make_env("All", seed=0, task_rules=rules, single_particle_grip=grip)
         result[rules] = [(seed, *task_states(env, policy, seed, rules)) for seed in SEEDS]
         result[rules].append((SEEDS[0], *task_states(env, lambda observation: LET_GO, SEEDS[0], rules)))
+    # the authors' 4 mm move spacing (env option / sim node parameter move_spacing), recorded in the TaskState
+    env = make_env("All", seed=0, task_rules="authors_code", single_particle_grip=grip, move_spacing=SPACING)
+    result[SPACED] = [(seed, *task_states(env, policy, seed, "authors_code", SPACING)) for seed in SEEDS[:2]]
     return result
+
+
+SPACED = "authors_code, move_spacing 0.004"
+SPACING = 0.004
 
 
 @pytest.mark.parametrize("rules", ["paper_text", "authors_code"])
@@ -100,3 +111,20 @@ def test_the_two_task_rules_give_different_episodes(episodes):
     """The switch reaches the episode: the same seeds and policy end with other returns."""
     returns = {rules: [info["episode_return"] for _, _, info in runs] for rules, runs in episodes.items()}
     assert returns["paper_text"] != returns["authors_code"]
+
+
+def test_a_recorded_move_spacing_is_recomputed_with_and_a_task_state_without_it_reads_as_0(episodes):
+    """An episode the sim ran with move_spacing 0.004 (recorded in every TaskState): the recomputed episode is the
+    env's to the last bit; the same messages without the field (bags recorded before it) are recomputed with the
+    cable's own spacing, which gives another return: the recorded value is what reproduces the rewards."""
+    for seed, states, info in episodes[SPACED]:
+        summary = recompute_episode(states)
+        assert (summary["task_rules"], summary["move_spacing"]) == ("authors_code", SPACING)
+        assert (summary["outcome"], summary["outcome_authors"]) == (info["outcome"], info["outcome_authors"]), seed
+        assert summary["episode_return"] == info["episode_return"], seed
+        assert summary["episode_length"] == info["episode_length"], seed
+    _, states, info = episodes[SPACED][0]
+    for msg in states.values():
+        del msg.move_spacing
+    summary = recompute_episode(states)
+    assert summary["move_spacing"] == 0.0 and summary["episode_return"] != info["episode_return"]

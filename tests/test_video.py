@@ -132,6 +132,7 @@ def synthetic_bag(tmp_path_factory):
                         mean_held_index_authors=p_i,
                         outcome_authors=int(tracker.outcome_authors[0]) if done else 0,
                         task_rules="paper_text",
+                        move_spacing=0.0,
                     ),
                 )
                 put(

@@ -2,9 +2,9 @@
 
     dlo-analyze BAG [--plots DIR] [--json FILE] [--video DIR [--video-format gif]]
 
-The per-step task inputs (held particle indices, n_c, L_c) recorded on ``/dlo/task/state`` are
-fed through the same ``dlo_interface.task.EpisodeTracker`` the sim node and the gym environment use,
-so the recomputed outcomes (paper-text rule, and the authors'-code rule from the recorded
+The per-step task inputs (held particle indices, n_c, L_c; the task rules and move spacing the episode ran
+under) recorded on ``/dlo/task/state`` are fed through the same ``dlo_interface.task.EpisodeTracker`` the sim
+node and the gym environment use, so the recomputed outcomes (paper-text rule, and the authors'-code rule from the recorded
 ``held_indices_authors``) must equal the recorded ones (a mismatch is reported and exits 1).
 Plots (PNG, one per episode): the gripper path over the cable at the start and the end seen from
 the top (fixed end and first step at the end marked), and over the control steps one axis per
@@ -38,7 +38,7 @@ import numpy as np
 from dlo_common.console import console_main
 from dlo_common.topics import select, topic
 from dlo_interface.cloud import unpack_particles
-from dlo_interface.task import OUTCOME_NAMES, EpisodeTracker, recorded_task_rules
+from dlo_interface.task import DEFAULT_MOVE_SPACING, OUTCOME_NAMES, EpisodeTracker, recorded_task_rules
 from dlo_perception.sync import stamp_to_ns
 
 from dlo_bag.errors import EXIT_BAD_BAG, EXIT_NO_TASK_STATE, EXIT_USAGE, BagError, NotABagError
@@ -101,7 +101,7 @@ def policy_records(path) -> list[dict]:
 
 
 # env_options a policy may be trained under, in the label's order, with the value that goes without saying (left out)
-TRAINED_DEFAULTS = {"carry_law": "paper", "contact_radius": 0.004, "vision_source": "image"}
+TRAINED_DEFAULTS = {"carry_law": "paper", "contact_radius": 0.004, "vision_source": "image", "move_spacing": 0.0}
 
 
 def policy_label(record: dict) -> str:
@@ -144,7 +144,8 @@ def recompute_episode(task_states: dict) -> dict:
     final = next((s for s in steps if task_states[s].done), None)
     # An episode ends by a drop or at its horizon: the step the sim marked done is that horizon.
     rules = recorded_task_rules(getattr(task_states[0], "task_rules", "")).name  # bags from before the field too
-    tracker = EpisodeTracker(1, horizon=final if final else 10**9, task_rules=rules)
+    spacing = float(getattr(task_states[0], "move_spacing", DEFAULT_MOVE_SPACING))  # before the field: the cable's own
+    tracker = EpisodeTracker(1, horizon=final if final else 10**9, task_rules=rules, move_spacing=spacing)
 
     def held_inputs(msg):
         """p_i, n_h, largest held index (paper-text held set), p_i and n_h of the authors' held set."""

@@ -148,6 +148,7 @@ def write_bag(path: Path, records=(), episodes: int = 1, split: int = 0) -> Path
                     mean_held_index_authors=p_i,
                     outcome_authors=int(tracker.outcome_authors[0]) if done else 0,
                     task_rules="paper_text",
+                    move_spacing=0.0,
                 ),
             )
             put(
@@ -164,7 +165,7 @@ def write_bag(path: Path, records=(), episodes: int = 1, split: int = 0) -> Path
 @pytest.fixture
 def trained_checkpoint(tmp_path):
     """A copy of the shipped policy in a run directory of its own, trained (its config.yaml says) with the authors'
-    carry law, the particles as the vision source and a 6 mm contact radius."""
+    carry law, the particles as the vision source, a 6 mm contact radius and their 4 mm move spacing."""
     from dlo_policy.rundir import CONFIG_FILE, shipped_policy_path
 
     shipped = shipped_policy_path()
@@ -178,6 +179,7 @@ def trained_checkpoint(tmp_path):
         "carry_law": "authors",
         "vision_source": "particles",
         "contact_radius": 0.006,
+        "move_spacing": 0.004,
     }
     (run / CONFIG_FILE).write_text(yaml.safe_dump(config))
     return run / "best_policy.pt"
@@ -211,10 +213,11 @@ def test_the_record_of_a_checkpoint_names_its_file_hash_and_training(trained_che
         "carry_law": "authors",
         "vision_source": "particles",
         "contact_radius": 0.006,
+        "move_spacing": 0.004,
     }
     assert analysis.policy_label(record) == (
         f"sac fidelity_s3/best_policy.pt (sha256 {record['sha256'][:8]}) on K+T without T; trained authors_code, "
-        "finite grip, carry_law authors, contact_radius 0.006, vision_source particles"
+        "finite grip, carry_law authors, contact_radius 0.006, vision_source particles, move_spacing 0.004"
     )
     scripted = policy_record("tactile_reactive", "", ("K", "T", "V"))
     assert scripted["checkpoint"] is None and scripted["sha256"] is None and scripted["task_rules"] is None

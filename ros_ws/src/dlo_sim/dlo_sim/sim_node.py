@@ -42,7 +42,14 @@ from dlo_interface.cloud import particle_cloud
 from dlo_interface.command import CommandError, RejectionLog, command_mismatch, command_to_action, hold_action
 from dlo_interface.grip import CARRY_LAWS
 from dlo_interface.sim_config import MAX_CONTACT_RADIUS, SimConfig
-from dlo_interface.task import DEFAULT_TASK_RULES, HORIZON, TASK_RULES
+from dlo_interface.task import (
+    AUTHORS_MOVE_SPACING,
+    DEFAULT_MOVE_SPACING,
+    DEFAULT_TASK_RULES,
+    HORIZON,
+    MAX_MOVE_SPACING,
+    TASK_RULES,
+)
 from dlo_interface.world import CONTROL_PERIOD, FINGER_CLEARANCE, FINGER_HALF_LENGTH, FINGER_RADIUS, START_POSES
 from dlo_msgs.msg import GripperCommand, GripperState, TaskState
 from dlo_msgs.srv import ResetEpisode
@@ -62,6 +69,7 @@ SETTINGS = (
     "seed",
     "horizon",
     "task_rules",
+    "move_spacing",
     "single_particle_grip",
     "physics_seed",
     "carry_law",
@@ -92,6 +100,14 @@ PARAMETERS = (
         "which held set the reward, the episode's end and the tactile input (the "
         "particles' held flags) use, one of " + str(TASK_RULES),
         choices=TASK_RULES,
+    ),
+    Param(
+        "move_spacing",
+        DEFAULT_MOVE_SPACING,
+        "the particle spacing [m] of the move reward under either task rule: 0 = the cable's own, "
+        f"{AUTHORS_MOVE_SPACING} = the authors' fixed 4 mm (docs/FIDELITY.md)",
+        at_least=0.0,
+        at_most=MAX_MOVE_SPACING,
     ),
     Param(
         "single_particle_grip",
@@ -244,6 +260,7 @@ class SimNode(Node):
             render=True,
             camera=rendering,
             task_rules=p["task_rules"],
+            move_spacing=p["move_spacing"],
             config=perturbations.sim_config(setting, config),
         )
 
@@ -252,6 +269,7 @@ class SimNode(Node):
         self.create_timer(0.05, self.on_watchdog)
         self.get_logger().info(
             f"{p['mode']} simulation, seed {p['seed']}, task rules {p['task_rules']}, "
+            f"{'move spacing %s m, ' % p['move_spacing'] if p['move_spacing'] > 0 else ''}"
             f"{'single-particle grip, ' if p['single_particle_grip'] else ''}"
             f"{'the authors carry law, ' if p['carry_law'] == 'authors' else ''}"
             f"contact radius {p['contact_radius']} m, "
@@ -599,6 +617,7 @@ class SimNode(Node):
             mean_held_index_authors=float(self.task.mean_held_index_authors[0]),
             outcome_authors=int(tracker.outcome_authors[0]) if self.done else 0,
             task_rules=self.task.task_rules,
+            move_spacing=tracker.move_spacing,
         )
 
     def markers(self, positions, gripper, stamp) -> MarkerArray:

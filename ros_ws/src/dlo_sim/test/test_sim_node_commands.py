@@ -423,8 +423,14 @@ def test_the_reset_service_starts_a_waiting_or_finished_node_and_camera_info_is_
 
 def test_the_instance_record_carries_the_settings_an_episode_runs_under(node):
     """/dlo/sim/instance (latched, recorded): besides who runs, every parameter that decides what an episode is,
-    so a bag says which task rules, grip, carry law, contact radius and start pose produced it."""
+    so a bag says which task rules, move spacing, grip, carry law, contact radius and start pose produced it; the
+    task state of every step says the task rules and the move spacing (what dlo-analyze recomputes the episode with)."""
     assert set(node.instance["settings"]) == set(sim_node_module.SETTINGS)
-    for name in ("task_rules", "single_particle_grip", "carry_law", "contact_radius", "start_pose", "physics_seed"):
+    names = ("task_rules", "move_spacing", "single_particle_grip", "carry_law", "contact_radius", "start_pose", "physics_seed")
+    for name in names:
         assert node.instance["settings"][name] == node.p[name]
     json.dumps(node.instance)  # it is sent as JSON
+    node.start_episode(0)
+    state = node.task_state(node.task.held[0], int(node.task.sim.num_particles[0]))
+    assert (state.task_rules, state.move_spacing) == (node.p["task_rules"], node.task.tracker.move_spacing)
+    assert node.task.tracker.move_spacing == node.p["move_spacing"]

@@ -152,6 +152,7 @@ def make_messages(ts) -> dict:
             mean_held_index_authors=4.0,
             outcome_authors=2,
             task_rules="paper_text",
+            move_spacing=0.0,
         ),
         "/dlo/markers": T["visualization_msgs/msg/MarkerArray"](markers=[marker]),
         "/dlo/sim/instance": T["std_msgs/msg/String"](data='{"pid": 1}'),
