@@ -402,6 +402,14 @@ BAD_OPTIONS = {
         ["--contact-radius", "5e-3"],
         "launch_graph: --contact-radius must be a number in (0, 0.006] m, got '5e-3'",
     ),
+    "move_spacing": (
+        ["--move-spacing", "0.02"],
+        "launch_graph: --move-spacing must be a number in [0, 0.01] m (0: the cable's own spacing), got '0.02'",
+    ),
+    "move_spacing_negative": (
+        ["--move-spacing", "-0.004"],
+        "launch_graph: --move-spacing must be a number in [0, 0.01] m (0: the cable's own spacing), got '-0.004'",
+    ),
 }
 
 

@@ -136,6 +136,7 @@ def graph_nodes(o: GraphOptions, logs: Path | None = None) -> list[NodeSpec]:
         ("carry_law", o.carry_law),
         ("contact_radius", float(o.contact_radius)),
         ("start_pose", o.start_pose),
+        ("move_spacing", float(o.move_spacing)),
     ]
     sim += _perturbations(o, "simulator")
     if o.record:

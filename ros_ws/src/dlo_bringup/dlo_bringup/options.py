@@ -19,7 +19,7 @@ from dataclasses import dataclass, field, replace
 from dlo_interface import perturbations
 from dlo_interface.grip import CARRY_LAWS
 from dlo_interface.sim_config import MAX_CONTACT_RADIUS, SimConfig
-from dlo_interface.task import DEFAULT_TASK_RULES, TASK_RULES
+from dlo_interface.task import AUTHORS_MOVE_SPACING, DEFAULT_MOVE_SPACING, DEFAULT_TASK_RULES, MAX_MOVE_SPACING, TASK_RULES
 from dlo_interface.world import START_POSES
 from dlo_perception.vision_source import DEFAULT_VISION_SOURCE, VISION_SOURCES
 from dlo_policy.modalities import names as modality_names  # the registry: --without's help
@@ -88,10 +88,16 @@ OPTIONS = (
         "start-pose",
         "P",
         "",
-        "ours or authors: where the gripper starts (the sim's start_pose). These four default "
-        "to what the --policy sac checkpoint was trained on (its env_options), else paper, "
-        "0.004, image and ours. Settings that differ from the checkpoint's training are run "
-        "as asked, with a note",
+        "ours or authors: where the gripper starts (the sim's start_pose)",
+    ),
+    (
+        "move-spacing",
+        "M",
+        "",
+        f"the move reward's particle spacing [m], up to {MAX_MOVE_SPACING}: 0 = the cable's own, "
+        f"{AUTHORS_MOVE_SPACING} = the authors' (the sim's move_spacing). These five default to what the --policy sac "
+        "checkpoint was trained on (its env_options), else paper, 0.004, image, ours and 0. Settings that differ "
+        "from the checkpoint's training are run as asked, with a note",
     ),
     ("record", "DIR", "", "record every /dlo topic to the rosbag2 (MCAP) directory DIR"),
     (
@@ -167,6 +173,7 @@ class GraphOptions:
     contact_radius: str = ""
     vision_source: str = ""
     start_pose: str = ""
+    move_spacing: str = ""
     record: str = ""
     foxglove: str = ""  # "" = no bridge, else its port
     logs: str = ""
@@ -234,6 +241,10 @@ def check(o: GraphOptions) -> None:
         re.fullmatch(r"[0-9]*[.]?[0-9]+", o.contact_radius) and 0 < float(o.contact_radius) <= MAX_CONTACT_RADIUS
     ):
         raise UsageError(f"--contact-radius must be a number in (0, {MAX_CONTACT_RADIUS}] m, got '{o.contact_radius}'")
+    if o.move_spacing and not (re.fullmatch(r"[0-9]*[.]?[0-9]+", o.move_spacing) and float(o.move_spacing) <= MAX_MOVE_SPACING):
+        raise UsageError(
+            f"--move-spacing must be a number in [0, {MAX_MOVE_SPACING}] m (0: the cable's own spacing), got '{o.move_spacing}'"
+        )
     if o.perturbations:
         try:
             perturbations.parse(o.perturbations)
@@ -261,7 +272,7 @@ def resolve(o: GraphOptions) -> GraphOptions:
     """The options with what they leave open filled in: the tactile noise in its ``-p`` form, --without checked,
     and with --policy sac (not learning online) the sim settings the checkpoint was trained under, where not
     given (a given one that differs from its training is kept, with a line in ``notes``); then the defaults
-    (authors_code, finite grip, paper, 0.004, image, ours). UsageError when one is bad or the checkpoint's run
+    (authors_code, finite grip, paper, 0.004, image, ours, 0). UsageError when one is bad or the checkpoint's run
     cannot be read."""
     from dlo_perception.tactile import noise_parameter_value
 
@@ -287,6 +298,7 @@ def resolve(o: GraphOptions) -> GraphOptions:
     o.contact_radius = o.contact_radius or str(SimConfig.contact_radius)
     o.vision_source = o.vision_source or DEFAULT_VISION_SOURCE
     o.start_pose = o.start_pose or SimConfig.start_pose
+    o.move_spacing = o.move_spacing or str(DEFAULT_MOVE_SPACING)
     return o
 
 
@@ -326,11 +338,11 @@ def _fill_in_from_training(o: GraphOptions, trained: dict) -> None:
         setattr(o, key, asked[key] or value)
 
     def differs(key):
-        if key == "contact_radius":
-            return float(o.contact_radius) != float(trained[key])
+        if key in ("contact_radius", "move_spacing"):  # numbers: 0.0040 is 0.004
+            return float(getattr(o, key)) != float(trained[key])
         return getattr(o, key) != trained[key]
 
-    levers = ("carry_law", "contact_radius", "vision_source", "start_pose")
+    levers = ("carry_law", "contact_radius", "vision_source", "start_pose", "move_spacing")
     if any(differs(key) for key in levers):
         o.notes.append(
             "the policy was trained with "

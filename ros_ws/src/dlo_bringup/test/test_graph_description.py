@@ -51,6 +51,8 @@ CASES = {
             "particles",
             "--start-pose",
             "authors",
+            "--move-spacing",
+            ".004",
             "--record",
             "BAG",
             "--foxglove",
@@ -73,6 +75,7 @@ CASES = {
             "contact_radius": ".005",
             "vision_source": "particles",
             "start_pose": "authors",
+            "move_spacing": ".004",
             "record": "BAG",
             "foxglove": "0",
             "namespace": "/lab/robot1/",
@@ -183,3 +186,31 @@ def test_parameter_values_are_written_as_the_nodes_read_them():
     for value in (0.004, 1e-05, 2.0, 0.0, 1e20, True, False, 3, [0.1, 0.001], [1e-05, 2.0], "paper_text"):
         assert yaml.safe_load(ros_value(value)) == value, value
     assert ros_value(1e-05) == "0.00001" and ros_value([1e-05, 2.0]) == "[0.00001,2.0]"
+
+
+def test_the_sim_gets_the_move_spacing_the_checkpoint_was_trained_with_unless_asked(tmp_path):
+    """--move-spacing (docs/FIDELITY.md): with --policy sac the sim's move_spacing is the checkpoint's training
+    env_options.move_spacing (0, the cable's own spacing, for a run without it: the shipped one); asked otherwise,
+    it runs as asked, with a note; a scripted policy runs 0 unless asked."""
+    from dlo_policy.rundir import shipped_policy_path
+
+    def sim_spacing(argv):
+        options = resolve(parse_args(["--episodes", "1", *argv]))
+        return dict(graph_nodes(options)[0].parameters)["move_spacing"], options.notes
+
+    shipped = shipped_policy_path()
+    run = tmp_path / "spaced"
+    run.mkdir()
+    (run / "policy.pt").write_bytes(shipped.read_bytes())
+    config = yaml.safe_load((shipped.parent / "config.yaml").read_text())
+    config["env_options"]["move_spacing"] = 0.004
+    (run / "config.yaml").write_text(yaml.safe_dump(config))
+    assert sim_spacing([]) == (0.0, [])
+    assert sim_spacing(["--checkpoint", str(run / "policy.pt")]) == (0.004, [])
+    assert sim_spacing(["--checkpoint", str(run / "policy.pt"), "--move-spacing", "0.0040"]) == (0.004, [])
+    spacing, notes = sim_spacing(["--checkpoint", str(run / "policy.pt"), "--move-spacing", "0"])
+    assert spacing == 0.0 and len(notes) == 1 and "move_spacing=0.004; this graph runs" in notes[0], notes
+    assert notes[0].endswith("move_spacing=0 (as asked)"), notes
+    assert sim_spacing(["--policy", "oracle", "--move-spacing", ".004"]) == (0.004, [])
+    with pytest.raises(UsageError, match=r"^--move-spacing must be a number in \[0, 0\.01\] m"):
+        parse_args(["--move-spacing", "nan"])

@@ -30,7 +30,7 @@ from pathlib import Path
 from typing import Any, Optional
 
 from dlo_interface.sim_config import SimConfig
-from dlo_interface.task import LEGACY_TASK_RULES, recorded_task_rules
+from dlo_interface.task import DEFAULT_MOVE_SPACING, LEGACY_TASK_RULES, recorded_task_rules
 from dlo_perception.vision_source import DEFAULT_VISION_SOURCE
 
 from .config import RunConfig, load_config, record_task_rules
@@ -203,8 +203,8 @@ def checkpoint_path(spec) -> Path:
 def trained_sim_settings(policy_file: Path) -> Optional[dict[str, Any]]:
     """The simulator settings a policy file (policy.pt, best_policy.pt, checkpoint.pt) learned its task
     under, from its run's config.yaml: ``{"task_rules", "single_particle_grip", "carry_law", "contact_radius",
-    "vision_source", "start_pose"}`` (what the sim and vision nodes must run for the policy to meet the task and the
-    observation it was trained on); None when no config.yaml is beside the file.
+    "vision_source", "start_pose", "move_spacing"}`` (what the sim and vision nodes must run for the policy to meet the
+    task and the observation it was trained on); None when no config.yaml is beside the file.
     ConfigError or OSError when that config.yaml cannot be read."""
     run_dir = Path(policy_file).parent
     if not (run_dir / CONFIG_FILE).exists():
@@ -217,6 +217,7 @@ def trained_sim_settings(policy_file: Path) -> Optional[dict[str, Any]]:
         "contact_radius": float(options.get("contact_radius", SimConfig.contact_radius)),
         "vision_source": options.get("vision_source", DEFAULT_VISION_SOURCE),
         "start_pose": options.get("start_pose", SimConfig.start_pose),
+        "move_spacing": float(options.get("move_spacing", DEFAULT_MOVE_SPACING)),
     }
 
 

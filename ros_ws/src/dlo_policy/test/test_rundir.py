@@ -239,13 +239,20 @@ def test_sim_settings_are_what_the_policy_file_was_trained_on(tmp_path):
             "env_options.carry_law=authors",
             "env_options.contact_radius=0.005",
             "env_options.vision_source=particles",
+            "env_options.move_spacing=0.004",
         ],
     }
     for name, overrides in runs.items():
         (tmp_path / name).mkdir()
         save_config(load_config(None, overrides), tmp_path / name / rundir.CONFIG_FILE)
         (tmp_path / name / "policy.pt").write_bytes(b"")
-    defaults = {"carry_law": "paper", "contact_radius": 0.004, "vision_source": "image", "start_pose": "ours"}
+    defaults = {
+        "carry_law": "paper",
+        "contact_radius": 0.004,
+        "vision_source": "image",
+        "start_pose": "ours",
+        "move_spacing": 0.0,
+    }
     assert rundir.trained_sim_settings(tmp_path / "old" / "policy.pt") == {
         "task_rules": "paper_text",
         "single_particle_grip": False,
@@ -263,6 +270,7 @@ def test_sim_settings_are_what_the_policy_file_was_trained_on(tmp_path):
         "contact_radius": 0.005,
         "vision_source": "particles",
         "start_pose": "ours",
+        "move_spacing": 0.004,
     }
     (tmp_path / "bare").mkdir()
     (tmp_path / "bare" / "policy.pt").write_bytes(b"")
