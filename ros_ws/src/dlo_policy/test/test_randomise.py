@@ -88,6 +88,77 @@ def test_each_episode_draws_from_its_seed_alone_uniformly_in_the_range():
     assert P.episode_rng(5).random() == P.episode_rng(5).random()
 
 
+# today's draws (randomise_draw "all"), pinned from the code before the "one" draw existed: they must never change
+PINNED = {
+    0: {
+        "observation_delay": 0,
+        "vision_false_visible": 0.01590360807923727,
+        "gripper_position_bias": 13.49464514913153,
+        "action_delay": 0,
+        "velocity_gain": 1.0938604159417813,
+        "closure_lag": 0.15021886163758985,
+        "camera_offset": 0.35924037349064797,
+        "camera_yaw": 1.7854237037989376,
+    },
+    7: {
+        "observation_delay": 0,
+        "vision_false_visible": 0.014323904344795942,
+        "gripper_position_bias": 16.982260258854037,
+        "action_delay": 0,
+        "velocity_gain": 0.756811617325186,
+        "closure_lag": 0.15008102135619822,
+        "camera_offset": 8.794420725597776,
+        "camera_yaw": 2.775760665960525,
+    },
+    12345: {
+        "observation_delay": 0,
+        "vision_false_visible": 0.003915408726819394,
+        "gripper_position_bias": 7.134884674712163,
+        "action_delay": 0,
+        "velocity_gain": 0.7994838800196667,
+        "closure_lag": 0.017437669487262043,
+        "camera_offset": 3.9589742530694383,
+        "camera_yaw": 3.7476802911753375,
+    },
+}
+# the first episodes of make_vec_env(2, "All", seed=11, randomise=ROBUST_RANGES): their non-physics draws, pinned so
+PINNED_ENV = [
+    {
+        "observation_delay": 1,
+        "vision_false_visible": 0.01377180972112275,
+        "gripper_position_bias": 18.111911246107912,
+        "action_delay": 0,
+        "velocity_gain": 0.6880491517044236,
+        "closure_lag": 0.26984419004783916,
+        "camera_offset": 3.1513773790985034,
+        "camera_yaw": 1.6778751044320201,
+    },
+    {
+        "observation_delay": 1,
+        "vision_false_visible": 0.00010060695094084693,
+        "gripper_position_bias": 9.165291966492436,
+        "action_delay": 0,
+        "velocity_gain": 1.0266926437237678,
+        "closure_lag": 0.2941936613236041,
+        "camera_offset": 3.5063597839390424,
+        "camera_yaw": 1.0457530333620322,
+    },
+]
+
+
+def test_the_all_draw_is_todays_to_the_last_bit():
+    ranges = P.parse_ranges(ROBUST_RANGES)
+    for seed, pinned in PINNED.items():
+        assert P.randomised(ranges, seed) == pinned
+    env = make_vec_env(2, "All", seed=11, horizon=4, randomise=ROBUST_RANGES)
+    env.reset()
+    physics = set(P.names(P.PHYSICS))
+    assert [{k: v for k, v in r.items() if k not in physics} for r in env.randomised] == PINNED_ENV
+    for i, pinned in enumerate(PINNED_ENV):  # the Perturber runs each episode under them
+        assert env.perturber.episodes[i].m.gain == pinned["velocity_gain"]
+        assert env.perturber.episodes[i].m.obs_delay == pinned["observation_delay"]
+
+
 def episodes(env, steps, rng):
     """{episode seed: its info["randomised"]} of every episode that ended in ``steps`` random steps."""
     ended = {}
