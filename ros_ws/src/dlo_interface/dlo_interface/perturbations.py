@@ -36,6 +36,13 @@ registered family whatever is randomised: the same episode gets the same magnitu
 other families are randomised), a physics family by the simulator's own per-episode draw, its range replacing the
 training range. A family is either fixed (``perturbations``) or randomised, not both; with no randomisation
 nothing is drawn.
+
+How the observation, action and camera families are drawn is the randomisation's *draw* (``DRAWS``; the gym env's
+option ``randomise_draw``, :func:`check_draw`): ``all`` (the default) as above, every one of them every episode;
+``one``: each episode takes ONE of the n randomised observation, action and camera families, or none, each of the
+n + 1 choices alike (from a generator of its own, seeded from the episode's seed on the stream ``CHOICE_STREAM``, so
+that the ``all`` draws stay what they were), at the magnitude ``all`` gives it in that episode; the others are off
+(their ``off`` value) in that episode. The physics families are drawn by the simulator every episode either way.
 """
 
 from __future__ import annotations
@@ -51,6 +58,9 @@ import numpy as np
 OBSERVATION, ACTION, PHYSICS, CAMERA = "observation", "action", "physics", "camera"
 SIDES = (OBSERVATION, ACTION, PHYSICS, CAMERA)
 RANDOMISE_STREAM = 0x5EED  # mixed into each episode's seed: its randomised magnitudes, another stream
+CHOICE_STREAM = 0xC40E  # mixed into each episode's seed: which family a "one" draw takes, a stream of its own
+DRAWS = ("all", "one")  # how a randomisation draws its non-physics families (module docstring)
+DEFAULT_DRAW = "all"
 
 
 @dataclass(frozen=True)
@@ -348,18 +358,35 @@ def range_text(ranges: Mapping) -> str:
     return ",".join(f"{name}={low:g}:{high:g}" for name, (low, high) in parse_ranges(ranges).items())
 
 
-def randomised(ranges: Mapping, seed: int) -> dict:
+def check_draw(value) -> str:
+    """A randomisation's draw (``DRAWS``, module docstring) as given; ValueError in one line otherwise."""
+    if not isinstance(value, str) or value not in DRAWS:
+        raise ValueError(f"randomise_draw: expected {' or '.join(DRAWS)}, got {value!r}")
+    return value
+
+
+def randomised(ranges: Mapping, seed: int, draw: str) -> dict:
     """The magnitudes the episode with this seed takes from a (parsed) randomisation, for its observation, action
     and camera families (a physics family is drawn by the simulator, from its range: :func:`sim_config`): uniform
     in [low, high], an integer family each whole number alike. One uniform per registered family from the
-    episode's own generator, whatever is randomised."""
+    episode's own generator, whatever is randomised. ``draw`` (``DRAWS``, every caller says which): ``all``, each
+    family at its magnitude; ``one``, one of them (or none, each of the n + 1 choices alike, from the episode's
+    generator on ``CHOICE_STREAM``) at its magnitude, every other family at its ``off`` value: each randomised
+    family is in the result either way."""
+    check_draw(draw)
     u = np.random.default_rng([RANDOMISE_STREAM, int(seed)]).random(len(FAMILIES))
+    on = [f.name for f in FAMILIES if f.name in ranges and f.side != PHYSICS]  # the families this episode perturbs
+    if draw == "one":
+        choice = int(np.random.default_rng([CHOICE_STREAM, int(seed)]).integers(len(on) + 1))
+        on = on[choice : choice + 1]  # choice n: none
     drawn = {}
     for k, f in enumerate(FAMILIES):
         if f.name not in ranges or f.side == PHYSICS:
             continue
         low, high = ranges[f.name]
-        if f.integer:
+        if f.name not in on:
+            drawn[f.name] = int(f.off) if f.integer else float(f.off)
+        elif f.integer:
             drawn[f.name] = int(low + min(int(u[k] * (high - low + 1)), high - low))
         else:
             drawn[f.name] = float(low + u[k] * (high - low))

@@ -179,14 +179,14 @@ def env_module(config: RunConfig) -> Any:
     return importlib.import_module(config.env_module)
 
 
-TRAINING_ONLY = ("randomise",)  # env options only a training env gets (domain randomisation): evaluations run without
+TRAINING_ONLY = ("randomise", "randomise_draw")  # env options only a training env gets (domain randomisation)
 
 
 def make_env(config: RunConfig, num_envs: Optional[int] = None, seed: Optional[int] = None, training: bool = False) -> Any:
     """The run's environment (its env module, modalities and options): one env, or with `num_envs` a
     vector env; seeded with `seed` (default: the run's seed). Without `training` the options of
     TRAINING_ONLY are left out: every evaluation, test and robustness point of a run trained with
-    `env_options.randomise` runs on the task without it."""
+    `env_options.randomise` (and `randomise_draw`) runs on the task without it."""
     module = env_module(config)
     seed = config.seed if seed is None else seed
     options = {k: v for k, v in config.env_options.items() if training or k not in TRAINING_ONLY}
@@ -233,16 +233,22 @@ def _yaml(text: str, what: str) -> Any:
 
 
 def load_config(
-    path: Optional[str | Path] = None, overrides: typing.Sequence[str] = (), values: Optional[typing.Mapping[str, Any]] = None
+    path: Optional[str | Path] = None,
+    overrides: typing.Sequence[str] = (),
+    values: Optional[typing.Mapping[str, Any]] = None,
+    presets: Optional[typing.Mapping[str, Any]] = None,
 ) -> RunConfig:
-    """Defaults, then the YAML file (if any), then `key=value` overrides (values parsed as YAML),
-    then `values` (dotted key -> Python value)."""
+    """Defaults, then the YAML file (if any), then `presets` (dotted key -> Python value: what the overrides may
+    change, e.g. an experiment group's env_options), then `key=value` overrides (values parsed as YAML), then
+    `values` (dotted key -> Python value)."""
     data: dict[str, Any] = {}
     if path is not None:
         loaded = _yaml(Path(path).read_text(), str(path))
         if loaded is not None and not isinstance(loaded, dict):
             raise ConfigError(f"{path}: expected a mapping at the top level")
         data = loaded or {}
+    for key, value in (presets or {}).items():
+        _set_dotted(data, key, value)
     for override in overrides:
         key, sep, text = override.partition("=")
         if not sep or not key:

@@ -59,6 +59,10 @@ Options (keywords of both entry points):
                           batch); a physics range replaces the training range, a camera family renders each env
                           through a camera of its own. A family is in perturbations or here, not both. dlo-train
                           builds only its training env with it (evaluation and test run without: config.make_env)
+    randomise_draw="all"  with randomise only: how its observation, action and camera families are drawn
+                          (dlo_interface.perturbations.DRAWS): "all", every one every episode; "one", each episode
+                          ONE of them or none (each of the n + 1 choices alike, from the episode's seed), the others
+                          off. Its physics families are drawn every episode either way (by the simulator)
     simulator="taichi"    the simulator backend: a name registered in the entry point group dlo_interface.simulators
                           (dlo_interface.simulator; "taichi": dlo_sim's rope) or, in code, a factory of one
 
@@ -67,8 +71,9 @@ has "outcome" (name; paper-text rule), "outcome_code", "outcome_authors" (name; 
 rule, ``dlo_interface.task``), "time_at_end", "how_far", "episode_return",
 "episode_length", "episode_seed", "unstable" (the simulator had to reset it; the episode is cut and
 counted as truncated), "randomised" (with ``randomise`` only: {family: the magnitude the episode ran under},
-physics families as the simulator drew them), and, in the vector env, "final_obs" (the last observation of that episode,
-the returned one is already the next episode's first). Vector infos follow gymnasium's
+physics families as the simulator drew them; under ``randomise_draw="one"`` the families not chosen at their off
+value), and, in the vector env, "final_obs" (the last observation of that episode, the returned one is already the
+next episode's first). Vector infos follow gymnasium's
 dict-of-arrays layout with "_key" masks.
 """
 
@@ -113,6 +118,7 @@ def check_options(options) -> None:
         "start_pose",
         "perturbations",
         "randomise",
+        "randomise_draw",
         "simulator",
     )
     unknown = sorted(set(options) - set(known))
@@ -124,7 +130,8 @@ def check_options(options) -> None:
 
 
 def _check_observation_options(options) -> None:
-    """tactile_noise, without, perturbations and randomise (not a physics family with a fixed physics_seed)."""
+    """tactile_noise, without, perturbations, randomise (not a physics family with a fixed physics_seed) and
+    randomise_draw (with randomise only)."""
     if "tactile_noise" in options:
         try:
             noise_sigma(options["tactile_noise"])
@@ -142,6 +149,10 @@ def _check_observation_options(options) -> None:
                 f"randomise: {', '.join(physics)} cannot be drawn per episode with physics_seed "
                 f"{options['physics_seed']} (one physics draw for every episode): leave one of them out"
             )
+    if "randomise_draw" in options:
+        draw = perturbation_families.check_draw(options["randomise_draw"])
+        if not perturbation_families.parse_ranges(options.get("randomise")):
+            raise ValueError(f"randomise_draw: {draw} without randomise (it says how randomise's families are drawn)")
 
 
 def _check_variant_options(options) -> None:
@@ -203,6 +214,7 @@ class CableFollowingVecEnv(VectorEnv):
         start_pose=None,
         perturbations=None,
         randomise=None,
+        randomise_draw=None,
         simulator=DEFAULT_SIMULATOR,
     ):
         check_options(
@@ -212,6 +224,7 @@ class CableFollowingVecEnv(VectorEnv):
                 "physics_seed": physics_seed,
                 "vision_source": vision_source,
                 **({} if randomise is None else {"randomise": randomise, "perturbations": perturbations}),
+                **({} if randomise_draw is None else {"randomise": randomise, "randomise_draw": randomise_draw}),
                 **({} if carry_law is None else {"carry_law": carry_law}),
                 **({} if contact_radius is None else {"contact_radius": contact_radius}),
                 **({} if start_pose is None else {"start_pose": start_pose}),
@@ -230,6 +243,7 @@ class CableFollowingVecEnv(VectorEnv):
             sim_config = dataclasses.replace(sim_config or SimConfig(), physics_seed=physics_seed)
         self.perturbations = perturbation_families.parse(perturbations)  # {family: magnitude}, those that are on
         self.randomise = perturbation_families.parse_ranges(randomise, self.perturbations)  # {family: (low, high)}
+        self.randomise_draw = randomise_draw or perturbation_families.DEFAULT_DRAW  # how its families are drawn
         sim_config = perturbation_families.sim_config(self.perturbations, sim_config, self.randomise)
         camera = TopCamera.covering_workspace(int(camera_resolution))
         # a randomised camera family: every env renders through its own camera (set per episode, _start_episodes)
@@ -267,7 +281,7 @@ class CableFollowingVecEnv(VectorEnv):
         self.last_observation = None
         # the observation and action families (dlo_policy.perturbations.Perturber), as the policy node runs them
         self.perturber = perturbation_families.Perturber(
-            self.perturbations, self.modalities, self.without, self.num_envs, ranges=self.randomise
+            self.perturbations, self.modalities, self.without, self.num_envs, ranges=self.randomise, draw=self.randomise_draw
         )
         self.randomised = [None] * self.num_envs  # randomise: each env's episode magnitudes (info "randomised")
 
@@ -318,29 +332,35 @@ class CableFollowingVecEnv(VectorEnv):
         """Reset the simulator and the task tracker of ``env_ids`` with the next episode seeds."""
         seeds = self.next_seed + np.arange(len(env_ids))
         self.next_seed += len(env_ids)
+        # each new episode's randomised magnitudes: its camera and info "randomised" (the Perturber's, drawn alike)
+        draws = (
+            [perturbation_families.randomised(self.randomise, int(s), self.randomise_draw) for s in seeds]
+            if self.randomise
+            else []
+        )
         if self.camera_per_env:
-            self._set_cameras(env_ids, seeds)
+            self._set_cameras(env_ids, draws)
         self.task.reset(seeds, env_ids)
         self.episode_seed[env_ids] = seeds
         if self.perturber.active:
             self.perturber.start(env_ids, seeds)
         if self.randomise:
-            self._note_randomised(env_ids, seeds)
+            self._note_randomised(env_ids, draws)
 
-    def _set_cameras(self, env_ids, seeds):
+    def _set_cameras(self, env_ids, draws):
         """Each env's rendering camera for its new episode: the fixed camera families with its randomised ones."""
         offsets, yaws = [], []
-        for seed in seeds:
-            m = {**self.perturbations, **perturbation_families.randomised(self.randomise, int(seed))}
+        for drawn in draws:
+            m = {**self.perturbations, **drawn}
             offsets.append((0.0, 0.001 * m.get("camera_offset", 0.0)))
             yaws.append(np.radians(m.get("camera_yaw", 0.0)))
         self.sim.set_camera(env_ids, offsets, yaws)
 
-    def _note_randomised(self, env_ids, seeds):
+    def _note_randomised(self, env_ids, draws):
         """The randomised magnitudes of the new episodes in ``env_ids`` (physics ones as the simulator drew them)."""
         params = self.sim.params
-        for i, seed in zip(env_ids, seeds, strict=True):
-            drawn = perturbation_families.randomised(self.randomise, int(seed))
+        for i, drawn in zip(env_ids, draws, strict=True):
+            drawn = dict(drawn)
             for name in self.randomise:
                 f = perturbation_families.family(name)
                 if f.side == perturbation_families.PHYSICS:

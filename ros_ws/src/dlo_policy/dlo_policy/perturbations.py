@@ -46,6 +46,9 @@ import numpy as np
 from dlo_interface.perturbations import (  # noqa: F401  (the registry's public names, re-exported)
     ACTION,
     CAMERA,
+    CHOICE_STREAM,
+    DEFAULT_DRAW,
+    DRAWS,
     FAMILIES,
     FORMS,
     OBSERVATION,
@@ -56,6 +59,7 @@ from dlo_interface.perturbations import (  # noqa: F401  (the registry's public 
     SIDES,
     Family,
     cameras,
+    check_draw,
     family,
     names,
     of_side,
@@ -126,11 +130,20 @@ class Perturber:
     observations (N', D) of those envs (all by default) and ``act(actions)`` the actions (N, 3) of every env, in
     float64, returning float32. ``modalities``/``without``: the observation's layout (dlo_policy.observation);
     a family whose modality is not observed (or ablated) does nothing. ``ranges``: a randomisation
-    (:func:`parse_ranges`), its observation and action families drawn per episode (:func:`randomised`) on top of
-    the fixed ``setting``. ``active``: any family of these sides on or randomised (else the caller need not call
-    it: nothing would change)."""
+    (:func:`parse_ranges`), its observation and action families drawn per episode (:func:`randomised`, with the
+    randomisation's ``draw``: under ``one`` the choice is among all its non-physics families, camera ones included, as
+    the env's) on top of the fixed ``setting``. ``active``: any family of these sides on or randomised (else the
+    caller need not call it: nothing would change)."""
 
-    def __init__(self, setting: Mapping, modalities, without=(), num_envs: int = 1, ranges: Optional[Mapping] = None):
+    def __init__(
+        self,
+        setting: Mapping,
+        modalities,
+        without=(),
+        num_envs: int = 1,
+        ranges: Optional[Mapping] = None,
+        draw: str = DEFAULT_DRAW,
+    ):
         from dlo_interface.world import WORKSPACE_HALF_WIDTH
         from dlo_perception.tactile import Y_LIMIT
         from dlo_perception.vision import SEARCH_HALF_WIDTH
@@ -138,7 +151,9 @@ class Perturber:
         from dlo_policy.observation import observation_labels, parse_modalities
 
         self.setting = of_side(parse(setting), OBSERVATION, ACTION)
-        self.ranges = of_side(parse_ranges(ranges, self.setting), OBSERVATION, ACTION)
+        self.randomise = parse_ranges(ranges, self.setting)  # every family: a "one" draw chooses among them all
+        self.draw = check_draw(draw)
+        self.ranges = of_side(self.randomise, OBSERVATION, ACTION)
         self.observes = bool(of_side({**self.setting, **self.ranges}, OBSERVATION))
         self.acts = bool(of_side({**self.setting, **self.ranges}, ACTION))
         self.active = self.observes or self.acts
@@ -155,7 +170,11 @@ class Perturber:
         """New episodes in ``env_ids`` with these episode seeds: fresh generators, empty delay lines, and the
         randomised families' magnitudes of each episode."""
         for i, seed in zip(np.asarray(env_ids).reshape(-1), np.asarray(seeds).reshape(-1), strict=True):
-            m = _Magnitudes({**self.setting, **randomised(self.ranges, int(seed))}) if self.ranges else self.fixed
+            if self.ranges:
+                drawn = of_side(randomised(self.randomise, int(seed), self.draw), OBSERVATION, ACTION)
+                m = _Magnitudes({**self.setting, **drawn})
+            else:
+                m = self.fixed
             self.episodes[int(i)] = _Episode(int(seed), m)
 
     def _episode(self, i: int) -> _Episode:

@@ -6,6 +6,7 @@ config.yaml and each episode's magnitudes in randomised.csv."""
 
 import csv
 import json
+import math
 import subprocess
 import sys
 from pathlib import Path
@@ -13,10 +14,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from dlo_interface.world import CONTROL_PERIOD
 from dlo_policy import perturbations as P
 from dlo_policy.config import RunConfig, make_env
 from dlo_policy.env import check_options, make_vec_env
-from dlo_policy.grid import GROUPS, ROBUST_LABEL, ROBUST_RANGES, experiment_grid
+from dlo_policy.grid import GROUPS, ROBUST_LABEL, ROBUST_RANGES, RunSpec, experiment_grid, run_config
 
 RANGES = {
     "observation_delay": [0, 2],
@@ -73,8 +75,8 @@ def test_a_family_is_fixed_or_randomised_not_both_and_physics_not_with_one_physi
 # ------------------------------------------------------------------------------------------------ drawing
 def test_each_episode_draws_from_its_seed_alone_uniformly_in_the_range():
     ranges = P.parse_ranges(RANGES)
-    draws = [P.randomised(ranges, seed) for seed in range(400)]
-    assert draws[7] == P.randomised(ranges, 7)  # reproducible
+    draws = [P.randomised(ranges, seed, "all") for seed in range(400)]
+    assert draws[7] == P.randomised(ranges, 7, "all")  # reproducible
     assert all(set(d) == {"observation_delay", "velocity_gain", "closure_lag", "camera_yaw"} for d in draws)  # physics: the sim
     delays = [d["observation_delay"] for d in draws]
     assert set(delays) == {0, 1, 2} and all(isinstance(x, int) for x in delays)  # each whole number, both ends
@@ -82,9 +84,9 @@ def test_each_episode_draws_from_its_seed_alone_uniformly_in_the_range():
     gains = np.array([d["velocity_gain"] for d in draws])
     assert 0.5 <= gains.min() < 0.55 and 1.95 < gains.max() <= 2.0 and abs(gains.mean() - 1.25) < 0.06
     alone = P.parse_ranges({"velocity_gain": [0.5, 2.0]})  # whichever other families are randomised
-    assert [P.randomised(alone, s)["velocity_gain"] for s in range(400)] == list(gains)
+    assert [P.randomised(alone, s, "all")["velocity_gain"] for s in range(400)] == list(gains)
     # a fixed range is its one magnitude; an episode's perturbation noise is untouched by its draws
-    assert {P.randomised(P.parse_ranges({"closure_lag": [0.1, 0.1]}), s)["closure_lag"] for s in range(20)} == {0.1}
+    assert {P.randomised(P.parse_ranges({"closure_lag": [0.1, 0.1]}), s, "all")["closure_lag"] for s in range(20)} == {0.1}
     assert P.episode_rng(5).random() == P.episode_rng(5).random()
 
 
@@ -149,7 +151,7 @@ PINNED_ENV = [
 def test_the_all_draw_is_todays_to_the_last_bit():
     ranges = P.parse_ranges(ROBUST_RANGES)
     for seed, pinned in PINNED.items():
-        assert P.randomised(ranges, seed) == pinned
+        assert P.randomised(ranges, seed, "all") == pinned
     env = make_vec_env(2, "All", seed=11, horizon=4, randomise=ROBUST_RANGES)
     env.reset()
     physics = set(P.names(P.PHYSICS))
@@ -157,6 +159,115 @@ def test_the_all_draw_is_todays_to_the_last_bit():
     for i, pinned in enumerate(PINNED_ENV):  # the Perturber runs each episode under them
         assert env.perturber.episodes[i].m.gain == pinned["velocity_gain"]
         assert env.perturber.episodes[i].m.obs_delay == pinned["observation_delay"]
+
+
+# ------------------------------------------------------------------------------------------------ the "one" draw
+# ranges whose magnitudes are never the family's off value: the one family an episode perturbs is the one not off
+ONE_RANGES = {
+    "observation_delay": [1, 3],
+    "vision_dropout": [0.1, 0.5],
+    "velocity_gain": [0.5, 0.9],
+    "closure_lag": [0.1, 0.3],
+    "friction": [0.02, 1.2],
+    "cable_length": [20, 60],
+    "camera_offset": [2.0, 6.0],
+    "camera_yaw": [1.0, 4.0],
+}
+ONE_DRAWN = ["observation_delay", "vision_dropout", "velocity_gain", "closure_lag", "camera_offset", "camera_yaw"]
+
+
+def chosen(drawn: dict) -> list:
+    """The families a draw perturbs (not at their off value)."""
+    return [name for name, m in drawn.items() if m != P.family(name).off]
+
+
+def test_the_one_draw_takes_one_family_or_none_each_alike_at_a_magnitude_in_its_range():
+    ranges = P.parse_ranges(ONE_RANGES)
+    seeds = range(7000)
+    draws = [P.randomised(ranges, seed, "one") for seed in seeds]
+    assert draws[123] == P.randomised(ranges, 123, "one") and draws[0] != draws[1]  # the episode's seed alone
+    assert all(list(d) == ONE_DRAWN for d in draws)  # every randomised family recorded, physics: the simulator's
+    picks = [chosen(d) for d in draws]
+    assert all(len(c) <= 1 for c in picks)  # one family or none
+    counts = {name: sum(c == [name] for c in picks) for name in ONE_DRAWN}
+    counts["none"] = sum(c == [] for c in picks)
+    assert all(abs(n - 1000) < 150 for n in counts.values()), counts  # 7 choices alike (each about 1000 +- 30)
+    for seed, drawn, pick in zip(seeds, draws, picks, strict=True):
+        if pick:  # at the magnitude the "all" draw gives it, so in its range; the others off
+            (name,) = pick
+            assert drawn[name] == P.randomised(ranges, seed, "all")[name]
+            low, high = ranges[name]
+            assert low <= drawn[name] <= high
+        assert isinstance(drawn["observation_delay"], int)
+    delays = [d["observation_delay"] for d, c in zip(draws, picks, strict=True) if c == ["observation_delay"]]
+    assert min(delays.count(k) for k in (1, 2, 3)) > 250  # each whole number alike (about 333 each)
+    assert {d["velocity_gain"] for d, c in zip(draws, picks, strict=True) if c != ["velocity_gain"]} == {1.0}
+    # the ROBUST_RANGES: 8 observation, action and camera families, 9 choices; the physics ones never chosen
+    robust = P.parse_ranges(ROBUST_RANGES)
+    drawn = [P.randomised(robust, seed, "one") for seed in range(900)]
+    assert all(set(d) == set(robust) - {"friction", "cable_length"} and len(chosen(d)) <= 1 for d in drawn)
+    assert all(sum(chosen(d) == [name] for d in drawn) > 20 for name in drawn[0])  # (a delay's 0 is its off too)
+
+
+def test_a_bad_draw_is_one_line_and_a_draw_needs_a_randomisation(tmp_path, capsys):
+    for bad in ("some", "ALL", 1, None):
+        with pytest.raises(ValueError) as error:
+            check_options({"randomise": RANGES, "randomise_draw": bad})
+        assert str(error.value) == f"randomise_draw: expected all or one, got {bad!r}"
+        with pytest.raises(ValueError, match="randomise_draw: expected all or one"):
+            P.randomised(P.parse_ranges(RANGES), 0, bad)
+    for without in ({}, {"randomise": ""}, {"randomise": {}}):
+        with pytest.raises(ValueError, match=r"^randomise_draw: one without randomise \(it says how randomise's families"):
+            check_options({**without, "randomise_draw": "one"})
+        with pytest.raises(ValueError, match="randomise_draw: all without randomise"):
+            make_vec_env(1, "K", **without, randomise_draw="all")
+    check_options({"randomise": RANGES, "randomise_draw": "one"})
+    from dlo_policy.train import main
+
+    assert main(["--modalities", "K", "--out", str(tmp_path / "run"), "env_options.randomise_draw=one"]) == 2
+    said = capsys.readouterr().err.strip()
+    assert said.startswith("dlo-train: error: env_options: randomise_draw: one without randomise") and "\n" not in said
+    assert not (tmp_path / "run").exists()
+
+
+def test_in_the_one_draw_the_cameras_the_perturber_and_info_randomised_agree(monkeypatch):
+    """Every consumer of an episode's draw sees the same "one" draw: the per-env camera it renders through, the
+    Perturber's magnitudes and info "randomised" (and randomised.csv with it). Fails if one of them draws "all"."""
+    env = make_vec_env(4, "All", seed=21, horizon=3, randomise=ONE_RANGES, randomise_draw="one")
+    assert env.randomise_draw == "one"
+    ranges = P.parse_ranges(ONE_RANGES)
+    cameras = {}  # episode seed -> (offset along y [mm], yaw [deg]) it renders through
+    set_camera = env.sim.set_camera
+
+    def spy(env_ids, offsets, yaws):
+        seeds = env.next_seed - len(env_ids) + np.arange(len(env_ids))  # _start_episodes has taken them
+        for seed, offset, yaw in zip(seeds, offsets, yaws, strict=True):
+            cameras[int(seed)] = (1000.0 * offset[1], np.degrees(yaw))
+        return set_camera(env_ids, offsets, yaws)
+
+    monkeypatch.setattr(env.sim, "set_camera", spy)
+    env.reset()
+    rng = np.random.default_rng(3)
+    ended, perturbed = {}, {}
+    for _ in range(10):
+        for i, seed in enumerate(env.episode_seed):  # the episode each env runs now, as the Perturber runs it
+            m = env.perturber.episodes[i].m
+            perturbed[int(seed)] = (m.obs_delay, m.dropout, m.gain, m.closure_rate)
+        ended.update(episodes(env, 1, rng))
+    assert len(ended) >= 10 and set(ended) <= set(perturbed) <= set(cameras)
+    differs = set()
+    for seed in cameras:
+        one, every = P.randomised(ranges, seed, "one"), P.randomised(ranges, seed, "all")
+        differs |= {name for name in one if one[name] != every[name]}
+        assert cameras[seed] == pytest.approx((one["camera_offset"], one["camera_yaw"]), abs=1e-6)
+        if seed in perturbed:
+            rate = -math.expm1(-CONTROL_PERIOD / one["closure_lag"]) if one["closure_lag"] else 1.0
+            assert perturbed[seed] == (one["observation_delay"], one["vision_dropout"], one["velocity_gain"], rate)
+        if seed in ended:
+            assert {name: ended[seed][name] for name in one} == one
+            assert 0.02 <= ended[seed]["friction"] <= 1.2 and 20 <= ended[seed]["cable_length"] <= 60  # every episode
+    assert differs == set(ONE_DRAWN)  # each consumer's families: the "all" draw would have failed it
+    assert len({tuple(chosen({n: r[n] for n in ONE_DRAWN})) for r in ended.values()}) >= 3
 
 
 def episodes(env, steps, rng):
@@ -241,7 +352,7 @@ def test_the_robust_group_trains_All_with_ranges_up_to_twice_the_shipped_policys
     envelope) on each side, and beyond the tolerance itself for at least 6 families."""
     (spec,) = experiment_grid(["robust"], [1])
     assert (spec.label, spec.modalities, spec.groups) == (ROBUST_LABEL, "All", ("robust",))
-    assert dict(spec.env_options) == {"randomise": ROBUST_RANGES}
+    assert dict(spec.env_options) == {"randomise": ROBUST_RANGES, "randomise_draw": "one"}
     check_options(dict(spec.env_options))
     assert ROBUST_LABEL not in {s.label for s in experiment_grid(GROUPS, [1])}
     families = json.loads(ENVELOPE.read_text())["families"]
@@ -302,9 +413,87 @@ def test_a_short_training_run_records_the_ranges_and_every_episodes_draws(tmp_pa
         values = [float(r[name]) for r in rows]
         assert all(low <= v <= high for v in values) and len(set(values)) > 1, (name, values)
     for row in rows:  # each the draw of its episode's seed (the physics one drawn by the simulator)
-        drawn = P.randomised(P.parse_ranges(ranges), int(row["episode_seed"]))
+        drawn = P.randomised(P.parse_ranges(ranges), int(row["episode_seed"]), "all")
         assert (
             float(row["velocity_gain"]) == drawn["velocity_gain"] and int(row["observation_delay"]) == drawn["observation_delay"]
         )
     test = json.loads((out / "test.json").read_text())
     assert test["episodes"] == 1
+
+
+def test_the_robust_group_draws_one_family_and_an_override_gives_the_earlier_group_back(tmp_path):
+    """dlo-experiments --groups robust: randomise_draw one; the command line's env_options.randomise_draw=all (an
+    override, applied after the group's env_options, the grid's modalities and seed after it) trains the earlier
+    group: its training env draws today's magnitudes and gives the same observations to the last bit."""
+    (spec,) = experiment_grid(["robust"], [1])
+    grid = run_config(spec, None, [], steps=None, threads=1)
+    assert grid.env_options == {"randomise": ROBUST_RANGES, "randomise_draw": "one"}
+    overridden = run_config(spec, None, ["env_options.randomise_draw=all", "modalities=K", "seed=9"], None, 1)
+    assert overridden.env_options == {"randomise": ROBUST_RANGES, "randomise_draw": "all"}
+    assert (overridden.modalities, overridden.seed, overridden.label) == ("All", 1, ROBUST_LABEL)  # the grid's own
+    mine = tmp_path / "mine.yaml"  # a --config file: the group's env_options after it, the overrides after both
+    mine.write_text("env_options: {randomise_draw: all, tactile_noise: partial}\n")
+    assert run_config(spec, mine, [], None, 1).env_options == {**grid.env_options, "tactile_noise": "partial"}
+    assert run_config(spec, mine, ["env_options.tactile_noise=full"], None, 1).env_options["tactile_noise"] == "full"
+    other = RunSpec("All tactile-partial", "All", 4, (("tactile_noise", "partial"),))
+    assert run_config(other, None, ["env_options.tactile_noise=full"], None, 1).env_options == {"tactile_noise": "full"}
+
+    earlier = RunConfig(modalities="All", seed=1, env_options={"randomise": ROBUST_RANGES})  # the group before
+    physics = set(P.names(P.PHYSICS))
+    runs = {}
+    for name, config in (("earlier", earlier), ("overridden", overridden), ("grid", grid)):
+        env = make_env(config, 2, seed=11, training=True)
+        seen = [env.reset()[0]]
+        first = [{k: v for k, v in r.items() if k not in physics} for r in env.randomised]
+        seen += [env.step(np.full((2, 3), 0.3, np.float32))[0] for _ in range(3)]
+        runs[name] = (first, np.array(seen))
+    assert runs["earlier"][0] == runs["overridden"][0] == PINNED_ENV
+    np.testing.assert_array_equal(runs["overridden"][1], runs["earlier"][1])
+    ranges = P.parse_ranges(ROBUST_RANGES)
+    assert runs["grid"][0] == [P.randomised(ranges, seed, "one") for seed in (11, 12)] != PINNED_ENV
+    for config in (grid, overridden):  # evaluations run the task without either option
+        evaluation = make_env(config, 2)
+        assert evaluation.randomise == {} and evaluation.randomise_draw == "all"
+
+
+def test_a_run_with_the_one_draw_records_it_and_its_resume_draws_the_same(tmp_path):
+    """dlo-train env_options.randomise_draw=one: config.yaml records it, randomised.csv's rows are each episode's
+    "one" draw (one family or none perturbed, every randomised family recorded), and --resume (the saved config)
+    goes on drawing so."""
+    out = tmp_path / "run"
+    ranges = "observation_delay=1:2,velocity_gain=0.5:0.9,friction=0.02:1.2,camera_yaw=1:4"
+    tiny = [
+        "sac.hidden_sizes=[32,32]",
+        "sac.learning_starts=100",
+        "sac.batch_size=32",
+        "train.eval_every=150",
+        "train.eval_episodes=1",
+        "train.test_episodes=1",
+        "train.num_threads=1",
+        "train.checkpoint_every=150",
+        "env_options.horizon=15",
+    ]
+    args = ["--modalities", "All", "--seed", "3", "--steps", "300", "--out", str(out), "--no-progress", *tiny]
+    args += [f"env_options.randomise={ranges}", "env_options.randomise_draw=one"]
+
+    def train(*given):
+        done = subprocess.run([sys.executable, "-m", "dlo_policy.train", *given], capture_output=True, text=True, timeout=600)
+        assert done.returncode == 0, done.stderr[-3000:]
+        assert yaml.safe_load((out / "config.yaml").read_text())["env_options"]["randomise_draw"] == "one"
+        with open(out / "randomised.csv", newline="") as f:
+            return list(csv.DictReader(f))
+
+    first = train(*args)
+    rows = train("--out", str(out), "--resume", "--steps", "450")
+    assert int(rows[-1]["step"]) > 300 and len(rows) > len(first) >= 15
+    assert rows[: len(first)] == first  # (the first run ended at its checkpoint: the resume rewrote nothing)
+    assert list(rows[0])[3:] == ["observation_delay", "velocity_gain", "friction", "camera_yaw"]
+    picks = set()
+    for row in rows:
+        drawn = P.randomised(P.parse_ranges(ranges), int(row["episode_seed"]), "one")
+        assert {"observation_delay": int(row["observation_delay"]), "velocity_gain": float(row["velocity_gain"])} | {
+            "camera_yaw": float(row["camera_yaw"])
+        } == drawn
+        assert 0.02 <= float(row["friction"]) <= 1.2  # the physics family: every episode
+        picks.add(tuple(chosen(drawn)))
+    assert len(picks) >= 3  # (4 choices: each family, or none)
