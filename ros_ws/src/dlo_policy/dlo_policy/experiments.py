@@ -13,7 +13,11 @@ Groups (paper, Results):
 Ours (only when named in --groups):
     robust       All with domain randomisation ("All robust": env_options.randomise = grid.ROBUST_RANGES,
                  each episode's delays, calibration, actuator, false detections and cable drawn from
-                 ranges up to about twice the shipped policy's tolerances; docs/RESULTS.md#robustness-envelope)
+                 ranges up to about twice the shipped policy's tolerances; docs/RESULTS.md#robustness-envelope),
+                 one of its observation, action and camera families per episode (env_options.randomise_draw
+                 = one; env_options.randomise_draw=all on the command line: every family at once, as before)
+A run's config: the --config file, then its group's env_options, then the key=value overrides (so an override
+changes a group's env option too), then the grid's own modalities, seed and label.
 Runs are started seed by seed (all configurations of the first seed, then of the second, ...).
 A run whose directory has done.json is skipped, so re-running the command (or adding `--resume`,
 which says the same) continues an interrupted grid. Stopping the driver (Ctrl-C, SIGTERM, even SIGKILL)

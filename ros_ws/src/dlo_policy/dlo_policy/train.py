@@ -61,9 +61,11 @@ random draws); a resumed run appends to the same directory.
 
 Domain randomisation (`env_options.randomise`, e.g. `env_options.randomise=observation_delay=0:2,friction=0.02:1.2`;
 `dlo_policy.perturbations`): only the training env draws each episode's magnitudes (from the episode's seed:
-a resumed run draws the same); evaluations and the held-out test run without it, on the paper's task. The ranges
-are in config.yaml, and randomised.csv has one row per training episode: the env step it ended at, its index
-and seed, and each randomised family's magnitude.
+a resumed run draws the same); evaluations and the held-out test run without it, on the paper's task.
+`env_options.randomise_draw=one` draws one of its observation, action and camera families per episode (or none)
+instead of all of them (`all`, the default). The ranges and the draw are in config.yaml, and randomised.csv has one
+row per training episode: the env step it ended at, its index and seed, and each randomised family's magnitude (a
+family a `one` draw did not choose: its off value).
 """
 
 from __future__ import annotations
