@@ -26,8 +26,7 @@ from pathlib import Path
 
 import numpy as np
 import yaml
-
-HORIZON = 150
+from dlo_interface.task import HORIZON
 
 
 def effects(run: Path, from_step: int | None = None) -> dict:
