@@ -106,6 +106,66 @@ def dependency_cycle(src: pathlib.Path) -> list[str]:
     return []
 
 
+RESOLVERS = ("message_class", "import_message_class")  # resolve a "pkg/msg/Name" type at run time
+
+
+def interface_packages(path: pathlib.Path) -> tuple[set[str], bool]:
+    """(the ROS interface packages -- ``*_msgs``, ``*_interfaces`` -- one Python file imports, whether it calls a
+    type resolver of ``RESOLVERS``)."""
+    tree = ast.parse(path.read_text(), str(path))
+    imported = {n for n in imported_packages(path) if n.endswith(("_msgs", "_interfaces"))}
+    resolves = any(
+        isinstance(node, ast.Call) and getattr(node.func, "id", getattr(node.func, "attr", "")) in RESOLVERS
+        for node in ast.walk(tree)
+    )
+    return imported, resolves
+
+
+def registry_message_packages() -> set[str]:
+    """The packages of every topic's and service's type in the topic registry."""
+    from dlo_common.topics import SERVICES, TOPICS
+
+    return {record.type.split("/")[0] for record in (*TOPICS, *SERVICES)}
+
+
+def undeclared_message_packages(src: pathlib.Path, registry: set[str]) -> list[str]:
+    """One line per message package a package's code uses without declaring it: imported by name, or -- for a
+    module that resolves types from the topic registry at run time (a node subscribing to the registry's topics,
+    the recorder, the bridge) -- any package of the registry's types."""
+    problems = []
+    for name, (directory, deps) in packages(src).items():
+        run = set().union(*(deps[t] for t in RUN_TAGS))
+        for path in sorted(directory.rglob("*.py")):
+            rel = path.relative_to(directory)
+            if rel.parts[0] in ("build", "install", "log", "test") or "__pycache__" in rel.parts or rel.name == "setup.py":
+                continue
+            imported, resolves = interface_packages(path)
+            needed = imported | (registry if resolves else set())
+            for pkg in sorted(needed - run - {name}):
+                why = "imports it" if pkg in imported else "resolves the topic registry's types"
+                problems.append(f"{name}/{rel}: {why}, {pkg} not declared in {name}/package.xml (add <exec_depend>{pkg}</...>)")
+    return problems
+
+
+def test_every_message_package_is_declared():
+    """A real Jazzy install (rosdep, colcon) only has the message packages a package.xml names: every ``*_msgs``
+    a module imports, and every package of the topic registry's types where a module resolves them at run time."""
+    assert undeclared_message_packages(SRC, registry_message_packages()) == []
+
+
+def test_message_package_checker_sees_both_kinds_of_use(tmp_path):
+    """On scratch packages: an imported message package and a registry resolver, declared or not."""
+    src = tmp_path / "src"
+    _package(src, "dlo_a", ["std_msgs"], "from std_msgs.msg import String\nfrom sensor_msgs.msg import Image\n")
+    _package(src, "dlo_b", ["dlo_common"], "from dlo_common.topics import message_class\nX = message_class('x')\n")
+    _package(src, "dlo_c", ["std_msgs", "rosgraph_msgs"], "import dlo_common.topics as t\nX = t.message_class('x')\n")
+    assert undeclared_message_packages(src, {"std_msgs", "rosgraph_msgs"}) == [
+        "dlo_a/dlo_a/__init__.py: imports it, sensor_msgs not declared in dlo_a/package.xml (add <exec_depend>sensor_msgs</...>)",
+        "dlo_b/dlo_b/__init__.py: resolves the topic registry's types, rosgraph_msgs not declared in dlo_b/package.xml (add <exec_depend>rosgraph_msgs</...>)",
+        "dlo_b/dlo_b/__init__.py: resolves the topic registry's types, std_msgs not declared in dlo_b/package.xml (add <exec_depend>std_msgs</...>)",
+    ]
+
+
 def test_every_dlo_import_is_declared():
     assert undeclared_imports(SRC) == []
 
