@@ -376,3 +376,70 @@ def test_the_plots_observation_axes_come_from_the_registry(synthetic_bag, monkey
     assert list(added) == layout[:4] + ["[kN]"] + layout[4:]  # a unit without a word: its axis says the unit
     assert list(added["[kN]"]) == ["G_x test_force", "G_y test_force"]
     np.testing.assert_allclose(added["[kN]"]["G_y test_force"].get_ydata(), [-0.25 * k for k in sorted(force)])
+
+
+def strip_rows(frames) -> dict:
+    """{y label (on one line): {legend label: line}} of a video's strip rows (the cursor and the marks have no legend)."""
+    return {
+        ax.get_ylabel().replace("\n", " "): {ln.get_label(): ln for ln in ax.get_lines() if not ln.get_label().startswith("_")}
+        for ax in frames.strip_axes
+    }
+
+
+def test_the_video_strip_follows_the_registry(synthetic_bag, monkeypatch):
+    """The video strip's rows are the plots' (``dlo_bag.analysis.observation_axes``): the closure with the unitless
+    observation series (q_V), one row per other unit of the registry's observation plot series in registry order
+    (angles; offsets in mm), the reward last, labelled as the plots label them. A topic added to the registry gets
+    rows with no change to the video: its unitless series with the closure, a new unit a row of its own, in a frame of
+    the same size; a unit the episode has no value of gets no row (as in the plots)."""
+    from types import SimpleNamespace
+
+    from dlo_bag.analysis import read_run
+    from dlo_bag.video import EpisodeFrames
+    from dlo_common import topics
+
+    streams = read_run(synthetic_bag, extra={"/dlo/camera/image": "image"})[0]
+
+    def rows(streams) -> dict:
+        frames = EpisodeFrames(0, streams, {}, width=480)
+        try:
+            assert frames.frame(3).shape == (360, 480, 3)  # the frame keeps its size, whatever the rows
+            return strip_rows(frames)
+        finally:
+            frames.close()
+
+    paper = rows(streams)
+    layout = ["closure [-]", "angle [rad]", "offset [mm]", "reward [-]"]
+    assert list(paper) == layout
+    assert list(paper["closure [-]"]) == ["closure c_G", "q_V vision"]
+    assert list(paper["angle [rad]"]) == ["θ_T tactile", "θ_V vision"]
+    assert list(paper["offset [mm]"]) == ["y_T tactile", "y_V vision"]
+    assert list(paper["reward [-]"]) == ["reward"]
+    steps = sorted(streams["tactile"])
+    y_v = paper["offset [mm]"]["y_V vision"].get_ydata()
+    np.testing.assert_allclose(y_v, [1000 * streams["vision"][k].y for k in steps])
+
+    wrist = topics.Topic(
+        "/dlo/test/force",
+        "geometry_msgs/msg/WrenchStamped",
+        "sim_node",
+        "observation",
+        "made up for the test",
+        key="test_force",
+        plot=(
+            topics.Series("wrench.force.x", "G_x", "kN"),
+            topics.Series("wrench.force.y", "G_y", "kN"),
+            topics.Series("wrench.torque.z", "g_q", "-"),
+        ),
+    )
+    monkeypatch.setattr(topics, "TOPICS", topics.TOPICS + (wrist,))
+    assert list(rows(streams)) == layout  # no force in the episode: no force row (the unitless one has the closure)
+    force = {
+        k: SimpleNamespace(wrench=SimpleNamespace(force=SimpleNamespace(x=0.5 * k, y=-0.25 * k), torque=SimpleNamespace(z=0.1)))
+        for k in streams["gripper"]
+    }
+    added = rows({**streams, "test_force": force})
+    assert list(added) == layout[:3] + ["[kN]"] + layout[3:]  # a unit without a word: its row says the unit
+    assert list(added["[kN]"]) == ["G_x test_force", "G_y test_force"]
+    assert list(added["closure [-]"]) == ["closure c_G", "q_V vision", "g_q test_force"]
+    np.testing.assert_allclose(added["[kN]"]["G_y test_force"].get_ydata(), [-0.25 * k for k in sorted(force)])

@@ -234,28 +234,41 @@ def _plot_top_view(top, s, particles: dict) -> None:
     top.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False, borderaxespad=0)
 
 
-# How the plots show a unit of the observation topics' plot series (dlo_common.topics): its axis label and the scale
-# from the SI unit; a series of any other unit gets an axis "[unit]" of its own
+# How the plots and the video strip show a unit of the observation topics' plot series (dlo_common.topics): its axis
+# label and the scale from the SI unit; a series of any other unit gets an axis "[unit]" of its own
 UNIT_AXES = {"rad": ("angle [rad]", 1.0), "m": ("offset [mm]", 1000.0), "N": ("force [N]", 1.0), "N m": ("torque [N m]", 1.0)}
 
 
-def _observation_axes(s) -> dict:
+def series_label(t, series) -> str:
+    """The label of an observation topic's plot series wherever it is drawn (these plots, the video strip
+    ``dlo_bag.video``, the Foxglove layout ``dlo_viz.foxglove_layout``): its name (theta as θ) and its topic's key,
+    "θ_T tactile"."""
+    return f"{series.name.replace('theta', 'θ')} {t.key}"
+
+
+def unit_axis_label(unit: str) -> str:
+    """The axis label of a unit of the observation series (:data:`UNIT_AXES`: "angle [rad]", "offset [mm]"; any
+    other unit "[unit]")."""
+    return UNIT_AXES.get(unit, (f"[{unit}]",))[0]
+
+
+def observation_axes(s) -> dict:
     """{unit: [(legend, values, line style)]} of the observation topics' plot series (``dlo_common.topics``), in
-    registry order; a unit none of whose series has a value in the bag is left out."""
+    registry order, labelled by :func:`series_label` and scaled to the axis' unit (:data:`UNIT_AXES`); a unit none of
+    whose series has a value in the bag is left out. The episode plots and the video strip draw these."""
     axes = {}
     for t in select("observation"):
         for series in t.plot:
             scale = UNIT_AXES.get(series.unit, ("", 1.0))[1]
-            legend = f"{series.name.replace('theta', 'θ')} {t.key}"
-            axes.setdefault(series.unit, []).append((legend, scale * s[series.name], {}))
+            axes.setdefault(series.unit, []).append((series_label(t, series), scale * s[series.name], {}))
     return {unit: lines for unit, lines in axes.items() if any(np.isfinite(values).any() for _, values, _ in lines)}
 
 
 def _signal_axes_spec(s) -> list:
     """The signals over the control steps, one axis per unit: [(y label, [(name, values, line style)])]; the
-    observations' from the registry (:func:`_observation_axes`: unitless ones with the closure)."""
+    observations' from the registry (:func:`observation_axes`: unitless ones with the closure)."""
     held_end = s["num_particles"] - 10
-    observed = _observation_axes(s)
+    observed = observation_axes(s)
     spec = [
         (
             "closure [-]",
@@ -271,7 +284,7 @@ def _signal_axes_spec(s) -> list:
             ],
         ),
     ]
-    spec += [(UNIT_AXES.get(unit, (f"[{unit}]",))[0], lines) for unit, lines in observed.items()]
+    spec += [(unit_axis_label(unit), lines) for unit, lines in observed.items()]
     return spec + [
         ("command\n[m/s]", [("v_x", s["cmd_vx"], {}), ("v_y", s["cmd_vy"], {})]),
         ("reward [-]", [("reward per step", s["reward"], {"drawstyle": "steps-mid"})]),

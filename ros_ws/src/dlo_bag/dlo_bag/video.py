@@ -1,8 +1,11 @@
 """Episode videos from a recorded bag: one MP4 (H.264) or GIF per episode, one frame per control step.
 
 Each frame shows the top camera's image of that step, a side view (x-z) of the particles (held
-ones red) with the two fingers and the fixed end, and a strip of closure / distilled poses /
-reward over the whole episode with a cursor at the current step; the title names the episode,
+ones red) with the two fingers and the fixed end, and a strip of signals over the whole episode with
+a cursor at the current step: the closure, the observations as the episode plots draw them (the plot
+series of the registry's observation topics, ``dlo_common.topics``, one row per unit: unitless ones with
+the closure, angles [rad], offsets [mm], a row for each other unit; ``dlo_bag.analysis.observation_axes``)
+and the reward; the title names the episode,
 seed and return, the policy (``dlo-analyze`` passes the bag's own record: ``dlo_bag.analysis.policy_label``)
 and the outcome under both rules (paper text, authors' code). Frames
 are drawn with matplotlib (Agg, no display) and encoded by the ffmpeg that ``imageio-ffmpeg``
@@ -24,6 +27,7 @@ import numpy as np
 from dlo_interface.cloud import unpack_particles
 from dlo_interface.world import CONTROL_PERIOD, FINGER_AXIS_OFFSET, FINGER_RADIUS, FIXED_END
 
+from .analysis import observation_axes, unit_axis_label
 from .episode_series import episode_series
 
 FORMATS = ("mp4", "gif")
@@ -36,6 +40,7 @@ class VideoError(RuntimeError):
     """The video cannot be written (encoder missing or failing)."""
 
 
+STRIP_ROW = 0.6  # height of a strip row, relative to the views' 3.0 (the paper's graph: 4 rows)
 TITLE_CHARS = 100  # characters of a title line in a frame of any width (the font follows the width): a longer
 # policy label is wrapped onto a second line
 
@@ -64,6 +69,7 @@ class EpisodeFrames:
         from matplotlib.backends.backend_agg import FigureCanvasAgg
         from matplotlib.figure import Figure
         from matplotlib.patches import Circle
+        from matplotlib.ticker import MaxNLocator
 
         self.series = s = episode_series(episode, streams)
         self.steps = [int(k) for k in s.steps]
@@ -78,9 +84,16 @@ class EpisodeFrames:
         self.fig = fig
         fs = max(5.0, 9.0 * scale)
         title = fig.suptitle(video_title(episode, summary, policy), fontsize=fs * 1.15, y=0.985)
-        outer = fig.add_gridspec(2, 1, height_ratios=[3.0, 1.7], left=0.08, right=0.86, top=0.83, bottom=0.075, hspace=0.2)
+        # the strip's rows: the closure with the unitless observation series, a row per other unit of the observations
+        # (the episode plots' axes, dlo_bag.analysis: a unit the episode has no value of has none), the reward
+        observed = observation_axes(s)
+        strips = [("closure [-]", [("closure c_G", s["closure"], {}), *observed.pop("-", [])])]
+        strips += [(unit_axis_label(unit), lines) for unit, lines in observed.items()]
+        strips.append(("reward [-]", [("reward", s["reward"], {})]))
+        outer = fig.add_gridspec(
+            2, 1, height_ratios=[3.0, STRIP_ROW * len(strips)], left=0.08, right=0.86, top=0.83, bottom=0.075, hspace=0.2
+        )
         views = outer[0].subgridspec(1, 2, width_ratios=[1.0, 2.0], wspace=0.22)
-        strip_grid = outer[1].subgridspec(3, 1, hspace=0.12)
         # top camera
         self.ax_cam = fig.add_subplot(views[0])
         first_image = self._image(self.steps[0]) if self.steps else np.zeros((8, 8), np.uint8)
@@ -94,6 +107,7 @@ class EpisodeFrames:
         ax.set_xlim(*xs)
         ax.set_ylim(*zs)
         ax.set_aspect("equal", adjustable="box")
+        ax.xaxis.set_major_locator(MaxNLocator(nbins=6))  # x tick labels apart at any frame width
         ax.axhline(0.0, color="0.5", lw=1.0 * scale)
         ax.set_title("side view (x-z): particles, held in red, fingers", fontsize=fs)
         ax.set_xlabel("x [m]", fontsize=fs)
@@ -112,24 +126,20 @@ class EpisodeFrames:
         # the status line just below the title, however many lines it has (a long policy label wraps)
         below = title.get_window_extent(self.canvas.get_renderer()).transformed(fig.transFigure.inverted()).y0
         self.status = fig.text(0.5, below - 0.012, "", ha="center", va="top", fontsize=fs, family="monospace")
-        # strip: closure, poses, reward over the episode, with a cursor
+        # strip over the episode, with a cursor
         steps = np.asarray(self.steps)
-        strips = [
-            ("[-]", [("closure c_G", s["closure"]), ("vision q_V", s["q_V"])], (-0.05, 1.05)),
-            ("[rad]", [("θ_T tactile", s["theta_T"]), ("θ_V vision", s["theta_V"])], None),
-            ("[-]", [("reward", s["reward"])], None),
-        ]
+        strip_grid = outer[1].subgridspec(len(strips), 1, hspace=0.15)
         self.cursors = []
         share = None
         self.strip_axes = []
-        for row, (label, lines, ylim) in enumerate(strips):
+        for row, (label, lines) in enumerate(strips):
             a = fig.add_subplot(strip_grid[row], sharex=share)
             share = share or a
-            for name, values in lines:
-                a.plot(steps, values, lw=1.1 * scale, label=name)
-            if ylim:
-                a.set_ylim(*ylim)
-            a.set_ylabel(label, fontsize=fs * 0.85)
+            for name, values, style in lines:
+                a.plot(steps, values, **{"lw": 1.1 * scale, **style}, label=name)
+            if row == 0 and all(np.nanmin(v) >= 0.0 and np.nanmax(v) <= 1.0 for _, v, _ in lines if np.isfinite(v).any()):
+                a.set_ylim(-0.05, 1.05)  # closure and the unitless series in [0, 1]: the whole range
+            a.set_ylabel(label.replace(" [", "\n["), fontsize=fs * 0.85)  # "angle\n[rad]": fits the row's height
             a.tick_params(labelsize=fs * 0.8)
             a.legend(loc="center left", bbox_to_anchor=(1.005, 0.5), fontsize=fs * 0.8, frameon=False, ncol=1)
             for mark, color in ((s.first_at_end, "tab:green"), (s.first_at_end_authors, "tab:purple")):
@@ -184,7 +194,7 @@ class EpisodeFrames:
             self.dots.set_offsets(np.c_[xyz[:, 0], xyz[:, 2]])
             self.dots.set_color(np.where(held[:, None], [[0.84, 0.15, 0.16]], [[0.12, 0.47, 0.71]]))
         closure = s["closure"][index]
-        for finger, sign in zip(self.fingers, (1.0, -1.0)):
+        for finger, sign in zip(self.fingers, (1.0, -1.0), strict=True):
             finger.center = (s["x"][index], s["z"][index] + sign * FINGER_AXIS_OFFSET)
             finger.set_alpha(0.25 + 0.65 * (0.0 if np.isnan(closure) else float(closure)))
         for cursor in self.cursors:
