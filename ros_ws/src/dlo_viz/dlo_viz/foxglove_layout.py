@@ -11,26 +11,36 @@ time in a bag).
 
 Panels: 3D (fixed frame ``world``: the particle cloud coloured by its ``held`` field, the cable
 line and the two fingers from ``/dlo/markers``), the top camera image (with its camera_info),
-and plots over time: closure (measured, commanded, vision confidence), the distilled angles
-[rad] and offsets [m] of touch and vision (gripper frame), reward, the held particle index, and the
-outcome of both rules (a state-transitions panel: 0 none, 1 hold_the_end, 2 stop_before,
-3 reach_end_but_drop, 4 drop_before).
+and plots over time: closure (measured, commanded, and the unitless observation series: vision
+confidence), one panel per other unit of the observation series (the distilled angles [rad] and
+offsets [m] of touch and vision, gripper frame), reward, the held particle index, and the outcome of
+both rules (a state-transitions panel: 0 none, 1 hold_the_end, 2 stop_before, 3 reach_end_but_drop,
+4 drop_before). The observation series are the ``plot`` series of the registry's observation topics
+(``dlo_common.topics``, paths ``<topic>.<field>``, SI as the messages carry them), labelled as the
+episode plots label them (``dlo_bag.analysis.series_label``): a modality added there gets its plots
+here with no change (a new unit a panel of its own).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import re
 import sys
 from pathlib import Path
 from typing import Any
 
-from dlo_common.topics import topic
+from dlo_bag.analysis import series_label
+from dlo_common.topics import select, topic
 
 LAYOUT_FILE = Path("docs") / "foxglove" / "dlo_vitac.json"
 TIMESTAMP = "receiveTime"  # live: when the bridge received it; bag: the recorder's receive time
 
 COLORS = ("#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd")
+
+# The panel of a unit of the observation series, (id suffix, title); any other unit: ("observations_<unit>",
+# "observations [<unit>]"). The unitless series ("-") join the closure's panel.
+UNIT_PANELS = {"rad": ("angles", "pose angles [rad] (gripper frame)"), "m": ("offsets", "pose offsets [m] (gripper frame)")}
 
 
 def _topic(key: str) -> str:
@@ -62,6 +72,24 @@ def _plot(title: str, series: list, **config) -> dict:
     cfg = _plain(fl.PlotConfig(paths=series, **config))
     cfg["title"] = title
     return cfg
+
+
+def observation_series() -> dict[str, list]:
+    """{unit: [(path, label)]} of the plot series of the registry's observation topics (``dlo_common.topics``),
+    units and series in registry order."""
+    units: dict[str, list] = {}
+    for t in select("observation"):
+        for series in t.plot:
+            units.setdefault(series.unit, []).append((f"{t.name}.{series.field}", series_label(t, series)))
+    return units
+
+
+def _unit_plot(unit: str, series: list) -> tuple[str, dict]:
+    """(panel id, config) of the Plot panel of one unit's observation series [(path, label)] (:data:`UNIT_PANELS`)."""
+    suffix, title = UNIT_PANELS.get(unit) or ("observations_" + re.sub(r"[^A-Za-z0-9]+", "_", unit), f"observations [{unit}]")
+    return f"Plot!dlo_{suffix}", _plot(
+        title, [_series(path, label, i) for i, (path, label) in enumerate(series)], y_axis_label=unit
+    )
 
 
 def panel_configs() -> dict[str, dict]:
@@ -127,6 +155,8 @@ def panel_configs() -> dict[str, dict]:
             ),
         ]
     )
+    observed = observation_series()
+    unitless = observed.pop("-", [])
     configs = {
         "3D!dlo_scene": {**_plain(three_d), "title": "rope, gripper and fingers (world frame)"},
         "Image!dlo_camera": {**_plain(image), "title": "top camera"},
@@ -135,28 +165,13 @@ def panel_configs() -> dict[str, dict]:
             [
                 _series(_field("gripper", "closure"), "c_G measured", 0),
                 _series(_field("command", "closure"), "c_G commanded", 1, line_style="dashed"),
-                _series(_field("vision", "confidence"), "q_V vision confidence", 2),
+                *(_series(path, label, 2 + i) for i, (path, label) in enumerate(unitless)),
             ],
             min_y_value=-0.05,
             max_y_value=1.05,
             y_axis_label="closure",
         ),
-        "Plot!dlo_angles": _plot(
-            "pose angles [rad] (gripper frame)",
-            [
-                _series(_field("tactile", "angle"), "θ_T tactile", 0),
-                _series(_field("vision", "angle"), "θ_V vision", 1),
-            ],
-            y_axis_label="rad",
-        ),
-        "Plot!dlo_offsets": _plot(
-            "pose offsets [m] (gripper frame)",
-            [
-                _series(_field("tactile", "y"), "y_T tactile", 0),
-                _series(_field("vision", "y"), "y_V vision", 1),
-            ],
-            y_axis_label="m",
-        ),
+        **dict(_unit_plot(unit, series) for unit, series in observed.items()),
         "Plot!dlo_reward": _plot("reward [-]", [_series(_field("task", "reward"), "reward per step", 0)], y_axis_label="reward"),
         "Plot!dlo_held": _plot(
             "held particle index (0 = fixed end)",
@@ -173,28 +188,23 @@ def panel_configs() -> dict[str, dict]:
 
 
 def build_layout() -> dict:
-    """The layout as the Foxglove app exports it."""
+    """The layout as the Foxglove app exports it (the panels of :func:`panel_configs`, in its order)."""
 
     def column(*ids: str) -> Any:  # equal heights
         if len(ids) == 1:
             return ids[0]
         return {"direction": "column", "first": ids[0], "second": column(*ids[1:]), "splitPercentage": round(100.0 / len(ids), 2)}
 
+    configs = panel_configs()
+    views = ("3D!dlo_scene", "Image!dlo_camera")
     layout_tree = {
         "direction": "row",
-        "first": {"direction": "column", "first": "3D!dlo_scene", "second": "Image!dlo_camera", "splitPercentage": 62},
-        "second": column(
-            "Plot!dlo_closure",
-            "Plot!dlo_angles",
-            "Plot!dlo_offsets",
-            "Plot!dlo_reward",
-            "Plot!dlo_held",
-            "StateTransitions!dlo_outcome",
-        ),
+        "first": {"direction": "column", "first": views[0], "second": views[1], "splitPercentage": 62},
+        "second": column(*(panel for panel in configs if panel not in views)),  # the plots, outcome last
         "splitPercentage": 52,
     }
     return {
-        "configById": panel_configs(),
+        "configById": configs,
         "globalVariables": {},
         "userNodes": {},
         "playbackConfig": {"speed": 1.0},

@@ -569,6 +569,70 @@ def test_layout_ships_and_reads_only_graph_topics():
     assert "/dlo/markers" in scene["topics"] and scene["followTf"] == "world"
 
 
+def test_layout_plots_follow_the_registry(monkeypatch):
+    """The layout's observation plots are the registry's observation plot series (dlo_common.topics), labelled as
+    the episode plots label them (``dlo_bag.analysis.series_label``): the unitless ones with the closure's measured
+    and commanded lines, one Plot panel per other unit (paths ``<topic>.<field>``, SI as the messages carry them).
+    A topic added to the registry gets its plots with no change to the layout: a new unit a panel of its own, in the
+    layout tree, and the other panels stay as they are."""
+    from dlo_common import topics
+    from dlo_viz.foxglove_layout import build_layout, layout_topics
+
+    def plots(layout) -> dict:
+        """{panel id: [(path, label)]} of the Plot panels."""
+        return {
+            panel: [(s["value"], s["label"]) for s in cfg["paths"]]
+            for panel, cfg in layout["configById"].items()
+            if panel.startswith("Plot!")
+        }
+
+    paper = build_layout()
+    assert plots(paper)["Plot!dlo_closure"] == [
+        ("/dlo/gripper/state.closure", "c_G measured"),
+        ("/dlo/gripper/cmd.closure", "c_G commanded"),
+        ("/dlo/vision/pose.confidence", "q_V vision"),
+    ]
+    assert plots(paper)["Plot!dlo_angles"] == [
+        ("/dlo/tactile/pose.angle", "θ_T tactile"),
+        ("/dlo/vision/pose.angle", "θ_V vision"),
+    ]
+    assert plots(paper)["Plot!dlo_offsets"] == [("/dlo/tactile/pose.y", "y_T tactile"), ("/dlo/vision/pose.y", "y_V vision")]
+
+    wrist = topics.Topic(
+        "/dlo/test/force",
+        "geometry_msgs/msg/WrenchStamped",
+        "sim_node",
+        "observation",
+        "made up for the test",
+        key="test_force",
+        plot=(
+            topics.Series("wrench.force.x", "G_x", "kN"),
+            topics.Series("wrench.force.y", "G_y", "kN"),
+            topics.Series("wrench.torque.z", "g_q", "-"),
+        ),
+    )
+    monkeypatch.setattr(topics, "TOPICS", topics.TOPICS + (wrist,))
+    added = build_layout()
+    new = {panel: series for panel, series in plots(added).items() if panel not in plots(paper)}
+    assert list(new.values()) == [
+        [("/dlo/test/force.wrench.force.x", "G_x test_force"), ("/dlo/test/force.wrench.force.y", "G_y test_force")]
+    ]
+    (panel,) = new
+    assert added["configById"][panel]["yAxisLabel"] == "kN" and "[kN]" in added["configById"][panel]["title"]
+    assert plots(added)["Plot!dlo_closure"] == plots(paper)["Plot!dlo_closure"] + [
+        ("/dlo/test/force.wrench.torque.z", "g_q test_force")
+    ]
+    assert {p: c for p, c in added["configById"].items() if p not in (panel, "Plot!dlo_closure")} == {
+        p: c for p, c in paper["configById"].items() if p != "Plot!dlo_closure"
+    }
+
+    def leaves(node):
+        return [node] if isinstance(node, str) else leaves(node["first"]) + leaves(node["second"])
+
+    assert sorted(leaves(added["layout"])) == sorted(added["configById"])
+    assert layout_topics(added) == layout_topics(paper) | {"/dlo/test/force"}
+
+
 def test_a_late_client_gets_the_last_latched_message_and_no_old_volatile_ones(bridge, typestore):
     """dlo_viz README (foxglove_bridge): transient-local topics (camera_info) are sent again to each new
     subscriber (their LAST message), as a ROS subscriber joining late would get it; what volatile topics
@@ -728,7 +792,7 @@ def test_the_server_names_itself_and_each_bridge_serves_only_its_own_topics(brid
         bridge.add_topic("/dlo/gripper/state", GRAPH_TYPES["/dlo/gripper/state"])
         other.add_topic("/dlo/gripper/cmd", GRAPH_TYPES["/dlo/gripper/cmd"])
         clients = [FoxgloveTestClient(b.ws_url).connect() for b in (bridge, other)]
-        for client, topic in zip(clients, ("/dlo/gripper/state", "/dlo/gripper/cmd")):
+        for client, topic in zip(clients, ("/dlo/gripper/state", "/dlo/gripper/cmd"), strict=True):
             client.wait(lambda c=client, t=topic: c.channel_by_topic(t) is not None, 10, topic)
         assert [c.server_info["name"] for c in clients] == ["dlo-vitac", "second"]
         assert [sorted(ch["topic"] for ch in c.channels.values()) for c in clients] == [
