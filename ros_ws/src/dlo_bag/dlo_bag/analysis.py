@@ -36,7 +36,7 @@ from pathlib import Path
 
 import numpy as np
 from dlo_common.console import console_main
-from dlo_common.topics import select, topic
+from dlo_common.topics import plot_series_by_unit, select, topic
 from dlo_interface.cloud import unpack_particles
 from dlo_interface.task import DEFAULT_MOVE_SPACING, OUTCOME_NAMES, EpisodeTracker, recorded_task_rules
 from dlo_perception.sync import stamp_to_ns
@@ -256,11 +256,10 @@ def observation_axes(s) -> dict:
     """{unit: [(legend, values, line style)]} of the observation topics' plot series (``dlo_common.topics``), in
     registry order, labelled by :func:`series_label` and scaled to the axis' unit (:data:`UNIT_AXES`); a unit none of
     whose series has a value in the bag is left out. The episode plots and the video strip draw these."""
-    axes = {}
-    for t in select("observation"):
-        for series in t.plot:
-            scale = UNIT_AXES.get(series.unit, ("", 1.0))[1]
-            axes.setdefault(series.unit, []).append((series_label(t, series), scale * s[series.name], {}))
+    axes = {
+        unit: [(series_label(t, series), UNIT_AXES.get(unit, ("", 1.0))[1] * s[series.name], {}) for t, series in pairs]
+        for unit, pairs in plot_series_by_unit("observation").items()
+    }
     return {unit: lines for unit, lines in axes.items() if any(np.isfinite(values).any() for _, values, _ in lines)}
 
 

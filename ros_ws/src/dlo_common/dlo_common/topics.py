@@ -227,6 +227,17 @@ def select(*roles: str, publisher: str | None = None, exclude: tuple = ()) -> tu
     )
 
 
+def plot_series_by_unit(*roles: str) -> dict:
+    """{unit: [(topic, series)]} of the ``plot`` series of the topics with one of ``roles`` (:func:`select`), units
+    and series in registry order: what the episode plots, the video strip and the Foxglove layout draw, one axis,
+    row or panel per unit."""
+    units: dict = {}
+    for t in select(*roles):
+        for series in t.plot:
+            units.setdefault(series.unit, []).append((t, series))
+    return units
+
+
 def names() -> tuple:
     """Every topic and service name of the graph (what ``launch_graph.sh --namespace`` remaps)."""
     return tuple(t.name for t in TOPICS) + tuple(s.name for s in SERVICES)

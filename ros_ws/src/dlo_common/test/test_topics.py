@@ -76,6 +76,19 @@ def test_every_plot_series_is_a_number_of_its_message(record):
         Topic("/dlo/x", "pkg/msg/X", "x_node", "observation", "x", key="x", plot=(("angle", "theta", "rad"),))
 
 
+def test_plot_series_by_unit_groups_every_series_of_the_roles_in_registry_order():
+    """The paper's observations: q_V unitless, the angles in rad, the offsets in m (the plots', video's and layout's
+    rows); every series of the role once, a topic of another role not at all."""
+    units = topics.plot_series_by_unit("observation")
+    named = {unit: [(t.key, s.name) for t, s in pairs] for unit, pairs in units.items()}
+    assert named["rad"] == [("tactile", "theta_T"), ("vision", "theta_V")]
+    assert named["m"] == [("tactile", "y_T"), ("vision", "y_V")]
+    assert ("vision", "q_V") in named["-"]
+    flat = [(t.key, s.name) for pairs in units.values() for t, s in pairs]
+    assert sorted(flat) == sorted((t.key, s.name) for t in select("observation") for s in t.plot)
+    assert topics.plot_series_by_unit("clock") == {}
+
+
 def test_names_are_every_topic_and_service():
     """(What the launcher's --namespace remaps: dlo_bringup test_graph_description.py.)"""
     assert names() == tuple(t.name for t in TOPICS) + tuple(s.name for s in SERVICES)

@@ -31,7 +31,7 @@ from pathlib import Path
 from typing import Any
 
 from dlo_bag.analysis import series_label
-from dlo_common.topics import select, topic
+from dlo_common.topics import plot_series_by_unit, topic
 
 LAYOUT_FILE = Path("docs") / "foxglove" / "dlo_vitac.json"
 TIMESTAMP = "receiveTime"  # live: when the bridge received it; bag: the recorder's receive time
@@ -77,11 +77,10 @@ def _plot(title: str, series: list, **config) -> dict:
 def observation_series() -> dict[str, list]:
     """{unit: [(path, label)]} of the plot series of the registry's observation topics (``dlo_common.topics``),
     units and series in registry order."""
-    units: dict[str, list] = {}
-    for t in select("observation"):
-        for series in t.plot:
-            units.setdefault(series.unit, []).append((f"{t.name}.{series.field}", series_label(t, series)))
-    return units
+    return {
+        unit: [(f"{t.name}.{series.field}", series_label(t, series)) for t, series in pairs]
+        for unit, pairs in plot_series_by_unit("observation").items()
+    }
 
 
 def _unit_plot(unit: str, series: list) -> tuple[str, dict]:
