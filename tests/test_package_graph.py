@@ -32,10 +32,10 @@ def manifest(package_dir: pathlib.Path) -> tuple[str, dict[str, set[str]]]:
     return root.findtext("name").strip(), deps
 
 
-def imported_packages(path: pathlib.Path) -> set[str]:
-    """Top-level names of the absolute imports in one Python file."""
+def imported_packages(path: pathlib.Path, tree: ast.AST | None = None) -> set[str]:
+    """Top-level names of the absolute imports in one Python file (``tree``: its parsed module, if parsed already)."""
     names = set()
-    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+    for node in ast.walk(tree or ast.parse(path.read_text(), str(path))):
         if isinstance(node, ast.Import):
             names.update(alias.name.split(".")[0] for alias in node.names)
         elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
@@ -113,7 +113,7 @@ def interface_packages(path: pathlib.Path) -> tuple[set[str], bool]:
     """(the ROS interface packages -- ``*_msgs``, ``*_interfaces`` -- one Python file imports, whether it calls a
     type resolver of ``RESOLVERS``)."""
     tree = ast.parse(path.read_text(), str(path))
-    imported = {n for n in imported_packages(path) if n.endswith(("_msgs", "_interfaces"))}
+    imported = {n for n in imported_packages(path, tree) if n.endswith(("_msgs", "_interfaces"))}
     resolves = any(
         isinstance(node, ast.Call) and getattr(node.func, "id", getattr(node.func, "attr", "")) in RESOLVERS
         for node in ast.walk(tree)
@@ -159,10 +159,11 @@ def test_message_package_checker_sees_both_kinds_of_use(tmp_path):
     _package(src, "dlo_a", ["std_msgs"], "from std_msgs.msg import String\nfrom sensor_msgs.msg import Image\n")
     _package(src, "dlo_b", ["dlo_common"], "from dlo_common.topics import message_class\nX = message_class('x')\n")
     _package(src, "dlo_c", ["std_msgs", "rosgraph_msgs"], "import dlo_common.topics as t\nX = t.message_class('x')\n")
+    resolves = "dlo_b/dlo_b/__init__.py: resolves the topic registry's types"
     assert undeclared_message_packages(src, {"std_msgs", "rosgraph_msgs"}) == [
         "dlo_a/dlo_a/__init__.py: imports it, sensor_msgs not declared in dlo_a/package.xml (add <exec_depend>sensor_msgs</...>)",
-        "dlo_b/dlo_b/__init__.py: resolves the topic registry's types, rosgraph_msgs not declared in dlo_b/package.xml (add <exec_depend>rosgraph_msgs</...>)",
-        "dlo_b/dlo_b/__init__.py: resolves the topic registry's types, std_msgs not declared in dlo_b/package.xml (add <exec_depend>std_msgs</...>)",
+        f"{resolves}, rosgraph_msgs not declared in dlo_b/package.xml (add <exec_depend>rosgraph_msgs</...>)",
+        f"{resolves}, std_msgs not declared in dlo_b/package.xml (add <exec_depend>std_msgs</...>)",
     ]
 
 
@@ -240,7 +241,7 @@ def simulator_imports(path: pathlib.Path) -> list[int]:
                 lines.append(node.lineno)
         elif isinstance(node, (ast.List, ast.Tuple)):
             items = [e.value if isinstance(e, ast.Constant) else None for e in node.elts]
-            for flag, text in zip(items, items[1:]):
+            for flag, text in zip(items, items[1:], strict=False):
                 if flag == "-c" and isinstance(text, str) and code.search(text):
                     lines.append(node.lineno)
     return sorted(lines)
