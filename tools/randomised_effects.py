@@ -46,7 +46,11 @@ def effects(run: Path, from_step: int | None = None) -> dict:
     fits = {}
     for name, y in (("length", lengths[keep].astype(float)), ("full_horizon", (lengths[keep] >= HORIZON).astype(float))):
         coef, *_ = np.linalg.lstsq(design, y, rcond=None)
-        fits[name] = {"mean": float(y.mean()), "intercept": float(coef[0]), **{f: float(c) for f, c in zip(families, coef[1:])}}
+        fits[name] = {
+            "mean": float(y.mean()),
+            "intercept": float(coef[0]),
+            **{f: float(c) for f, c in zip(families, coef[1:], strict=True)},
+        }
     return {"run": str(run), "episodes": int(keep.sum()), "from_step": int(start), "families": families, "fits": fits}
 
 
