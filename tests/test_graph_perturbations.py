@@ -75,7 +75,7 @@ def run_graph(outcomes, seed, episodes, sim_parameters=(), policy_parameters=())
     return settings, [json.loads(line) for line in outcomes.read_text().splitlines()], sim_output, policy_output
 
 
-def shipped_env(settings, seed, perturbations=None):
+def shipped_env(settings, seed, perturbations=None, **options):
     from dlo_policy.env import make_env
 
     return make_env(
@@ -84,6 +84,7 @@ def shipped_env(settings, seed, perturbations=None):
         task_rules=settings["task_rules"],
         single_particle_grip=settings["single_particle_grip"],
         perturbations=perturbations,
+        **options,
     )
 
 
@@ -118,6 +119,48 @@ def sim_perturbed_episodes(tmp_path_factory):
     )
     assert f"perturbations {SIM_PERTURBATIONS}," in sim_output  # its start line says what it runs under
     return settings, episodes
+
+
+@pytest.fixture(scope="module")
+def previous_action_policy(tmp_path_factory):
+    """A policy that takes its previous action (env option previous_action): the shipped policy's network with three
+    inputs added for it (weights drawn as large as the others; normalised as they come), so it follows the cable for a
+    while and its actions depend on all 12 entries, saved as dlo-train saves one with its run's config.yaml."""
+    import torch
+    from dlo_policy.config import save_config
+    from dlo_policy.policy_node import shipped_policy_path
+    from dlo_policy.rundir import read_trained_config
+    from dlo_policy.sac import read_checkpoint
+
+    run_dir = tmp_path_factory.mktemp("previous_action_run")
+    config = read_trained_config(shipped_policy_path().parent)
+    config.env_options["previous_action"] = True
+    save_config(config, run_dir / "config.yaml")
+    state = read_checkpoint(shipped_policy_path())
+    weight, normalizer = state["actor"]["net.0.weight"], state["normalizer"]
+    added = weight.std() * torch.randn(weight.shape[0], 3, generator=torch.Generator().manual_seed(3), dtype=weight.dtype)
+    state["actor"]["net.0.weight"] = torch.cat([weight, added], 1)
+    normalizer["mean"] = torch.cat([normalizer["mean"], torch.zeros(3, dtype=normalizer["mean"].dtype)])
+    normalizer["var"] = torch.cat([normalizer["var"], torch.ones(3, dtype=normalizer["var"].dtype)])
+    state["obs_dim"] = 12
+    torch.save(state, run_dir / "policy.pt")
+    return run_dir / "policy.pt"
+
+
+def test_a_policy_that_takes_its_previous_action_runs_in_the_graph_as_in_the_env(previous_action_policy, tmp_path):
+    """The policy node appends the previous action as the env does (after the observation perturbations, the action
+    as the policy gave it, before the action ones): the perturbed episodes equal the env's with previous_action."""
+    from dlo_policy.sac import SAC
+
+    settings, episodes, _, policy_output = run_graph(
+        tmp_path / "outcomes.jsonl",
+        SEED,
+        2,
+        policy_parameters=(f"perturbations:={PERTURBATIONS}", f"checkpoint:={previous_action_policy}"),
+    )
+    assert "perturbations observation_delay=1," in policy_output
+    agent = SAC.load(previous_action_policy)
+    replay_and_compare(shipped_env(settings, SEED, PERTURBATIONS, previous_action=True), agent, episodes)
 
 
 def test_perturbed_episodes_in_the_graph_equal_the_in_process_env(graph_episodes):

@@ -63,6 +63,9 @@ Options (keywords of both entry points):
                           (dlo_interface.perturbations.DRAWS): "all", every one every episode; "one", each episode
                           ONE of them or none (each of the n + 1 choices alike, from the episode's seed), the others
                           off. Its physics families are drawn every episode either way (by the simulator)
+    previous_action=False true: the observation ends with the action the env got at the step before, as the policy
+                          gave it (before the action perturbations), zeros at an episode's first step
+                          (dlo_policy.observation.with_previous_action): the policy's memory of the commands in flight
     simulator="taichi"    the simulator backend: a name registered in the entry point group dlo_interface.simulators
                           (dlo_interface.simulator; "taichi": dlo_sim's rope) or, in code, a factory of one
 
@@ -95,7 +98,7 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 
 from dlo_policy import perturbations as perturbation_families
 from dlo_policy.modalities import VISION_PLANE_Z, by_name  # noqa: F401 (VISION_PLANE_Z: its old home)
-from dlo_policy.observation import build_observation, observation_bounds, parse_modalities
+from dlo_policy.observation import PreviousAction, build_observation, observation_bounds, parse_modalities
 
 
 def check_options(options) -> None:
@@ -119,6 +122,7 @@ def check_options(options) -> None:
         "perturbations",
         "randomise",
         "randomise_draw",
+        "previous_action",
         "simulator",
     )
     unknown = sorted(set(options) - set(known))
@@ -163,8 +167,9 @@ def _check_variant_options(options) -> None:
         task.check_move_spacing(options["move_spacing"])
     if "vision_source" in options:
         check_vision_source(options["vision_source"])
-    if not isinstance(options.get("single_particle_grip", False), bool):
-        raise ValueError(f"single_particle_grip: expected true or false, got {options['single_particle_grip']!r}")
+    for name in ("single_particle_grip", "previous_action"):
+        if not isinstance(options.get(name, False), bool):
+            raise ValueError(f"{name}: expected true or false, got {options[name]!r}")
     seed = options.get("physics_seed", -1)
     if isinstance(seed, bool) or not isinstance(seed, int) or seed < -1:
         raise ValueError(f"physics_seed: expected an integer >= 0 (or -1: drawn per episode), got {seed!r}")
@@ -215,10 +220,12 @@ class CableFollowingVecEnv(VectorEnv):
         perturbations=None,
         randomise=None,
         randomise_draw=None,
+        previous_action=False,
         simulator=DEFAULT_SIMULATOR,
     ):
         check_options(
             {
+                "previous_action": previous_action,
                 "move_spacing": move_spacing,
                 "single_particle_grip": single_particle_grip,
                 "physics_seed": physics_seed,
@@ -257,7 +264,9 @@ class CableFollowingVecEnv(VectorEnv):
         self.tactile_sigma = noise_sigma(tactile_noise)
         self.autoreset = bool(autoreset)
         self.metadata = {"autoreset_mode": AutoresetMode.SAME_STEP if autoreset else AutoresetMode.DISABLED}
-        low, high = observation_bounds(self.modalities)
+        # previous_action: the observation ends with each env's previous action (None: off)
+        self.previous_action = PreviousAction(self.num_envs) if previous_action else None
+        low, high = observation_bounds(self.modalities, bool(previous_action))
         self.single_observation_space = gymnasium.spaces.Box(low, high, dtype=np.float32)
         self.single_action_space = gymnasium.spaces.Box(-1.0, 1.0, (3,), dtype=np.float32)
         self.observation_space = gymnasium.vector.utils.batch_space(self.single_observation_space, self.num_envs)
@@ -297,18 +306,25 @@ class CableFollowingVecEnv(VectorEnv):
         observation, state = self._observe()
         if self.perturber.observes:
             observation = self.perturber.observe(observation)
+        if self.previous_action is not None:
+            self.previous_action.start()
+            observation = self.previous_action.append(observation)
         self.last_observation = observation
         return observation, {"n_held": state["n_held"], "mean_held_index": state["p_i"], "episode_seed": self.episode_seed.copy()}
 
     def step(self, actions):
         """Advance every env by one control step (8 x 0.01 s); finished envs auto-reset in the same step."""
         actions = np.asarray(actions, dtype=np.float32).reshape(self.num_envs, 3)
+        if self.previous_action is not None:
+            self.previous_action.took(actions)  # as the policy gave them (before the action perturbations)
         if self.perturber.acts:
             actions = self.perturber.act(actions)
         reward, terminated, truncated, unstable = self.task.step(actions)
         observation, state = self._observe()
         if self.perturber.observes:
             observation = self.perturber.observe(observation)
+        if self.previous_action is not None:
+            observation = self.previous_action.append(observation)
         done = terminated | truncated
         info = {"n_held": state["n_held"], "mean_held_index": state["p_i"]}
         if done.any():
@@ -320,6 +336,9 @@ class CableFollowingVecEnv(VectorEnv):
                 fresh, _ = self._observe()
                 if self.perturber.observes:
                     fresh[done] = self.perturber.observe(fresh[done], np.flatnonzero(done))
+                if self.previous_action is not None:
+                    self.previous_action.start(done)  # a new episode's first step
+                    fresh = self.previous_action.append(fresh)
                 observation = np.where(done[:, None], fresh, observation)
         self.last_observation = observation
         return observation, reward.astype(np.float64), terminated, truncated, info

@@ -9,6 +9,13 @@ Subsets are named "K", "T", "V", "T+K", "V+K", "T+V", "All" (any "+"-joined set,
 the paper's K+T+V, ``dlo_policy.modalities.ALL``). Values are SI, unscaled, as in the paper.
 ``without`` zeroes a modality that is present: the test-time ablation "tested without X" (the
 vector keeps its size so a trained network still fits).
+
+The previous action (option ``previous_action``, off by default): the action the policy gave at the step before,
+appended after the modalities as PREVIOUS_ACTION_LABELS [a_x, a_y, a_c] in the env's action box [-1, 1]^3, zeros at
+an episode's first step (:func:`with_previous_action`). It is the policy's own memory, not a sensor: the observation
+perturbations (delay, noise) do not act on it, and it is the action as the policy gave it, before any action
+perturbation (delay, gain, lag) that stands for the robot. With it a policy can know the commands still in flight
+under a delay (the gym env and the policy node append it alike).
 """
 
 from __future__ import annotations
@@ -21,6 +28,7 @@ from dlo_policy.modalities import ALL, parse_modalities
 __all__ = [
     "ALL",
     "MODALITY_LABELS",
+    "PREVIOUS_ACTION_LABELS",
     "MODALITY_ORDER",
     "MODALITY_SIZES",
     "build_observation",
@@ -28,6 +36,8 @@ __all__ = [
     "observation_labels",
     "observation_size",
     "parse_modalities",
+    "PreviousAction",
+    "with_previous_action",
 ]
 
 # Views of the registry (dlo_policy.modalities) as of import, for the callers that index by name; the functions
@@ -37,21 +47,27 @@ MODALITY_SIZES = {m.name: m.size for m in registry.MODALITIES}
 MODALITY_LABELS = {m.name: m.labels for m in registry.MODALITIES}
 
 
-def observation_labels(modalities) -> tuple:
+PREVIOUS_ACTION_LABELS = ("a_x", "a_y", "a_c")  # the previous action's entries (module docstring)
+ACTION_SIZE = len(PREVIOUS_ACTION_LABELS)
+
+
+def observation_labels(modalities, previous_action: bool = False) -> tuple:
     """Names of the observation entries in order, e.g. ("x_G", "y_G", "c_G", "theta_T", "y_T")."""
-    return tuple(label for m in parse_modalities(modalities) for label in registry.by_name(m).labels)
+    labels = tuple(label for m in parse_modalities(modalities) for label in registry.by_name(m).labels)
+    return labels + (PREVIOUS_ACTION_LABELS if previous_action else ())
 
 
-def observation_size(modalities) -> int:
-    """Length D of the observation of ``modalities``."""
-    return sum(registry.by_name(m).size for m in parse_modalities(modalities))
+def observation_size(modalities, previous_action: bool = False) -> int:
+    """Length D of the observation of ``modalities`` (with the previous action: D + 3)."""
+    return sum(registry.by_name(m).size for m in parse_modalities(modalities)) + (ACTION_SIZE if previous_action else 0)
 
 
-def observation_bounds(modalities) -> tuple:
+def observation_bounds(modalities, previous_action: bool = False) -> tuple:
     """(low, high) float32 arrays of the observation: the workspace, closure and flags in [0, 1],
-    angles in [-pi/2, pi/2], y_T and y_V within the sensors' ranges."""
+    angles in [-pi/2, pi/2], y_T and y_V within the sensors' ranges; the previous action in [-1, 1]."""
     pairs = [pair for m in parse_modalities(modalities) for pair in registry.by_name(m).bounds]
-    low, high = zip(*pairs)
+    pairs += [(-1.0, 1.0)] * (ACTION_SIZE if previous_action else 0)
+    low, high = zip(*pairs, strict=True)
     return np.array(low, np.float32), np.array(high, np.float32)
 
 
@@ -68,7 +84,7 @@ def build_observation(modalities, *readings, without=(), **named) -> np.ndarray:
     records = registry.MODALITIES
     if len(readings) > len(records):
         raise TypeError(f"build_observation takes at most {len(records)} readings, got {len(readings)}")
-    given = {m.title: reading for m, reading in zip(records, readings)}
+    given = {m.title: reading for m, reading in zip(records, readings, strict=False)}  # readings may be fewer
     unknown = set(named) - {m.title for m in records}
     if unknown or set(named) & set(given):
         raise TypeError(f"build_observation: unknown or repeated reading(s) {sorted(unknown or set(named) & set(given))}")
@@ -83,7 +99,34 @@ def build_observation(modalities, *readings, without=(), **named) -> np.ndarray:
     return np.concatenate(
         [
             np.zeros((num_envs, m.size), np.float32) if part is None else part.astype(np.float32)
-            for m, part in zip(present, parts)
+            for m, part in zip(present, parts, strict=True)
         ],
         axis=1,
     )
+
+
+def with_previous_action(observation, previous_action) -> np.ndarray:
+    """(N, D) observation and (N, 3) previous actions (the env's action box; zeros at an episode's first step)
+    -> the (N, D + 3) float32 observation the policy takes with option ``previous_action`` (module docstring)."""
+    observation = np.asarray(observation, dtype=np.float32)
+    previous = np.asarray(previous_action, dtype=np.float32).reshape(len(observation), ACTION_SIZE)
+    return np.concatenate([observation, previous], axis=1)
+
+
+class PreviousAction:
+    """The previous action of ``num_envs`` streams of control steps, appended to their observations: the gym env
+    (batched) and the policy node (one stream) keep it alike. ``start(ids)``: new episodes (zeros); ``took(actions)``:
+    the actions (N, 3) the policy gave this step; ``append(observation, ids)``: the observations of these envs
+    (all by default) with their previous action (:func:`with_previous_action`)."""
+
+    def __init__(self, num_envs: int = 1):
+        self.actions = np.zeros((int(num_envs), ACTION_SIZE), np.float32)
+
+    def start(self, env_ids=None) -> None:
+        self.actions[slice(None) if env_ids is None else env_ids] = 0.0
+
+    def took(self, actions) -> None:
+        self.actions[:] = np.asarray(actions, dtype=np.float32).reshape(self.actions.shape)
+
+    def append(self, observation, env_ids=None) -> np.ndarray:
+        return with_previous_action(observation, self.actions if env_ids is None else self.actions[env_ids])

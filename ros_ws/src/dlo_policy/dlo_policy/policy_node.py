@@ -17,6 +17,10 @@ option ``perturbations``: over the observation before the policy acts, over its 
 comes from the episode's seed, which the node then reads from ``/dlo/task/state``, so the graph's episodes equal the
 env's. Physics and camera families belong to the simulator and are refused here.
 
+A policy trained with the env option ``previous_action`` (its checkpoint's observation is 3 longer) gets its own
+previous action appended to the observation, after the observation perturbations and before the action ones, zeros at
+an episode's first step: ``dlo_policy.observation.PreviousAction``, as in the gym env.
+
 At start it publishes what drives the graph once, latched, on ``/dlo/policy/info`` (std_msgs/String, JSON:
 :func:`policy_record`): the policy, its checkpoint file and that file's sha256, the modalities observed and
 ablated, and from the checkpoint's run config the task rules, grip and env_options it was trained under. The
@@ -45,7 +49,7 @@ from std_msgs.msg import String
 
 from dlo_policy import perturbations
 from dlo_policy.modalities import ALL, ALL_NAME, by_name, names
-from dlo_policy.observation import build_observation, observation_size, parse_modalities
+from dlo_policy.observation import PreviousAction, build_observation, observation_size, parse_modalities
 from dlo_policy.rundir import (  # noqa: F401 (SHIPPED_POLICY, shipped_policy_path: re-exported)
     CONFIG_FILE,
     SHIPPED_POLICY,
@@ -129,7 +133,8 @@ class GroundTruthView:
 
 
 def load_policy(kind: str, checkpoint: str, modalities: str, seed: int):
-    """-> (act(observation (1, D), new_episode, ground truth) -> action (1, 3), modalities actually used)."""
+    """-> (act(observation (1, D), new_episode, ground truth) -> action (1, 3), modalities actually used, whether the
+    policy takes its previous action after them: env option ``previous_action``, D = their size + 3)."""
     if kind == "sac":
         from dlo_policy.evaluate import load_run_config
         from dlo_policy.sac import SAC, CheckpointError
@@ -146,7 +151,15 @@ def load_policy(kind: str, checkpoint: str, modalities: str, seed: int):
             raise ParameterError(f"parameter 'checkpoint': {error}") from None
         # the modalities the checkpoint stores; a checkpoint from before: its run's config.yaml ("All" = K+T+V)
         trained_on = agent.modalities or load_run_config(path).modalities
-        return (lambda obs, new_episode, truth: agent.predict(obs, deterministic=True).reshape(1, 3)), trained_on
+        previous_action = agent.obs_dim == observation_size(trained_on, previous_action=True)
+        if not previous_action and agent.obs_dim != observation_size(trained_on):
+            raise ParameterError(
+                f"parameter 'checkpoint': {path} takes observations of {agent.obs_dim} entries, not those of "
+                f"{'+'.join(parse_modalities(trained_on))} ({observation_size(trained_on)}, with the previous action "
+                f"{observation_size(trained_on, previous_action=True)})"
+            )
+        act = lambda obs, new_episode, truth: agent.predict(obs, deterministic=True).reshape(1, 3)  # noqa: E731
+        return act, trained_on, previous_action
     if kind == "tactile_reactive":
         from dlo_policy.scripted import TactileReactive
 
@@ -158,14 +171,14 @@ def load_policy(kind: str, checkpoint: str, modalities: str, seed: int):
                 controller.reset()
             return controller(obs, layout)
 
-        return act, ALL
+        return act, ALL, False
     if kind == "oracle":
         from dlo_policy.scripted import OracleFollow
 
         oracle = OracleFollow()
-        return (lambda obs, new_episode, truth: oracle(obs, truth)), modalities
+        return (lambda obs, new_episode, truth: oracle(obs, truth)), modalities, False
     rng = np.random.default_rng(seed)
-    return (lambda obs, new_episode, truth: rng.uniform(-1.0, 1.0, (1, 3)).astype(np.float32)), modalities
+    return (lambda obs, new_episode, truth: rng.uniform(-1.0, 1.0, (1, 3)).astype(np.float32)), modalities, False
 
 
 def file_sha256(path) -> str:
@@ -245,8 +258,11 @@ class PolicyNode(Node):
         try:
             if p["train"]:
                 self.act, modalities = None, p["modalities"]
+                previous_action = self.train_config(p).env_options.get("previous_action", False)
             else:
-                self.act, modalities = load_policy(p["policy"], p["checkpoint"], p["modalities"], p["seed"])
+                self.act, modalities, previous_action = load_policy(p["policy"], p["checkpoint"], p["modalities"], p["seed"])
+            # the policy's own previous action after the observation (env option previous_action; None: off)
+            self.previous_action = PreviousAction(1) if previous_action else None
             self.modalities = modalities_parameter("modalities", modalities)
             self.without = modalities_parameter("without", p["without"]) if p["without"] else ()
             ablated_absent = [m for m in self.without if m not in self.modalities]
@@ -257,7 +273,7 @@ class PolicyNode(Node):
                 )
             self.observed = [by_name(m) for m in self.modalities if m not in self.without]
             self.observation({m.input_key: message_class(m.message_type)() for m in self.observed})  # it builds
-            self.learner = self.make_learner(p) if p["train"] else None
+            self.learner = self.make_learner(p, bool(previous_action)) if p["train"] else None
         except (ValueError, OSError) as error:
             raise ParameterError(str(error)) from None
         self.input_timeout = p["input_timeout"]
@@ -313,7 +329,7 @@ class PolicyNode(Node):
         if self.last[0] == stamp:  # the sim republished this step: answer it again, unchanged
             self.publisher.publish(self.last[1])
             return
-        values = dict(zip(self.sync.keys, matched))
+        values = dict(zip(self.sync.keys, matched, strict=True))
         gripper = values["gripper"]
         observation = self.observation(values)
         if self.perturber.active:
@@ -321,6 +337,10 @@ class PolicyNode(Node):
                 self.perturber.start([0], [values["task"].seed])
                 self.perturbed_episode = gripper.episode
             observation = self.perturber.observe(observation)
+        if self.previous_action is not None:
+            if gripper.step == 0:
+                self.previous_action.start()
+            observation = self.previous_action.append(observation)
         if self.learner is not None:
             task = values["task"]
             terminated = task.done and bool(
@@ -330,6 +350,8 @@ class PolicyNode(Node):
         else:
             self.truth.cloud, self.truth.gripper = values.get("particles"), gripper
             action = self.act(observation, gripper.step == 0, self.truth)[0]
+        if self.previous_action is not None:
+            self.previous_action.took(action)  # as the policy gave it (before the action perturbations)
         if self.perturber.active:
             action = self.perturber.act(np.asarray(action, np.float32)[None])[0]
         vx, vy, closure = action_to_command(action)
@@ -345,12 +367,17 @@ class PolicyNode(Node):
         return build_observation(self.modalities, without=self.without, **readings)
 
     @staticmethod
-    def make_learner(p):
+    def train_config(p):
+        """The online run's config (``train_config``, the node's modalities and seed)."""
         from dlo_policy.config import load_config
+
+        return load_config(p["train_config"] or None, values={"modalities": p["modalities"], "seed": p["seed"]})
+
+    def make_learner(self, p, previous_action: bool):
         from dlo_policy.online import OnlineLearner
 
-        config = load_config(p["train_config"] or None, values={"modalities": p["modalities"], "seed": p["seed"]})
-        return OnlineLearner(config, observation_size(p["modalities"]), p["train_out"], p["checkpoint_every"])
+        size = observation_size(p["modalities"], previous_action=previous_action)
+        return OnlineLearner(self.train_config(p), size, p["train_out"], p["checkpoint_every"])
 
     def finish(self):
         """Save the online run (run_node calls this once the node stops, before the middleware's teardown)."""

@@ -141,9 +141,9 @@ def test_a_checkpoint_from_before_loads_and_its_all_means_k_t_v(tmp_path, monkey
     (tmp_path / "config.yaml").write_text(policy_node.shipped_policy_path().with_name("config.yaml").read_text())
     assert "modalities" not in read_checkpoint(shipped) and SAC.load(shipped).modalities is None
     assert load_run_config(shipped).modalities == "All"
-    act, trained_on = policy_node.load_policy("sac", str(shipped), "K", seed=0)
+    act, trained_on, previous_action = policy_node.load_policy("sac", str(shipped), "K", seed=0)
     assert policy_node.modalities_parameter("modalities", trained_on) == ("K", "T", "V")
-    assert act(np.zeros((1, 9), np.float32), True, None).shape == (1, 3)
+    assert act(np.zeros((1, 9), np.float32), True, None).shape == (1, 3) and not previous_action
     monkeypatch.setattr(modalities, "MODALITIES", MODALITIES + (grip_twice(),))  # a modality added later
     assert policy_node.modalities_parameter("modalities", trained_on) == ("K", "T", "V")
 

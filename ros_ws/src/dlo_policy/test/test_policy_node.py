@@ -78,9 +78,11 @@ def make_node(context, monkeypatch):
     def make(act=None, learner=None, trained_on="All", **parameters):
         checked = {name: check_value(SPECS[name], value) for name, value in parameters.items()}  # range, choices
         monkeypatch.setattr(policy_node_module, "declare_parameters", lambda n, specs: {**DECLARE(n, specs), **checked})
-        monkeypatch.setattr(policy_node_module, "load_policy", lambda kind, checkpoint, modalities, seed: (act, trained_on))
+        monkeypatch.setattr(
+            policy_node_module, "load_policy", lambda kind, checkpoint, modalities, seed: (act, trained_on, False)
+        )
 
-        def make_learner(p):
+        def make_learner(p, previous_action=False):
             assert learner is not None, "a learner was made without train:=true"
             return learner
 

@@ -94,7 +94,7 @@ def test_the_policy_node_takes_a_shipped_name(installed):
     from dlo_common.params import ParameterError
     from dlo_policy.policy_node import load_policy, policy_record
 
-    _, modalities = load_policy("sac", "shipped:all_robust", "All", 0)
+    _, modalities, _ = load_policy("sac", "shipped:all_robust", "All", 0)
     assert list(modalities) == ["K", "T", "V"]
     record = policy_record("sac", "shipped:all_robust", modalities)
     assert record["checkpoint"] == str(installed.resolve()) and record["shipped"] is True
