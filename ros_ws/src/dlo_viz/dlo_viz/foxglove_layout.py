@@ -83,9 +83,15 @@ def observation_series() -> dict[str, list]:
     }
 
 
+def unit_id(unit: str) -> str:
+    """A unit as a panel id's part, one to one: letters and digits kept, any other character as _ and its code in hex
+    ("N m" -> "N_20m", "N.m" -> "N_2em"), so two units never share a panel."""
+    return re.sub(r"[^A-Za-z0-9]", lambda m: f"_{ord(m.group()):x}", unit)
+
+
 def _unit_plot(unit: str, series: list) -> tuple[str, dict]:
     """(panel id, config) of the Plot panel of one unit's observation series [(path, label)] (:data:`UNIT_PANELS`)."""
-    suffix, title = UNIT_PANELS.get(unit) or ("observations_" + re.sub(r"[^A-Za-z0-9]+", "_", unit), f"observations [{unit}]")
+    suffix, title = UNIT_PANELS.get(unit) or ("observations_" + unit_id(unit), f"observations [{unit}]")
     return f"Plot!dlo_{suffix}", _plot(
         title, [_series(path, label, i) for i, (path, label) in enumerate(series)], y_axis_label=unit
     )

@@ -569,6 +569,13 @@ def test_layout_ships_and_reads_only_graph_topics():
     assert "/dlo/markers" in scene["topics"] and scene["followTf"] == "world"
 
 
+def test_two_units_that_differ_only_in_punctuation_get_panels_of_their_own():
+    from dlo_viz.foxglove_layout import unit_id
+
+    assert unit_id("kN") == "kN" and unit_id("N m") == "N_20m" and unit_id("N.m") == "N_2em"
+    assert len({unit_id(u) for u in ("N m", "N.m", "N_m", "Nm", "N/m", "N-m")}) == 6
+
+
 def test_layout_plots_follow_the_registry(monkeypatch):
     """The layout's observation plots are the registry's observation plot series (dlo_common.topics), labelled as
     the episode plots label them (``dlo_bag.analysis.series_label``): the unitless ones with the closure's measured
