@@ -30,6 +30,10 @@ from typing import Any
 
 SUBPROTOCOLS = ("foxglove.sdk.v1", "foxglove.websocket.v1")  # what current Foxglove releases offer
 OLD_SUBPROTOCOLS = ("foxglove.websocket.v1",)  # older Foxglove and Lichtblick releases, older scripts
+# The tests' waits are liveness bounds: a wait fails after its timeout times this. A passing wait returns as soon as its
+# condition holds, so a larger value costs nothing there; it keeps a machine whose cores are busy with training (a CI
+# run beside it) from failing a test that only waited its turn.
+PATIENCE = 6
 OP_MESSAGE_DATA = 0x01
 OP_TIME = 0x02
 
@@ -129,6 +133,8 @@ class FoxgloveTestClient:
             self._ws.send(json.dumps({"op": "subscribe", "subscriptions": subs}))
 
     def wait(self, condition, timeout: float, what: str = "condition") -> None:
+        """Poll until ``condition()`` holds; fail after ``timeout`` s times PATIENCE."""
+        timeout *= PATIENCE
         end = time.monotonic() + timeout
         while time.monotonic() < end:
             if condition():

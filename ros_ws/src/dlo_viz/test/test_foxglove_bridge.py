@@ -37,7 +37,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))  # --import-mode=import
 
 from dlo_common.topics import TOPICS  # noqa: E402
 from dlo_viz.foxglove_bridge import foxglove_url, topic_matches  # noqa: E402
-from foxglove_ws_client import FoxgloveTestClient  # noqa: E402
+from foxglove_ws_client import PATIENCE, FoxgloveTestClient  # noqa: E402
 from harness import ROS2RUN, Proc, Procs  # noqa: E402
 
 pytest.importorskip("foxglove")
@@ -279,7 +279,9 @@ def test_clients_connect_and_leave(bridge, typestore):
 
 
 def wait_until(condition, timeout):
-    end = time.monotonic() + timeout
+    """Poll until ``condition()`` holds; fail after ``timeout`` s times PATIENCE (a liveness bound, not a speed
+    check: a passing wait returns as soon as its condition holds)."""
+    end = time.monotonic() + timeout * PATIENCE
     while not condition():
         assert time.monotonic() < end, "timed out"
         time.sleep(0.02)
