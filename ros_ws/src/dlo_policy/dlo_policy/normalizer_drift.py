@@ -52,7 +52,8 @@ def drift(run: Path, every: int) -> dict:
             f"({type(error).__name__}: {str(error).splitlines()[0] if str(error) else ''})"
         ) from None
     try:
-        labels = observation_labels(read_config(run).modalities)
+        config = read_config(run)
+        labels = observation_labels(config.modalities, previous_action=bool(config.env_options.get("previous_action")))
     except (ConfigError, ValueError, OSError) as error:
         raise DriftError(f"{run / CONFIG_FILE}: {error}") from None
     rows = [r for r in read_eval_rows(run) if r.get("tested_without", "") == ""]

@@ -46,6 +46,19 @@ def test_a_tiny_run_finds_the_jump_and_prints_json_last(tmp_path):
     assert shifts[20]["shift"] == 0.0 and shifts[20]["hold_the_end"] == 0.5  # the T-ablated row is not counted
 
 
+def test_a_run_with_the_previous_action_names_its_columns(tmp_path):
+    """env_options.previous_action: the observation's last 3 columns are the previous action (a_x, a_y, a_c)."""
+    run = tmp_path / "run"
+    run.mkdir()
+    obs = torch.zeros(100, 6)
+    obs[20:40, 4] = 1.0  # a_y jumps
+    torch.save({"counters": {"env_steps": 40, "updates": 0, "episodes": 0}, "replay": {"obs": obs}}, run / "checkpoint.pt")
+    (run / "config.yaml").write_text("modalities: K\nenv_options:\n  previous_action: true\n")
+    (run / "eval.csv").write_text("step,tested_without,hold_the_end\n10,,0.0\n20,,0.5\n30,,1.0\n40,,1.0\n")
+    windows = {w["step"]: w for w in normalizer_drift.drift(run, 10)["windows"]}
+    assert windows[30]["dimension"] == "a_y"
+
+
 @pytest.mark.parametrize(
     "case, message",
     [
