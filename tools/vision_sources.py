@@ -29,6 +29,7 @@ def main(argv=None) -> int:
 
     from dlo_perception.vision import visual_pose_particles
     from dlo_policy.env import make_vec_env
+    from dlo_policy.observation import observation_labels, observation_size
     from dlo_policy.policy_node import shipped_policy_path
     from dlo_policy.rundir import trained_sim_settings
     from dlo_policy.sac import SAC
@@ -43,13 +44,13 @@ def main(argv=None) -> int:
         seed=args.seed,
         task_rules=settings["task_rules"],
         single_particle_grip=settings["single_particle_grip"],
+        # a policy trained with env_options.previous_action takes 3 more entries (dlo_policy.observation)
+        previous_action=agent.obs_dim == observation_size(agent.modalities, previous_action=True),
     )
-    v_index = list(agent.modalities).index("V") if "V" in agent.modalities else None
-    if v_index is None:
+    if "V" not in agent.modalities:
         print("the policy does not observe V", file=sys.stderr)
         return 2
-    offset = {"K": 3, "T": 2, "V": 4}
-    v_start = sum(offset[m] for m in agent.modalities[:v_index])
+    v_start = observation_labels(agent.modalities).index("v_V")
     observation, _ = env.reset(seed=args.seed)
     rows = []  # (episode seed, distance of the narrow set's mean from the end, image v, particles v)
     finished = 0

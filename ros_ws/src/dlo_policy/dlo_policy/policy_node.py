@@ -83,7 +83,12 @@ PARAMETERS = (
     Param("train", False, "learn online from the graph (policy sac): SAC from scratch or from train_out"),
     Param("train_out", "runs/online", "run directory of online training (config, checkpoint.pt, policy.pt)"),
     Param("checkpoint_every", 1000, "online training: control steps between checkpoints", at_least=1),
-    Param("train_config", "", "online training: a dlo-train YAML config (SAC hyperparameters); empty = defaults"),
+    Param(
+        "train_config",
+        "",
+        "online training: a dlo-train YAML config (SAC hyperparameters; env_options.previous_action adds the previous "
+        "action to the observation); empty = defaults",
+    ),
     Param(
         "perturbations",
         "",
@@ -258,7 +263,7 @@ class PolicyNode(Node):
         try:
             if p["train"]:
                 self.act, modalities = None, p["modalities"]
-                previous_action = self.train_config(p).env_options.get("previous_action", False)
+                previous_action = self.train_config(p).env_options.get("previous_action", False)  # checked there
             else:
                 self.act, modalities, previous_action = load_policy(p["policy"], p["checkpoint"], p["modalities"], p["seed"])
             # the policy's own previous action after the observation (env option previous_action; None: off)
@@ -279,7 +284,7 @@ class PolicyNode(Node):
         self.input_timeout = p["input_timeout"]
         # the observation and action perturbations, as the gym env applies them (off: never called)
         self.perturber = perturbations.Perturber(p["perturbations"], self.modalities, self.without, 1)
-        self.perturbed_episode = None  # the episode the perturber was last started on
+        self.episode = None  # the episode of the last step answered: a step of another one starts a new episode
         # the gripper state (episode, step) always, then each observed modality's topic, the task state to learn
         # from, the particles for the oracle: input keys of dlo_common.topics
         inputs = list(dict.fromkeys(["gripper"] + [m.input_key for m in self.observed]))
@@ -331,14 +336,15 @@ class PolicyNode(Node):
             return
         values = dict(zip(self.sync.keys, matched, strict=True))
         gripper = values["gripper"]
+        new_episode = gripper.step == 0 or gripper.episode != self.episode  # (a missed step 0 too)
+        self.episode = gripper.episode
         observation = self.observation(values)
         if self.perturber.active:
-            if gripper.step == 0 or gripper.episode != self.perturbed_episode:  # a new episode: its seed, its noise
+            if new_episode:  # its seed, its noise
                 self.perturber.start([0], [values["task"].seed])
-                self.perturbed_episode = gripper.episode
             observation = self.perturber.observe(observation)
         if self.previous_action is not None:
-            if gripper.step == 0:
+            if new_episode:
                 self.previous_action.start()
             observation = self.previous_action.append(observation)
         if self.learner is not None:
@@ -349,7 +355,7 @@ class PolicyNode(Node):
             action = self.learner.act(observation[0], task.reward, task.done, terminated, gripper.episode, gripper.step)
         else:
             self.truth.cloud, self.truth.gripper = values.get("particles"), gripper
-            action = self.act(observation, gripper.step == 0, self.truth)[0]
+            action = self.act(observation, new_episode, self.truth)[0]
         if self.previous_action is not None:
             self.previous_action.took(action)  # as the policy gave it (before the action perturbations)
         if self.perturber.active:
@@ -368,16 +374,26 @@ class PolicyNode(Node):
 
     @staticmethod
     def train_config(p):
-        """The online run's config (``train_config``, the node's modalities and seed)."""
-        from dlo_policy.config import load_config
+        """The online run's config (``train_config``, the node's modalities and seed), its env_options checked as
+        dlo-train checks them (ConfigError, a ValueError: one line)."""
+        from dlo_policy.config import check_env_options, load_config
 
-        return load_config(p["train_config"] or None, values={"modalities": p["modalities"], "seed": p["seed"]})
+        config = load_config(p["train_config"] or None, values={"modalities": p["modalities"], "seed": p["seed"]})
+        check_env_options(config)
+        return config
 
     def make_learner(self, p, previous_action: bool):
         from dlo_policy.online import OnlineLearner
 
         size = observation_size(p["modalities"], previous_action=previous_action)
-        return OnlineLearner(self.train_config(p), size, p["train_out"], p["checkpoint_every"])
+        learner = OnlineLearner(self.train_config(p), size, p["train_out"], p["checkpoint_every"])
+        if learner.agent.obs_dim != size:  # continuing a run of train_out made with other observations
+            raise ParameterError(
+                f"parameter 'train_out': {p['train_out']} holds a run with observations of {learner.agent.obs_dim} "
+                f"entries, not {size} ({'+'.join(parse_modalities(p['modalities']))}"
+                f"{' with the previous action' if previous_action else ''}): another train_out, or its settings"
+            )
+        return learner
 
     def finish(self):
         """Save the online run (run_node calls this once the node stops, before the middleware's teardown)."""

@@ -75,11 +75,11 @@ class RecordingLearner:
 def make_node(context, monkeypatch):
     nodes = []
 
-    def make(act=None, learner=None, trained_on="All", **parameters):
+    def make(act=None, learner=None, trained_on="All", previous_action=False, **parameters):
         checked = {name: check_value(SPECS[name], value) for name, value in parameters.items()}  # range, choices
         monkeypatch.setattr(policy_node_module, "declare_parameters", lambda n, specs: {**DECLARE(n, specs), **checked})
         monkeypatch.setattr(
-            policy_node_module, "load_policy", lambda kind, checkpoint, modalities, seed: (act, trained_on, False)
+            policy_node_module, "load_policy", lambda kind, checkpoint, modalities, seed: (act, trained_on, previous_action)
         )
 
         def make_learner(p, previous_action=False):
@@ -193,6 +193,29 @@ def test_topics_timer_and_parameters(make_node):
     assert sorted(s.topic_name for s in oracle.subscriptions) == ["/dlo/gripper/state", "/dlo/rope/particles"]
     learner = make_node(learner=RecordingLearner(), train=True, modalities="K")
     assert sorted(s.topic_name for s in learner.subscriptions) == ["/dlo/gripper/state", "/dlo/task/state"]
+
+
+def test_a_policy_that_takes_its_previous_action_gets_it_after_the_observation(make_node):
+    """load_policy says the policy takes its previous action (a checkpoint 3 longer): the node appends the action it
+    gave at the step before, zeros at a new episode's first step, and also when the new episode's step 0 never came."""
+    policy = RecordingPolicy()
+    node = make_node(act=policy, previous_action=True)
+    feed(node, step=0, episode=4)
+    feed(node, step=1, episode=4)
+    feed(node, step=2, episode=5)  # episode 5's steps 0 and 1 were missed: a new episode all the same
+    first, second, third = policy.seen
+    assert first.shape == (1, 12) and (first[0, 9:] == 0).all()
+    assert np.array_equal(second[:, :9], first[:, :9]) and second[0, 9:].tolist() == pytest.approx([0.4, -0.2, 0.6])
+    assert (third[0, 9:] == 0).all() and policy.new_episode == [True, False, True]
+
+
+def test_online_training_checks_the_configs_env_options_as_dlo_train(make_node, tmp_path):
+    from dlo_common.node_util import ParameterError
+
+    config = tmp_path / "online.yaml"
+    config.write_text("env_options:\n  previous_action: 'no'\n")
+    with pytest.raises(ParameterError, match=r"env_options: previous_action: expected true or false, got 'no'"):
+        make_node(learner=RecordingLearner(), train=True, policy="sac", train_config=str(config))
 
 
 @pytest.mark.parametrize(
