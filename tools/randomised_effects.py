@@ -26,6 +26,7 @@ from pathlib import Path
 
 import numpy as np
 import yaml
+from dlo_interface.perturbations import parse_ranges
 from dlo_interface.task import HORIZON
 
 
@@ -33,7 +34,8 @@ def effects(run: Path, from_step: int | None = None) -> dict:
     rows = list(csv.DictReader((run / "randomised.csv").open()))
     if not rows:
         raise ValueError(f"{run / 'randomised.csv'}: no episodes")
-    ranges = yaml.safe_load((run / "config.yaml").read_text())["env_options"]["randomise"]
+    # as the run read them: {family: [low, high]} or the text "observation_delay=0:1,..." of a command line
+    ranges = parse_ranges(yaml.safe_load((run / "config.yaml").read_text())["env_options"]["randomise"])
     families = [name for name in rows[0] if name in ranges]
     ends = np.array([int(r["step"]) for r in rows])
     lengths = np.diff(np.concatenate([[0], ends]))
