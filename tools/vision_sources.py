@@ -29,7 +29,7 @@ def main(argv=None) -> int:
 
     from dlo_perception.vision import visual_pose_particles
     from dlo_policy.env import make_vec_env
-    from dlo_policy.observation import observation_labels, observation_size
+    from dlo_policy.observation import observation_labels, takes_previous_action
     from dlo_policy.policy_node import shipped_policy_path
     from dlo_policy.rundir import trained_sim_settings
     from dlo_policy.sac import SAC
@@ -45,7 +45,7 @@ def main(argv=None) -> int:
         task_rules=settings["task_rules"],
         single_particle_grip=settings["single_particle_grip"],
         # a policy trained with env_options.previous_action takes 3 more entries (dlo_policy.observation)
-        previous_action=agent.obs_dim == observation_size(agent.modalities, previous_action=True),
+        previous_action=takes_previous_action(agent.obs_dim, agent.modalities),
     )
     if "V" not in agent.modalities:
         print("the policy does not observe V", file=sys.stderr)

@@ -37,6 +37,7 @@ __all__ = [
     "observation_size",
     "parse_modalities",
     "PreviousAction",
+    "takes_previous_action",
     "with_previous_action",
 ]
 
@@ -103,6 +104,19 @@ def build_observation(modalities, *readings, without=(), **named) -> np.ndarray:
         ],
         axis=1,
     )
+
+
+def takes_previous_action(obs_dim: int, modalities) -> bool:
+    """Whether a policy of input size ``obs_dim`` over ``modalities`` takes the previous action after them (its size +
+    3); ValueError when the size is neither."""
+    if obs_dim == observation_size(modalities, previous_action=True):
+        return True
+    if obs_dim != observation_size(modalities):
+        raise ValueError(
+            f"takes observations of {obs_dim} entries, not those of {'+'.join(parse_modalities(modalities))} "
+            f"({observation_size(modalities)}, with the previous action {observation_size(modalities, previous_action=True)})"
+        )
+    return False
 
 
 def with_previous_action(observation, previous_action) -> np.ndarray:

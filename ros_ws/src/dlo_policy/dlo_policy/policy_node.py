@@ -49,7 +49,13 @@ from std_msgs.msg import String
 
 from dlo_policy import perturbations
 from dlo_policy.modalities import ALL, ALL_NAME, by_name, names
-from dlo_policy.observation import PreviousAction, build_observation, observation_size, parse_modalities
+from dlo_policy.observation import (
+    PreviousAction,
+    build_observation,
+    observation_size,
+    parse_modalities,
+    takes_previous_action,
+)
 from dlo_policy.rundir import (  # noqa: F401 (SHIPPED_POLICY, shipped_policy_path: re-exported)
     CONFIG_FILE,
     SHIPPED_POLICY,
@@ -156,13 +162,10 @@ def load_policy(kind: str, checkpoint: str, modalities: str, seed: int):
             raise ParameterError(f"parameter 'checkpoint': {error}") from None
         # the modalities the checkpoint stores; a checkpoint from before: its run's config.yaml ("All" = K+T+V)
         trained_on = agent.modalities or load_run_config(path).modalities
-        previous_action = agent.obs_dim == observation_size(trained_on, previous_action=True)
-        if not previous_action and agent.obs_dim != observation_size(trained_on):
-            raise ParameterError(
-                f"parameter 'checkpoint': {path} takes observations of {agent.obs_dim} entries, not those of "
-                f"{'+'.join(parse_modalities(trained_on))} ({observation_size(trained_on)}, with the previous action "
-                f"{observation_size(trained_on, previous_action=True)})"
-            )
+        try:
+            previous_action = takes_previous_action(agent.obs_dim, trained_on)
+        except ValueError as error:
+            raise ParameterError(f"parameter 'checkpoint': {path} {error}") from None
         act = lambda obs, new_episode, truth: agent.predict(obs, deterministic=True).reshape(1, 3)  # noqa: E731
         return act, trained_on, previous_action
     if kind == "tactile_reactive":
@@ -263,7 +266,8 @@ class PolicyNode(Node):
         try:
             if p["train"]:
                 self.act, modalities = None, p["modalities"]
-                previous_action = self.train_config(p).env_options.get("previous_action", False)  # checked there
+                config = self.train_config(p)
+                previous_action = config.env_options.get("previous_action", False)  # checked there
             else:
                 self.act, modalities, previous_action = load_policy(p["policy"], p["checkpoint"], p["modalities"], p["seed"])
             # the policy's own previous action after the observation (env option previous_action; None: off)
@@ -278,7 +282,7 @@ class PolicyNode(Node):
                 )
             self.observed = [by_name(m) for m in self.modalities if m not in self.without]
             self.observation({m.input_key: message_class(m.message_type)() for m in self.observed})  # it builds
-            self.learner = self.make_learner(p, bool(previous_action)) if p["train"] else None
+            self.learner = self.make_learner(p, config) if p["train"] else None
         except (ValueError, OSError) as error:
             raise ParameterError(str(error)) from None
         self.input_timeout = p["input_timeout"]
@@ -382,11 +386,14 @@ class PolicyNode(Node):
         check_env_options(config)
         return config
 
-    def make_learner(self, p, previous_action: bool):
+    @staticmethod
+    def make_learner(p, config):
+        """The online learner of ``config`` (:meth:`train_config`) in ``train_out``."""
         from dlo_policy.online import OnlineLearner
 
+        previous_action = bool(config.env_options.get("previous_action", False))
         size = observation_size(p["modalities"], previous_action=previous_action)
-        learner = OnlineLearner(self.train_config(p), size, p["train_out"], p["checkpoint_every"])
+        learner = OnlineLearner(config, size, p["train_out"], p["checkpoint_every"])
         if learner.agent.obs_dim != size:  # continuing a run of train_out made with other observations
             raise ParameterError(
                 f"parameter 'train_out': {p['train_out']} holds a run with observations of {learner.agent.obs_dim} "

@@ -82,7 +82,7 @@ def make_node(context, monkeypatch):
             policy_node_module, "load_policy", lambda kind, checkpoint, modalities, seed: (act, trained_on, previous_action)
         )
 
-        def make_learner(p, previous_action=False):
+        def make_learner(p, config=None):
             assert learner is not None, "a learner was made without train:=true"
             return learner
 
