@@ -3,6 +3,7 @@ SIGKILL, a full disk (a real 2 MiB tmpfs), the sim interrupted alone. Each case 
 code, the one-line cause and what the bag still holds. Every launcher runs in its own session and
 its whole process group is killed if a test fails, so no node outlives a test."""
 
+import functools
 import json
 import os
 import pathlib
@@ -99,8 +100,10 @@ def launches():
         launch.kill()
 
 
+@functools.cache
 def reference_outcome(seed):
-    """The in-process gym environment with the same controller: what a graph alone must give."""
+    """The in-process gym environment with the same controller: what a graph alone must give (computed once a
+    seed: the tests ask for it while their graphs run, and two of them for the same seed)."""
     from dlo_policy.env import make_env
     from dlo_policy.scripted import TactileReactive
 
@@ -139,12 +142,13 @@ def test_two_graphs_at_once_never_see_each_other(tmp_path, launches):
     graph would show): own domains, own bags, the outcomes of each graph alone."""
     a = launches(tmp_path, "a", "--policy", "tactile_reactive", "--episodes", 1, "--seed", 11, "--record", tmp_path / "bag_a")
     b = launches(tmp_path, "b", "--policy", "tactile_reactive", "--episodes", 1, "--seed", 12, "--record", tmp_path / "bag_b")
+    references = {seed: reference_outcome(seed) for seed in (11, 12)}  # meanwhile
     assert a.wait() == 0, a.out
     assert b.wait() == 0, b.out
     domains = {re.search(r"ROS_DOMAIN_ID=(\d+)", x.out).group(1) for x in (a, b)}
     assert len(domains) == 2
     for launch, bag, seed in ((a, tmp_path / "bag_a", 11), (b, tmp_path / "bag_b", 12)):
-        outcome, episode_return = reference_outcome(seed)
+        outcome, episode_return = references[seed]
         live = launch.episodes_done()
         assert [e["outcome"] for e in live] == [outcome]
         assert live[0]["episode_return"] == pytest.approx(episode_return, abs=1e-9)
@@ -153,10 +157,13 @@ def test_two_graphs_at_once_never_see_each_other(tmp_path, launches):
 
 
 def test_a_second_simulator_on_a_shared_domain_refuses_to_start(tmp_path, launches):
+    """A second graph on the domain of a running one: its sim leaves (exit 3, one line), the first graph runs on
+    and finishes an episode after it (the second is started once the first's sim has said it is alone on the
+    domain: the launcher starts the other nodes only then)."""
     a = launches(
         tmp_path, "a", "--policy", "tactile_reactive", "--episodes", 0, "--seed", 11, "--domain-id", os.environ["ROS_DOMAIN_ID"]
     )
-    a.wait_episodes(1)
+    a.pid_of("tactile")
     b = launches(
         tmp_path,
         "b",
@@ -212,9 +219,9 @@ def test_namespaces_share_a_domain_deliberately(tmp_path, launches):
         "--namespace",
         "robot2",
     )
+    outcome, _ = reference_outcome(11)  # meanwhile
     assert a.wait() == 0, a.out
     assert b.wait() == 0, b.out
-    outcome, _ = reference_outcome(11)
     assert [e["outcome"] for e in a.episodes_done()] == [e["outcome"] for e in b.episodes_done()] == [outcome]
     topics = set(bag_info(tmp_path / "bag").topics)
     assert "/robot1/dlo/task/state" in topics and "/robot1/clock" in topics

@@ -538,12 +538,38 @@ RECORDER_STOPS = {  # (issue 38 item 9) how the recorder stops once the sim has 
 }
 
 
-@pytest.mark.parametrize("case", sorted(RECORDER_STOPS))
-def test_a_recorder_is_given_its_teardown_and_a_cut_one_with_a_complete_bag_is_no_failure(case, tmp_path, own_groups):
-    recorder, rc, lines = RECORDER_STOPS[case]
-    proc, out, logs, bag = start(
-        tmp_path, {"sim": episodes(2), "recorder": recorder}, ("--episodes", 2, "--record", "BAG"), own_groups
+@pytest.fixture(scope="module")
+def recorder_stops(request, tmp_path_factory):
+    """The launches of the RECORDER_STOPS cases the session runs, all started at once: each recorder takes its
+    stop_delay (TEARDOWN_LIMIT + 1 s) to stop, which one launch after the other cost that long each. case ->
+    (process, out file, logs, bag); a test registers its launch with its own ``own_groups`` (stopped at its
+    teardown as if it had started it), and whatever is left of a launch no test waited for is killed here."""
+    cases = sorted(
+        {
+            item.callspec.params["case"]
+            for item in request.session.items
+            if "recorder_stops" in getattr(item, "fixturenames", ()) and hasattr(item, "callspec")
+        }
     )
+    runs = {}
+    for case in cases:
+        recorder = RECORDER_STOPS[case][0]
+        plan, args = {"sim": episodes(2), "recorder": recorder}, ("--episodes", 2, "--record", "BAG")
+        runs[case] = start(tmp_path_factory.mktemp(case), plan, args, lambda pid: None)
+    yield runs
+    for proc, *_ in runs.values():
+        if proc.poll() is None:  # (fake nodes: nothing to close)
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+
+
+@pytest.mark.parametrize("case", sorted(RECORDER_STOPS))
+def test_a_recorder_is_given_its_teardown_and_a_cut_one_with_a_complete_bag_is_no_failure(case, recorder_stops, own_groups):
+    """The launcher waits out a recorder's closing work and teardown (longer than TEARDOWN_LIMIT), takes a teardown
+    cut after a complete bag for no failure, and fails a recording whose summary counts dropped messages."""
+    _, rc, lines = RECORDER_STOPS[case]
+    proc, out, logs, bag = recorder_stops[case]
+    own_groups(proc.pid)
     text = check(proc, out, logs, bag, rc, lines)
     assert "did not stop within" not in text and STOP_LIMIT > TEARDOWN_LIMIT + 5
 

@@ -210,12 +210,15 @@ def free_domain() -> int:
 
 
 def stop_group(proc: subprocess.Popen, grace: float = 30.0) -> None:
-    """SIGINT the launcher's process group (it stops its graph), SIGKILL what is left after ``grace`` s."""
+    """SIGINT the launcher's process group (it stops its graph), SIGKILL what is left after ``grace`` s. Returns
+    as soon as no process of the group is left (the launcher, our child, reaped: a zombie leader still counts as
+    a member of its group, and waiting for it took the whole grace)."""
     for sig, wait in ((signal.SIGINT, grace), (signal.SIGKILL, 5.0)):
         with contextlib.suppress(ProcessLookupError):
             os.killpg(proc.pid, sig)
         deadline = time.monotonic() + wait
         while time.monotonic() < deadline:
+            proc.poll()  # reaps the launcher once it has ended
             try:
                 os.killpg(proc.pid, 0)
             except ProcessLookupError:
@@ -226,8 +229,11 @@ def stop_group(proc: subprocess.Popen, grace: float = 30.0) -> None:
         proc.wait(timeout=5)
 
 
-def capture(domain: int, window: float, timeout: float, workdir: Path, log=print) -> dict:
-    """Start the graph on ``domain``, observe it for ``window`` s of messages, stop it: -> snapshot dict."""
+def capture(domain: int, window: float, timeout: float, workdir: Path, log=print, look_first: bool = True) -> dict:
+    """Start the graph on ``domain``, observe it for ``window`` s of messages, stop it: -> snapshot dict.
+    ``look_first``: first make sure (by discovery, 1.5 s) that no other node runs on the domain; not needed for a
+    domain :func:`free_domain` picked with localhost discovery (no process on this machine had bound its ports and
+    no other machine can join it)."""
     dump = workdir / "dump"
     dump.mkdir()
     env = dict(os.environ)
@@ -257,7 +263,8 @@ def capture(domain: int, window: float, timeout: float, workdir: Path, log=print
     rclpy.init(signal_handler_options=SignalHandlerOptions.NO)  # Ctrl-C: KeyboardInterrupt, the graph is stopped
     node = rclpy.create_node(PROBE_NODE)
     try:
-        time.sleep(1.5)  # discovery: another graph on this domain would mix into the doc
+        if look_first:
+            time.sleep(1.5)  # discovery: another graph on this domain would mix into the doc
         others = sorted({n for n in node.get_node_names() if n != PROBE_NODE})
         if others:
             raise CaptureError(
@@ -1190,7 +1197,11 @@ def main(argv=None) -> int:
         workdir = Path(tempfile.mkdtemp(prefix="dlo-interfaces-"))
         try:
             domain = args.domain_id if args.domain_id is not None else free_domain()
-            snapshot = capture(domain, args.window, args.timeout, workdir, log)
+            local = os.environ.get("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST") == "LOCALHOST" and not os.environ.get(
+                "ROS_STATIC_PEERS"
+            )
+            look_first = args.domain_id is not None or not local
+            snapshot = capture(domain, args.window, args.timeout, workdir, log, look_first=look_first)
         except CaptureError as error:
             tail = (workdir / "launch.log").read_text()[-2000:] if (workdir / "launch.log").exists() else ""
             print(f"gen_interfaces: {error} (logs: {workdir})\n{tail}", file=sys.stderr)

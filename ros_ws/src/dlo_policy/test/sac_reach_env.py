@@ -5,10 +5,16 @@ interval terminates the episode ("drop_before"). Episode-end info mimics the rop
 ("hold_the_end" within 0.1 of the target at the end, else "stop_before"), `time_at_end`,
 `how_far`, `episode_return`. The observation has the rope env's modality blocks (K 3, T 2, V 4),
 each carrying the position error, so any modality subset can solve it.
+
+`step_delay` (env_options.step_delay) sleeps that many seconds in every step, to give a test time to signal
+or kill a run. Where it is not given, the environment variable STEP_DELAY_VARIABLE gives it (default 0): a
+test hands it to the one process it stops, so that the run's config.yaml, and the runs it is compared with,
+are the same as without it (and do not sleep).
 """
 
 from __future__ import annotations
 
+import os
 import time
 
 import gymnasium as gym
@@ -17,10 +23,11 @@ from dlo_policy.observation import MODALITY_SIZES, parse_modalities
 
 HORIZON = 20
 NEAR = 0.1
+STEP_DELAY_VARIABLE = "SAC_REACH_STEP_DELAY"  # seconds slept per step where step_delay is not given
 
 
 class ReachEnv(gym.Env):
-    def __init__(self, modalities: str = "All", horizon: int = HORIZON, crash_after: int = 0, step_delay: float = 0.0):
+    def __init__(self, modalities: str = "All", horizon: int = HORIZON, crash_after: int = 0, step_delay: float | None = None):
         self.modalities = parse_modalities(modalities)
         size = sum(MODALITY_SIZES[m] for m in self.modalities)
         self.observation_space = gym.spaces.Box(-2.0, 2.0, (size,), np.float32)
@@ -28,6 +35,8 @@ class ReachEnv(gym.Env):
         self.horizon = horizon
         self.crash_after = crash_after  # > 0: raise after this many steps (simulates an interrupted run)
         self.steps_taken = 0
+        if step_delay is None:
+            step_delay = float(os.environ.get(STEP_DELAY_VARIABLE, "0"))
         self.step_delay = step_delay  # seconds slept per step (gives a test time to kill the run)
 
     def _obs(self) -> np.ndarray:

@@ -1,6 +1,8 @@
 """The gymnasium environments: checker, spaces, seeding, auto-reset, ablation, episode-end info."""
 
+import sys
 import warnings
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -10,9 +12,23 @@ from dlo_policy.env import make_env, make_vec_env
 from dlo_policy.observation import build_observation, observation_labels, parse_modalities
 from gymnasium.utils.env_checker import check_env
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # --import-mode=importlib: helper modules
 
-def test_single_env_passes_the_gymnasium_checker():
-    env = make_env("All", seed=0)
+from shared_simulator import SharedSimulator  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def simulator():
+    """The module's simulators, one per set of arguments, each built (its kernels compiled) once, for envs used one
+    at a time that reset all their envs before they step (shared_simulator): they run the episodes a simulator of
+    their own would."""
+    return SharedSimulator()
+
+
+def test_single_env_passes_the_gymnasium_checker(simulator):
+    """The single env with every modality passes gymnasium's env checker (its simulator: the module's, which the
+    tactile-noise test below reuses)."""
+    env = make_env("All", seed=0, simulator=simulator)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         check_env(env, skip_render_check=True)
@@ -64,8 +80,9 @@ def rollout(env, seed, steps=12):
     return np.array(observations), np.array(rewards)
 
 
-def test_same_seed_same_episode_with_tactile_noise():
-    env = make_env("All", seed=0, tactile_noise="full")
+def test_same_seed_same_episode_with_tactile_noise(simulator):
+    """reset(seed) replays the episode of that seed, tactile noise included; another seed starts another one."""
+    env = make_env("All", seed=0, tactile_noise="full", simulator=simulator)
     first = rollout(env, seed=7)
     other = rollout(env, seed=8)
     again = rollout(env, seed=7)
@@ -189,32 +206,41 @@ def test_fidelity_lever_options_reach_the_simulator_and_bad_values_are_one_line_
     )
 
 
-def test_move_spacing_reaches_the_reward_and_bad_values_are_one_line_errors():
+def test_move_spacing_reaches_the_reward_and_bad_values_are_one_line_errors(simulator):
     """env_options.move_spacing (docs/FIDELITY.md): absent or 0, the cable's own spacing; 0.004 (the authors'), the
     same episodes (observations, ends) with the move term on 4 mm particles under either task rule: every step's
     reward differs by ALPHA_MOVE x the mean held index gained x (4 mm - the cable's own spacing); anything else is
-    refused with one line before a simulator is built."""
+    refused with one line before a simulator is built. The envs of a rule play the same actions from the same reset
+    one after the other (the module's simulators: absent and 0 hand the simulator the same options, so share one)."""
     from dlo_interface import task
     from dlo_policy.config import ConfigError, check_env_options, load_config
 
     actions = np.tile(np.array([[0.5, 0.0, 0.2]], np.float32), (2, 1))  # forward, sliding grip: it moves along
+
+    def play(env, rules):
+        """Per step: what env.step returned but the info, the mean held index under ``rules`` before and after it,
+        and the particle count and cable length after it."""
+        held = "mean_held_index_authors" if rules == "authors_code" else "mean_held_index"
+        env.reset(seed=3)
+        steps = []
+        for _ in range(6):
+            before = getattr(env.task, held).copy()
+            returned = env.step(actions)[:4]
+            steps.append((returned, before, getattr(env.task, held).copy(), env.sim.num_particles, env.sim.cable_length))
+        return steps
+
     for rules in task.TASK_RULES:
         plain, zero, spaced = (
-            make_vec_env(2, "K", seed=3, task_rules=rules, **options)
+            make_vec_env(2, "K", seed=3, task_rules=rules, simulator=simulator, **options)
             for options in ({}, {"move_spacing": 0}, {"move_spacing": 0.004})
         )
         assert (plain.tracker.move_spacing, zero.tracker.move_spacing, spaced.tracker.move_spacing) == (0.0, 0.0, 0.004)
-        for env in (plain, zero, spaced):
-            env.reset(seed=3)
         gained = 0.0
-        for _ in range(6):
-            held = plain.task.mean_held_index_authors if rules == "authors_code" else plain.task.mean_held_index
-            before = held.copy()
-            a, b, c = plain.step(actions), zero.step(actions), spaced.step(actions)
+        for (a, before, held, n_c, L_c), (b, *_), (c, *_) in zip(
+            play(plain, rules), play(zero, rules), play(spaced, rules), strict=True
+        ):
             assert np.array_equal(a[0], c[0]) and np.array_equal(a[2], c[2])  # the same episodes
             assert np.array_equal(a[1], b[1])  # 0: the cable's own spacing, bit for bit
-            held = plain.task.mean_held_index_authors if rules == "authors_code" else plain.task.mean_held_index
-            n_c, L_c = plain.sim.num_particles, plain.sim.cable_length
             own = L_c / (n_c - 1) if rules == "authors_code" else L_c / n_c
             ended = a[2] | a[3]  # a drop (the fall penalty either way) or a new episode's first index
             moved = np.where((before >= 0) & (held >= 0) & ~ended, held - before, 0.0)
@@ -260,12 +286,12 @@ def test_the_authors_start_pose_starts_8_mm_behind_and_2_25_mm_lower_and_the_ima
     assert differs >= 1  # the height matters: read at the default height, V would differ
 
 
-def test_the_env_steps_the_simulator_backend_it_is_given():
+def test_the_env_steps_the_simulator_backend_it_is_given(simulator):
     """The env imports no simulator (tests/test_package_graph.py): by default it builds the backend registered as
     ``taichi`` (dlo_sim's TaskSim, an entry point of dlo_interface.simulators); a factory given in its place is
     called with the env's settings and stepped, with the same episodes for the same backend; an unknown name is a
-    one-line error before anything is built."""
-    from dlo_interface.simulator import simulator_factory
+    one-line error before anything is built. The factory given hands out the module's taichi simulator of the
+    settings it is called with (the move-spacing test's; a new one when none was built yet)."""
     from dlo_policy.config import ConfigError, check_env_options, load_config
 
     default = make_vec_env(2, "K+T", seed=4)
@@ -274,7 +300,7 @@ def test_the_env_steps_the_simulator_backend_it_is_given():
 
     def recording(num_envs, **options):
         calls.append((num_envs, sorted(options)))
-        return simulator_factory("taichi")(num_envs, **options)
+        return simulator(num_envs, **options)
 
     given = make_vec_env(2, "K+T", seed=4, simulator=recording)
     assert calls == [(2, ["camera", "config", "end_particles", "horizon", "move_spacing", "render", "task_rules"])]

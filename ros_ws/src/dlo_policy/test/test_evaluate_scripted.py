@@ -7,6 +7,7 @@ both outcome rules."""
 import json
 import os
 import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -14,6 +15,10 @@ import pytest
 from dlo_policy import evaluate
 from dlo_policy.env import make_vec_env
 from dlo_policy.scripted import OracleFollow, TactileReactive, run_episodes
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # --import-mode=importlib: helper modules
+
+from shared_simulator import SharedSimulator  # noqa: E402
 
 INSTALL_BIN = Path(__file__).resolve().parents[3] / "ros_ws" / "install" / "dlo_policy" / "lib" / "dlo_policy"
 
@@ -147,13 +152,20 @@ def test_every_batch_starts_the_policy_afresh_and_the_json_has_both_rules(monkey
     assert printed.startswith("scripted tactile_reactive on All, task rules paper_text, seeds 3..7")
 
 
+@pytest.fixture(scope="module")
+def simulator():
+    """The simulator of the module's envs of two, built (its kernels compiled) once: run_episodes and
+    evaluate_agent reset every env from its seed before they step (shared_simulator)."""
+    return SharedSimulator()
+
+
 @pytest.mark.parametrize("make_policy", [OracleFollow, TactileReactive], ids=["oracle", "tactile_reactive"])
-def test_the_same_episodes_as_run_episodes_seed_by_seed(make_policy):
+def test_the_same_episodes_as_run_episodes_seed_by_seed(make_policy, simulator):
     """Two batches of two envs vs run_episodes (auto-reset over the seeds): equal outcomes under both
     rules and equal metrics, so the baseline table of run_episodes is reproduced by dlo-evaluate."""
-    reference = run_episodes(make_vec_env(2, modalities="All", seed=40), make_policy(), 4, seed=40)
+    reference = run_episodes(make_vec_env(2, modalities="All", seed=40, simulator=simulator), make_policy(), 4, seed=40)
     policy = make_policy()
-    env = make_vec_env(2, modalities="All", seed=40)
+    env = make_vec_env(2, modalities="All", seed=40, simulator=simulator)
     result = evaluate.evaluate_agent(
         evaluate.ScriptedAgent(policy, env), evaluate._ResetsPolicy(env, policy), first_seed=40, episodes=4
     )

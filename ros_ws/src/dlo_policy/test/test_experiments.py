@@ -69,6 +69,7 @@ def test_runner_skips_finished_runs_and_runs_the_rest_in_processes(tmp_path, cap
     finished.mkdir(parents=True)
     (finished / DONE_FILE).write_text("{}")
     argv = ["--out", str(out), "--groups", "single", "--seeds", "1", "--steps", "60", "--jobs", "2", "--threads", "1", *TINY]
+    argv += ["train.test_episodes=4"]  # (the held-out test of 100 episodes by default)
     assert experiments.main(argv) == 0
     captured = capsys.readouterr()
     assert "4 runs, 1 done, 3 to run" in captured.out

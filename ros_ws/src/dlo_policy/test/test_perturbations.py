@@ -4,11 +4,17 @@ noise depending on the episode's seed alone (any batch, any env index: what make
 
 import dataclasses
 import math
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
 from dlo_policy import perturbations as P
 from dlo_policy.env import make_vec_env
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # --import-mode=importlib: helper modules
+
+from shared_simulator import SharedSimulator  # noqa: E402
 
 N = 4
 SEED = 3
@@ -27,19 +33,28 @@ def actions():
     return np.concatenate([along, sideways]).astype(np.float32)
 
 
-def rollout(perturbations=None, sequence=None):
-    """Observations (T + 1, N, D) of the open-loop sequence from reset(SEED), no auto-reset."""
-    env = make_vec_env(N, seed=SEED, autoreset=False, perturbations=perturbations)
-    observation, _ = env.reset(seed=SEED)
-    seen = [observation]
-    for action in actions() if sequence is None else sequence:
-        observation, *_ = env.step(action)
-        seen.append(observation)
-    return np.array(seen), env
+@pytest.fixture(scope="module")
+def rollout():
+    """``rollout(perturbations=None, sequence=None)``: observations (T + 1, N, D) of the open-loop sequence from
+    reset(SEED), no auto-reset, and the env. The observation and action families act outside the simulator, so the
+    envs of every rollout step one simulator, built (its kernels compiled) once: each rollout resets all its envs
+    from SEED before its first step (shared_simulator), so it runs the episodes a simulator of its own would."""
+    simulator = SharedSimulator()
+
+    def run(perturbations=None, sequence=None):
+        env = make_vec_env(N, seed=SEED, autoreset=False, perturbations=perturbations, simulator=simulator)
+        observation, _ = env.reset(seed=SEED)
+        seen = [observation]
+        for action in actions() if sequence is None else sequence:
+            observation, *_ = env.step(action)
+            seen.append(observation)
+        return np.array(seen), env
+
+    return run
 
 
 @pytest.fixture(scope="module")
-def plain():
+def plain(rollout):
     observations, env = rollout()
     visible = observations[..., COLUMNS["v_V"]] > 0.5
     assert visible.any() and (~visible).any()  # the sequence shows the cable and loses it
@@ -92,14 +107,14 @@ def test_settings_are_read_one_way_from_text_or_mapping_and_bad_ones_are_one_lin
         assert "\n" not in str(error.value)
 
 
-def test_off_changes_nothing_and_draws_nothing(plain):
+def test_off_changes_nothing_and_draws_nothing(rollout, plain):
     observations, env = rollout("observation_delay=0,velocity_gain=1,vision_dropout=0")
     assert env.perturbations == {} and not env.perturber.active
     np.testing.assert_array_equal(observations, plain)
 
 
 # ------------------------------------------------------------------------------------------------ observation side
-def test_observation_delay_shows_the_observation_of_d_steps_before(plain):
+def test_observation_delay_shows_the_observation_of_d_steps_before(rollout, plain):
     observations, _ = rollout({"observation_delay": 2})
     expected = np.concatenate([plain[:1], plain[:1], plain[:-2]])  # the episode's first until then
     np.testing.assert_array_equal(observations, expected)
@@ -113,7 +128,7 @@ def test_observation_delay_shows_the_observation_of_d_steps_before(plain):
         ("gripper_position_noise", 4.0, "x_G", 0.001),
     ],
 )
-def test_sensor_noise_is_gaussian_on_its_reading_only(plain, name, magnitude, label, scale):
+def test_sensor_noise_is_gaussian_on_its_reading_only(rollout, plain, name, magnitude, label, scale):
     observations, _ = rollout({name: magnitude})
     changed = (label, "y_G") if label == "x_G" else (label,)
     other_columns_equal(observations, plain, *changed)
@@ -129,7 +144,7 @@ def test_sensor_noise_is_gaussian_on_its_reading_only(plain, name, magnitude, la
     "name, magnitude, label, scale",
     [("vision_angle_noise", 10.0, "theta_V", math.radians(1)), ("vision_offset_noise", 2.0, "y_V", 0.001)],
 )
-def test_vision_noise_is_on_visible_detections_only(plain, name, magnitude, label, scale):
+def test_vision_noise_is_on_visible_detections_only(rollout, plain, name, magnitude, label, scale):
     observations, _ = rollout({name: magnitude})
     other_columns_equal(observations, plain, label)
     visible = plain[..., COLUMNS["v_V"]] > 0.5
@@ -140,7 +155,7 @@ def test_vision_noise_is_on_visible_detections_only(plain, name, magnitude, labe
     assert 0.6 < added[visible].std() / (magnitude * scale) < 1.4
 
 
-def test_gripper_position_bias_is_one_offset_of_that_length_per_episode(plain):
+def test_gripper_position_bias_is_one_offset_of_that_length_per_episode(rollout, plain):
     observations, _ = rollout({"gripper_position_bias": 10.0})
     other_columns_equal(observations, plain, "x_G", "y_G")
     offset = (observations - plain)[..., [COLUMNS["x_G"], COLUMNS["y_G"]]].astype(np.float64)
@@ -149,7 +164,7 @@ def test_gripper_position_bias_is_one_offset_of_that_length_per_episode(plain):
     assert len({tuple(np.round(o, 5)) for o in offset[0]}) == N  # its direction drawn per episode
 
 
-def test_vision_dropout_reports_visible_detections_as_missing(plain):
+def test_vision_dropout_reports_visible_detections_as_missing(rollout, plain):
     observations, _ = rollout({"vision_dropout": 0.5})
     other_columns_equal(observations, plain, "v_V", "q_V", "theta_V", "y_V")
     vision = [COLUMNS[k] for k in ("v_V", "q_V", "theta_V", "y_V")]
@@ -162,7 +177,7 @@ def test_vision_dropout_reports_visible_detections_as_missing(plain):
     assert 0.3 < dropped.sum() / visible.sum() < 0.7
 
 
-def test_vision_false_visible_reports_missing_detections_as_spurious_strands(plain):
+def test_vision_false_visible_reports_missing_detections_as_spurious_strands(rollout, plain):
     observations, _ = rollout({"vision_false_visible": 0.5})
     other_columns_equal(observations, plain, "v_V", "q_V", "theta_V", "y_V")
     visible = plain[..., COLUMNS["v_V"]] > 0.5
@@ -176,7 +191,7 @@ def test_vision_false_visible_reports_missing_detections_as_spurious_strands(pla
 
 
 # ------------------------------------------------------------------------------------------------ action side
-def test_action_delay_gives_the_simulator_the_action_of_d_steps_before(plain):
+def test_action_delay_gives_the_simulator_the_action_of_d_steps_before(rollout, plain):
     sequence = actions()
     delayed, _ = rollout({"action_delay": 1})
     by_hand, _ = rollout(sequence=np.concatenate([sequence[:1], sequence[:-1]]))  # the first until then
@@ -184,7 +199,7 @@ def test_action_delay_gives_the_simulator_the_action_of_d_steps_before(plain):
     assert not np.array_equal(delayed, plain)
 
 
-def test_velocity_gain_scales_the_gripper_motion(plain):
+def test_velocity_gain_scales_the_gripper_motion(rollout, plain):
     sequence = actions()
     scaled, _ = rollout({"velocity_gain": 0.5})
     by_hand = sequence.copy()
@@ -196,7 +211,7 @@ def test_velocity_gain_scales_the_gripper_motion(plain):
     np.testing.assert_allclose(np.diff(saturated[..., COLUMNS["y_G"]], axis=0)[ALONG:], 8 * 0.0025, rtol=1e-3)
 
 
-def test_closure_lag_makes_the_closure_follow_the_command_as_a_first_order_lag(plain):
+def test_closure_lag_makes_the_closure_follow_the_command_as_a_first_order_lag(rollout, plain):
     tau = 0.16
     lagged, _ = rollout({"closure_lag": tau})
     rate = 1.0 - math.exp(-0.08 / tau)

@@ -3,12 +3,26 @@ policy gave at the step before (zeros at an episode's first step), the rest of t
 as without it; the action as given (before the action perturbations) and never delayed or noised by the observation
 perturbations; a fresh episode of the vector env's auto-reset starts from zeros; a bad value is one line."""
 
+import sys
+from pathlib import Path
+
 import numpy as np
 import pytest
 from dlo_policy.env import check_options, make_env, make_vec_env
 from dlo_policy.observation import PREVIOUS_ACTION_LABELS, observation_bounds, observation_labels, observation_size
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # --import-mode=importlib: helper modules
+
+from shared_simulator import SharedSimulator  # noqa: E402
+
 N, SEED, STEPS = 3, 11, 12
+
+
+@pytest.fixture(scope="module")
+def simulator():
+    """The simulator of every rollout of the module, built (its kernels compiled) once: each rollout resets all
+    its envs from SEED before its first step (shared_simulator), so it runs the episodes a simulator of its own would."""
+    return SharedSimulator()
 
 
 def actions(steps=STEPS, n=N):
@@ -16,9 +30,9 @@ def actions(steps=STEPS, n=N):
     return rng.uniform(-1.0, 1.0, (steps, n, 3)).astype(np.float32)
 
 
-def rollout(**options):
+def rollout(simulator, **options):
     """Observations (T + 1, N, D) and rewards (T, N) of a fixed open-loop sequence from reset(SEED), no auto-reset."""
-    env = make_vec_env(N, seed=SEED, autoreset=False, **options)
+    env = make_vec_env(N, seed=SEED, autoreset=False, simulator=simulator, **options)
     observation, _ = env.reset(seed=SEED)
     seen, rewards = [observation], []
     for action in actions():
@@ -28,9 +42,9 @@ def rollout(**options):
     return np.array(seen), np.array(rewards), env
 
 
-def test_the_observation_ends_with_the_previous_action_and_is_otherwise_unchanged():
-    plain, plain_rewards, _ = rollout()
-    with_action, rewards, env = rollout(previous_action=True)
+def test_the_observation_ends_with_the_previous_action_and_is_otherwise_unchanged(simulator):
+    plain, plain_rewards, _ = rollout(simulator)
+    with_action, rewards, env = rollout(simulator, previous_action=True)
     assert observation_size("All", previous_action=True) == observation_size("All") + 3 == with_action.shape[-1]
     assert observation_labels("All", previous_action=True)[-3:] == PREVIOUS_ACTION_LABELS
     low, high = observation_bounds("All", previous_action=True)
@@ -40,10 +54,10 @@ def test_the_observation_ends_with_the_previous_action_and_is_otherwise_unchange
     assert np.array_equal(with_action[1:, :, 9:], actions())  # then the action given at the step before
 
 
-def test_it_is_the_action_as_given_and_the_observation_perturbations_leave_it_alone():
+def test_it_is_the_action_as_given_and_the_observation_perturbations_leave_it_alone(simulator):
     perturbations = "observation_delay=2,action_delay=1,velocity_gain=0.5,closure_lag=0.3,gripper_position_noise=4"
-    plain, _, _ = rollout(perturbations=perturbations)
-    with_action, _, _ = rollout(perturbations=perturbations, previous_action=True)
+    plain, _, _ = rollout(simulator, perturbations=perturbations)
+    with_action, _, _ = rollout(simulator, perturbations=perturbations, previous_action=True)
     assert np.array_equal(with_action[..., :9], plain)  # the perturbations act as without the option
     assert np.array_equal(with_action[1:, :, 9:], actions())  # not delayed, not scaled, not lagged, no noise
 

@@ -21,6 +21,7 @@ from dlo_policy.sac import SAC
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # --import-mode=importlib: helper modules
 
+from sac_reach_env import STEP_DELAY_VARIABLE  # noqa: E402
 from tiny_training import TINY, restore_threads  # noqa: E402,F401 (restore_threads: an autouse fixture)
 
 
@@ -215,28 +216,41 @@ def eval_rows_without_wall_time(run: Path) -> list[dict[str, str]]:
     return [{k: v for k, v in row.items() if k != "wall_time_s"} for row in read_eval(run)]
 
 
-def test_resume_after_sigkill_reproduces_the_uninterrupted_run(tmp_path):
+# The run that the tests below stop mid-run (a signal, SIGKILL), resume, and compare with the uninterrupted one.
+STOPPED_RUN = ["--steps", "450", "--seed", "3", "--modalities", "All", "--no-progress", *TINY, "train.eval_every=50"]
+
+
+@pytest.fixture(scope="module")
+def uninterrupted(tmp_path_factory) -> Path:
+    """STOPPED_RUN never interrupted, trained once for the tests that compare a stopped and resumed run with it:
+    with train.checkpoint_every beyond the run, which changes no number (a checkpoint only saves), so that it is
+    the uninterrupted run of each of them whatever their train.checkpoint_every."""
+    whole = tmp_path_factory.mktemp("uninterrupted") / "whole"
+    threads = torch.get_num_threads()  # (restore_threads gives back a test's own, not a module fixture's)
+    try:
+        assert train.main(["--out", str(whole), *STOPPED_RUN, "train.checkpoint_every=100000"]) == 0
+    finally:
+        torch.set_num_threads(threads)
+    return whole
+
+
+def stopped_run_env() -> dict[str, str]:
+    """The environment of the dlo-train process a test stops: the test helpers importable (sac_reach_env), and
+    4 ms of sleep in each of its steps (sac_reach_env.STEP_DELAY_VARIABLE), time to stop it mid-run. Its
+    config.yaml holds no delay: its resumed part, in this process, and the uninterrupted run do not sleep."""
+    here = str(Path(__file__).resolve().parent)
+    return {**os.environ, "PYTHONPATH": os.pathsep.join([here, os.environ.get("PYTHONPATH", "")]), STEP_DELAY_VARIABLE: "0.004"}
+
+
+def test_resume_after_sigkill_reproduces_the_uninterrupted_run(tmp_path, uninterrupted):
     """A real SIGKILL of dlo-train mid-run, then --resume: the same evaluations, best policy and
-    final weights as the run that was never interrupted (same seed, same config)."""
-    args = [
-        "--steps",
-        "450",
-        "--seed",
-        "3",
-        "--modalities",
-        "All",
-        "--no-progress",
-        *TINY,
-        "train.checkpoint_every=150",
-        "train.eval_every=50",
-        "env_options.step_delay=0.004",
-    ]
-    whole, killed = tmp_path / "whole", tmp_path / "killed"
-    assert train.main(["--out", str(whole), *args]) == 0
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(Path(__file__).resolve().parent), os.environ.get("PYTHONPATH", "")])}
+    final weights as the run that was never interrupted (same seed, same config but for its
+    train.checkpoint_every, which changes no number)."""
+    args = [*STOPPED_RUN, "train.checkpoint_every=150"]
+    whole, killed = uninterrupted, tmp_path / "killed"
     process = subprocess.Popen(
         [sys.executable, "-m", "dlo_policy.train", "--out", str(killed), *args],
-        env=env,
+        env=stopped_run_env(),
         stdout=subprocess.DEVNULL,
         stderr=subprocess.DEVNULL,
     )
@@ -741,31 +755,17 @@ def resumed_equals_whole(resumed: Path, whole: Path) -> None:
 
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
 def test_a_signal_stops_the_run_at_an_episode_end_with_a_checkpoint_there_and_the_resumed_run_is_the_whole_one(
-    sig, tmp_path, capsys
+    sig, tmp_path, capsys, uninterrupted
 ):
     """dlo-train --help: Ctrl-C (or SIGTERM) stops the run at the end of its episode with a checkpoint there (here
     the only one: train.checkpoint_every lies beyond the run), one line on stderr naming that step and the command
     that resumes it, exit 130, no traceback, nothing on stdout; --resume says the step it resumes from, and the
     run it finishes is the run that was never interrupted, number for number."""
-    args = [
-        "--steps",
-        "450",
-        "--seed",
-        "3",
-        "--modalities",
-        "All",
-        "--no-progress",
-        *TINY,
-        "train.checkpoint_every=100000",
-        "train.eval_every=50",
-        "env_options.step_delay=0.004",
-    ]
-    whole, stopped = tmp_path / "whole", tmp_path / "stopped"
-    assert train.main(["--out", str(whole), *args]) == 0
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(Path(__file__).resolve().parent), os.environ.get("PYTHONPATH", "")])}
+    args = [*STOPPED_RUN, "train.checkpoint_every=100000"]
+    whole, stopped = uninterrupted, tmp_path / "stopped"
     process = subprocess.Popen(
         [sys.executable, "-m", "dlo_policy.train", "--out", str(stopped), *args],
-        env=env,
+        env=stopped_run_env(),
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
