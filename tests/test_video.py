@@ -20,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from harness import made_up_force_topic
 
 pytest.importorskip("imageio_ffmpeg")
 
@@ -358,7 +359,7 @@ def test_the_plots_observation_axes_come_from_the_registry(synthetic_bag, monkey
     y_t = paper["offset [mm]"]["y_T tactile"]
     np.testing.assert_allclose(y_t.get_ydata()[: len(steps)], [1000 * streams["tactile"][k].y for k in steps])
 
-    wrist = force_topic(topics.Series("wrench.force.x", "G_x", "kN"), topics.Series("wrench.force.y", "G_y", "kN"))
+    wrist = made_up_force_topic(topics.Series("wrench.force.x", "G_x", "kN"), topics.Series("wrench.force.y", "G_y", "kN"))
     monkeypatch.setattr(topics, "TOPICS", topics.TOPICS + (wrist,))
     assert list(axes(episode_figure(0, streams))) == layout  # no force in the bag: no force axis
     force = {
@@ -368,21 +369,6 @@ def test_the_plots_observation_axes_come_from_the_registry(synthetic_bag, monkey
     assert list(added) == layout[:4] + ["[kN]"] + layout[4:]  # a unit without a word: its axis says the unit
     assert list(added["[kN]"]) == ["G_x test_force", "G_y test_force"]
     np.testing.assert_allclose(added["[kN]"]["G_y test_force"].get_ydata(), [-0.25 * k for k in sorted(force)])
-
-
-def force_topic(*series):
-    """A made-up observation topic (a wrench on the sim node) with these plot series: a modality added to the registry."""
-    from dlo_common import topics
-
-    return topics.Topic(
-        "/dlo/test/force",
-        "geometry_msgs/msg/WrenchStamped",
-        "sim_node",
-        "observation",
-        "made up for the test",
-        key="test_force",
-        plot=tuple(series),
-    )
 
 
 def strip_rows(frames) -> dict:
@@ -426,7 +412,7 @@ def test_the_video_strip_follows_the_registry(synthetic_bag, monkeypatch):
     y_v = paper["offset [mm]"]["y_V vision"].get_ydata()
     np.testing.assert_allclose(y_v, [1000 * streams["vision"][k].y for k in steps])
 
-    wrist = force_topic(
+    wrist = made_up_force_topic(
         topics.Series("wrench.force.x", "G_x", "kN"),
         topics.Series("wrench.force.y", "G_y", "kN"),
         topics.Series("wrench.torque.z", "g_q", "-"),

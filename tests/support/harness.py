@@ -19,6 +19,8 @@ dlo_driver_kit define their fixtures over these in a few lines:
   (:func:`hang_report`); :func:`stop_all_or_explain` the same for several at once (Procs uses it).
 - :func:`remove_orphaned_dds_shm`: the Fast DDS shared-memory files that killed participants left in
   /dev/shm since a snapshot, removed (the root conftest.py does it at the end of every test session).
+- :func:`made_up_force_topic`: an observation topic the registry does not have, for the tests that add a
+  modality to ``dlo_common.topics.TOPICS`` (plots, videos, the Foxglove layout).
 - :class:`LogLines`: a node's logger stand-in for in-process tests (``monkeypatch.setattr(node, "get_logger",
   lambda: log)``): every line with its level, in order.
 
@@ -368,3 +370,19 @@ class Procs:
 
     def __exit__(self, *exc) -> None:
         self.stop_all()
+
+
+def made_up_force_topic(*series):
+    """A made-up observation topic (a wrench on the sim node, ``/dlo/test/force``, key ``test_force``) with these
+    plot series (``dlo_common.topics.Series``): a modality added to the registry."""
+    from dlo_common import topics
+
+    return topics.Topic(
+        "/dlo/test/force",
+        "geometry_msgs/msg/WrenchStamped",
+        "sim_node",
+        "observation",
+        "made up for the test",
+        key="test_force",
+        plot=tuple(series),
+    )

@@ -38,7 +38,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))  # --import-mode=import
 from dlo_common.topics import TOPICS  # noqa: E402
 from dlo_viz.foxglove_bridge import foxglove_url, topic_matches  # noqa: E402
 from foxglove_ws_client import PATIENCE, FoxgloveTestClient  # noqa: E402
-from harness import ROS2RUN, Proc, Procs  # noqa: E402
+from harness import ROS2RUN, Proc, Procs, made_up_force_topic  # noqa: E402
 
 pytest.importorskip("foxglove")
 pytest.importorskip("websockets")
@@ -607,18 +607,10 @@ def test_layout_plots_follow_the_registry(monkeypatch):
     ]
     assert plots(paper)["Plot!dlo_offsets"] == [("/dlo/tactile/pose.y", "y_T tactile"), ("/dlo/vision/pose.y", "y_V vision")]
 
-    wrist = topics.Topic(
-        "/dlo/test/force",
-        "geometry_msgs/msg/WrenchStamped",
-        "sim_node",
-        "observation",
-        "made up for the test",
-        key="test_force",
-        plot=(
-            topics.Series("wrench.force.x", "G_x", "kN"),
-            topics.Series("wrench.force.y", "G_y", "kN"),
-            topics.Series("wrench.torque.z", "g_q", "-"),
-        ),
+    wrist = made_up_force_topic(
+        topics.Series("wrench.force.x", "G_x", "kN"),
+        topics.Series("wrench.force.y", "G_y", "kN"),
+        topics.Series("wrench.torque.z", "g_q", "-"),
     )
     monkeypatch.setattr(topics, "TOPICS", topics.TOPICS + (wrist,))
     added = build_layout()
