@@ -344,7 +344,8 @@ class CableFollowingVecEnv(VectorEnv):
         return observation, reward.astype(np.float64), terminated, truncated, info
 
     def close_extras(self, **kwargs):
-        """Nothing to release: the simulator's fields live as long as the process (the Taichi rope's do)."""
+        """Nothing to release: the Taichi rope's fields live as long as the process, and its simulator gives them
+        and their compiled kernels back for reuse once it is gone (dlo_sim.kernels.kernels_for)."""
 
     # ------------------------------------------------------------------ internals
     def _start_episodes(self, env_ids):

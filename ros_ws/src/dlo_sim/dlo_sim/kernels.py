@@ -38,37 +38,71 @@ SELF_EXCLUDE = 3  # particles closer than this along the chain never self-collid
 THREAD_POOL_GRAIN = 512  # loop items Taichi 1.7 hands one CPU thread at the least (measured; see RopeKernels.__init__)
 
 
+def baked_in(num_envs: int, cfg, camera, camera_per_env: bool = False) -> dict:
+    """What a :class:`RopeKernels`' kernels take as compile-time constants (its attributes of these names): two
+    RopeKernels with the same values run the same machine code (:func:`kernels_for` reuses one on that ground)."""
+    behind, below = START_POSES[cfg.start_pose]
+    yaw = float(getattr(camera, "yaw", 0.0))  # compile-time: 0 (every camera but a perturbed one) compiles today's
+    return {
+        "num_envs": int(num_envs),
+        # Taichi 1.7's CPU thread pool gives a thread work only in runs of >= 512 loop items, so a
+        # loop over a few hundred envs runs on one core. The stepping kernels spread each env over
+        # ``spread`` items (only the first does the work), so every core gets envs.
+        "spread": 1 if num_envs == 1 else -(-THREAD_POOL_GRAIN * 2 // num_envs),
+        "substeps": int(cfg.substeps),
+        "h": DT / cfg.substeps,  # s, sub-step
+        "damping_factor": float(pow(2.718281828459045, -cfg.damping * (DT / cfg.substeps))),
+        "r": float(cfg.contact_radius),
+        "max_speed": float(cfg.max_speed),
+        "max_distance": float(cfg.max_distance),
+        "single_particle_grip": bool(cfg.single_particle_grip),  # compile-time: off compiles today's kernel
+        "authors_carry": cfg.carry_law == "authors",  # compile-time: "paper" compiles today's kernel
+        "gripper_start": (float(FIXED_END[0] - behind), float(FIXED_END[1]), float(GRIPPER_HEIGHT - below)),
+        "cam_f": (float(camera.fx), float(camera.fy)),
+        "cam_c": (float(camera.cx), float(camera.cy)),
+        "cam_pos": tuple(float(p) for p in camera.position),
+        "cam_rotated": yaw != 0.0,
+        "cam_turn": (math.cos(yaw), math.sin(yaw)),
+        "cam_size": (int(camera.height), int(camera.width)),
+        # compile-time: off compiles today's kernel; on, each env's camera is moved (cam_shift [m], world x, y) and
+        # turned (cam_yaw: cos, sin) from ``camera`` by its own amount (per-episode camera randomisation)
+        "cam_per_env": bool(camera_per_env),
+    }
+
+
+# Released RopeKernels by what their kernels bake in. Taichi compiles a data-oriented object's kernels for that
+# object (2-4 s, 5-13 s without its offline cache, per object), so a process that builds simulators one after the
+# other (tests, evaluations, tools) reuses a released one of the same constants instead: the same machine code.
+_RELEASED: dict[tuple, list] = {}
+
+
+def kernels_for(num_envs: int, cfg, camera, camera_per_env: bool = False) -> "RopeKernels":
+    """A :class:`RopeKernels` in the state of a new one: a released one with the same :func:`baked_in` values (every
+    field set to what a new field holds), else a new one. Give it back with :func:`release` when its user is gone."""
+    key = tuple(sorted(baked_in(num_envs, cfg, camera, camera_per_env).items()))
+    pool = _RELEASED.get(key)
+    if not pool:
+        kernels = RopeKernels(num_envs, cfg, camera, camera_per_env)
+        kernels.pool_key = key
+        return kernels
+    kernels = pool.pop()
+    kernels.clear()
+    return kernels
+
+
+def release(kernels: "RopeKernels") -> None:
+    """Give a RopeKernels from :func:`kernels_for` back for reuse (its user must not touch it afterwards)."""
+    _RELEASED.setdefault(kernels.pool_key, []).append(kernels)
+
+
 @ti.data_oriented
 class RopeKernels:
     """All Taichi state of ``num_envs`` ropes + grippers, and the kernels that advance and draw them."""
 
     def __init__(self, num_envs: int, cfg, camera, camera_per_env: bool = False):
         init_taichi()
-        self.num_envs = num_envs
-        # Taichi 1.7's CPU thread pool gives a thread work only in runs of >= 512 loop items, so a
-        # loop over a few hundred envs runs on one core. The stepping kernels spread each env over
-        # ``spread`` items (only the first does the work), so every core gets envs.
-        self.spread = 1 if num_envs == 1 else -(-THREAD_POOL_GRAIN * 2 // num_envs)
-        self.substeps = int(cfg.substeps)
-        self.h = DT / cfg.substeps  # s, sub-step
-        self.damping_factor = float(pow(2.718281828459045, -cfg.damping * self.h))
-        self.r = float(cfg.contact_radius)
-        self.max_speed = float(cfg.max_speed)
-        self.max_distance = float(cfg.max_distance)
-        self.single_particle_grip = bool(cfg.single_particle_grip)  # compile-time: off compiles today's kernel
-        self.authors_carry = cfg.carry_law == "authors"  # compile-time: "paper" compiles today's kernel
-        behind, below = START_POSES[cfg.start_pose]
-        self.gripper_start = (float(FIXED_END[0] - behind), float(FIXED_END[1]), float(GRIPPER_HEIGHT - below))
-        self.cam_f = (float(camera.fx), float(camera.fy))
-        self.cam_c = (float(camera.cx), float(camera.cy))
-        self.cam_pos = tuple(float(p) for p in camera.position)
-        yaw = float(getattr(camera, "yaw", 0.0))  # compile-time: 0 (every camera but a perturbed one) compiles today's
-        self.cam_rotated = yaw != 0.0
-        self.cam_turn = (math.cos(yaw), math.sin(yaw))
-        self.cam_size = (int(camera.height), int(camera.width))
-        # compile-time: off compiles today's kernel; on, each env's camera is moved (cam_shift [m], world x, y) and
-        # turned (cam_yaw: cos, sin) from ``camera`` by its own amount (per-episode camera randomisation)
-        self.cam_per_env = bool(camera_per_env)
+        for name, value in baked_in(num_envs, cfg, camera, camera_per_env).items():
+            setattr(self, name, value)
         self.cam_shift = ti.Vector.field(2, ti.f32, num_envs)
         self.cam_yaw = ti.Vector.field(2, ti.f32, num_envs)
         self.cam_yaw.fill(ti.Vector([1.0, 0.0]))
@@ -93,6 +127,15 @@ class RopeKernels:
         self.pick = ti.field(ti.i32, num_envs)  # particle dragged kinematically (-1: none)
         self.pick_vel = ti.Vector.field(3, ti.f32, num_envs)  # m/s of the dragged particle
         self.bad = ti.field(ti.i32, num_envs)  # 1 = NaN/inf/explosion seen
+
+    def clear(self) -> None:
+        """Every field to what a new field holds (zeros; ``cam_yaw`` (1, 0), as __init__ sets it)."""
+        from taichi.lang.field import Field  # scalar and vector fields alike
+
+        for value in vars(self).values():
+            if isinstance(value, Field):
+                value.fill(0)
+        self.cam_yaw.fill(ti.Vector([1.0, 0.0]))
 
     # ---------------------------------------------------------------- reset
     @ti.kernel

@@ -15,6 +15,7 @@ Invalid input (documented behaviour):
 from __future__ import annotations
 
 import warnings
+import weakref
 from dataclasses import dataclass
 
 import numpy as np
@@ -22,7 +23,7 @@ from dlo_interface.camera import TopCamera
 from dlo_interface.sim_config import SimConfig
 from dlo_interface.world import DT, P_MAX, PARTICLE_MASS, REST_SPACING, SUBSTEPS_PER_ACTION
 
-from .kernels import RopeKernels
+from .kernels import kernels_for, release
 
 PARAM_KEYS = ("stretch", "bending", "friction", "num_particles", "particle_mass")
 
@@ -62,7 +63,10 @@ class RopeSim:
         self.config.validate()
         self.camera = camera if camera is not None else TopCamera.covering_workspace(128)
         self.camera_per_env = bool(camera_per_env)  # each env renders through its own camera: set_camera
-        self._k = RopeKernels(self.num_envs, self.config, self.camera, self.camera_per_env)
+        # the Taichi state and kernels: a released one of the same compile-time constants where this process has one
+        # (compiled once: dlo_sim.kernels.kernels_for), given back when this simulator is gone
+        self._k = kernels_for(self.num_envs, self.config, self.camera, self.camera_per_env)
+        weakref.finalize(self, release, self._k)
         n = self.num_envs
         self._params = {
             "stretch": np.zeros(n, np.float32),
