@@ -42,6 +42,7 @@ def baked_in(num_envs: int, cfg, camera, camera_per_env: bool = False) -> dict:
     """What a :class:`RopeKernels`' kernels take as compile-time constants (its attributes of these names): two
     RopeKernels with the same values run the same machine code (:func:`kernels_for` reuses one on that ground)."""
     behind, below = START_POSES[cfg.start_pose]
+    h = DT / cfg.substeps  # s, sub-step
     yaw = float(getattr(camera, "yaw", 0.0))  # compile-time: 0 (every camera but a perturbed one) compiles today's
     return {
         "num_envs": int(num_envs),
@@ -50,8 +51,8 @@ def baked_in(num_envs: int, cfg, camera, camera_per_env: bool = False) -> dict:
         # ``spread`` items (only the first does the work), so every core gets envs.
         "spread": 1 if num_envs == 1 else -(-THREAD_POOL_GRAIN * 2 // num_envs),
         "substeps": int(cfg.substeps),
-        "h": DT / cfg.substeps,  # s, sub-step
-        "damping_factor": float(pow(2.718281828459045, -cfg.damping * (DT / cfg.substeps))),
+        "h": h,
+        "damping_factor": float(pow(2.718281828459045, -cfg.damping * h)),
         "r": float(cfg.contact_radius),
         "max_speed": float(cfg.max_speed),
         "max_distance": float(cfg.max_distance),
