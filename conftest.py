@@ -59,6 +59,7 @@ SLOW = (  # each about 3 s or more: a training, a long simulation, evaluation or
     "ros_ws/src/dlo_policy/test/test_shipped_policies.py::test_the_policy_node_takes_a_shipped_name",
     "ros_ws/src/dlo_policy/test/test_perturbations.py",
     "ros_ws/src/dlo_sim/test/test_kernel_pool.py",
+    "ros_ws/src/dlo_policy/test/test_init_from.py",
     "ros_ws/src/dlo_policy/test/test_randomise.py",
     "ros_ws/src/dlo_policy/test/test_previous_action.py",
     "ros_ws/src/dlo_driver_kit/test/test_driver_check_envelope.py::test_image_noise_is_estimated_from_the_images_while_holding_still",

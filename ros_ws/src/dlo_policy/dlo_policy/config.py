@@ -113,6 +113,12 @@ class TrainConfig:
     progress: bool = _key(True, "tqdm progress bar")
     device: str = _key("auto", "SAC's device: auto (cuda if available), cpu or cuda")
     sim_arch: str = _key("cpu", "the simulator's Taichi backend: cpu or cuda")
+    init_from: str = _key(
+        "",
+        "fine-tuning: a run's checkpoint.pt whose networks, temperature, optimiser states and observation scaling this "
+        "run starts from (its steps, replay buffer and random draws are its own; it acts with that policy from its "
+        "first step, without uniform actions); '': a new agent",
+    )
 
     def __post_init__(self) -> None:
         for name in ("total_steps", "eval_every", "eval_episodes", "test_episodes"):

@@ -9,6 +9,8 @@
     test.json        the held-out test of best_policy.pt (dlo-evaluate's JSON); test_without_X.json:
                      the same with modality X blanked
     done.json        the completion marker, with the run's summary
+    init_from.json   with train.init_from only (fine-tuning): the checkpoint the run started from (its path, sha256,
+                     step, seed and modalities)
     randomised.csv   with env_options.randomise only: one row per training episode, the magnitudes it ran under
                      (RANDOMISED_COLUMNS, then one column per randomised family; dlo_policy.train)
     tb/              TensorBoard event files
@@ -45,6 +47,7 @@ TEST_FILE = "test.json"
 TEST_PATTERN = "test*.json"  # test.json and every test_without_X.json
 DONE_FILE = "done.json"
 RANDOMISED_FILE = "randomised.csv"
+INIT_FILE = "init_from.json"
 RANDOMISED_COLUMNS = ("step", "episode", "episode_seed")  # then the randomised families, in registry order
 TB_DIR = "tb"
 LOG_FILE = "train.log"
@@ -83,9 +86,9 @@ def lock(run_dir: Path):
 
 
 # a run's record, a few kB: what dlo-experiments --collect copies (and test*.json)
-RECORD_FILES = (CONFIG_FILE, EVAL_FILE, DONE_FILE, BEST_FILE, RANDOMISED_FILE)  # (randomised.csv: where it exists)
+RECORD_FILES = (CONFIG_FILE, EVAL_FILE, DONE_FILE, BEST_FILE, RANDOMISED_FILE, INIT_FILE)  # (the last two: where they exist)
 # what a run on a Ray worker sends back (and test*.json before done.json): never checkpoint.pt (replay buffer)
-RESULT_FILES = (CONFIG_FILE, EVAL_FILE, BEST_FILE, RANDOMISED_FILE, BEST_POLICY_FILE, POLICY_FILE, LOG_FILE, DONE_FILE)
+RESULT_FILES = (CONFIG_FILE, EVAL_FILE, BEST_FILE, RANDOMISED_FILE, INIT_FILE, BEST_POLICY_FILE, POLICY_FILE, LOG_FILE, DONE_FILE)
 
 OUTCOMES = ("hold_the_end", "stop_before", "reach_end_but_drop", "drop_before")  # paper-text rule (dlo_interface.task)
 AUTHORS_SUFFIX = "_authors"

@@ -283,6 +283,7 @@ class SAC:
         self.num_env_steps = 0
         self.num_updates = 0
         self.num_episodes = 0
+        self.uniform_warmup = True  # uniform actions before learning_starts; False: an agent started from another's
 
     def note_modalities(self, env: Any) -> None:
         """Note the modalities of the observation this agent acts on: the env's ``modalities`` (the dlo_policy
@@ -321,8 +322,9 @@ class SAC:
         return self._to_env_action(self.policy_action(obs, deterministic))
 
     def explore(self, obs: np.ndarray) -> np.ndarray:
-        """Training-time action in [-1, 1]: uniform before `learning_starts`, then sampled from pi."""
-        if self.num_env_steps < self.config.learning_starts:
+        """Training-time action in [-1, 1]: uniform before `learning_starts` (unless the agent started from another
+        agent's networks: `initialise_from`), then sampled from pi."""
+        if self.uniform_warmup and self.num_env_steps < self.config.learning_starts:
             return (torch.rand(self.act_dim, generator=self.generator, device=self.device) * 2 - 1).cpu().numpy()
         return self.policy_action(obs, deterministic=False)
 
@@ -505,6 +507,56 @@ class SAC:
         agent.modalities = tuple(state["modalities"]) if state.get("modalities") else None  # None: from before
         agent.load_state_dict(state)
         return agent
+
+    def initialise_from(self, path: str | Path) -> dict[str, Any]:
+        """Fine-tuning: take the networks, target critics, temperature, optimiser states and observation scaling of
+        the full checkpoint at ``path`` (a run's checkpoint.pt); this agent's counters, replay buffer, random streams
+        and hyperparameters stay its own (the optimisers run at this agent's learning rates), and it acts with the
+        policy it took from its first step (``uniform_warmup`` off). ValueError (one line) when the file is a policy
+        file without critics or its agent is not this one's shape. Returns what it took: {"env_steps", "seed",
+        "modalities"} of the checkpoint."""
+        state = read_checkpoint(path)
+        if "critic" not in state:
+            raise ValueError(f"{path}: a policy file (actor only); fine-tuning needs a run's checkpoint.pt")
+        theirs = tuple(state.get("modalities") or ()) or None
+        if theirs and self.modalities and theirs != self.modalities:
+            raise ValueError(f"{path}: its agent observes {'+'.join(theirs)}, this run {'+'.join(self.modalities)}")
+        if int(state["obs_dim"]) != self.obs_dim:
+            raise ValueError(f"{path}: its agent takes observations of {state['obs_dim']} entries, this run {self.obs_dim}")
+        if not (
+            np.array_equal(state["action_low"].numpy(), self.action_low)
+            and np.array_equal(state["action_high"].numpy(), self.action_high)
+        ):
+            raise ValueError(f"{path}: its agent acts in another action box than this run's")
+        hidden = tuple(state["config"].get("hidden_sizes", ()))
+        if hidden != tuple(self.config.hidden_sizes):
+            raise ValueError(
+                f"{path}: its networks have hidden sizes {list(hidden)}, this run's sac.hidden_sizes {list(self.config.hidden_sizes)}"
+            )
+        if (state.get("normalizer") is None) != (self.normalizer is None):
+            raise ValueError(
+                f"{path}: its observation scaling is {state['config'].get('observation_scaling')}, this run's {self.config.observation_scaling}"
+            )
+        self.actor.load_state_dict(state["actor"])
+        self.critic.load_state_dict(state["critic"])
+        self.critic_target.load_state_dict(state["critic_target"])
+        with torch.no_grad():
+            self.log_alpha.copy_(state["log_alpha"])
+        for optimizer, key, lr in (
+            (self.actor_optimizer, "actor_optimizer", self.config.actor_lr),
+            (self.critic_optimizer, "critic_optimizer", self.config.critic_lr),
+            (self.alpha_optimizer, "alpha_optimizer", self.config.alpha_lr),
+        ):
+            optimizer.load_state_dict(state[key])
+            for group in optimizer.param_groups:
+                group["lr"] = lr
+        self.alpha_optimizer.param_groups[0]["betas"] = tuple(self.config.alpha_betas)
+        if self.normalizer is not None:
+            self.normalizer.load_state_dict(state["normalizer"])
+        self.uniform_warmup = False
+        if theirs and self.modalities is None:
+            self.modalities = theirs
+        return {"env_steps": int(state["counters"]["env_steps"]), "seed": int(state["seed"]), "modalities": theirs}
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
         self.actor.load_state_dict(state["actor"])

@@ -66,11 +66,19 @@ a resumed run draws the same); evaluations and the held-out test run without it,
 instead of all of them (`all`, the default). The ranges and the draw are in config.yaml, and randomised.csv has one
 row per training episode: the env step it ended at, its index and seed, and each randomised family's magnitude (a
 family a `one` draw did not choose: its off value).
+
+Fine-tuning (`train.init_from=RUN/checkpoint.pt`, a full checkpoint of a run with the same modalities, observation
+size, action box, network sizes and observation scaling): the agent starts from that run's networks, target
+critics, temperature, optimiser states and observation scaling, at that run's policy; its steps, replay buffer and
+random draws are its own (from step 0 and its seed), and it acts with the policy it took from its first step (no
+uniform actions before `sac.learning_starts`; updates still start there, on its own transitions). init_from.json
+records the file (path, sha256) and its step, seed and modalities. Anything else about it is a one-line error.
 """
 
 from __future__ import annotations
 
 import argparse
+import hashlib
 import importlib
 import json
 import math
@@ -292,6 +300,10 @@ class Trainer:
                 observation_high=self.env.observation_space.high,
                 device=self.device,
             )
+            if config.train.init_from:
+                self.start_from(Path(config.train.init_from))
+        # an agent started from another acts with its policy from the first step (SAC.initialise_from), resumed too
+        self.agent.uniform_warmup = not config.train.init_from
         self.log = EvalLog(out_dir, self.agent.num_env_steps if resume and self.agent.num_env_steps else None)
         self.tested = [("", [])] + [(m, blanked_columns(config.modalities, [m])) for m in config.train.eval_without]
         # the code each part of the run ran on (done.json "sources": one entry per start or resume)
@@ -307,6 +319,20 @@ class Trainer:
         self.randomised_log = (
             rundir.RandomisedLog(out_dir, list(ranges), self.agent.num_env_steps if resume else None) if ranges else None
         )
+
+    def start_from(self, checkpoint: Path) -> None:
+        """train.init_from: the agent takes that checkpoint's networks (SAC.initialise_from); init_from.json records
+        which file it was (path, sha256) and its step, seed and modalities. ConfigError (one line) for a file that
+        is not a full checkpoint of an agent of this run's shape."""
+        self.agent.note_modalities(self.env)
+        try:
+            taken = self.agent.initialise_from(checkpoint)
+        except ValueError as error:
+            raise ConfigError(f"train.init_from: {error}") from None
+        digest = hashlib.sha256(checkpoint.read_bytes()).hexdigest()
+        record = {"path": str(checkpoint.resolve()), "sha256": digest, **taken}
+        record["modalities"] = "+".join(taken["modalities"]) if taken["modalities"] else None
+        (self.out_dir / rundir.INIT_FILE).write_text(json.dumps(record, indent=1) + "\n")
 
     def wall_time(self) -> float:
         return self.log.wall_time_offset + time.perf_counter() - self.started
@@ -643,7 +669,8 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         if steps <= starts:  # SAC.learn updates only after env step learning_starts
             print(
                 f"dlo-train: warning: train.total_steps {steps} <= sac.learning_starts {starts}: no gradient "
-                f"update will happen (random actions only); pass e.g. sac.learning_starts={steps // 3} "
+                f"update will happen ({'the started policy' if config.train.init_from else 'random'} actions only); "
+                f"pass e.g. sac.learning_starts={steps // 3} "
                 f"or --steps above {starts}",
                 file=sys.stderr,
             )
