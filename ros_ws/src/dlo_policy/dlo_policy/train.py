@@ -28,7 +28,8 @@ tested input set of one evaluation sees the same episodes). Each evaluation appe
 
 After the last step, the best evaluation's policy (best_policy.pt: highest hold-the-end
 fraction under the run's own task rules' outcome rule -- `hold_the_end_authors` for `authors_code`,
-`hold_the_end` for `paper_text` -- then reward; best.json names it in "selected_by") is tested once
+`hold_the_end` for `paper_text` -- then reward; best.json names it in "selected_by"; a run started from another's
+checkpoint chooses among its evaluations after step 0) is tested once
 on `train.test_episodes` held-out episodes, seeds `train.test_seed + i` (below every evaluation seed:
 never seen during training or selection): test.json (dlo-evaluate's JSON; also test_without_X.json
 for each of `train.eval_without`).
@@ -362,10 +363,17 @@ class Trainer:
 
     def keep_if_best(self, row: dict[str, Any]) -> None:
         """Save the policy as best_policy.pt when this evaluation beats every earlier one
-        (higher hold-the-end fraction, then higher episode reward), like SB3's EvalCallback."""
+        (higher hold-the-end fraction, then higher episode reward), like SB3's EvalCallback. A run started from
+        another's checkpoint (train.init_from) chooses among its evaluations after step 0, which evaluates the
+        policy it took: the first of them replaces step 0's whatever its score."""
         key = self.selected_by
         score = (row[key], row["episode_reward"])
-        if self.best is not None and score <= (self.best.get(key, self.best["hold_the_end"]), self.best["episode_reward"]):
+        taken = self.config.train.init_from and self.best is not None and self.best["step"] == 0 < row["step"]
+        if (
+            self.best is not None
+            and not taken
+            and score <= (self.best.get(key, self.best["hold_the_end"]), self.best["episode_reward"])
+        ):
             return
         self.best = {name: row[name] for name in ("step", "hold_the_end", "hold_the_end_authors", "episode_reward")}
         self.best["selected_by"] = key

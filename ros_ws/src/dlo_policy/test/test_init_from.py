@@ -134,3 +134,19 @@ def test_a_file_it_cannot_start_from_is_one_line(parent, tmp_path, capsys, targe
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and err.startswith("dlo-train: error: train.init_from: ") and message in err, err
     assert not (run / rundir.EVAL_FILE).exists() and not (run / rundir.CHECKPOINT_FILE).exists()
+
+
+def test_a_started_run_chooses_its_best_policy_after_step_0(parent, tmp_path):
+    """Step 0 evaluates the policy the run took: a started run's best_policy.pt is chosen among its evaluations
+    after it (the first replaces step 0's, then the usual rule); a new run keeps the usual rule from step 0."""
+    rows = [(0, 1.0), (60, 0.0), (120, 0.5), (180, 0.2)]
+    chosen = {}
+    for name, extra in (("started", [f"train.init_from={parent / rundir.CHECKPOINT_FILE}"]), ("new", [])):
+        args = ["--out", str(tmp_path / name), "--steps", "60", "--no-progress", *TINY, *extra]
+        trainer = train.Trainer(train.resolve_config(train.build_parser().parse_args(args)), tmp_path / name)
+        for step, hold in rows:
+            trainer.keep_if_best({"step": step, "hold_the_end": hold, "hold_the_end_authors": hold, "episode_reward": 0.0})
+        chosen[name] = json.loads((tmp_path / name / rundir.BEST_FILE).read_text())["step"]
+        trainer.env.close()
+        trainer.eval_env.close()
+    assert chosen == {"started": 120, "new": 0}
