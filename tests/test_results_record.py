@@ -43,7 +43,8 @@ def percent_pair(cell: str) -> tuple[float, float]:
 def test_the_record_has_finished_runs_and_only_their_small_files():
     """docs/RESULTS.md (How results are measured): every finished run's small files (config.yaml, eval.csv,
     done.json, best.json, test*.json; training_configs_seed*.json where its best policy was also evaluated on its
-    own training episodes; randomised.csv of a run trained with domain randomisation) are under results/; never
+    own training episodes; randomised.csv of a run trained with domain randomisation; init_from.json of a run
+    started from another's checkpoint) are under results/; never
     checkpoints, policies or bags."""
     runs = finished_runs()
     assert len(runs) >= 40
@@ -51,7 +52,8 @@ def test_the_record_has_finished_runs_and_only_their_small_files():
         names = {p.name for p in run.iterdir()}
         assert RECORD_FILES <= names and "test.json" in names, run
         assert all(
-            n in RECORD_FILES or re.fullmatch(r"test(_without_[KTV])?\.json|training_configs_seed\d+\.json|randomised\.csv", n)
+            n in RECORD_FILES
+            or re.fullmatch(r"test(_without_[KTV])?\.json|training_configs_seed\d+\.json|randomised\.csv|init_from\.json", n)
             for n in names
         ), (run, names)
     assert not [p for p in RESULTS.rglob("*") if p.suffix in (".pt", ".mcap", ".db3")]
