@@ -530,13 +530,11 @@ class SAC:
             raise ValueError(f"{path}: its agent acts in another action box than this run's")
         hidden = tuple(state["config"].get("hidden_sizes", ()))
         if hidden != tuple(self.config.hidden_sizes):
-            raise ValueError(
-                f"{path}: its networks have hidden sizes {list(hidden)}, this run's sac.hidden_sizes {list(self.config.hidden_sizes)}"
-            )
+            mine = list(self.config.hidden_sizes)
+            raise ValueError(f"{path}: its networks have hidden sizes {list(hidden)}, this run's sac.hidden_sizes {mine}")
         if (state.get("normalizer") is None) != (self.normalizer is None):
-            raise ValueError(
-                f"{path}: its observation scaling is {state['config'].get('observation_scaling')}, this run's {self.config.observation_scaling}"
-            )
+            theirs_scaling, mine_scaling = state["config"].get("observation_scaling"), self.config.observation_scaling
+            raise ValueError(f"{path}: its observation scaling is {theirs_scaling}, this run's {mine_scaling}")
         self.actor.load_state_dict(state["actor"])
         self.critic.load_state_dict(state["critic"])
         self.critic_target.load_state_dict(state["critic_target"])

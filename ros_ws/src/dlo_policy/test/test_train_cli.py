@@ -149,6 +149,7 @@ def test_keep_if_best_keeps_the_first_of_the_highest_hold_the_end_then_reward(se
         written=[],
         selected_by=selected_by,
         agent=types.SimpleNamespace(policy_state=lambda: next(states)),
+        config=types.SimpleNamespace(train=types.SimpleNamespace(init_from="")),  # a new agent (not fine-tuning)
     )
     trainer.write_best = lambda: trainer.written.append((trainer.best["step"], trainer.best_policy_state))
     other = "hold_the_end" if selected_by == "hold_the_end_authors" else "hold_the_end_authors"
