@@ -535,28 +535,23 @@ class SAC:
         if (state.get("normalizer") is None) != (self.normalizer is None):
             theirs_scaling, mine_scaling = state["config"].get("observation_scaling"), self.config.observation_scaling
             raise ValueError(f"{path}: its observation scaling is {theirs_scaling}, this run's {mine_scaling}")
-        self.actor.load_state_dict(state["actor"])
-        self.critic.load_state_dict(state["critic"])
-        self.critic_target.load_state_dict(state["critic_target"])
-        with torch.no_grad():
-            self.log_alpha.copy_(state["log_alpha"])
-        for optimizer, key, lr in (
-            (self.actor_optimizer, "actor_optimizer", self.config.actor_lr),
-            (self.critic_optimizer, "critic_optimizer", self.config.critic_lr),
-            (self.alpha_optimizer, "alpha_optimizer", self.config.alpha_lr),
+        self._load_learner(state)
+        for optimizer, lr in (
+            (self.actor_optimizer, self.config.actor_lr),
+            (self.critic_optimizer, self.config.critic_lr),
+            (self.alpha_optimizer, self.config.alpha_lr),
         ):
-            optimizer.load_state_dict(state[key])
             for group in optimizer.param_groups:
                 group["lr"] = lr
         self.alpha_optimizer.param_groups[0]["betas"] = tuple(self.config.alpha_betas)
-        if self.normalizer is not None:
-            self.normalizer.load_state_dict(state["normalizer"])
         self.uniform_warmup = False
         if theirs and self.modalities is None:
             self.modalities = theirs
         return {"env_steps": int(state["counters"]["env_steps"]), "seed": int(state["seed"]), "modalities": theirs}
 
-    def load_state_dict(self, state: dict[str, Any]) -> None:
+    def _load_learner(self, state: dict[str, Any]) -> None:
+        """The actor, temperature and observation scaling of a saved state, and (a full checkpoint) the critics,
+        target critics and optimiser states: what `load_state_dict` and `initialise_from` both take."""
         self.actor.load_state_dict(state["actor"])
         with torch.no_grad():
             self.log_alpha.copy_(state["log_alpha"])
@@ -568,6 +563,9 @@ class SAC:
             self.alpha_optimizer.load_state_dict(state["alpha_optimizer"])
         if self.normalizer is not None:
             self.normalizer.load_state_dict(state["normalizer"])
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        self._load_learner(state)
         counters = state["counters"]
         self.num_env_steps, self.num_updates = counters["env_steps"], counters["updates"]
         self.num_episodes = counters["episodes"]
